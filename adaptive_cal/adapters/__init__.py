@@ -1,0 +1,1 @@
+"""Hardware adapters: protocols, the probe cycle, and one module per device family."""

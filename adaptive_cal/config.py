@@ -1,0 +1,290 @@
+"""The cell file (cell.yaml): schema, validation with messages that name the key, loading.
+
+Everything is in mm, seconds and degrees, in the workplane frame. Unknown keys are refused.
+See docs/config.md for the reference; ``configs/sim-cell.yaml`` is the built-in simulated cell.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from . import physics
+from .adapters.schema import (HsesConfig, ManualConfig, ModbusConfig, RobodkConfig, SerialConfig,
+                              Strict)
+
+Interval = tuple[float, float]
+
+
+class ConfigError(ValueError):
+    """A cell or study file that cannot be used; the message names the key and the value."""
+
+
+def _interval(v: Interval, what: str) -> Interval:
+    lo, hi = v
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        raise ValueError(f"{what} must be [low, high] with low < high, got [{lo}, {hi}]")
+    return v
+
+
+class Rect(Strict):
+    """An axis-aligned rectangle in the workplane (mm)."""
+
+    x_mm: Interval
+    y_mm: Interval
+
+    @field_validator("x_mm", "y_mm")
+    @classmethod
+    def _ordered(cls, v, info):
+        return _interval(v, info.field_name)
+
+    def contains(self, x: float, y: float) -> bool:
+        return self.x_mm[0] <= x <= self.x_mm[1] and self.y_mm[0] <= y <= self.y_mm[1]
+
+
+class Workplane(Strict):
+    """The plate to map: its extent, an edge margin no touch goes inside, and keep-outs."""
+
+    x_mm: Interval
+    y_mm: Interval
+    edge_margin_mm: float = Field(5.0, ge=0)
+    keep_outs: list[Rect] = []
+
+    @field_validator("x_mm", "y_mm")
+    @classmethod
+    def _ordered(cls, v, info):
+        return _interval(v, info.field_name)
+
+    @model_validator(mode="after")
+    def _usable(self):
+        m = self.edge_margin_mm
+        if 2 * m >= self.x_mm[1] - self.x_mm[0] or 2 * m >= self.y_mm[1] - self.y_mm[0]:
+            raise ValueError(f"edge_margin_mm={m} leaves no plate to touch inside "
+                             f"x_mm={list(self.x_mm)}, y_mm={list(self.y_mm)}")
+        inner = Rect(x_mm=(self.x_mm[0] + m, self.x_mm[1] - m),
+                     y_mm=(self.y_mm[0] + m, self.y_mm[1] - m))
+        for i, k in enumerate(self.keep_outs):
+            if (k.x_mm[0] <= inner.x_mm[0] and k.x_mm[1] >= inner.x_mm[1]
+                    and k.y_mm[0] <= inner.y_mm[0] and k.y_mm[1] >= inner.y_mm[1]):
+                raise ValueError(f"keep_outs[{i}] x_mm={list(k.x_mm)} y_mm={list(k.y_mm)} covers "
+                                 "the whole plate: nothing is left to touch")
+        return self
+
+    @property
+    def area_mm2(self) -> float:
+        return (self.x_mm[1] - self.x_mm[0]) * (self.y_mm[1] - self.y_mm[0])
+
+    def allows(self, x: float, y: float) -> bool:
+        """True if (x, y) lies inside the margin and outside every keep-out."""
+        m = self.edge_margin_mm
+        inside = (self.x_mm[0] + m <= x <= self.x_mm[1] - m
+                  and self.y_mm[0] + m <= y <= self.y_mm[1] - m)
+        return inside and not any(k.contains(x, y) for k in self.keep_outs)
+
+
+class Workspace(Strict):
+    """The box the probe tip may be sent to (workplane frame, mm). Nothing outside is sent."""
+
+    x_mm: Interval
+    y_mm: Interval
+    z_mm: Interval
+
+    @field_validator("x_mm", "y_mm", "z_mm")
+    @classmethod
+    def _ordered(cls, v, info):
+        return _interval(v, info.field_name)
+
+    def contains(self, x: float, y: float, z: float) -> bool:
+        return (self.x_mm[0] <= x <= self.x_mm[1] and self.y_mm[0] <= y <= self.y_mm[1]
+                and self.z_mm[0] <= z <= self.z_mm[1])
+
+
+class Robot(Strict):
+    """Motion: which adapter moves the probe, where the robot stands, how fast it travels."""
+
+    adapter: Literal["sim", "manual", "hses", "modbus", "robodk"] = "sim"
+    base_xy_mm: tuple[float, float] | None = None
+    speed_mm_per_s: float = Field(100.0, gt=0)
+    safe_height_mm: float = Field(15.0, description="travel height (workplane z) between touches")
+    touch_time_s: float = Field(3.0, ge=0, description="approach, settle, read and retract")
+    manual: ManualConfig | None = None
+    hses: HsesConfig | None = None
+    modbus: ModbusConfig | None = None
+    robodk: RobodkConfig | None = None
+
+    @model_validator(mode="after")
+    def _block(self):
+        if self.adapter in ("hses", "modbus", "robodk") and getattr(self, self.adapter) is None:
+            raise ValueError(f"adapter '{self.adapter}' needs a robot.{self.adapter} block "
+                             "(host, port, ...)")
+        return self
+
+
+class Probe(Strict):
+    """The contact probe: stroke, the usable part of it, its zero, noise and the probe cycle."""
+
+    adapter: Literal["sim", "manual", "serial", "modbus"] = "sim"
+    stroke_mm: float = Field(10.0, gt=0)
+    usable_mm: Interval = (0.5, 9.5)
+    zero_mm: float = Field(5.0, description="indication with the tip at the commanded height")
+    resolution_mm: float = Field(1e-4, gt=0)
+    noise_std_mm: float = Field(0.005, gt=0, description="first guess of the reading noise")
+    samples: int = Field(1, ge=1)
+    samples_tolerance_mm: float = Field(0.005, gt=0)
+    retries: int = Field(2, ge=0)
+    settle_s: float = Field(0.2, ge=0)
+    serial: SerialConfig | None = None
+    modbus: ModbusConfig | None = None
+
+    @model_validator(mode="after")
+    def _stroke(self):
+        lo, hi = _interval(self.usable_mm, "usable_mm")
+        if lo < 0 or hi > self.stroke_mm:
+            raise ValueError(f"usable_mm={[lo, hi]} must lie inside the stroke [0, {self.stroke_mm}]")
+        if self.adapter in ("serial", "modbus") and getattr(self, self.adapter) is None:
+            raise ValueError(f"adapter '{self.adapter}' needs a probe.{self.adapter} block")
+        return self
+
+
+class Model(Strict):
+    """The stochastic spline and its prior."""
+
+    knots_x: int | list[float] | None = Field(None, description="count or positions (mm); "
+                                               "default from Brunn eq. 15")
+    knots_y: int | list[float] | None = None
+    ends: Literal["not_a_knot", "natural"] = "not_a_knot"
+    tilt_std_deg: float = Field(1.0, gt=0, le=30)
+    offset_std_mm: float = Field(0.5, gt=0)
+    form_std_mm: float = Field(0.05, gt=0)
+    length_scale_mm: float | None = Field(None, gt=0)
+    form_tolerance_mm: float = Field(0.1, gt=0, description="S_u - S_l of Brunn eq. 15")
+    max_curvature_per_mm: float = Field(5e-5, gt=0, description="k_max of Brunn eq. 15")
+    learn_hyper: bool = True
+    gate_sigma: float = Field(4.0, gt=0)
+
+    @field_validator("knots_x", "knots_y")
+    @classmethod
+    def _knots(cls, v, info):
+        if isinstance(v, int) and v < 2:
+            raise ValueError(f"{info.field_name} needs at least 2 knots, got {v}")
+        if isinstance(v, list) and (len(v) < 2 or any(b <= a for a, b in zip(v, v[1:]))):
+            raise ValueError(f"{info.field_name} must be at least 2 increasing positions, got {v}")
+        return v
+
+
+class Stop(Strict):
+    """When to stop: any bound met, or the touch budget spent."""
+
+    mean_std_mm: float | None = Field(0.01, gt=0, description="RMS posterior std over the plate")
+    max_std_mm: float | None = Field(None, gt=0, description="largest posterior std on the plate")
+    max_touches: int = Field(200, ge=1)
+
+
+class Plan(Strict):
+    """The planner: candidates, refinement, batches, hyper-parameter learning."""
+
+    stop: Stop = Stop()
+    candidates: int = Field(10000, ge=16)
+    refine: int = Field(4, ge=0, description="best candidates refined by gradient steps")
+    batch: int = Field(1, ge=1, description="touches planned ahead and ordered for travel")
+    hyper_every: int = Field(4, ge=1, description="refit hyper-parameters every N readings")
+    hyper_after: int = Field(8, ge=3, description="first refit after N readings")
+    drift_std_mm: float = Field(0.01, ge=0, description="widening for --prior-from")
+
+
+class Simulation(Strict):
+    """The simulated cell's truth: effects from the effect table and the noise it adds."""
+
+    seed: int = 0
+    effects: dict[str, dict[str, float]] = {}
+    unknown: list[str] = ["tilt"]
+    noise_std_mm: float = Field(0.002, ge=0, description="probe noise")
+    repeatability_mm: float = Field(0.005, ge=0, description="robot z repeatability (1 sigma)")
+    xy_repeatability_mm: float = Field(0.01, ge=0)
+
+    @field_validator("effects")
+    @classmethod
+    def _effects(cls, v):
+        for name, params in v.items():
+            try:
+                physics.complete_params(name, params or {})
+            except KeyError as e:
+                raise ValueError(e.args[0]) from None
+        return v
+
+    @field_validator("unknown")
+    @classmethod
+    def _unknown(cls, v):
+        bad = [n for n in v if n.split(".")[0] not in physics.EFFECT_NAMES]
+        if bad:
+            raise ValueError(f"unknown effect(s) {bad}; known: {', '.join(physics.EFFECT_NAMES)}")
+        return v
+
+
+class Cell(Strict):
+    """A whole cell file."""
+
+    name: str = "cell"
+    workplane: Workplane
+    workspace: Workspace | None = None
+    robot: Robot = Robot()
+    probe: Probe = Probe()
+    model: Model = Model()
+    plan: Plan = Plan()
+    simulation: Simulation | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        if self.robot.adapter == "sim" and self.simulation is None:
+            object.__setattr__(self, "simulation", Simulation())
+        st = self.plan.stop
+        if st.mean_std_mm is None and st.max_std_mm is None and st.max_touches is None:
+            raise ValueError("plan.stop needs mean_std_mm, max_std_mm or max_touches")
+        return self
+
+    @property
+    def geometry(self) -> physics.Geometry:
+        return physics.Geometry(self.workplane.x_mm, self.workplane.y_mm, self.robot.base_xy_mm)
+
+
+def _format(err: ValidationError, source: str) -> str:
+    lines = [f"{source}: {err.error_count()} problem(s):"]
+    for e in err.errors():
+        key = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            msg = "unknown key (check the spelling; unknown keys are refused)"
+        lines.append(f"  {key}: {msg} (got {e.get('input')!r})" if e["type"] != "missing"
+                     else f"  {key}: missing")
+    return "\n".join(lines)
+
+
+def parse_cell(data: dict, source: str = "cell") -> Cell:
+    """Validate a cell given as a dict; raise ConfigError naming each bad key and value."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected a mapping of keys, got {type(data).__name__}")
+    try:
+        return Cell.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(_format(e, source)) from None
+
+
+def load_yaml(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: not valid YAML: {e}") from None
+    return data if data is not None else {}
+
+
+def load_cell(path: str | Path) -> Cell:
+    """Read and validate a cell file."""
+    return parse_cell(load_yaml(path), str(path))

@@ -1,0 +1,156 @@
+"""The effect library: forward models of the physics a probe reading sees.
+
+Names and parameters are a stable interface (DESIGN.md, "Names of physics effects"); the same
+forward code drives the simulator and is the regressor that ``explain`` fits. Each effect maps
+per-touch features to a change of the reading in mm (larger reading = surface higher):
+
+======================  =====================================================================
+tilt                    a x + b y + c  (a, b in mm/mm, c in mm)
+form                    pv_mm x normalised shape (bow_x u^2, bow_y v^2, twist u v, warp u^2 v^2),
+                        centred on the plate, peak-to-valley pv_mm over the workplane
+thermal_drift           rate_mm_per_s t
+reversal                span_mm / 2 x direction of arrival along x (+1 / -1)
+arm_sag                 sag_mm_at_1m (r / 1 m)^p, r = horizontal distance from the robot base
+probe_gain              gain x true displacement (reading = (1 + gain) displacement)
+local_defect            height_mm cosine bell of radius_mm at (x_mm, y_mm)
+======================  =====================================================================
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Mapping
+
+import numpy as np
+
+EFFECT_NAMES = ("tilt", "form", "thermal_drift", "reversal", "arm_sag", "probe_gain",
+                "local_defect")
+PARAMS: dict[str, tuple[str, ...]] = {
+    "tilt": ("a", "b", "c"),
+    "form": ("pv_mm", "bow_x", "bow_y", "twist", "warp"),
+    "thermal_drift": ("rate_mm_per_s",),
+    "reversal": ("span_mm",),
+    "arm_sag": ("sag_mm_at_1m", "p"),
+    "probe_gain": ("gain",),
+    "local_defect": ("x_mm", "y_mm", "height_mm", "radius_mm"),
+}
+DEFAULTS: dict[str, dict[str, float]] = {
+    "tilt": {"a": 0.0, "b": 0.0, "c": 0.0},
+    "form": {"pv_mm": 0.0, "bow_x": 0.0, "bow_y": 1.0, "twist": 0.0, "warp": 0.0},
+    "thermal_drift": {"rate_mm_per_s": 0.0},
+    "reversal": {"span_mm": 0.0},
+    "arm_sag": {"sag_mm_at_1m": 0.0, "p": 2.0},
+    "probe_gain": {"gain": 0.0},
+    "local_defect": {"x_mm": 0.0, "y_mm": 0.0, "height_mm": 0.0, "radius_mm": 5.0},
+}
+SURFACE_EFFECTS = frozenset({"tilt", "form", "local_defect"})  # part of the plate itself
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """What the effects need to know about the cell (mm, workplane frame)."""
+
+    x_range_mm: tuple[float, float]
+    y_range_mm: tuple[float, float]
+    base_xy_mm: tuple[float, float] | None = None  # robot base; needed by arm_sag
+
+
+@dataclass(frozen=True)
+class Features:
+    """Per-touch inputs of the forward models; arrays of one length, NaN where unknown."""
+
+    x_mm: np.ndarray
+    y_mm: np.ndarray
+    t_s: np.ndarray
+    direction: np.ndarray  # +1 arriving moving +x, -1 moving -x, 0 unknown
+    displacement_mm: np.ndarray  # the ideal indication (surface - z + probe zero)
+
+    def reach_mm(self, geometry: Geometry) -> np.ndarray:
+        if geometry.base_xy_mm is None:
+            raise ValueError("arm_sag needs robot.base_xy_mm (the robot base position in the "
+                             "workplane frame) in the cell file")
+        bx, by = geometry.base_xy_mm
+        return np.hypot(self.x_mm - bx, self.y_mm - by)
+
+
+def form_basis(x_mm, y_mm, geometry: Geometry) -> np.ndarray:
+    """Shape functions (bow_x, bow_y, twist, warp) in normalised coordinates u, v in [-1, 1]."""
+    (x0, x1), (y0, y1) = geometry.x_range_mm, geometry.y_range_mm
+    u = (np.asarray(x_mm, float) - 0.5 * (x0 + x1)) / (0.5 * (x1 - x0))
+    v = (np.asarray(y_mm, float) - 0.5 * (y0 + y1)) / (0.5 * (y1 - y0))
+    return np.stack([u * u, v * v, u * v, u * u * v * v], axis=-1)
+
+
+def form_height(x_mm, y_mm, params: Mapping[str, float], geometry: Geometry) -> np.ndarray:
+    """Form height in mm: weighted shape, centred (zero mean over the plate), scaled to pv_mm."""
+    w = np.array([params.get(k, DEFAULTS["form"][k]) for k in ("bow_x", "bow_y", "twist", "warp")])
+    pv = float(params.get("pv_mm", 0.0))
+    if pv == 0.0 or not np.any(w):
+        return np.zeros(np.broadcast(np.asarray(x_mm), np.asarray(y_mm)).shape)
+    g = np.linspace(0.0, 1.0, 101)
+    (x0, x1), (y0, y1) = geometry.x_range_mm, geometry.y_range_mm
+    gx, gy = np.meshgrid(x0 + g * (x1 - x0), y0 + g * (y1 - y0), indexing="ij")
+    ref = form_basis(gx, gy, geometry) @ w
+    scale = pv / (ref.max() - ref.min())
+    return (form_basis(x_mm, y_mm, geometry) @ w - ref.mean()) * scale
+
+
+def _tilt(f, p, g):
+    return p["a"] * f.x_mm + p["b"] * f.y_mm + p["c"]
+
+
+def _form(f, p, g):
+    return form_height(f.x_mm, f.y_mm, p, g)
+
+
+def _drift(f, p, g):
+    return p["rate_mm_per_s"] * np.nan_to_num(f.t_s, nan=0.0)
+
+
+def _reversal(f, p, g):
+    return 0.5 * p["span_mm"] * f.direction
+
+
+def _sag(f, p, g):
+    return p["sag_mm_at_1m"] * (f.reach_mm(g) / 1000.0) ** p["p"]
+
+
+def _gain(f, p, g):
+    return p["gain"] * f.displacement_mm
+
+
+def _defect(f, p, g):
+    d = np.hypot(f.x_mm - p["x_mm"], f.y_mm - p["y_mm"]) / p["radius_mm"]
+    return p["height_mm"] * np.where(d < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(d, 1.0))), 0.0)
+
+
+FORWARD: dict[str, Callable[[Features, Mapping[str, float], Geometry], np.ndarray]] = {
+    "tilt": _tilt, "form": _form, "thermal_drift": _drift, "reversal": _reversal,
+    "arm_sag": _sag, "probe_gain": _gain, "local_defect": _defect,
+}
+
+
+def complete_params(name: str, params: Mapping[str, float]) -> dict[str, float]:
+    """Defaults filled in; unknown effect or parameter names raise with the name."""
+    if name not in FORWARD:
+        raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
+    unknown = set(params) - set(PARAMS[name])
+    if unknown:
+        raise KeyError(f"effect {name!r} has no parameter(s) {sorted(unknown)}; "
+                       f"it takes {', '.join(PARAMS[name])}")
+    return {**DEFAULTS[name], **{k: float(v) for k, v in params.items()}}
+
+
+def reading_change(name: str, params: Mapping[str, float], features: Features,
+                   geometry: Geometry) -> np.ndarray:
+    """Change of the reading in mm caused by one effect at each touch."""
+    return np.asarray(FORWARD[name](features, complete_params(name, params), geometry), float)
+
+
+def total_change(effects: Mapping[str, Mapping[str, float]], features: Features,
+                 geometry: Geometry, *, only: frozenset[str] | None = None) -> np.ndarray:
+    """Sum of the reading changes of several effects (``only`` restricts to a subset)."""
+    out = np.zeros(np.shape(features.x_mm))
+    for name, params in effects.items():
+        if only is None or name in only:
+            out = out + reading_change(name, params, features, geometry)
+    return out

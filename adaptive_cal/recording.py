@@ -1,0 +1,231 @@
+"""Recording format v1: append-only writer, validating reader.
+
+UTF-8 CSV. Lines starting with ``#`` are metadata; the first is ``# adaptive-cal recording v1``.
+Then one header line and one row per probe touch, in touch order::
+
+    seq,t_s,x_mm,y_mm,z_mm,reading_mm[,optional columns...]
+
+Nominal relation: reading = surface(x, y) - z_mm + probe zero + noise. Optional columns
+(``temp_c``, ``j1_deg``..``j6_deg``, ``round``, ``flags``) may follow; readers ignore columns they
+do not know. The writer flushes and fsyncs each row as it is taken, so a crash loses nothing.
+
+Flags (``;``-separated in the ``flags`` column) say what the loop did with a reading:
+``outlier`` (failed the gate, then a retake agreed with the belief: not fused), ``retake``,
+``surprise`` (failed the gate twice, the two readings agreed: fused), ``rejected`` (not fused).
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import numpy as np
+
+MAGIC = "# adaptive-cal recording v1"
+REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
+NOT_FUSED = frozenset({"outlier", "rejected"})
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be read: the message names the file, line and column."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A recording as arrays (one entry per touch, in touch order).
+
+    ``extra`` holds the optional numeric columns by name, ``flags`` a tuple of flag sets and
+    ``meta`` the ``# key: value`` metadata lines.
+    """
+
+    seq: np.ndarray
+    t_s: np.ndarray  # NaN where unknown
+    x_mm: np.ndarray
+    y_mm: np.ndarray
+    z_mm: np.ndarray
+    reading_mm: np.ndarray
+    flags: tuple[frozenset[str], ...] = ()
+    extra: Mapping[str, np.ndarray] = field(default_factory=dict)
+    meta: Mapping[str, str] = field(default_factory=dict)
+    path: str | None = None
+
+    def __len__(self) -> int:
+        return int(self.seq.shape[0])
+
+    @property
+    def fused(self) -> np.ndarray:
+        """Boolean mask of the rows the belief fuses (not flagged outlier/rejected)."""
+        if not self.flags:
+            return np.ones(len(self), bool)
+        return np.array([not (f & NOT_FUSED) for f in self.flags], bool)
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Direction of arrival along x: +1 moving +x into the point, -1 moving -x, 0 unknown.
+
+        Follows from the order of the rows (DESIGN.md); the first touch and repeats in place
+        take the direction of the previous move, 0 if there is none.
+        """
+        d = np.zeros(len(self))
+        dx = np.diff(self.x_mm)
+        last = 0.0
+        for i, step in enumerate(dx, start=1):
+            if step > 1e-9:
+                last = 1.0
+            elif step < -1e-9:
+                last = -1.0
+            d[i] = last
+        return d
+
+    def select(self, mask: np.ndarray) -> "Recording":
+        """Rows where ``mask`` holds (metadata kept)."""
+        mask = np.asarray(mask, bool)
+        flags = tuple(f for f, m in zip(self.flags, mask) if m) if self.flags else ()
+        return Recording(self.seq[mask], self.t_s[mask], self.x_mm[mask], self.y_mm[mask],
+                         self.z_mm[mask], self.reading_mm[mask], flags,
+                         {k: v[mask] for k, v in self.extra.items()}, self.meta, self.path)
+
+
+def _number(text: str, *, where: str, blank_ok: bool = False) -> float:
+    text = text.strip()
+    if text == "":
+        if blank_ok:
+            return math.nan
+        raise RecordingError(f"{where}: empty value")
+    try:
+        value = float(text)
+    except ValueError:
+        raise RecordingError(f"{where}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise RecordingError(f"{where}: {text!r} is not a finite number")
+    return value
+
+
+def read_recording(path: str | os.PathLike) -> Recording:
+    """Read and validate a v1 recording; errors name the line number and the column."""
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such file") from None
+    except UnicodeDecodeError as e:
+        raise RecordingError(f"{path}: not UTF-8 text ({e})") from None
+    if not lines or lines[0].strip() != MAGIC:
+        raise RecordingError(f"{path}:1: first line must be {MAGIC!r}")
+    meta: dict[str, str] = {}
+    header: list[str] | None = None
+    rows: list[tuple[int, list[str]]] = []
+    for lineno, line in enumerate(lines, start=1):
+        if line.startswith("#"):
+            key, sep, value = line[1:].partition(":")
+            if sep and lineno > 1:
+                meta[key.strip()] = value.strip()
+            continue
+        if not line.strip():
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        if header is None:
+            header = cells
+            missing = [c for c in REQUIRED if c not in header]
+            if missing:
+                raise RecordingError(f"{path}:{lineno}: header lacks column(s) {', '.join(missing)}")
+            continue
+        if len(cells) != len(header):
+            raise RecordingError(
+                f"{path}:{lineno}: {len(cells)} fields, the header has {len(header)}")
+        rows.append((lineno, cells))
+    if header is None:
+        raise RecordingError(f"{path}: no header line")
+    col = {name: i for i, name in enumerate(header)}
+    numeric_extra = [c for c in header if c not in REQUIRED and c != "flags"]
+    data = {c: [] for c in REQUIRED}
+    extra: dict[str, list[float]] = {c: [] for c in numeric_extra}
+    flags: list[frozenset[str]] = []
+    prev_seq = -math.inf
+    for lineno, cells in rows:
+        for c in REQUIRED:
+            where = f"{path}:{lineno}: column {c}"
+            data[c].append(_number(cells[col[c]], where=where, blank_ok=(c == "t_s")))
+        seq = data["seq"][-1]
+        if seq != int(seq) or seq < 0:
+            raise RecordingError(f"{path}:{lineno}: column seq: {cells[col['seq']]!r} is not a "
+                                 "non-negative integer")
+        if seq <= prev_seq:
+            raise RecordingError(f"{path}:{lineno}: column seq: {int(seq)} does not increase "
+                                 f"(previous {int(prev_seq)})")
+        prev_seq = seq
+        for c in numeric_extra:
+            try:
+                extra[c].append(_number(cells[col[c]], where="", blank_ok=True))
+            except RecordingError:
+                extra[c].append(math.nan)  # unknown optional text columns are ignored
+        if "flags" in col:
+            flags.append(frozenset(f for f in cells[col["flags"]].split(";") if f))
+    arrays = {c: np.asarray(v, float) for c, v in data.items()}
+    return Recording(arrays["seq"].astype(int), arrays["t_s"], arrays["x_mm"], arrays["y_mm"],
+                     arrays["z_mm"], arrays["reading_mm"], tuple(flags),
+                     {c: np.asarray(v, float) for c, v in extra.items()}, meta, str(path))
+
+
+class RecordingWriter:
+    """Append-only v1 writer: every row is flushed and fsynced as it is written.
+
+    Opening an existing recording appends to it (``--resume``); its header must match.
+    """
+
+    COLUMNS = REQUIRED + ("flags",)
+
+    def __init__(self, path: str | os.PathLike, meta: Mapping[str, str] | None = None,
+                 extra_columns: Iterable[str] = ()):
+        self.path = Path(path)
+        self.columns = self.COLUMNS + tuple(extra_columns)
+        exists = self.path.exists() and self.path.stat().st_size > 0
+        if exists:
+            header = next(l for l in self.path.read_text(encoding="utf-8").splitlines()
+                          if l and not l.startswith("#"))
+            if tuple(h.strip() for h in header.split(",")) != self.columns:
+                raise RecordingError(f"{self.path}: cannot append, its header {header!r} differs "
+                                     f"from {','.join(self.columns)!r}")
+            text = self.path.read_text(encoding="utf-8")
+            self._file = open(self.path, "a", encoding="utf-8", newline="")
+            if not text.endswith("\n"):  # a row cut by a crash mid-write: close the line
+                self._file.write("\n")
+        else:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "w", encoding="utf-8", newline="")
+            self._file.write(MAGIC + "\n")
+            for k, v in (meta or {}).items():
+                self._file.write(f"# {k}: {v}\n")
+            self._file.write(",".join(self.columns) + "\n")
+            self._sync()
+
+    def _sync(self) -> None:
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def append(self, *, seq: int, t_s: float | None, x_mm: float, y_mm: float, z_mm: float,
+               reading_mm: float, flags: Iterable[str] = (), **extra: float) -> None:
+        """Write one touch and flush it to disk before returning."""
+        unknown = set(extra) - set(self.columns)
+        if unknown:
+            raise KeyError(f"recording has no column(s) {sorted(unknown)}")
+        values = {"seq": str(int(seq)),
+                  "t_s": "" if t_s is None or not math.isfinite(t_s) else f"{t_s:.3f}",
+                  "x_mm": f"{x_mm:.4f}", "y_mm": f"{y_mm:.4f}", "z_mm": f"{z_mm:.4f}",
+                  "reading_mm": f"{reading_mm:.6f}", "flags": ";".join(sorted(flags))}
+        for k, v in extra.items():
+            values[k] = "" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.6g}"
+        self._file.write(",".join(values.get(c, "") for c in self.columns) + "\n")
+        self._sync()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
