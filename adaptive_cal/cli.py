@@ -1,0 +1,64 @@
+"""``adaptive-cal``: the command line. Each subcommand lives in its own module that provides
+``add_arguments(parser)`` and ``command(args) -> int``; this file only dispatches.
+
+Errors go to stderr with a non-zero exit and no traceback unless ``--debug``.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# name -> (module, one-line help)
+SUBCOMMANDS = {
+    "run": ("adaptive_cal.cmd_run", "map a workplane: plan touches, drive the cell, stop at the bound"),
+    "flatness": ("adaptive_cal.cmd_flatness", "flatness and tilt correction of a recording"),
+}
+
+
+class UserError(Exception):
+    """An error the user can fix; printed without a traceback."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="adaptive-cal",
+        description="Plans and runs probe measurements on robot cells (mm, s, deg throughout).")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="subcommand", metavar="COMMAND")
+    for name, (module, help_) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_, description=help_,
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        p.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_module", None):
+        parser.print_help()
+        return 2
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from .adapters.base import AdapterError
+    from .config import ConfigError
+    from .recording import RecordingError
+
+    try:
+        return int(importlib.import_module(args._module).command(args) or 0)
+    except (UserError, ConfigError, RecordingError, AdapterError, FileNotFoundError,
+            PermissionError) as e:
+        if args.debug:
+            raise
+        print(f"adaptive-cal {args.subcommand}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"adaptive-cal {args.subcommand}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
