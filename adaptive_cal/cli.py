@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(importlib.import_module(args._module).command(args) or 0)
     except (UserError, ConfigError, RecordingError, AdapterError, FileNotFoundError,
-            PermissionError) as e:
+            FileExistsError, PermissionError, ValueError) as e:
         if args.debug:
             raise
         print(f"adaptive-cal {args.subcommand}: error: {e}", file=sys.stderr)
@@ -58,6 +58,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"adaptive-cal {args.subcommand}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # a bug, not bad input: still no traceback unless --debug
+        if args.debug:
+            raise
+        print(f"adaptive-cal {args.subcommand}: internal error: {type(e).__name__}: {e} "
+              "(run again with --debug for the traceback, and please report it)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

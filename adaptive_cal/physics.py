@@ -154,3 +154,92 @@ def total_change(effects: Mapping[str, Mapping[str, float]], features: Features,
         if only is None or name in only:
             out = out + reading_change(name, params, features, geometry)
     return out
+
+
+# -- regressors and Jacobians (used by ``explain`` and by beliefs that estimate effects) ----------
+# Every effect is linear in some of its parameters once the others are fixed. The regressor R is
+# built by calling the forward model itself at unit values of those parameters, so explain fits
+# exactly the code the simulator runs: reading_change(name, params) = R(fixed) @ theta.
+
+LINEAR_PARAMS: dict[str, tuple[str, ...]] = {
+    "tilt": ("a", "b", "c"),
+    "form": ("bow_x", "bow_y", "twist", "warp"),  # coefficients in mm, see form_params
+    "thermal_drift": ("rate_mm_per_s",),
+    "reversal": ("span_mm",),
+    "arm_sag": ("sag_mm_at_1m",),
+    "probe_gain": ("gain",),
+    "local_defect": ("height_mm",),
+}
+NONLINEAR_PARAMS: dict[str, tuple[str, ...]] = {
+    name: tuple(p for p in PARAMS[name] if p not in LINEAR_PARAMS[name] and p != "pv_mm")
+    for name in EFFECT_NAMES
+}
+
+
+def _form_reference(geometry: Geometry) -> np.ndarray:
+    """The 101 x 101 reference grid of the four form shapes, as ``form_height`` uses it."""
+    g = np.linspace(0.0, 1.0, 101)
+    (x0, x1), (y0, y1) = geometry.x_range_mm, geometry.y_range_mm
+    gx, gy = np.meshgrid(x0 + g * (x1 - x0), y0 + g * (y1 - y0), indexing="ij")
+    return form_basis(gx, gy, geometry).reshape(-1, 4)
+
+
+def form_params(coefficients, geometry: Geometry) -> dict[str, float]:
+    """Form parameters whose ``form_height`` equals ``effect_regressor('form') @ coefficients``.
+
+    The coefficients (mm) become the shape weights and pv_mm = max - min of the weighted shape
+    over the workplane, so the forward model's rescaling is the identity.
+    """
+    c = np.asarray(coefficients, float)
+    ref = _form_reference(geometry) @ c
+    out = {"pv_mm": float(ref.max() - ref.min())}
+    out.update({k: float(v) for k, v in zip(LINEAR_PARAMS["form"], c)})
+    return out
+
+
+def form_pv_gradient(coefficients, geometry: Geometry) -> np.ndarray:
+    """d pv_mm / d coefficients (for the delta-method standard deviation of pv_mm)."""
+    ref = _form_reference(geometry)
+    h = ref @ np.asarray(coefficients, float)
+    return ref[int(np.argmax(h))] - ref[int(np.argmin(h))]
+
+
+def effect_regressor(name: str, features: Features, geometry: Geometry,
+                     fixed: Mapping[str, float] | None = None) -> np.ndarray:
+    """Regressor R (touches x linear parameters): reading_change = R @ theta.
+
+    theta are ``LINEAR_PARAMS[name]`` (form: the shape coefficients in mm); the nonlinear
+    parameters (arm_sag p, local_defect x_mm, y_mm, radius_mm) are taken from ``fixed`` or the
+    defaults. Columns are the forward model evaluated at unit parameter values.
+    """
+    fixed = dict(fixed or {})
+    names = LINEAR_PARAMS[name]
+    base = {k: v for k, v in complete_params(name, fixed).items() if k not in names}
+    cols = []
+    if name == "form":
+        ref = _form_reference(geometry)
+        for j, k in enumerate(names):
+            w = {n: (1.0 if n == k else 0.0) for n in names}
+            pv = float(ref[:, j].max() - ref[:, j].min())
+            cols.append(reading_change(name, {**w, "pv_mm": pv}, features, geometry))
+    else:
+        for k in names:
+            p = {**base, **{n: (1.0 if n == k else 0.0) for n in names}}
+            cols.append(reading_change(name, p, features, geometry))
+    return np.stack(cols, axis=-1)
+
+
+def effect_jacobian(name: str, params: Mapping[str, float], features: Features,
+                    geometry: Geometry, rel_step: float = 1e-6) -> np.ndarray:
+    """d reading_change / d parameter (touches x PARAMS[name]) by central differences.
+
+    Linearises an effect around ``params`` so its parameters can become states of a belief.
+    """
+    p0 = complete_params(name, params)
+    cols = []
+    for k in PARAMS[name]:
+        h = rel_step * max(1.0, abs(p0[k]))
+        up = reading_change(name, {**p0, k: p0[k] + h}, features, geometry)
+        dn = reading_change(name, {**p0, k: p0[k] - h}, features, geometry)
+        cols.append((up - dn) / (2.0 * h))
+    return np.stack(cols, axis=-1)

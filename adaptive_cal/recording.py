@@ -10,8 +10,10 @@ Nominal relation: reading = surface(x, y) - z_mm + probe zero + noise. Optional 
 do not know. The writer flushes and fsyncs each row as it is taken, so a crash loses nothing.
 
 Flags (``;``-separated in the ``flags`` column) say what the loop did with a reading:
-``outlier`` (failed the gate, then a retake agreed with the belief: not fused), ``retake``,
-``surprise`` (failed the gate twice, the two readings agreed: fused), ``rejected`` (not fused).
+``gated`` (failed the Mahalanobis gate: not fused, the point is taken again once), ``retake``
+(the second reading at that point; fused if it passes the gate), ``surprise`` (a retake that
+failed the gate too but agreed with the first reading: fused -- the surface really is there),
+``rejected`` (not fused: disagreed with both, or outside the usable stroke, or too much spread).
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ import numpy as np
 
 MAGIC = "# adaptive-cal recording v1"
 REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
-NOT_FUSED = frozenset({"outlier", "rejected"})
+NOT_FUSED = frozenset({"gated", "rejected"})
 
 
 class RecordingError(ValueError):
@@ -56,7 +58,7 @@ class Recording:
 
     @property
     def fused(self) -> np.ndarray:
-        """Boolean mask of the rows the belief fuses (not flagged outlier/rejected)."""
+        """Boolean mask of the rows the belief fuses (not flagged gated or rejected)."""
         if not self.flags:
             return np.ones(len(self), bool)
         return np.array([not (f & NOT_FUSED) for f in self.flags], bool)

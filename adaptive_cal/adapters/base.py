@@ -1,16 +1,22 @@
 """Small protocols for motion and probe, and the probe cycle that owns the touch sequence.
 
-The cycle: check the target -> travel at the safe height -> approach -> settle -> read N samples
--> median -> reject when the spread exceeds the tolerance (bounded retries) -> retract.
+The cycle: check every target -> lift to the safe height -> travel -> approach -> settle -> read N
+samples -> median -> reject when the spread exceeds the tolerance (bounded retries) -> retract.
 Readings near the ends of the usable stroke are rejected; raw bytes and timestamps are kept.
+A sample the device could not give (timeout, garbage, stale, out of range) is logged and retried
+within the same bound; it is never fused.
 """
 from __future__ import annotations
 
+import logging
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 
 class AdapterError(RuntimeError):
@@ -21,18 +27,30 @@ class UnsafeTarget(AdapterError):
     """A target outside the workplane, a keep-out or the workspace box; it was not sent."""
 
 
+class BadSample(AdapterError):
+    """One probe sample that cannot be used: timeout, garbage, stale or out of range.
+
+    ``raw`` holds the bytes received (if any) so the log shows what the device sent."""
+
+    def __init__(self, message: str, raw: bytes = b""):
+        super().__init__(message)
+        self.raw = raw
+
+
 class TouchRejected(AdapterError):
     """A touch whose reading cannot be used (stroke end, spread). Carries what was read."""
 
-    def __init__(self, message: str, reading_mm: float = float("nan"), flags: tuple[str, ...] = ()):
+    def __init__(self, message: str, reading_mm: float = float("nan"), flags: tuple[str, ...] = (),
+                 samples: tuple["Sample", ...] = ()):
         super().__init__(message)
         self.reading_mm = reading_mm
         self.flags = flags
+        self.samples = samples
 
 
 @dataclass(frozen=True)
 class Sample:
-    """One raw probe indication."""
+    """One raw probe indication: value, the time it was taken (device clock, s), raw bytes."""
 
     value_mm: float
     t_s: float
@@ -54,7 +72,7 @@ class Touch:
 
 @runtime_checkable
 class Motion(Protocol):
-    """Moves the probe tip to a position in the workplane frame (mm)."""
+    """Moves the probe tip to a position in the workplane frame (mm); returns when it is there."""
 
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None: ...
 
@@ -78,6 +96,7 @@ class ProbeCycle:
 
     ``allowed(x, y, z)`` is the safety check: a target it refuses is never sent.
     ``clock()`` gives the run time in seconds (simulated cells pass their own clock).
+    ``retries`` bounds the extra reading attempts after a spread or bad sample.
     """
 
     motion: Motion
@@ -92,45 +111,82 @@ class ProbeCycle:
     clock: Callable[[], float] = time.monotonic
     sleep: Callable[[float], None] = time.sleep
 
-    def _send(self, x: float, y: float, z: float) -> None:
-        if not self.allowed(x, y, z):
-            raise UnsafeTarget(f"target x={x:.3f} y={y:.3f} z={z:.3f} mm is outside the allowed "
-                               "workplane/workspace; it was not sent")
-        self.motion.move_to(x, y, z)
+    def _check(self, path: list[tuple[float, float, float]]) -> None:
+        for x, y, z in path:
+            if not all(map(math.isfinite, (x, y, z))) or not self.allowed(x, y, z):
+                raise UnsafeTarget(f"target x={x:.3f} y={y:.3f} z={z:.3f} mm is outside the "
+                                   "workplane, a keep-out or the workspace box; nothing was sent")
 
     def touch(self, x_mm: float, y_mm: float, z_mm: float) -> Touch:
         """Touch at (x, y) with the reference height z; returns the median reading."""
         safe = max(self.safe_height_mm, z_mm)
-        for target in ((x_mm, y_mm, safe), (x_mm, y_mm, z_mm)):
-            if not self.allowed(*target):
-                raise UnsafeTarget(f"target x={target[0]:.3f} y={target[1]:.3f} "
-                                   f"z={target[2]:.3f} mm is outside the allowed workplane/"
-                                   "workspace; nothing was sent")
         cx, cy, cz = self.motion.position()
-        if cz < safe - 1e-9:
-            self._send(cx, cy, safe)  # lift before travelling
-        self._send(x_mm, y_mm, safe)
-        self._send(x_mm, y_mm, z_mm)
+        path = [(cx, cy, safe)] if cz < safe - 1e-9 else []  # lift before travelling
+        path += [(x_mm, y_mm, safe), (x_mm, y_mm, z_mm)]
+        self._check(path)  # every target of this touch, before the first is sent
+        approached = False
         try:
-            if self.settle_s:
-                self.sleep(self.settle_s)
-            last_spread = np.nan
-            for _attempt in range(self.retries + 1):
+            for target in path[:-1]:
+                self.motion.move_to(*target)
+            approached = True  # from here on the tip may be down: always retract
+            self.motion.move_to(*path[-1])
+            touch = self._read(x_mm, y_mm, z_mm)
+        except BaseException as err:
+            if approached:
+                try:
+                    self.motion.move_to(x_mm, y_mm, safe)
+                except Exception as lift:  # keep the first error; say the retract failed too
+                    err.add_note(f"the retract to z={safe} mm failed too: {lift}; "
+                                 "jog the probe clear before the next run")
+            raise
+        self.motion.move_to(x_mm, y_mm, safe)  # retract
+        return touch
+
+    def _read(self, x_mm: float, y_mm: float, z_mm: float) -> Touch:
+        if self.settle_s:
+            self.sleep(self.settle_s)
+        kept: list[Sample] = []
+        problems: list[str] = []
+        values = np.array([np.nan])
+        for attempt in range(self.retries + 1):
+            try:
                 got = tuple(self.probe.read() for _ in range(self.samples))
-                values = np.array([s.value_mm for s in got])
-                last_spread = float(values.max() - values.min())
-                if last_spread <= self.samples_tolerance_mm or self.samples == 1:
-                    break
-            else:
-                raise TouchRejected(
-                    f"probe samples spread {last_spread * 1000:.1f} um > tolerance "
-                    f"{self.samples_tolerance_mm * 1000:.1f} um after {self.retries + 1} tries",
-                    float(np.median(values)), ("rejected", "spread"))
-            reading = float(np.median(values))
-            lo, hi = self.usable_mm
-            if not lo <= reading <= hi:
-                raise TouchRejected(f"reading {reading:.4f} mm outside the usable stroke "
-                                    f"[{lo}, {hi}] mm", reading, ("rejected", "stroke_end"))
-            return Touch(x_mm, y_mm, z_mm, reading, got[-1].t_s, got)
-        finally:
-            self.motion.move_to(x_mm, y_mm, safe)  # retract, also after a rejected reading
+            except BadSample as e:
+                log.warning("touch at x=%.3f y=%.3f: bad sample rejected (%s) raw=%r",
+                            x_mm, y_mm, e, e.raw)
+                problems.append(str(e))
+                if attempt == self.retries:
+                    raise BadSample(f"no usable probe sample after {attempt + 1} attempt(s); "
+                                    f"last: {e}. Check the probe cable, port and preset",
+                                    e.raw) from e
+                self.sleep(self.settle_s)
+                continue
+            kept.extend(got)
+            values = np.array([s.value_mm for s in got], float)
+            if not np.all(np.isfinite(values)):
+                problems.append("non-finite sample")
+                continue
+            spread = float(values.max() - values.min())
+            if spread <= self.samples_tolerance_mm or self.samples == 1:
+                break
+            problems.append(f"spread {spread * 1000:.1f} um")
+            log.warning("touch at x=%.3f y=%.3f: samples spread %.1f um > %.1f um (attempt %d)",
+                        x_mm, y_mm, spread * 1000, self.samples_tolerance_mm * 1000, attempt + 1)
+            self.sleep(self.settle_s)
+        else:
+            raise TouchRejected(
+                f"probe samples unusable after {self.retries + 1} attempt(s) "
+                f"({'; '.join(problems)}); tolerance {self.samples_tolerance_mm * 1000:.1f} um",
+                float(np.median(values)), ("rejected", "spread"), tuple(kept))
+        reading = float(np.median(values))
+        t_s = float(self.clock())
+        lo, hi = self.usable_mm
+        if not lo <= reading <= hi:
+            raise TouchRejected(f"reading {reading:.4f} mm outside the usable stroke "
+                                f"[{lo}, {hi}] mm: the approach height is off the plate's "
+                                "height; the touch was not fused", reading,
+                                ("rejected", "stroke_end"), tuple(kept))
+        return Touch(x_mm, y_mm, z_mm, reading, t_s, tuple(kept[-self.samples:]),
+                     {"spread_mm": float(values.max() - values.min()),
+                      "attempts": len(problems) + 1, "problems": problems,
+                      "all_samples": tuple(kept)})

@@ -1,0 +1,136 @@
+"""Yaskawa High Speed Ethernet Server packets (UDP, little-endian), shared by the ``hses``
+adapter and the emulator. Layout from HARDWARE.md (the manual, not yrcom's offsets).
+
+Header (32 bytes): 'YERC', u16 header size 0x20, u16 payload size, u8 3, u8 division (1 robot),
+u8 ack (0 request, 1 answer), u8 request id, u32 block no, 8 bytes '99999999', then the
+sub-header: request u16 command, u16 instance, u8 attribute, u8 service, u16 0; answer u8
+service|0x80, u8 status, u8 added-status size, u8 0, u16 added status, u16 0.
+"""
+from __future__ import annotations
+
+import struct
+from typing import NamedTuple
+
+HEAD = struct.Struct("<4sHHBBBBI8s")  # 24 bytes
+REQ_SUB = struct.Struct("<HHBBH")
+ANS_SUB = struct.Struct("<BBBBHH")
+MAGIC, RESERVED = b"YERC", b"99999999"
+HEADER_SIZE = 0x20
+
+GET_ALL, SET_ALL, GET_ONE, SET_ONE = 0x01, 0x02, 0x0E, 0x10
+CMD_ALARM_RESET, CMD_SERVO, CMD_STATUS, CMD_POSITION, CMD_MOVE = 0x82, 0x83, 0x72, 0x75, 0x8A
+COORD = {"base": 16, "robot": 17, "user": 18, "tool": 19}
+
+# status data 1 / data 2 bits
+RUNNING, TEACH, PLAY, REMOTE = 0x08, 0x20, 0x40, 0x80
+HOLD_MASK, ALARM, ERROR, SERVO = 0x0E, 0x10, 0x20, 0x40
+
+ADDED_STATUS = {
+    0x2010: "the robot is moving: wait for it to stop",
+    0x2020: "hold by the pendant: release the hold on the programming pendant",
+    0x2030: "hold from outside: release the external hold",
+    0x2040: "hold by command: release the hold",
+    0x2050: "hold: release the hold and check the safety circuits",
+    0x2060: "an alarm is active: read it on the pendant, fix the cause and reset it",
+    0x2070: "servo is off: switch servo power on",
+    0x2080: "wrong mode: set the pendant to REMOTE / PLAY",
+    0x2100: "command remote is not set: enable command remote on the controller",
+    0x3010: "servo power is off: switch servo power on (and check the e-stops)",
+    0x3350: "the user frame is not taught: teach it or set robot.hses.user_frame",
+    0xB009: "speed out of range: lower robot.hses.speed_mm_per_s",
+    0xB00B: "coordinate system not accepted: check robot.hses.frame",
+}
+RETRYABLE = {0x2010}  # clears by itself
+
+
+def explain(status: int, added: int) -> str:
+    what = ADDED_STATUS.get(added)
+    if what is None and 0x2020 <= added <= 0x2050:
+        what = ADDED_STATUS[0x2050]
+    code = f"status 0x{status:02X}, added status 0x{added:04X}"
+    return f"{code}: {what}" if what else f"{code} (see the HSES manual's error table)"
+
+
+class Request(NamedTuple):
+    req_id: int
+    command: int
+    instance: int
+    attribute: int
+    service: int
+    payload: bytes
+
+
+class Answer(NamedTuple):
+    req_id: int
+    service: int
+    status: int
+    added: int
+    payload: bytes
+
+
+def encode_request(req_id: int, command: int, instance: int, attribute: int, service: int,
+                   payload: bytes = b"") -> bytes:
+    head = HEAD.pack(MAGIC, HEADER_SIZE, len(payload), 3, 1, 0, req_id & 0xFF, 0, RESERVED)
+    return head + REQ_SUB.pack(command, instance, attribute, service, 0) + payload
+
+
+def encode_answer(req_id: int, service: int, status: int = 0, added: int = 0,
+                  payload: bytes = b"") -> bytes:
+    head = HEAD.pack(MAGIC, HEADER_SIZE, len(payload), 3, 1, 1, req_id & 0xFF, 0x80000000,
+                     RESERVED)
+    size = 2 if added else 0
+    return head + ANS_SUB.pack(service | 0x80, status, size, 0, added, 0) + payload
+
+
+def _head(data: bytes, ack: int) -> tuple:
+    if len(data) < HEADER_SIZE:
+        raise ValueError(f"packet of {len(data)} bytes is shorter than the 32-byte header")
+    magic, hsize, psize, _, _, got_ack, req_id, _, _ = HEAD.unpack_from(data)
+    if magic != MAGIC or hsize != HEADER_SIZE or got_ack != ack:
+        raise ValueError(f"not an HSES {'answer' if ack else 'request'}: {data[:12]!r}")
+    if len(data) != HEADER_SIZE + psize:
+        raise ValueError(f"payload size {psize} does not match {len(data) - HEADER_SIZE} bytes")
+    return req_id, data[HEADER_SIZE:]
+
+
+def decode_request(data: bytes) -> Request:
+    req_id, payload = _head(data, 0)
+    command, instance, attribute, service, _ = REQ_SUB.unpack_from(data, 24)
+    return Request(req_id, command, instance, attribute, service, payload)
+
+
+def decode_answer(data: bytes) -> Answer:
+    req_id, payload = _head(data, 1)
+    service, status, _, _, added, _ = ANS_SUB.unpack_from(data, 24)
+    return Answer(req_id, service & 0x7F, status, added, payload)
+
+
+def move_payload(xyz_mm, rxyz_deg, *, coord: int, speed_mm_per_s: float, tool: int,
+                 user_frame: int) -> bytes:
+    """26 x i32: group, station, speed class 1 (V, 0.1 mm/s), speed, coordinate system,
+    X Y Z (um), Rx Ry Rz (0.0001 deg), 2 reserved, type, expanded type, tool, user frame,
+    3 base-axis and 6 station-axis words."""
+    words = [1, 0, 1, round(speed_mm_per_s * 10), coord,
+             *(round(v * 1000) for v in xyz_mm), *(round(a * 10000) for a in rxyz_deg),
+             0, 0, 0, 0, tool, user_frame] + [0] * 9
+    return struct.pack("<26i", *words)
+
+
+def unpack_move(payload: bytes) -> dict:
+    w = struct.unpack("<26i", payload)
+    return {"speed_mm_per_s": w[3] / 10, "coord": w[4], "xyz_mm": tuple(v / 1000 for v in w[5:8]),
+            "rxyz_deg": tuple(v / 10000 for v in w[8:11]), "tool": w[15], "user_frame": w[16]}
+
+
+def position_payload(xyz_mm, rxyz_deg, coord: int, tool: int = 0, user_frame: int = 0) -> bytes:
+    """13 x i32: data type, form, tool, user frame, expanded form, X Y Z (um), Rx Ry Rz, 2 pad."""
+    return struct.pack("<13i", coord, 0, tool, user_frame, 0,
+                       *(round(v * 1000) for v in xyz_mm),
+                       *(round(a * 10000) for a in rxyz_deg), 0, 0)
+
+
+def unpack_position(payload: bytes) -> tuple[float, float, float]:
+    if len(payload) < 52:
+        raise ValueError(f"position answer of {len(payload)} bytes, expected 52")
+    w = struct.unpack_from("<13i", payload)
+    return w[5] / 1000, w[6] / 1000, w[7] / 1000

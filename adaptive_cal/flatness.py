@@ -1,0 +1,283 @@
+"""Flatness and tilt of a measured workplane: least-squares plane, range, minimum zone.
+
+Heights ``z_mm`` are surface heights (larger = higher) at plate positions ``x_mm, y_mm``.
+Figures follow Cheng, Chang & Weng (2025), sec. 3.2 (least-squares plane, eqs. 1-5) and Table 8
+(average ranges), plus the ISO 1101 minimum zone. Every width is reported normal to its planes,
+``vertical width / sqrt(1 + a^2 + b^2)``, as in the paper's eq. 5. Each figure can also be
+computed for posterior sample surfaces, giving a distribution instead of a single number.
+"""
+from __future__ import annotations
+
+from typing import Mapping, NamedTuple
+
+import numpy as np
+from scipy.optimize import linprog
+from scipy.spatial import ConvexHull, QhullError
+
+FIGURES = ("least_squares", "range", "minimum_zone", "range_x_avg", "range_y_avg")
+_GROUP_DECIMALS = 6  # positions equal to 1 nm share a row or column of the grid
+_MAX_PAIRS = 4_000_000
+
+
+class PlaneFit(NamedTuple):
+    """z = a x + b y + c (a, b in mm/mm, c in mm) and residuals E_i = z_i - (a x_i + b y_i + c)."""
+
+    a: float
+    b: float
+    c: float
+    residuals_mm: np.ndarray
+
+
+class MinZone(NamedTuple):
+    """Two parallel planes z = a x + b y + c_low and z = a x + b y + c_high enclosing all points.
+
+    ``value_mm`` is their distance measured normal to the planes,
+    (c_high - c_low) / sqrt(1 + a^2 + b^2).
+    """
+
+    value_mm: float
+    a: float
+    b: float
+    c_low: float
+    c_high: float
+
+
+def _as_arrays(*arrays) -> tuple[np.ndarray, ...]:
+    out = tuple(np.asarray(v, dtype=np.float64) for v in arrays)
+    if any(v.shape[-1] != out[0].shape[0] for v in out):
+        raise ValueError(f"x, y, z must have the same number of points, got {[v.shape for v in out]}")
+    return out
+
+
+def _plane_coefficients(x_mm, y_mm, z_mm):
+    """[a, b, c] minimising sum (z_i - a x_i - b y_i - c)^2 (eq. 2) for z of shape (N,) or (N, S).
+
+    Solves eq. 4 by least squares on centred coordinates (same minimiser, better conditioned).
+    """
+    xm, ym = x_mm.mean(), y_mm.mean()
+    design = np.column_stack([x_mm - xm, y_mm - ym, np.ones_like(x_mm)])
+    (a, b, c0), *_ = np.linalg.lstsq(design, z_mm, rcond=None)
+    return a, b, c0 - a * xm - b * ym
+
+
+def least_squares_plane(x_mm, y_mm, z_mm) -> PlaneFit:
+    """z = a x + b y + c minimising S = sum_i (z_i - a x_i - b y_i - c)^2 (Cheng 2025 eqs. 1-4)."""
+    x_mm, y_mm, z_mm = _as_arrays(x_mm, y_mm, z_mm)
+    a, b, c = _plane_coefficients(x_mm, y_mm, z_mm)
+    residuals = z_mm - (a * x_mm + b * y_mm + c)
+    return PlaneFit(float(a), float(b), float(c), residuals)
+
+
+def ls_flatness_mm(x_mm, y_mm, z_mm) -> float:
+    """Flatness = (E_max - E_min) / sqrt(1 + a^2 + b^2) about the least-squares plane (eq. 5)."""
+    fit = least_squares_plane(x_mm, y_mm, z_mm)
+    return float(np.ptp(fit.residuals_mm) / np.sqrt(1.0 + fit.a**2 + fit.b**2))
+
+
+def range_mm(z_mm) -> float:
+    """Range = max_i z_i - min_i z_i (tilt included)."""
+    return float(np.ptp(np.asarray(z_mm, dtype=np.float64)))
+
+
+def _groups(key_mm: np.ndarray) -> list[np.ndarray] | None:
+    """Index sets of the points sharing a key value; None when a group has fewer than 2 points."""
+    _, inverse = np.unique(np.round(key_mm, _GROUP_DECIMALS), return_inverse=True)
+    groups = [np.flatnonzero(inverse == g) for g in range(inverse.max() + 1)]
+    return groups if all(len(g) >= 2 for g in groups) else None
+
+
+def _average_range(key_mm: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
+    """mean over groups g of (max_{i in g} z_i - min_{i in g} z_i); z of shape (..., N); NaN off-grid."""
+    groups = _groups(key_mm)
+    if groups is None:
+        return np.full(z_mm.shape[:-1], np.nan)
+    return np.mean([np.ptp(z_mm[..., g], axis=-1) for g in groups], axis=0)
+
+
+def average_ranges_mm(x_mm, y_mm, z_mm) -> tuple[float, float]:
+    """(mean_y range_x, mean_x range_y): the paper's average-range method (Table 8).
+
+    range_x_avg groups the points by y (grid columns S0..S3), takes max - min of z along x in each
+    group and averages; range_y_avg groups by x and takes ranges along y. A figure is NaN when the
+    design is not a grid in that direction (some group has a single point).
+    """
+    x_mm, y_mm, z_mm = _as_arrays(x_mm, y_mm, z_mm)
+    return float(_average_range(y_mm, z_mm)), float(_average_range(x_mm, z_mm))
+
+
+def _vertical_zone_slopes(points: np.ndarray) -> tuple[float, float]:
+    """(a, b) of min_{a,b,c_lo,c_hi} c_hi - c_lo s.t. c_lo <= z_i - a x_i - b y_i <= c_hi (LP).
+
+    Slopes are bounded to |a|, |b| <= 1: called in a frame aligned with a near-optimal normal.
+    """
+    x, y, z = points.T
+    ones, zeros = np.ones_like(x), np.zeros_like(x)
+    upper = np.column_stack([-x, -y, zeros, -ones])  # z_i - a x_i - b y_i <= c_hi
+    lower = np.column_stack([x, y, ones, zeros])  # c_lo <= z_i - a x_i - b y_i
+    result = linprog(
+        c=[0.0, 0.0, -1.0, 1.0],
+        A_ub=np.vstack([upper, lower]),
+        b_ub=np.concatenate([-z, z]),
+        bounds=[(-1.0, 1.0), (-1.0, 1.0), (None, None), (None, None)],
+        method="highs",
+    )
+    if result.status != 0:
+        raise RuntimeError(f"minimum-zone LP failed: {result.message}")
+    return float(result.x[0]), float(result.x[1])
+
+
+def _rotation_onto_z(normal: np.ndarray) -> np.ndarray:
+    """R with R n = e_z for a unit n (Rodrigues: R = I + [v]x + [v]x^2 / (1 + n.e_z), v = n x e_z)."""
+    v = np.cross(normal, [0.0, 0.0, 1.0])
+    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + normal[2])
+
+
+def _hull_points(points: np.ndarray) -> np.ndarray:
+    """The convex-hull vertices (the zone depends on nothing else); all points if degenerate."""
+    if len(points) < 5:
+        return points
+    try:
+        return points[ConvexHull(points).vertices]
+    except QhullError:
+        return points
+
+
+def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
+    """ISO 1101 minimum zone: min over unit normals n of max_i n.p_i - min_i n.p_i.
+
+    The width along n = (-a, -b, 1)/sqrt(1 + a^2 + b^2) is V(a, b)/sqrt(1 + a^2 + b^2), with
+    V(a, b) = max_i (z_i - a x_i - b y_i) - min_i (...), the vertical width minimised by an LP.
+    The LP is solved in a frame whose z axis is the current normal, starting from the least-squares
+    plane's: each step cannot increase the normal width, so value_mm <= eq. 5 flatness, and at the
+    fixed point (slopes < 1e-12 in the rotated frame) n is a local minimum of the normal width.
+    """
+    x_mm, y_mm, z_mm = _as_arrays(x_mm, y_mm, z_mm)
+    centre = np.array([x_mm.mean(), y_mm.mean(), z_mm.mean()])
+    points = _hull_points(np.column_stack([x_mm, y_mm, z_mm]) - centre)
+    a, b, _ = _plane_coefficients(*points.T)
+    normal = np.array([-a, -b, 1.0]) / np.sqrt(1.0 + a**2 + b**2)
+    for _ in range(max_iter):
+        rotation = _rotation_onto_z(normal)
+        a_local, b_local = _vertical_zone_slopes(points @ rotation.T)
+        step = np.array([-a_local, -b_local, 1.0])
+        normal = rotation.T @ (step / np.linalg.norm(step))
+        if max(abs(a_local), abs(b_local)) < 1e-12:
+            break
+    distance = points @ normal
+    a, b, scale = -normal[0] / normal[2], -normal[1] / normal[2], 1.0 / normal[2]
+    c0 = centre[2] - a * centre[0] - b * centre[1]
+    return MinZone(float(np.ptp(distance)), float(a), float(b),
+                   float(c0 + distance.min() * scale), float(c0 + distance.max() * scale))
+
+
+def tilt_correction_deg(a: float, b: float) -> tuple[float, float]:
+    """(rx, ry) with rotx(rx) roty(ry) e_z = (sin ry, -sin rx cos ry, cos rx cos ry) || (-a, -b, 1).
+
+    Hence rx = atan(b), ry = -atan(a / sqrt(1 + b^2)): the user-frame correction
+    frame_new = frame_nominal * rotx(rx) * roty(ry) (RoboDK order) whose z axis is the plate normal.
+    """
+    rx = np.arctan(b)
+    ry = -np.arctan(a / np.sqrt(1.0 + b * b))
+    return float(np.degrees(rx)), float(np.degrees(ry))
+
+
+def plane_tilt(x_mm, y_mm, z_mm) -> dict[str, float]:
+    """Least-squares plane z = a x + b y + c and its frame correction angles (tilt_correction_deg)."""
+    fit = least_squares_plane(x_mm, y_mm, z_mm)
+    rx_deg, ry_deg = tilt_correction_deg(fit.a, fit.b)
+    return {"rx_deg": rx_deg, "ry_deg": ry_deg, "a": fit.a, "b": fit.b, "c": fit.c}
+
+
+def figures(x_mm, y_mm, z_mm) -> dict[str, float]:
+    """All flatness figures in mm: least_squares (eq. 5), range, minimum_zone, range_x/y_avg."""
+    range_x_avg, range_y_avg = average_ranges_mm(x_mm, y_mm, z_mm)
+    return {
+        "least_squares": ls_flatness_mm(x_mm, y_mm, z_mm),
+        "range": range_mm(z_mm),
+        "minimum_zone": minimum_zone_mm(x_mm, y_mm, z_mm).value_mm,
+        "range_x_avg": range_x_avg,
+        "range_y_avg": range_y_avg,
+    }
+
+
+def sampled_figures(x_mm, y_mm, surfaces_mm) -> dict[str, np.ndarray]:
+    """The figures of each posterior sample surface; surfaces_mm is (S, N) heights at the N points.
+
+    Least squares is one multi-right-hand-side solve of eq. 4; the minimum zone is one LP per
+    sample on its convex hull. Returns arrays of shape (S,) keyed as in ``figures``.
+    """
+    surfaces_mm = np.atleast_2d(np.asarray(surfaces_mm, dtype=np.float64))
+    x_mm, y_mm, _ = _as_arrays(x_mm, y_mm, surfaces_mm[0])
+    a, b, c = _plane_coefficients(x_mm, y_mm, surfaces_mm.T)  # each (S,)
+    residuals = surfaces_mm - (np.outer(a, x_mm) + np.outer(b, y_mm) + c[:, None])
+    return {
+        "least_squares": np.ptp(residuals, axis=1) / np.sqrt(1.0 + a**2 + b**2),
+        "range": np.ptp(surfaces_mm, axis=1),
+        "minimum_zone": np.array([minimum_zone_mm(x_mm, y_mm, z).value_mm for z in surfaces_mm]),
+        "range_x_avg": _average_range(y_mm, surfaces_mm),
+        "range_y_avg": _average_range(x_mm, surfaces_mm),
+    }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
+def _ci95(samples: np.ndarray) -> list[float | None]:
+    samples = np.asarray(samples, dtype=np.float64)
+    if samples.size == 0 or not np.all(np.isfinite(samples)):
+        return [None, None]
+    return [float(q) for q in np.percentile(samples, [2.5, 97.5])]
+
+
+def _require_same_names(first: Mapping, second: Mapping, what: str) -> None:
+    missing = sorted(set(first) ^ set(second))
+    if missing:
+        raise KeyError(f"{what}: figure(s) {missing} present on one side only")
+
+
+def interval_figures(value_by_name: Mapping[str, float],
+                     samples_by_name: Mapping[str, np.ndarray]) -> dict[str, dict]:
+    """{name: {"value": v, "ci95": [q_2.5, q_97.5]}} with q_p the p-th percentile of the samples.
+
+    Plain floats (JSON-ready); NaN becomes None.
+    """
+    _require_same_names(value_by_name, samples_by_name, "interval_figures")
+    return {name: {"value": _finite_or_none(value), "ci95": _ci95(samples_by_name[name])}
+            for name, value in value_by_name.items()}
+
+
+def _thin(samples: np.ndarray, count: int) -> np.ndarray:
+    if len(samples) <= count:
+        return samples
+    return samples[np.linspace(0, len(samples) - 1, count).round().astype(int)]
+
+
+def _compare_one(a: np.ndarray, b: np.ndarray) -> dict:
+    """P(B > A) = mean_{i,j} [b_j > a_i] and quantiles of b_j - a_i over all pairs (independent)."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if a.size == 0 or b.size == 0 or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return {"p_b_greater": None, "diff_mean": None, "diff_ci95": [None, None]}
+    below = np.searchsorted(np.sort(a), b, side="left")  # number of a_i < b_j, for each j
+    p_b_greater = float(below.sum() / (a.size * b.size))
+    if a.size * b.size > _MAX_PAIRS:
+        per_side = int(np.sqrt(_MAX_PAIRS))
+        a, b = _thin(np.sort(a), per_side), _thin(np.sort(b), per_side)
+    diff = (b[None, :] - a[:, None]).ravel()
+    return {
+        "p_b_greater": p_b_greater,
+        "diff_mean": float(diff.mean()),
+        "diff_ci95": _ci95(diff),
+    }
+
+
+def compare_rounds(samples_a: Mapping[str, np.ndarray],
+                   samples_b: Mapping[str, np.ndarray]) -> dict[str, dict]:
+    """Per figure, P(B > A) and the 95 % interval of B - A for independent posteriors A and B.
+
+    Both are taken over all pairs (a_i, b_j) of the samples, i.e. the exact answer for the two
+    empirical distributions (thinned evenly to 2000 each when there are more than 4e6 pairs).
+    """
+    _require_same_names(samples_a, samples_b, "compare_rounds")
+    return {name: _compare_one(samples_a[name], samples_b[name]) for name in samples_a}
