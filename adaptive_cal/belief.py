@@ -97,6 +97,14 @@ def sample(belief: Belief, rng: np.random.Generator, n: int) -> np.ndarray:
     return belief.mean + rng.standard_normal((n, k)) @ lower.T
 
 
+def mixture(beliefs: list[Belief], weights) -> Belief:
+    """Moment-matched Gaussian of a mixture: m = sum w_i m_i, C = sum w_i (C_i + d_i d_i^T)."""
+    w = np.asarray(weights, float) / np.sum(weights)
+    mean = sum(wi * b.mean for wi, b in zip(w, beliefs))
+    cov = sum(wi * (b.cov + np.outer(b.mean - mean, b.mean - mean)) for wi, b in zip(w, beliefs))
+    return Belief(mean, symmetrise(cov))
+
+
 def widen(belief: Belief, extra_cov: np.ndarray) -> Belief:
     """Add process noise (e.g. the drift allowed since an earlier run)."""
     return Belief(belief.mean, symmetrise(belief.cov + extra_cov))

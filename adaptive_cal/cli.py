@@ -11,8 +11,10 @@ import sys
 
 # name -> (module, one-line help)
 SUBCOMMANDS = {
+    "explain": ("adaptive_cal.cmd_explain", "where simulation and recordings differ: the physics left out"),
     "run": ("adaptive_cal.cmd_run", "map a workplane: plan touches, drive the cell, stop at the bound"),
     "flatness": ("adaptive_cal.cmd_flatness", "flatness and tilt correction of a recording"),
+    "emulate": ("adaptive_cal.cmd_emulate", "serve an emulated cell (HSES, Modbus PLC, gauge) on loopback"),
 }
 
 

@@ -21,7 +21,7 @@ from .config import Cell
 from .planner import (Candidates, MaxStdBelow, MeanStdBelow, Status, StopRule, TouchBudget,
                       candidate_grid, minimax_choice, plan_batch, refine, stroke_ok,
                       travel_order, variance_drop)
-from .prior import Hyper, PriorModel, fit_hyper
+from .prior import Hyper, PriorModel, hyper_posterior
 from .spline import Surface, default_knots
 
 
@@ -136,7 +136,7 @@ class Mapper:
         """Surface height (mm) implied by a reading taken with reference height z."""
         return reading_mm - self.cell.probe.zero_mm + z_mm
 
-    def approach_height(self, mean_mm: float) -> float:
+    def approach_height(self, mean_mm):
         """Reference height putting the expected reading mid-way in the usable stroke."""
         lo, hi = self.cell.probe.usable_mm
         return mean_mm + self.cell.probe.zero_mm - 0.5 * (lo + hi)
@@ -168,22 +168,19 @@ class Mapper:
         mean = rows @ self.belief.mean
         usable = self.cell.probe.usable_mm
 
-        def admissible(c):
-            _, var = variance_drop(rows, c, self.gram, r)
-            ok = stroke_ok(var, r, usable)
-            ws = self.cell.workspace
-            if ws is not None:
-                z = np.array([self.approach_height(m) for m in mean])
-                ok &= (z >= ws.z_mm[0]) & (z <= ws.z_mm[1])
-            return ok
+        ws = self.cell.workspace
+        z_ok = np.ones(len(mean), bool)
+        if ws is not None:
+            z = self.approach_height(mean)
+            z_ok = (z >= ws.z_mm[0]) & (z <= ws.z_mm[1])
 
         def pick(c):
-            ok = admissible(c)
+            d, var = variance_drop(rows, c, self.gram, r)
+            ok = stroke_ok(var, r, usable) & z_ok
             if not ok.any():
                 return -1
             if self.criterion == "max":
                 return minimax_choice(rows, c, r, ok)
-            d, _ = variance_drop(rows, c, self.gram, r)
             return int(np.argmax(np.where(ok, d, -np.inf)))
 
         if n == 1:
@@ -259,13 +256,21 @@ class Mapper:
         n, plan = len(self.heights), self.cell.plan
         if (self.cell.model.learn_hyper and self.base is None and n >= plan.hyper_after
                 and n - self._fitted_at >= plan.hyper_every):
-            self.hyper = fit_hyper(self.model, np.array(self._rows), np.array(self.heights),
-                                   start=self.hyper)
-            self._fitted_at = n
-            self.belief = bl.condition(self.model.belief(self.hyper), np.array(self._rows),
-                                       np.array(self.heights), self.noise_var)
+            self.refit()
         else:
             self.belief, _ = bl.fuse(self.belief, h, height, self.noise_var)
+
+    def refit(self) -> None:
+        """Re-fit the hyper-parameters to every fused reading and rebuild the belief: the
+        posterior under each weighted hyper-parameter point, moment-matched (so the belief
+        carries the hyper-parameter uncertainty); the MAP's noise serves later fusions."""
+        rows, heights = np.array(self._rows), np.array(self.heights)
+        points = hyper_posterior(self.model, rows, heights, start=self.hyper)
+        self.hyper = points[0][0]
+        self._fitted_at = len(heights)
+        self.belief = bl.mixture(
+            [bl.condition(self.model.belief(h), rows, heights, h.noise_std_mm**2) for h, _ in points],
+            [w for _, w in points])
 
     # -- results -------------------------------------------------------------------------------
     def grid(self, n: int = 61):

@@ -243,3 +243,16 @@ def effect_jacobian(name: str, params: Mapping[str, float], features: Features,
         dn = reading_change(name, {**p0, k: p0[k] - h}, features, geometry)
         cols.append((up - dn) / (2.0 * h))
     return np.stack(cols, axis=-1)
+
+
+def defect_regressor_grid(features: Features, x_mm, y_mm, radius_mm: float) -> np.ndarray:
+    """local_defect regressor (unit height) for many centres at once: touches x centres.
+
+    Calls the forward model with the centres broadcast against the touches (same code as
+    ``reading_change('local_defect', ...)``, vectorised over a search grid).
+    """
+    f = Features(np.asarray(features.x_mm, float)[:, None], np.asarray(features.y_mm, float)[:, None],
+                 features.t_s, features.direction, features.displacement_mm)
+    p = {"x_mm": np.asarray(x_mm, float)[None, :], "y_mm": np.asarray(y_mm, float)[None, :],
+         "height_mm": 1.0, "radius_mm": float(radius_mm)}
+    return np.asarray(FORWARD["local_defect"](f, p, None), float)

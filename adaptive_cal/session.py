@@ -51,12 +51,10 @@ def replay(mapper: Mapper, path: Path) -> tuple[int, float]:
         mapper.heights, mapper._rows = heights.tolist(), list(rows)
         m, plan = mapper.cell.model, mapper.cell.plan
         if m.learn_hyper and mapper.base is None and len(heights) >= plan.hyper_after:
-            from .prior import fit_hyper
-
-            mapper.hyper = fit_hyper(mapper.model, rows, heights, start=mapper.hyper)
-            mapper._fitted_at = len(heights)
-        start = mapper.base if mapper.base is not None else mapper.model.belief(mapper.hyper)
-        mapper.belief = bl.condition(start, rows, heights, mapper.noise_var)
+            mapper.refit()
+        else:
+            start = mapper.base if mapper.base is not None else mapper.model.belief(mapper.hyper)
+            mapper.belief = bl.condition(start, rows, heights, mapper.noise_var)
     mapper.touches = len(rec)
     if len(rec) and rec.flags and "gated" in rec.flags[-1]:
         i = len(rec) - 1  # the interrupted run owed a retake of its last touch

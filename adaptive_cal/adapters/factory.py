@@ -2,11 +2,12 @@
 ``probe.adapter``, wrapped in the safety check (workplane, keep-outs, workspace box)."""
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Callable
 
 from ..config import Cell
-from .base import ProbeCycle
+from .base import AdapterError, Motion, ProbeCycle, ProbeDevice
 
 
 @dataclass
@@ -35,16 +36,106 @@ def safety_check(cell: Cell) -> Callable[[float, float, float], bool]:
     return allowed
 
 
-def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0) -> OpenCell:
-    """Connect to the cell named by the cell file."""
+def _modbus_links(cell: Cell, opened: list) -> dict:
+    """One ModbusLink per endpoint; robot and probe share it when they name the same PLC."""
+    from .modbus import ModbusLink
+
+    links, by_end = {}, {}
+    for role, block in (("robot", cell.robot), ("probe", cell.probe)):
+        if block.adapter != "modbus":
+            continue
+        cfg = block.modbus
+        end = (cfg.transport, cfg.host, cfg.port, cfg.serial_port, cfg.device_id)
+        if end in by_end:
+            if by_end[end][0] != cfg:
+                raise AdapterError(f"robot.modbus and probe.modbus name the same PLC {end[1:]} "
+                                   "with different settings; make the two blocks identical")
+            links[role] = by_end[end][1]
+            continue
+        link = ModbusLink(cfg)
+        opened.append(link)
+        by_end[end] = (cfg, link)
+        links[role] = link
+    return links
+
+
+def _motion(cell: Cell, links: dict, manual) -> Motion:
+    r = cell.robot
+    if r.adapter == "manual":
+        return manual
+    if r.adapter == "hses":
+        from .hses import HsesMotion
+
+        return HsesMotion(r.hses)
+    if r.adapter == "modbus":
+        from .modbus import ModbusMotion
+
+        return ModbusMotion(links["robot"])
+    if r.adapter == "robodk":
+        from .robodk import RobodkMotion
+
+        return RobodkMotion(r.robodk)
+    raise AdapterError(f"robot.adapter={r.adapter!r} cannot be combined with "
+                       f"probe.adapter={cell.probe.adapter!r}")
+
+
+def _probe(cell: Cell, links: dict, manual) -> ProbeDevice:
+    p = cell.probe
+    if p.adapter == "manual":
+        return manual
+    if p.adapter == "serial":
+        from .serial_probe import SerialProbe
+
+        return SerialProbe(p.serial)
+    if p.adapter == "modbus":
+        from .modbus import ModbusProbe
+
+        return ModbusProbe(links["probe"])
+    raise AdapterError(f"probe.adapter={p.adapter!r} needs robot.adapter 'sim' (the simulated "
+                       "probe only exists in the simulated cell)")
+
+
+def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
+              manual=None) -> OpenCell:
+    """Connect to the cell named by the cell file. ``manual`` replaces the operator console
+    (a ManualCell with injected streams, for notebooks and tests)."""
     allowed = safety_check(cell)
+    p = cell.probe
     if cell.robot.adapter == "sim":
         from .sim import SimulatedCell
 
         sim = SimulatedCell.from_cell(cell, start_t_s=start_t_s, start_touch=start_touch)
-        p = cell.probe
         cycle = ProbeCycle(sim, sim, allowed, cell.robot.safe_height_mm, p.usable_mm, p.samples,
                            p.samples_tolerance_mm, p.retries, 0.0, clock=lambda: sim.t_s,
                            sleep=lambda s: None)
         return OpenCell(cycle, lambda: sim.t_s, sim.close, sim)
-    raise NotImplementedError(f"robot.adapter '{cell.robot.adapter}' is not wired yet")
+    if "manual" in (cell.robot.adapter, p.adapter) and manual is None:
+        from .manual import ManualCell
+
+        m = cell.robot.manual
+        manual = ManualCell(prompt=m.prompt if m else "", attempts=m.attempts if m else 3,
+                            range_mm=(0.0, p.stroke_mm))
+    opened: list = []
+    try:
+        links = _modbus_links(cell, opened)
+        motion = _motion(cell, links, manual)
+        opened.append(motion)
+        probe = _probe(cell, links, manual)
+        opened.append(probe)
+    except BaseException:
+        for dev in reversed(opened):
+            dev.close()
+        raise
+    t0 = time.monotonic() - start_t_s
+    clock = lambda: time.monotonic() - t0  # noqa: E731
+
+    def close() -> None:
+        seen = set()
+        for dev in reversed(opened):
+            if id(dev) not in seen:
+                seen.add(id(dev))
+                dev.close()
+
+    cycle = ProbeCycle(motion, probe, allowed, cell.robot.safe_height_mm, p.usable_mm,
+                       p.samples, p.samples_tolerance_mm, p.retries, p.settle_s, clock=clock)
+    return OpenCell(cycle, clock, close, None)

@@ -51,6 +51,8 @@ class ModbusLink:
             raise AdapterError(f"{self.where}: cannot connect; check the PLC address, port and "
                                "cable (robot.modbus/probe.modbus host, port)")
         self._wd = 0
+        self.kick()  # first sign of life; give the PLC two scans to see it
+        self.sleep(2 * cfg.poll_s)
         self._stop = threading.Event()
         self._dog = threading.Thread(target=self._watchdog, daemon=True, name="modbus-watchdog")
         self._dog.start()

@@ -27,6 +27,7 @@ class HsesFaults:
     delay_s: float = 0.0
     alarm_on_move: int = 0     # the next N moves stop with an alarm (reset clears it)
     remote: bool = True        # command remote on
+    report_error_mm: float = 0.0  # reported x differs (another frame, or stopped short)
 
 
 class HsesServer:
@@ -98,6 +99,7 @@ class HsesServer:
             return ok(struct.pack("<II", d1, d2))
         if req.command == P.CMD_POSITION:
             x, y, z = (v + o for v, o in zip(r.pose(), self.offset))
+            x += self.faults.report_error_mm
             return ok(P.position_payload((x, y, z), (180.0, 0.0, 0.0), self.coord))
         if req.command == P.CMD_ALARM_RESET:
             r.alarm = False

@@ -1,0 +1,210 @@
+"""Candidate effects from the effect library, each scored by its evidence against ``none``.
+
+Priors. The linear parameters of an effect are independent zero-mean Gaussians with a common
+standard deviation tau, and tau itself is log-uniform over a physical range (a scale mixture, a
+proper prior): a plate bowed 0.3 mm and a drift of 1 um per touch are both inside the prior, and
+the Occam factor stays about log(range) instead of growing with a prior that is too wide.
+
+=============  =====================================  =======================================
+effect         linear parameters: tau range           nonlinear parameters, prior
+=============  =====================================  =======================================
+form           bow_x, bow_y, twist, warp: 1 um..1 mm   --
+thermal_drift  rate_mm_per_s: 1e-6..1e-3               --
+reversal       span_mm: 1e-4..0.1                      --
+arm_sag        sag_mm_at_1m: 1e-3..1                   p uniform on {1, 1.5, 2, 2.5, 3}
+probe_gain     gain: 1e-5..1e-2                        --
+local_defect   height_mm: 1e-3..1                      centre uniform on a grid over the
+                                                       workplane (spacing radius / 2), radius
+                                                       uniform on {15, 30, 60} mm
+=============  =====================================  =======================================
+
+Nonlinear parameters are averaged over their grid (the evidence of a uniform discrete prior):
+that average is the look-elsewhere penalty -- about log(number of effectively independent
+locations) below the best single location, which is reported. With several rounds a linear effect
+is either shared (one parameter set) or per round; both are scored and averaged with prior 1/2.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import logsumexp
+
+from .. import physics
+from .design import Design
+from .evidence import (Projector, log_evidence, log_evidence_columns_mixture,
+                       log_evidence_mixture, posterior)
+
+PRIOR_RANGE = {"form": (1e-3, 1.0), "thermal_drift": (1e-6, 1e-3), "reversal": (1e-4, 0.1),
+               "arm_sag": (1e-3, 1.0), "probe_gain": (1e-5, 1e-2), "local_defect": (1e-3, 1.0)}
+TAU_PER_DECADE = 4
+SAG_EXPONENTS = (1.0, 1.5, 2.0, 2.5, 3.0)
+DEFECT_RADII_MM = (15.0, 30.0, 60.0)
+
+
+def prior_grid(name: str) -> np.ndarray:
+    """The log-uniform grid of the prior standard deviation tau of an effect's parameters."""
+    lo, hi = PRIOR_RANGE[name]
+    return np.geomspace(lo, hi, int(round(TAU_PER_DECADE * np.log10(hi / lo))) + 1)
+
+
+def prior_scale(name: str) -> float:
+    """A representative prior size (geometric middle of the range), for detectability notes."""
+    lo, hi = PRIOR_RANGE[name]
+    return float(np.sqrt(lo * hi))
+CANDIDATES = ("form", "thermal_drift", "reversal", "arm_sag", "probe_gain", "local_defect")
+
+
+@dataclass(frozen=True)
+class Context:
+    """The calibrated null model: projector of the nuisance, projected target, its evidence."""
+
+    design: Design
+    nuisance: np.ndarray
+    project: Projector
+    yt: np.ndarray
+    m: int
+    log_z0: float
+    w0: float
+
+    @classmethod
+    def of(cls, design: Design) -> "Context":
+        N, _ = design.nuisance()
+        proj = Projector.of(N)
+        y = design.target
+        yt = proj(y)
+        m = design.n - proj.rank
+        lz0, w0 = log_evidence(np.zeros((design.n, 0)), yt, np.zeros(0), m)
+        return cls(design, N, proj, yt, m, lz0, w0)
+
+    @property
+    def null_residual(self) -> np.ndarray:
+        return self.yt
+
+
+@dataclass
+class Candidate:
+    """One effect's score and posterior (at the best nonlinear parameters)."""
+
+    effect: str
+    log_bf: float
+    columns: np.ndarray  # n x k regressor actually fitted (shared or per round)
+    prior_var: np.ndarray
+    sharing: str = "shared"
+    log_bf_shared_vs_per_round: float | None = None
+    fixed: dict = field(default_factory=dict)  # nonlinear parameters at their best value
+    nonlinear_mean: dict = field(default_factory=dict)
+    nonlinear_std: dict = field(default_factory=dict)
+    look_elsewhere: float = 0.0
+    searched: int = 1
+    mean: np.ndarray | None = None
+    cov: np.ndarray | None = None
+    noise_var: float = float("nan")
+
+    def fit_posterior(self, ctx: Context) -> "Candidate":
+        Xt = ctx.project(self.columns)
+        _, w = log_evidence(Xt, ctx.yt, self.prior_var, ctx.m)
+        self.noise_var = float(np.exp(w))
+        self.mean, self.cov = posterior(Xt, ctx.yt, self.prior_var, self.noise_var)
+        return self
+
+
+def _linear(ctx: Context, name: str) -> Candidate:
+    d = ctx.design
+    X = physics.effect_regressor(name, d.features, d.geometry)
+    taus = prior_grid(name)
+    lz_s, best_s, _ = log_evidence_mixture(ctx.project(X), ctx.yt, taus, ctx.m)
+    var = lambda k, i: np.full(k, taus[i] ** 2)
+    if d.rounds == 1:
+        return Candidate(name, lz_s - ctx.log_z0, X, var(X.shape[1], best_s)).fit_posterior(ctx)
+    Xp = d.per_round(X)
+    lz_p, best_p, _ = log_evidence_mixture(ctx.project(Xp), ctx.yt, taus, ctx.m)
+    lz = float(logsumexp([lz_s, lz_p]) - np.log(2.0))
+    shared = lz_s >= lz_p
+    cand = Candidate(name, lz - ctx.log_z0, X if shared else Xp,
+                     var(X.shape[1], best_s) if shared else var(Xp.shape[1], best_p),
+                     "shared" if shared else "per_round", float(lz_s - lz_p))
+    return cand.fit_posterior(ctx)
+
+
+def _arm_sag(ctx: Context) -> Candidate:
+    d = ctx.design
+    X = np.stack([physics.effect_regressor("arm_sag", d.features, d.geometry, {"p": p})[:, 0]
+                  for p in SAG_EXPONENTS], axis=1)
+    taus = prior_grid("arm_sag")
+    lz, best_tau = log_evidence_columns_mixture(ctx.project(X), ctx.yt, taus, ctx.m)
+    total = float(logsumexp(lz) - np.log(len(lz)))
+    wts = np.exp(lz - logsumexp(lz))
+    ps = np.asarray(SAG_EXPONENTS)
+    mean_p = float(wts @ ps)
+    best = int(np.argmax(lz))
+    cand = Candidate("arm_sag", total - ctx.log_z0, X[:, [best]],
+                     np.array([taus[best_tau[best]] ** 2]),
+                     fixed={"p": float(ps[best])}, nonlinear_mean={"p": mean_p},
+                     nonlinear_std={"p": float(np.sqrt(wts @ (ps - mean_p) ** 2))},
+                     look_elsewhere=float(lz.max() - total), searched=len(lz))
+    return cand.fit_posterior(ctx)
+
+
+def defect_grid(geometry: physics.Geometry, radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centres searched for a defect of this radius: spacing radius / 2 over the workplane."""
+    (x0, x1), (y0, y1) = geometry.x_range_mm, geometry.y_range_mm
+    step = radius_mm / 2.0
+    xs = np.linspace(x0, x1, max(2, int(np.ceil((x1 - x0) / step)) + 1))
+    ys = np.linspace(y0, y1, max(2, int(np.ceil((y1 - y0) / step)) + 1))
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    return gx.ravel(), gy.ravel()
+
+
+def _local_defect(ctx: Context) -> Candidate:
+    d = ctx.design
+    taus = prior_grid("local_defect")
+    per_radius, records = [], []
+    chunk = max(1, int(min(2_000_000 // max(d.n, 1), 400_000 // taus.size)))
+    for radius in DEFECT_RADII_MM:
+        gx, gy = defect_grid(d.geometry, radius)
+        lz = np.empty(gx.size)
+        bt = np.empty(gx.size, int)
+        for s in range(0, gx.size, chunk):
+            X = physics.defect_regressor_grid(d.features, gx[s:s + chunk], gy[s:s + chunk], radius)
+            seen = np.flatnonzero(np.any(X != 0.0, axis=0))  # a bump no touch reaches: BF 1
+            lz[s:s + chunk], bt[s:s + chunk] = ctx.log_z0, 0
+            if seen.size:
+                lz[s + seen], bt[s + seen] = log_evidence_columns_mixture(
+                    ctx.project(X[:, seen]), ctx.yt, taus, ctx.m)
+        per_radius.append(float(logsumexp(lz) - np.log(lz.size)))
+        records.append((radius, gx, gy, lz, bt))
+    total = float(logsumexp(per_radius) - np.log(len(per_radius)))
+    # posterior over (radius, centre): uniform prior over radii, then over each radius' grid
+    logw = np.concatenate([lz - np.log(lz.size) for _, _, _, lz, _ in records])
+    wts = np.exp(logw - logsumexp(logw))
+    allx = np.concatenate([gx for _, gx, _, _, _ in records])
+    ally = np.concatenate([gy for _, _, gy, _, _ in records])
+    allr = np.concatenate([np.full(gx.size, r) for r, gx, _, _, _ in records])
+    best = int(np.argmax(logw))
+    mean = {k: float(wts @ v) for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
+    std = {k: float(np.sqrt(wts @ (v - mean[k]) ** 2))
+           for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
+    fixed = {"x_mm": float(allx[best]), "y_mm": float(ally[best]), "radius_mm": float(allr[best])}
+    X = physics.effect_regressor("local_defect", d.features, d.geometry, fixed)
+    lz_best = max(float(lz.max()) for _, _, _, lz, _ in records)
+    all_tau = np.concatenate([taus[bt] for _, _, _, _, bt in records])
+    cand = Candidate("local_defect", total - ctx.log_z0, X, np.array([all_tau[best] ** 2]), fixed=fixed,
+                     nonlinear_mean=mean, nonlinear_std=std, look_elsewhere=lz_best - total,
+                     searched=int(allx.size))
+    return cand.fit_posterior(ctx)
+
+
+def score_candidates(ctx: Context, skip: frozenset[str] = frozenset()) -> list[Candidate]:
+    """Every testable candidate, best evidence first."""
+    out = []
+    for name in CANDIDATES:
+        if name in skip or name in ctx.design.unknown:
+            continue
+        if name == "arm_sag":
+            out.append(_arm_sag(ctx))
+        elif name == "local_defect":
+            out.append(_local_defect(ctx))
+        else:
+            out.append(_linear(ctx, name))
+    return sorted(out, key=lambda c: -c.log_bf)

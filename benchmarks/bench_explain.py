@@ -1,0 +1,167 @@
+"""Benchmark of ``adaptive-cal explain`` on concealed effects and nulls.
+
+Prints the confusion matrix (true effect x verdict), parameter errors, the false-positive rate on
+nulls, the threshold calibration (FP rate and accuracy for several log Bayes factor thresholds),
+and the time for 40 and 10,000 rows. Writes benchmarks/results/explain.json.
+
+    python benchmarks/bench_explain.py [--seeds 20] [--nulls 200] [--workers 2]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+
+from adaptive_cal import physics
+from adaptive_cal.explain.core import MARGIN, THRESHOLD, effect_params, explain
+from adaptive_cal.explain.generator import EFFECTS, concealed_recording
+
+MAGNITUDES = (2.0, 3.0, 4.0, 5.0, 6.0, 8.0)
+NULL_DESIGNS = ({}, {"ny": 6}, {"raster": True}, {"varied_z": True})
+MAIN = {"form": "pv_mm", "thermal_drift": "rate_mm_per_s", "reversal": "span_mm",
+        "arm_sag": "sag_mm_at_1m", "probe_gain": "gain", "local_defect": "height_mm"}
+THRESHOLDS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0)
+LABELS = EFFECTS + ("none",)
+
+
+def _one(job):
+    effect, magnitude, seed, design = job
+    c = concealed_recording(effect, np.random.default_rng([7, LABELS.index(effect), seed,
+                                                           int(10 * magnitude)]),
+                            nonabsorbed_sigma=magnitude, **design)
+    e = explain([c.recording], c.cell, identifiability=False)
+    out = {"effect": effect, "magnitude": magnitude, "seed": seed, "design": design,
+           "candidates": [(k.effect, k.log_bf) for k in e.candidates],
+           "verdict": e.report["verdict"], "noise_std_mm": c.noise_std_mm,
+           "rms_before_mm": e.report["fit"]["rms_before_mm"],
+           "rms_after_mm": e.report["fit"]["rms_after_mm"],
+           "cv_rms_before_mm": e.report["fit"]["cv_rms_before_mm"],
+           "cv_rms_after_mm": e.report["fit"]["cv_rms_after_mm"]}
+    if effect != "none":
+        cand = next(k for k in e.candidates if k.effect == effect)
+        params, std = effect_params(cand, e.context.design)
+        key = MAIN[effect]
+        truth = c.params[key]
+        out["param"] = {"name": key, "true": truth, "estimate": params[key], "std": std[key],
+                        "rel_error": (params[key] - truth) / abs(truth),
+                        "z": (params[key] - truth) / max(std[key], 1e-300)}
+        if effect == "local_defect":
+            out["param"]["location_error_mm"] = float(np.hypot(params["x_mm"] - c.params["x_mm"],
+                                                               params["y_mm"] - c.params["y_mm"]))
+        if effect == "arm_sag":
+            out["param"]["p_true"], out["param"]["p_est"] = c.params["p"], params["p"]
+    return out
+
+
+def verdict(cands, threshold, margin=MARGIN) -> str:
+    if not cands:
+        return "none"
+    best = cands[0][1]
+    runner = cands[1][1] if len(cands) > 1 else -np.inf
+    return cands[0][0] if best > threshold and best - runner >= margin else "none"
+
+
+def summarise(runs, threshold):
+    nulls = [r for r in runs if r["effect"] == "none"]
+    fp = float(np.mean([verdict(r["candidates"], threshold) != "none" for r in nulls]))
+    eff = [r for r in runs if r["effect"] != "none"]
+    acc4 = [verdict(r["candidates"], threshold) == r["effect"] for r in eff if r["magnitude"] >= 4]
+    per = {}
+    for name in EFFECTS:
+        rr = [r for r in eff if r["effect"] == name]
+        per[name] = {str(m): float(np.mean([verdict(r["candidates"], threshold) == name
+                                            for r in rr if r["magnitude"] == m]))
+                     for m in MAGNITUDES}
+    return {"threshold": threshold, "null_fp_rate": fp, "accuracy_at_4sigma_and_above":
+            float(np.mean(acc4)), "accuracy_by_effect_and_magnitude": per}
+
+
+def confusion(runs, threshold, min_mag=0.0):
+    m = {t: {v: 0 for v in LABELS} for t in LABELS}
+    for r in runs:
+        if r["effect"] == "none" or r["magnitude"] >= min_mag:
+            m[r["effect"]][verdict(r["candidates"], threshold)] += 1
+    return m
+
+
+def _print_confusion(m, title):
+    print(f"\n{title} (rows: true effect, columns: verdict)")
+    short = {n: n[:8] for n in LABELS}
+    print(" " * 14 + "".join(f"{short[v]:>9}" for v in LABELS))
+    for t in LABELS:
+        print(f"{t:>14}" + "".join(f"{m[t][v]:>9}" for v in LABELS))
+
+
+def timing():
+    out = {}
+    for label, nx, ny in (("40_rows", 10, 4), ("10000_rows", 125, 80)):
+        c = concealed_recording("thermal_drift", np.random.default_rng(3), nx=nx, ny=ny,
+                                nonabsorbed_sigma=6.0)
+        t0 = time.perf_counter()
+        e = explain([c.recording], c.cell)  # full analysis, identifiability included
+        out[label] = {"rows": len(c.recording), "seconds": time.perf_counter() - t0,
+                      "verdict": e.report["verdict"]}
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20, help="seeds per effect and magnitude")
+    ap.add_argument("--nulls", type=int, default=200)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "explain.json"))
+    args = ap.parse_args(argv)
+    jobs = [(e, m, s, {}) for e in EFFECTS for m in MAGNITUDES for s in range(args.seeds)]
+    jobs += [("none", 0.0, s, NULL_DESIGNS[s % len(NULL_DESIGNS)]) for s in range(args.nulls)]
+    t0 = time.perf_counter()
+    with Pool(args.workers) as pool:
+        runs = pool.map(_one, jobs, chunksize=8)
+    elapsed = time.perf_counter() - t0
+    calib = [summarise(runs, t) for t in THRESHOLDS]
+    print(f"{len(runs)} recordings in {elapsed:.0f} s; margin over the runner-up {MARGIN}")
+    print("\nthreshold  null FP  accuracy >= 4 sigma")
+    for c in calib:
+        print(f"{c['threshold']:>9.1f}  {c['null_fp_rate']:7.3f}  {c['accuracy_at_4sigma_and_above']:7.3f}")
+    main_sum = summarise(runs, THRESHOLD)
+    _print_confusion(confusion(runs, THRESHOLD), f"confusion, all magnitudes, threshold {THRESHOLD}")
+    _print_confusion(confusion(runs, THRESHOLD, 4.0), f"confusion, magnitude >= 4 sigma, threshold {THRESHOLD}")
+    print("\nright verdict by effect and non-absorbed norm (sigma):")
+    print(" " * 14 + "".join(f"{m:>7g}" for m in MAGNITUDES))
+    for name, row in main_sum["accuracy_by_effect_and_magnitude"].items():
+        print(f"{name:>14}" + "".join(f"{row[str(m)]:>7.2f}" for m in MAGNITUDES))
+    errors = {}
+    print("\nparameter of the true effect's candidate (all magnitudes >= 4 sigma):")
+    for name in EFFECTS:
+        rr = [r["param"] for r in runs if r["effect"] == name and r["magnitude"] >= 4]
+        rel = np.array([p["rel_error"] for p in rr])
+        z = np.array([p["z"] for p in rr])
+        errors[name] = {"param": MAIN[name], "median_abs_rel_error": float(np.median(np.abs(rel))),
+                        "fraction_within_2_std": float(np.mean(np.abs(z) < 2))}
+        if name == "local_defect":
+            errors[name]["median_location_error_mm"] = float(np.median(
+                [p["location_error_mm"] for p in rr]))
+        if name == "arm_sag":
+            errors[name]["median_abs_p_error"] = float(np.median(
+                [abs(p["p_est"] - p["p_true"]) for p in rr]))
+        print(f"  {name:>14} {MAIN[name]:>14}: " + ", ".join(f"{k} {v:.3g}" for k, v in
+                                                             errors[name].items() if k != "param"))
+    tim = timing()
+    print("\ntiming (full explain incl. identifiability, no figures):")
+    for k, v in tim.items():
+        print(f"  {v['rows']:>6} rows: {v['seconds']:.2f} s (verdict {v['verdict']})")
+    result = {"threshold": THRESHOLD, "margin": MARGIN, "magnitudes": MAGNITUDES,
+              "seeds": args.seeds, "nulls": args.nulls, "calibration": calib,
+              "summary": main_sum, "confusion_all": confusion(runs, THRESHOLD),
+              "confusion_4sigma": confusion(runs, THRESHOLD, 4.0), "parameter_errors": errors,
+              "timing": tim, "elapsed_s": elapsed}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=1, default=float))
+    print(f"\nwritten {args.out}")
+
+
+if __name__ == "__main__":
+    main()

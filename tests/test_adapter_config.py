@@ -1,0 +1,87 @@
+"""Bad adapter input refused at load time with the key named; Delta names translated."""
+import copy
+
+import pytest
+import yaml
+
+from adaptive_cal.adapters.modbus_map import resolve
+from adaptive_cal.config import ConfigError, load_cell, parse_cell
+from tests.conftest import ROOT
+
+HSES = yaml.safe_load((ROOT / "configs" / "cell-hses-emulated.yaml").read_text())
+MODBUS = yaml.safe_load((ROOT / "configs" / "cell-modbus-emulated.yaml").read_text())
+
+
+def edited(base, path, value):
+    d = copy.deepcopy(base)
+    *keys, last = path.split(".")
+    node = d
+    for k in keys:
+        node = node[k]
+    if value is KeyError:
+        del node[last]
+    else:
+        node[last] = value
+    return d
+
+
+@pytest.mark.parametrize("base, path, value, expect", [
+    (HSES, "robot.adapter", "kuka", "robot.adapter: Input should be"),
+    (HSES, "probe.adapter", "laser", "probe.adapter: Input should be"),
+    (HSES, "robot.hses.host", KeyError, "robot.hses.host: missing"),
+    (HSES, "robot.hses.port", KeyError, "robot.hses.port: missing"),
+    (HSES, "robot.hses.host", " ", "robot.hses.host: host must be"),
+    (HSES, "robot.hses.tmeout_s", 1, "robot.hses.tmeout_s: unknown key"),
+    (HSES, "robot.hses", KeyError, "needs a robot.hses block"),
+    (HSES, "probe.serial.baudrate", 9601, "probe.serial.baudrate: baud rate 9601 does not exist"),
+    (HSES, "probe.serial.preset", "citizen", "probe.serial.preset: Input should be"),
+    (HSES, "probe.serial.pattern", "([0-9", "probe.serial.pattern: pattern"),
+    (MODBUS, "robot.modbus.word_order", "middle", "robot.modbus.word_order: Input should be"),
+    (MODBUS, "robot.modbus.baudrate", 12345, "baud rate 12345 does not exist"),
+    (MODBUS, "robot.modbus.host", KeyError, "transport 'tcp' needs host"),
+    (MODBUS, "robot.modbus.port", KeyError, "transport 'tcp' needs port"),
+])
+def test_bad_input_names_the_key(base, path, value, expect):
+    with pytest.raises(ConfigError, match=expect.replace("(", r"\(").replace("[", r"\[")):
+        parse_cell(edited(base, path, value), "cell.yaml")
+
+
+@pytest.mark.parametrize("registers, expect", [
+    ({"target_y": "D101"}, "registers.target_y='D101' overlaps registers.target_x='D100'"),
+    ({"done": "M10"}, "registers.done='M10' overlaps registers.start='M10'"),
+    ({"start": "D7"}, "registers.start='D7' must be a bit"),
+    ({"target_x": "M5"}, "registers.target_x='M5' must be a register"),
+    ({"start": "X7"}, "is an input (read-only)"),
+    ({"done": "X18"}, "octal"),
+    ({"watchdog": "Q5"}, "'Q5' is not a PLC address"),
+])
+def test_register_map_problems_named(registers, expect):
+    bad = edited(MODBUS, "robot.modbus.registers", {**MODBUS["robot"]["modbus"]["registers"],
+                                                    **registers})
+    with pytest.raises(ConfigError, match="robot.modbus") as e:
+        parse_cell(bad, "cell.yaml")
+    assert expect in str(e.value)
+
+
+def test_int16_values_may_sit_one_register_apart():
+    regs = {**MODBUS["robot"]["modbus"]["registers"], "target_y": "D101", "target_z": "D102",
+            "probe_value": "D103", "probe_count": "D104"}
+    d = edited(edited(MODBUS, "robot.modbus.registers", regs), "robot.modbus.number", "int16")
+    d["probe"]["modbus"] = d["robot"]["modbus"]
+    assert parse_cell(d).robot.modbus.number == "int16"
+
+
+@pytest.mark.parametrize("name, table, address", [
+    ("D100", "hr", 0x1064), ("D0", "hr", 0x1000), ("M10", "coil", 0x080A),
+    ("M1536", "coil", 0xB000), ("X17", "di", 0x040F), ("Y10", "coil", 0x0508),
+    ("$100", "hr", 100), ("$M5", "coil", 2005), ("hr:0x20", "hr", 32), ("coil:7", "coil", 7),
+])
+def test_delta_and_dop_names_translated(name, table, address):
+    a = resolve(name)
+    assert (a.table, a.address) == (table, address)
+
+
+@pytest.mark.parametrize("name", ["cell-hses-emulated", "cell-modbus-emulated", "cell-manual"])
+def test_shipped_cell_files_load(name):
+    cell = load_cell(ROOT / "configs" / f"{name}.yaml")
+    assert cell.robot.adapter in ("hses", "modbus", "manual")

@@ -1,0 +1,66 @@
+"""The serial probe adapter over a pty pair with a responder thread (a real port to pyserial)."""
+import pytest
+
+from adaptive_cal.adapters.base import AdapterError, BadSample
+from adaptive_cal.adapters.schema import SerialConfig
+from adaptive_cal.adapters.serial_probe import SerialProbe, parse
+from adaptive_cal.emulate.gauge import PtyGauge, answer_line
+
+
+@pytest.fixture
+def gauge(request):
+    made = []
+
+    def make(value=4.2, **cfg):
+        cfg = SerialConfig(port="/dev/null", timeout_s=0.2, **cfg)
+        g = PtyGauge(cfg, lambda: value).start()
+        probe = SerialProbe(cfg.model_copy(update={"port": g.path}))
+        made.append((g, probe))
+        return g, probe
+
+    yield make
+    for g, probe in made:
+        probe.close()
+        g.close()
+
+
+@pytest.mark.parametrize("preset", ["mitutoyo", "sylvac", "keyence"])
+def test_presets_read_the_value_and_keep_raw_bytes(gauge, preset):
+    g, probe = gauge(value=4.2371, preset=preset)
+    s = probe.read()
+    assert s.value_mm == pytest.approx(4.2371, abs=1e-9)
+    assert s.raw == answer_line(preset, 4.2371) and s.t_s > 0
+
+
+def test_custom_pattern_and_scale(gauge):
+    g, probe = gauge(value=1.25, preset="custom", request="R\\r",
+                     pattern=r"^([-+]?\d+\.\d+)$", scale=0.001)  # gauge sends um
+    assert probe.read().value_mm == pytest.approx(1.25)
+
+
+@pytest.mark.parametrize("fault, match", [("silent", "did not answer within 0.2 s"),
+                                          ("garbage", "does not match the expected format"),
+                                          ("error", "reported an error 'ERR3'")])
+def test_faults_are_bad_samples_then_recovery(gauge, fault, match):
+    g, probe = gauge(preset="sylvac")
+    setattr(g.faults, fault, 1)
+    with pytest.raises(BadSample, match=match):
+        probe.read()
+    assert probe.read().value_mm == pytest.approx(4.2)  # the late/garbage answer is not reused
+
+
+def test_out_of_range_value_rejected(gauge):
+    g, probe = gauge(value=12.0, preset="sylvac", range_mm=(0.0, 10.0))
+    with pytest.raises(BadSample, match="outside probe.serial.range_mm"):
+        probe.read()
+
+
+def test_missing_port_is_a_clear_error():
+    with pytest.raises(AdapterError, match="probe.serial.port='/dev/no-such-gauge'"):
+        SerialProbe(SerialConfig(port="/dev/no-such-gauge", timeout_s=0.1))
+
+
+@pytest.mark.parametrize("line", [b"01A+0000.12x\r", b"\r", b"01A+inf\r"])
+def test_parse_rejects_non_numbers(line):
+    with pytest.raises(BadSample):
+        parse(line, r"^\d{2}A([-+]\s*\S+)\s*$", 1.0)

@@ -1,0 +1,141 @@
+"""The probe cycle: targets checked before sending, median of N, spread retries, stroke end,
+bad samples retried within the bound, retract always."""
+import numpy as np
+import pytest
+
+from adaptive_cal.adapters.base import (AdapterError, BadSample, ProbeCycle, Sample,
+                                        TouchRejected, UnsafeTarget)
+
+
+class RecordingMotion:
+    def __init__(self, pose=(0.0, 0.0, 20.0), fail_on=None):
+        self.pose, self.sent, self.fail_on = pose, [], fail_on
+
+    def move_to(self, x, y, z):
+        self.sent.append((x, y, z))
+        if self.fail_on is not None and len(self.sent) == self.fail_on:
+            raise AdapterError("link lost")
+        self.pose = (x, y, z)
+
+    def position(self):
+        return self.pose
+
+    def close(self):
+        pass
+
+
+class ScriptedProbe:
+    """Returns the scripted values in order; an Exception in the script is raised."""
+
+    def __init__(self, script):
+        self.script, self.calls = list(script), 0
+
+    def read(self):
+        self.calls += 1
+        v = self.script.pop(0)
+        if isinstance(v, Exception):
+            raise v
+        return Sample(v, float(self.calls), f"{v}".encode())
+
+    def close(self):
+        pass
+
+
+def inside(x, y, z):
+    return 0 <= x <= 100 and 0 <= y <= 100 and -5 <= z <= 30
+
+
+def cycle(motion, probe, **kw):
+    kw = {"samples": 3, "samples_tolerance_mm": 0.01, "retries": 1, **kw}
+    return ProbeCycle(motion, probe, inside, 15.0, (0.5, 9.5), sleep=lambda s: None,
+                      clock=lambda: 42.0, **kw)
+
+
+def test_median_of_samples_and_sequence_lift_travel_approach_retract():
+    m, p = RecordingMotion(pose=(10, 10, 2.0)), ScriptedProbe([5.0, 5.004, 5.001])
+    t = cycle(m, p).touch(50, 60, 1.0)
+    assert t.reading_mm == pytest.approx(5.001)
+    assert m.sent == [(10, 10, 15.0), (50, 60, 15.0), (50, 60, 1.0), (50, 60, 15.0)]
+    assert [s.raw for s in t.samples] == [b"5.0", b"5.004", b"5.001"]
+    assert [s.t_s for s in t.samples] == [1.0, 2.0, 3.0] and t.t_s == 42.0
+
+
+@pytest.mark.parametrize("target", [(150, 50, 1.0), (50, 50, -10.0), (50, 50, float("nan"))])
+def test_unsafe_target_never_reaches_move_to(target):
+    m, p = RecordingMotion(), ScriptedProbe([5.0] * 3)
+    with pytest.raises(UnsafeTarget, match="nothing was sent"):
+        cycle(m, p).touch(*target)
+    assert m.sent == [] and p.calls == 0
+
+
+def test_unsafe_lift_from_current_pose_refused_before_any_move():
+    m = RecordingMotion(pose=(-50, 10, 0.0))  # robot left outside the allowed box
+    with pytest.raises(UnsafeTarget):
+        cycle(m, ScriptedProbe([])).touch(50, 50, 1.0)
+    assert m.sent == []
+
+
+def test_spread_retry_then_success_uses_only_the_good_attempt():
+    p = ScriptedProbe([5.0, 5.2, 5.0, 6.0, 6.001, 6.002])
+    t = cycle(RecordingMotion(), p).touch(50, 50, 1.0)
+    assert t.reading_mm == pytest.approx(6.001)
+    assert t.extra["attempts"] == 2 and len(t.extra["all_samples"]) == 6
+
+
+def test_spread_exhausted_rejects_and_retracts():
+    m, p = RecordingMotion(), ScriptedProbe([5.0, 5.2, 5.0, 5.0, 5.3, 5.0])
+    with pytest.raises(TouchRejected) as e:
+        cycle(m, p).touch(50, 50, 1.0)
+    assert "spread" in e.value.flags and len(e.value.samples) == 6
+    assert m.sent[-1] == (50, 50, 15.0)
+
+
+@pytest.mark.parametrize("value", [0.2, 9.8])
+def test_stroke_end_rejected_and_retracted(value):
+    m = RecordingMotion()
+    with pytest.raises(TouchRejected) as e:
+        cycle(m, ScriptedProbe([value] * 3)).touch(50, 50, 1.0)
+    assert "stroke_end" in e.value.flags and e.value.reading_mm == pytest.approx(value)
+    assert m.sent[-1] == (50, 50, 15.0)
+
+
+def test_bad_sample_retried_within_bound_then_good():
+    p = ScriptedProbe([BadSample("garbage", b"\x7f"), 5.0, 5.0, 5.0])
+    t = cycle(RecordingMotion(), p).touch(50, 50, 1.0)
+    assert t.reading_mm == 5.0 and t.extra["problems"] == ["garbage"]
+
+
+def test_bad_samples_beyond_bound_raise_and_retract():
+    m = RecordingMotion()
+    p = ScriptedProbe([BadSample("timeout"), BadSample("timeout")])
+    with pytest.raises(BadSample, match="no usable probe sample after 2"):
+        cycle(m, p).touch(50, 50, 1.0)
+    assert m.sent[-1] == (50, 50, 15.0)
+
+
+def test_non_finite_samples_never_returned():
+    p = ScriptedProbe([np.nan, 5.0, 5.0, np.nan, 5.0, 5.0])
+    with pytest.raises(TouchRejected):
+        cycle(RecordingMotion(), p).touch(50, 50, 1.0)
+
+
+def test_retract_after_interrupt_and_error_kept_when_retract_fails():
+    class Interrupting(ScriptedProbe):
+        def read(self):
+            raise KeyboardInterrupt
+
+    m = RecordingMotion()
+    with pytest.raises(KeyboardInterrupt):
+        cycle(m, Interrupting([])).touch(50, 50, 1.0)
+    assert m.sent[-1] == (50, 50, 15.0)
+    m = RecordingMotion(fail_on=3)  # the retract after a stroke-end reading fails
+    with pytest.raises(TouchRejected) as e:
+        cycle(m, ScriptedProbe([9.9] * 3)).touch(50, 50, 1.0)
+    assert "retract" in " ".join(e.value.__notes__)
+
+
+def test_failed_travel_sends_no_approach():
+    m = RecordingMotion(fail_on=1)
+    with pytest.raises(AdapterError):
+        cycle(m, ScriptedProbe([])).touch(50, 50, 1.0)
+    assert m.sent == [(50, 50, 15.0)]
