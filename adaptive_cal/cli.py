@@ -7,7 +7,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+# Our matrices are small (K <= ~500): one BLAS thread is fastest, and a threaded OpenBLAS that
+# spins against other processes on a shared 2-core machine is 100x slower. Set before numpy loads.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # name -> (module, one-line help)
 SUBCOMMANDS = {

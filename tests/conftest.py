@@ -1,9 +1,12 @@
 """Test setup: float64 in JAX (the library never sets it itself), headless matplotlib."""
 import os
-from pathlib import Path
 
-import matplotlib
-import pytest
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: see adaptive_cal/cli.py
+
+from pathlib import Path  # noqa: E402
+
+import matplotlib  # noqa: E402
+import pytest  # noqa: E402
 
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
