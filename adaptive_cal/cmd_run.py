@@ -25,6 +25,10 @@ def add_arguments(p) -> None:
 def command(args) -> int:
     from . import session
 
+    if args.dry_run:
+        if not args.robot:
+            raise UserError("--dry-run needs --robot CELL.yaml")
+        return _dry_run(load_cell(args.robot))
     if args.resume:
         out = Path(args.resume)
         cell_path = Path(args.robot) if args.robot else out / "cell.yaml"
@@ -33,8 +37,6 @@ def command(args) -> int:
             raise UserError("run needs --robot CELL.yaml and --out DIR (or --resume DIR)")
         out, cell_path = Path(args.out), Path(args.robot)
     cell = load_cell(cell_path)
-    if args.dry_run:
-        return _dry_run(cell)
     real = cell.robot.adapter not in ("sim", "manual") and not getattr(cell.robot, "emulated", False)
     if real and not args.yes:
         if not sys.stdin.isatty():
@@ -86,9 +88,10 @@ def _dry_run(cell) -> int:
     mapper = Mapper.create(cell)
     n = min(cell.plan.stop.max_touches, 20)
     targets = mapper.ask(n)
-    print(f"dry run: the first {len(targets)} planned touches (readings unknown: the plan adapts "
-          "once they arrive); nothing moves")
-    print("  #     x_mm     y_mm     z_mm")
+    print(f"dry run: the first {len(targets)} planned touches, in travel order; nothing moves.\n"
+          "The plan adapts as readings arrive, and each approach height is set from the belief "
+          "at that touch.")
+    print("  #     x_mm     y_mm")
     for i, t in enumerate(targets):
-        print(f"{i:3d} {t.x_mm:8.2f} {t.y_mm:8.2f} {t.z_mm:8.3f}")
+        print(f"{i:3d} {t.x_mm:8.2f} {t.y_mm:8.2f}")
     return 0

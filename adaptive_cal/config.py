@@ -190,6 +190,9 @@ class Plan(Strict):
     candidates: int = Field(10000, ge=16)
     refine: int = Field(4, ge=0, description="best candidates refined by gradient steps")
     batch: int = Field(1, ge=1, description="touches planned ahead and ordered for travel")
+    criterion: Literal["auto", "integrated", "max"] = Field(
+        "auto", description="auto: the worst-point criterion when only max_std_mm bounds the "
+        "run, else the integrated variance")
     hyper_every: int = Field(4, ge=1, description="refit hyper-parameters every N readings")
     hyper_after: int = Field(8, ge=3, description="first refit after N readings")
     drift_std_mm: float = Field(0.01, ge=0, description="widening for --prior-from")

@@ -154,6 +154,8 @@ class Mapper:
 
     @property
     def criterion(self) -> str:
+        if self.cell.plan.criterion != "auto":
+            return self.cell.plan.criterion
         s = self.cell.plan.stop
         return "max" if s.max_std_mm is not None and s.mean_std_mm is None else "integrated"
 

@@ -66,8 +66,10 @@ def replay(mapper: Mapper, path: Path) -> tuple[int, float]:
 
 
 def load_prior(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
-    """An earlier run's belief, widened by plan.drift_std_mm (offset, tilt over the plate and a
-    form of that size), so a routine re-check needs a handful of touches."""
+    """An earlier run's belief, widened by the drift allowance d = plan.drift_std_mm: the plate
+    may have moved rigidly since (offset std d, slopes std d over half the plate diagonal) and
+    its form may have changed by a quarter of that (form std d / 4, same length scale). A
+    routine re-check then needs a handful of touches."""
     path = Path(run_dir) / "belief.npz"
     if not path.exists():
         raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
@@ -85,7 +87,7 @@ def load_prior(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
     wp = cell.workplane
     half = 0.5 * math.hypot(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
     drift = type(model)(model.surface, d / half, d, model.centre_mm, hyper)
-    extra = drift.belief(Hyper(d / 2, hyper.length_scale_mm, hyper.noise_std_mm)).cov
+    extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
     return bl.widen(bl.Belief(data["mean"], data["cov"]), extra), hyper
 
 

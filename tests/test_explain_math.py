@@ -52,7 +52,7 @@ def test_noise_integral_matches_quadrature():
 
 def test_noise_integral_many_rows():
     """The grid follows the narrow posterior of the noise for 10,000 rows."""
-    lam, c2, yy, m = np.array([40.0]), np.array([30.0]), 10000 * 0.004 ** 2, 9997
+    lam, c2, yy, m = np.array([40.0]), np.array([0.05]), 10000 * 0.004 ** 2, 9997
     lz, w = log_evidence_spectral(lam, c2, yy, m)
     f = lambda w_: np.exp(_spectral(lam, c2, yy, m, np.array([w_]))[0] - lz)
     val, _ = integrate.quad(f, w - 1, w + 1, points=[w], limit=200)

@@ -58,7 +58,7 @@ def _spectral(lam: np.ndarray, c2: np.ndarray, yy, m, w: np.ndarray) -> np.ndarr
     c2 = c2[..., :, None]
     k = lam.shape[-2]
     yy = np.asarray(yy, float)[..., None]
-    rest = yy - c2.sum(-2)
+    rest = np.maximum(yy - c2.sum(-2), 1e-12 * yy)  # >= 0 up to round-off
     return (-0.5 * m * LOG2PI - 0.5 * (m - k) * w - 0.5 * np.log(v + lam).sum(-2)
             - 0.5 * (rest / v[..., 0, :] + (c2 / (v + lam)).sum(-2)))
 
@@ -67,7 +67,7 @@ def _derivs(lam, c2, yy, m, w):
     """First and second derivative of _spectral in w (shapes as _spectral, G = 1)."""
     v = np.exp(w)[..., None]
     k = lam.shape[-1]
-    rest = np.asarray(yy, float) - c2.sum(-1)
+    rest = np.maximum(np.asarray(yy, float) - c2.sum(-1), 1e-12 * yy)
     d1 = (-0.5 * (m - k) - 0.5 * (v / (v + lam)).sum(-1) + 0.5 * rest / v[..., 0]
           + 0.5 * (c2 * v / (v + lam) ** 2).sum(-1))
     d2 = (-0.5 * (v * lam / (v + lam) ** 2).sum(-1) - 0.5 * rest / v[..., 0]

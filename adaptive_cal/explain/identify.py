@@ -38,6 +38,14 @@ def canonical_correlations(E: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.clip(np.linalg.svd(QF.T @ QE, compute_uv=False), 0.0, 1.0)
 
 
+def _centred(off: Projector, E: np.ndarray) -> np.ndarray:
+    """E about each round's mean; columns that were (nearly) constant become exactly zero."""
+    C = off(E)
+    small = np.linalg.norm(C, axis=0) <= 1e-9 * np.maximum(np.linalg.norm(E, axis=0), 1e-300)
+    C[:, small] = 0.0
+    return C
+
+
 def representative(ctx: Context, name: str, features=None, round_index=None) -> np.ndarray:
     """The effect's regressor (shared parameters; arm_sag at p = 2)."""
     d = ctx.design
@@ -66,8 +74,8 @@ def _alias_cc(ctx, name, partners, feats, ridx) -> float:
     d = ctx.design
     T = _tilt(feats, ridx, d.rounds, d.geometry)
     off = Projector.of(T[:, 2::3])
-    E = off(representative(ctx, name, feats))
-    F = [off(T)] + [off(representative(ctx, p, feats)) for p in partners if p != "tilt"]
+    E = _centred(off, representative(ctx, name, feats))
+    F = [off(T)] + [_centred(off, representative(ctx, p, feats)) for p in partners if p != "tilt"]
     return float(canonical_correlations(E, np.hstack(F)).min())
 
 
@@ -170,7 +178,7 @@ def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0) -> list[
     offsets = Projector.of(T[:, 2::3])  # the variation about each round's mean
     regs = {n: representative(ctx, n) for n in names if n != "local_defect"}
     for name, E in regs.items():
-        cc_t = canonical_correlations(offsets(E), offsets(T))
+        cc_t = canonical_correlations(_centred(offsets, E), offsets(T))
         left = float(np.linalg.norm(ctx.project(E), axis=0).max()) * prior_scale(name) / sigma_mm
         if cc_t.min() > ALIAS_CC:
             why = (f"the tilt absorbs {100 * cc_t.min() ** 2:.2f} % of the regressor's variation "

@@ -1,0 +1,152 @@
+"""Lower bound on touches: the continuous relaxation of the optimal (I-optimal, Bayesian) design,
+and the best integer design by exhaustive search where that is feasible.
+
+A design puts n touches on the candidate rows h_i with weights w (w_i >= 0, sum w = 1):
+
+    M(w) = C0^-1 + (n / r) sum_i w_i h_i h_i^T,   J(n, w) = trace(Q M(w)^-1).
+
+J is convex in w with gradient dJ/dw_i = -(n / r) h_i^T W h_i, W = C Q C, C = M^-1 -- the
+numerator of the planner's dJ. Any integer design of n touches is a feasible w (counts / n), so
+J*(n) = min_w J(n, w) <= J(any n-touch design). Frank-Wolfe gives w and the certified bound
+
+    J*(n) >= J(n, w) - (n / r) (max_i h_i^T W h_i - sum_i w_i h_i^T W h_i)   (duality gap),
+
+so the smallest n whose certified bound meets the target is a lower bound on the touches of every
+design on the candidates -- the adaptive planner's included (for the same hyper-parameters).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+
+from ..config import Cell
+from ..planner import candidate_grid
+from ..prior import Hyper, PriorModel
+
+
+@dataclass(frozen=True)
+class DesignProblem:
+    """Prior precision, Gram matrix, candidate rows and noise variance of one design question."""
+
+    prior_cov: np.ndarray  # C0 (K, K)
+    gram: np.ndarray  # Q (K, K)
+    rows: np.ndarray  # (N, K)
+    noise_var: float  # r (mm^2)
+    area_mm2: float
+
+    @cached_property
+    def prior_precision(self) -> np.ndarray:
+        k = self.prior_cov.shape[0]
+        p = cho_solve(cho_factor(self.prior_cov, lower=True), np.eye(k))
+        return 0.5 * (p + p.T)
+
+    def integrated_variance(self, counts: np.ndarray) -> float:
+        """J of an integer design given as touch counts per candidate."""
+        return _objective(self, np.asarray(counts, float), 1.0)[0]
+
+
+def design_problem(cell: Cell, model: PriorModel, hyper: Hyper, *, candidates: int) -> DesignProblem:
+    wp, m = cell.workplane, cell.workplane.edge_margin_mm
+    cand = candidate_grid(model.surface, wp.allows, (wp.x_mm[0] + m, wp.x_mm[1] - m),
+                          (wp.y_mm[0] + m, wp.y_mm[1] - m), candidates)
+    return DesignProblem(model.belief(hyper).cov, model.surface.gram(), cand.rows,
+                         hyper.noise_std_mm**2, model.surface.area_mm2)
+
+
+def _objective(prob: DesignProblem, weights: np.ndarray, n: float, scores: bool = True):
+    """J(n, w) and the scores s_i = h_i^T W h_i (Cholesky solves, never inv)."""
+    k = prob.prior_cov.shape[0]
+    active = weights > 0
+    rows = prob.rows[active]
+    info = (rows * (weights[active] * n / prob.noise_var)[:, None]).T @ rows
+    post = cho_factor(prob.prior_precision + info, lower=True)
+    cov = cho_solve(post, np.eye(k))
+    if not scores:
+        return float(np.sum(prob.gram * cov)), None
+    w = cov @ prob.gram @ cov
+    scores = np.einsum("nk,nk->n", prob.rows @ w, prob.rows)
+    return float(np.sum(prob.gram * cov)), scores
+
+
+def relaxed_design(prob: DesignProblem, n: float, *, iterations: int = 200, tol: float = 1e-4,
+                   start: np.ndarray | None = None):
+    """Frank-Wolfe on the simplex for J(n, w). Returns (weights, J, certified lower bound)."""
+    size = len(prob.rows)
+    w = np.full(size, 1.0 / size) if start is None else start.copy()
+    best_lower = -np.inf
+    for it in range(iterations):
+        j, s = _objective(prob, w, n)
+        gap = n / prob.noise_var * (s.max() - w @ s)
+        best_lower = max(best_lower, j - gap)
+        if gap <= tol * j:
+            break
+        vertex = int(np.argmax(s))
+        # line search on [0, 1] by golden section (J is convex along the segment)
+        direction = -w.copy()
+        direction[vertex] += 1.0
+        lo, hi = 0.0, 1.0
+        g = (math.sqrt(5) - 1) / 2
+        a, b = hi - g * (hi - lo), lo + g * (hi - lo)
+        fa, fb = _objective(prob, w + a * direction, n, False)[0], _objective(prob, w + b * direction, n, False)[0]
+        for _ in range(14):
+            if fa < fb:
+                hi, b, fb = b, a, fa
+                a = hi - g * (hi - lo)
+                fa = _objective(prob, w + a * direction, n, False)[0]
+            else:
+                lo, a, fa = a, b, fb
+                b = lo + g * (hi - lo)
+                fb = _objective(prob, w + b * direction, n, False)[0]
+        step = 0.5 * (lo + hi)
+        w = np.maximum(w + step * direction, 0.0)
+        w /= w.sum()
+    j, s = _objective(prob, w, n)
+    best_lower = max(best_lower, j - n / prob.noise_var * (s.max() - w @ s))
+    return w, j, best_lower
+
+
+def relaxed_integrated_variance(prob: DesignProblem, n: float, iterations: int = 200) -> float:
+    """A certified lower bound on J*(n): no n-touch design has a smaller integrated variance."""
+    return relaxed_design(prob, n, iterations=iterations)[2]
+
+
+def relaxed_touches(prob: DesignProblem, target_j: float, max_touches: int,
+                    *, iterations: int = 300) -> float:
+    """Smallest real n whose certified J*(n) lower bound reaches ``target_j`` (bisection): no
+    design on the candidates meets the target with fewer touches. inf if max_touches fails."""
+    w = None
+    lo, hi = 0.0, float(max_touches)
+    if relaxed_design(prob, hi, iterations=iterations)[2] > target_j:
+        return math.inf
+    if _objective(prob, np.full(len(prob.rows), 1.0 / len(prob.rows)), 0.0)[0] <= target_j:
+        return 0.0
+    while hi - lo > 0.05:
+        mid = 0.5 * (lo + hi)
+        w, j, lower = relaxed_design(prob, mid, iterations=iterations, start=w)
+        if lower > target_j:
+            lo = mid  # certified: fewer than mid touches cannot reach the target
+        elif j <= target_j:
+            hi = mid
+        else:  # not resolved within the iterations: stay on the safe side for a lower bound
+            hi = mid
+    return lo
+
+
+def best_integer_touches(prob: DesignProblem, target_j: float, max_touches: int,
+                         limit: int) -> int | None:
+    """Smallest n for which some n-touch design (a multiset of candidates) reaches ``target_j``,
+    by exhaustive enumeration; None when the enumeration would exceed ``limit`` designs."""
+    size = len(prob.rows)
+    for n in range(0, max_touches + 1):
+        if math.comb(size + n - 1, n) > limit:
+            return None
+        for combo in itertools.combinations_with_replacement(range(size), n):
+            counts = np.bincount(np.asarray(combo, int), minlength=size)
+            if prob.integrated_variance(counts) <= target_j:
+                return n
+    return None

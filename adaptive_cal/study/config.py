@@ -1,0 +1,212 @@
+"""The study file (study.yaml): what plates to draw, which strategies to run, the bound.
+
+Everything in mm, s, deg. Unknown keys are refused; every error names its key and value.
+Physical checks that need the cell (tilt against the probe stroke, the bound against the noise
+floor) run in ``check_feasible`` once the base cell is known.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, ValidationError, field_validator, model_validator
+
+from ..adapters.schema import Strict
+from ..config import Cell, ConfigError, Rect, _format, load_yaml, parse_cell
+
+STRATEGIES = ("adaptive", "greedy_fixed", "paper", "grid", "random")
+SHAPES = ("bow_x", "bow_y", "twist", "warp")
+Span = tuple[float, float]
+
+
+def _span(v: Span, name: str, *, lower: float = 0.0) -> Span:
+    lo, hi = v
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo < lower or hi < lo:
+        raise ValueError(f"{name} must be [low, high] with {lower} <= low <= high, got {list(v)}")
+    return v
+
+
+class PlateDistribution(Strict):
+    """How synthetic plates are drawn (each plate: its own seed)."""
+
+    tilt_deg: float = Field(1.0, ge=0, description="tilt about each axis uniform in +-tilt_deg")
+    offset_mm: float = Field(0.2, ge=0, description="height at the centre uniform in +-offset_mm")
+    form_pv_mm: Span = (0.02, 0.3)
+    form_shapes: list[Literal["bow_x", "bow_y", "twist", "warp"]] = list(SHAPES)
+    noise_std_mm: Span = (0.005, 0.02)
+    repeatability_mm: float = Field(0.0, ge=0, description="robot z repeatability (1 sigma)")
+    keep_outs: list[Rect] | None = Field(None, description="replace the cell's keep-outs")
+
+    @field_validator("form_pv_mm", "noise_std_mm")
+    @classmethod
+    def _spans(cls, v, info):
+        return _span(v, info.field_name)
+
+    @field_validator("tilt_deg")
+    @classmethod
+    def _tilt(cls, v):
+        if v >= 45:
+            raise ValueError(f"tilt_deg={v} is not a workplane tilt (must be < 45)")
+        return v
+
+
+class Bound(Strict):
+    """The target: posterior stop and the bound on the true error, and the touch budget."""
+
+    mean_std_mm: float = Field(0.005, gt=0, description="stop at this RMS posterior std")
+    true_rms_mm: float | None = Field(None, gt=0, description="bound on the TRUE RMS error; "
+                                      "default: mean_std_mm")
+    max_touches: int = Field(200, ge=1)
+
+    @property
+    def true_mm(self) -> float:
+        return self.true_rms_mm if self.true_rms_mm is not None else self.mean_std_mm
+
+
+class Paper(Strict):
+    """The reference procedure (Cheng, Chang & Weng 2025): 5-point levelling, then rounds of the
+    10 x 4 S-shaped path until the levelling check passes."""
+
+    nx: int = Field(10, ge=2)
+    ny: int = Field(4, ge=2)
+    level_tolerance_mm: float = Field(0.02, gt=0, description="stop when the tilt of the round's "
+                                      "least-squares plane changes the height by at most this "
+                                      "across the plate")
+    max_rounds: int = Field(3, ge=1)
+
+
+class LowerBound(Strict):
+    """Lower bound on touches: relaxed optimal design; exhaustive integer search if small."""
+
+    plates: int = Field(20, ge=0, description="computed on the first N plates")
+    candidates: int = Field(2500, ge=16)
+    exhaustive_limit: int = Field(200000, ge=0, description="largest number of designs "
+                                  "enumerated by the exhaustive search")
+
+
+class Study(Strict):
+    """A whole study file."""
+
+    name: str = "study"
+    seed: int = 0
+    plates: int = Field(ge=1)
+    cell: str | dict = Field("sim-cell.yaml", description="cell file (relative to the study "
+                             "file) or an inline cell mapping")
+    plate: PlateDistribution = PlateDistribution()
+    bound: Bound = Bound()
+    strategies: list[Literal["adaptive", "greedy_fixed", "paper", "grid", "random"]] = \
+        list(STRATEGIES)
+    estimator: Literal["learned", "fixed"] = Field(
+        "learned", description="paper/grid/random: fit hyper-parameters like the adaptive "
+        "planner (learned), or keep the cell's (fixed; vectorised over plates with jax.vmap)")
+    paper: Paper = Paper()
+    lower_bound: LowerBound = LowerBound()
+    example_plate: int = Field(0, ge=0)
+
+    @field_validator("strategies")
+    @classmethod
+    def _strategies(cls, v):
+        if not v or len(set(v)) != len(v):
+            raise ValueError(f"strategies must be a non-empty list without repeats, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _example(self):
+        if self.example_plate >= self.plates:
+            raise ValueError(f"example_plate={self.example_plate} must be below plates={self.plates}")
+        return self
+
+
+def parse_study(data: dict, source: str = "study") -> Study:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected a mapping of keys, got {type(data).__name__}")
+    try:
+        return Study.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(_format(e, source)) from None
+
+
+def base_cell_dict(study: Study, study_path: str | Path | None) -> dict:
+    """The base cell as a plain mapping (plates are variations of it)."""
+    if isinstance(study.cell, dict):
+        return dict(study.cell)
+    path = Path(study.cell)
+    if not path.is_absolute() and study_path is not None:
+        path = Path(study_path).resolve().parent / path
+    return load_yaml(path)
+
+
+def load_study(path: str | Path) -> tuple[Study, dict]:
+    """Read a study file and its base cell; raise ConfigError naming each bad key."""
+    study = parse_study(load_yaml(path), str(path))
+    cell_dict = base_cell_dict(study, path)
+    cell = parse_cell(cell_dict, f"{path}: cell")
+    check_feasible(study, cell, str(path))
+    return study, cell_dict
+
+
+def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
+    """Refuse distributions no planner can serve (ConfigError naming the key).
+
+    * plate.tilt_deg: the planner only sends the probe where a reading lands in the usable
+      stroke with probability 1 - 1e-6 under the cell's prior (model.tilt_std_deg); it steps out
+      from a touch by at most half the usable stroke / (z* tan(tilt_std)). A plate whose steepest
+      slope, sqrt(2) tan(tilt_deg), exceeds z* tan(tilt_std) sends readings past the stroke end.
+      The heights must also fit the workspace box's z range.
+    * bound.mean_std_mm / true_rms_mm: below the noise floor -- the relaxed optimal design with
+      bound.max_touches touches at the largest noise cannot reach it, so no design can.
+    """
+    from ..planner import STROKE_Z
+
+    p, m, probe = study.plate, cell.model, cell.probe
+    steepest = math.sqrt(2.0) * math.tan(math.radians(p.tilt_deg))
+    allowed = STROKE_Z * math.tan(math.radians(m.tilt_std_deg))
+    half = 0.5 * (probe.usable_mm[1] - probe.usable_mm[0])
+    if steepest > allowed:
+        raise ConfigError(
+            f"{source}: plate.tilt_deg={p.tilt_deg} is beyond what the probe stroke allows: the "
+            f"planner steps out so that readings stay inside the usable stroke "
+            f"{list(probe.usable_mm)} mm for slopes up to {allowed:.4f} mm/mm "
+            f"({STROKE_Z:.1f} x tan(model.tilt_std_deg={m.tilt_std_deg})); this plate's steepest "
+            f"slope is {steepest:.4f}. Lower plate.tilt_deg or widen the cell's model.tilt_std_deg")
+    if p.offset_mm > STROKE_Z * m.offset_std_mm or p.offset_mm + p.form_pv_mm[1] > half:
+        raise ConfigError(
+            f"{source}: plate.offset_mm={p.offset_mm} with form up to {p.form_pv_mm[1]} mm puts "
+            f"the first reading outside the usable stroke {list(probe.usable_mm)} mm "
+            f"(model.offset_std_mm={m.offset_std_mm})")
+    ws = cell.workspace
+    if ws is not None:
+        wp = cell.workplane
+        rise = (math.tan(math.radians(p.tilt_deg)) * 0.5 * (wp.x_mm[1] - wp.x_mm[0] + wp.y_mm[1]
+                                                            - wp.y_mm[0]) + p.offset_mm
+                + p.form_pv_mm[1])
+        mid = probe.zero_mm - 0.5 * (probe.usable_mm[0] + probe.usable_mm[1])
+        if rise + mid > ws.z_mm[1] or -rise + mid < ws.z_mm[0]:
+            raise ConfigError(
+                f"{source}: plate.tilt_deg={p.tilt_deg} needs approach heights over "
+                f"+-{rise:.2f} mm, outside the cell's workspace z_mm={list(ws.z_mm)}")
+    floor = noise_floor_mm(study, cell)
+    for key, value in (("bound.mean_std_mm", study.bound.mean_std_mm),
+                       ("bound.true_rms_mm", study.bound.true_rms_mm)):
+        if value is not None and value < floor:
+            raise ConfigError(
+                f"{source}: {key}={value} is below the noise floor: with reading noise up to "
+                f"{p.noise_std_mm[1]} mm and at most bound.max_touches={study.bound.max_touches} "
+                f"touches no design brings the RMS posterior std below {floor:.5f} mm "
+                "(relaxed optimal design); raise the bound or the touch budget")
+
+
+def noise_floor_mm(study: Study, cell: Cell) -> float:
+    """Smallest RMS posterior std any design of bound.max_touches touches reaches at the largest
+    noise of the distribution (relaxed optimal design, a lower bound)."""
+    from ..mapper import prior_model
+    from .bound import design_problem, relaxed_integrated_variance
+
+    model = prior_model(cell)
+    noise = math.hypot(study.plate.noise_std_mm[1], study.plate.repeatability_mm)
+    prob = design_problem(cell, model, model.hyper0._replace(noise_std_mm=max(noise, 1e-6)),
+                          candidates=400)
+    j = relaxed_integrated_variance(prob, study.bound.max_touches, iterations=60)
+    return float(np.sqrt(max(j, 0.0) / prob.area_mm2))

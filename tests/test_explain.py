@@ -1,0 +1,135 @@
+"""explain on concealed effects (fixed seeds), nulls, identifiability and the real rounds."""
+import numpy as np
+import pytest
+
+from adaptive_cal import physics
+from adaptive_cal.config import load_cell
+from adaptive_cal.explain import belief_rows, effect_params, explain, suggest_touches
+from adaptive_cal.explain.candidates import Context
+from adaptive_cal.explain.design import build_design
+from adaptive_cal.explain.generator import EFFECTS, concealed_recording, serpentine
+from adaptive_cal.explain.identify import canonical_correlations
+from adaptive_cal.recording import Recording, read_recording
+from conftest import ROOT
+
+MAIN = {"form": "pv_mm", "thermal_drift": "rate_mm_per_s", "reversal": "span_mm",
+        "arm_sag": "sag_mm_at_1m", "probe_gain": "gain", "local_defect": "height_mm"}
+
+
+def _case(effect, seed, magnitude):
+    return concealed_recording(effect, np.random.default_rng([11, seed]),
+                               nonabsorbed_sigma=magnitude)
+
+
+def test_generator_is_pure_and_hits_the_requested_norm():
+    a = _case("thermal_drift", 0, 5.0)
+    b = _case("thermal_drift", 0, 5.0)
+    np.testing.assert_array_equal(a.recording.reading_mm, b.recording.reading_mm)
+    assert a.nonabsorbed_sigma == pytest.approx(5.0)
+    n = _case("none", 0, 5.0)
+    assert n.effect == "none" and n.params == {}
+
+
+@pytest.mark.parametrize("effect", EFFECTS)
+def test_concealed_effect_is_named_and_its_parameter_recovered(effect):
+    """8 sigma non-absorbed norm, two seeds each. Tolerance: the estimate of the effect's main
+    parameter within 3 posterior standard deviations and 40 % of the truth."""
+    for seed in (0, 1):
+        c = _case(effect, seed, 8.0)
+        e = explain([c.recording], c.cell, identifiability=False)
+        assert e.report["verdict"] == effect, (seed, e.report["candidates"])
+        params, std = effect_params(e.winner, e.context.design)
+        key = MAIN[effect]
+        truth = c.params[key]
+        assert abs(params[key] - truth) < 3 * std[key], (seed, params, c.params)
+        assert abs(params[key] - truth) < 0.4 * abs(truth)
+        fit = e.report["fit"]
+        assert fit["rms_after_mm"] < fit["rms_before_mm"]
+        assert fit["cv_rms_after_mm"] < fit["cv_rms_before_mm"]
+        if effect == "local_defect":
+            assert np.hypot(params["x_mm"] - c.params["x_mm"], params["y_mm"] - c.params["y_mm"]) < 40
+
+
+def test_nulls_give_none():
+    for seed in range(6):
+        design = [{}, {"ny": 6}, {"raster": True}, {"varied_z": True}][seed % 4]
+        c = concealed_recording("none", np.random.default_rng([12, seed]), **design)
+        e = explain([c.recording], c.cell, identifiability=False)
+        assert e.report["verdict"] == "none", (seed, e.report["candidates"])
+        assert e.report["left_out"] == [] or all(x["log_bayes_factor"] > 1 for x in e.report["left_out"])
+        assert e.report["fit"]["rms_after_mm"] == e.report["fit"]["rms_before_mm"]
+
+
+def test_mismatch_points_at_the_revealing_axis():
+    c = _case("reversal", 2, 10.0)
+    e = explain([c.recording], c.cell, identifiability=False)
+    by = e.report["mismatch"]["by"]
+    assert by["direction"]["real"] and by["direction"]["p_value"] < 1e-3
+    assert set(by) == {"position", "time", "direction", "reach", "indication"}
+    c = _case("local_defect", 3, 10.0)
+    e = explain([c.recording], c.cell, identifiability=False)
+    top = e.report["mismatch"]["where"][0]
+    assert np.hypot(top["x_mm"] - c.params["x_mm"], top["y_mm"] - c.params["y_mm"]) < 80
+
+
+def test_drift_on_a_raster_is_not_identifiable_and_the_suggestion_separates_it():
+    c = concealed_recording("thermal_drift", np.random.default_rng(5), raster=True)
+    e = explain([c.recording], c.cell)
+    entry = next(x for x in e.report["not_identifiable"] if x["effect"] == "thermal_drift")
+    assert entry["aliased_with"] == ["tilt"]
+    touches = entry["suggested_design"]["touches"]
+    assert 1 <= len(touches) <= 12
+    assert set(touches[0]) == {"x_mm", "y_mm", "z_mm", "order"}
+    assert entry["suggested_design"]["canonical_correlation_after"] <= 0.9
+    # the touches are repeats of positions already measured, appended after the last one
+    assert touches[0]["order"] == len(c.recording)
+    assert e.report["verdict"] != "thermal_drift"
+
+
+def test_gain_on_constant_heights_is_aliased_with_tilt():
+    c = concealed_recording("probe_gain", np.random.default_rng(6), varied_z=False,
+                            nonabsorbed_sigma=0.0)
+    ctx = Context.of(build_design([c.recording], c.cell))
+    s = suggest_touches(ctx, "probe_gain", ["tilt"])
+    assert s["touches"] and all(t["z_mm"] == 2.0 for t in s["touches"])
+    e = explain([c.recording], c.cell)
+    assert any(x["effect"] == "probe_gain" and x["aliased_with"] == ["tilt"]
+               for x in e.report["not_identifiable"])
+
+
+def test_arm_sag_without_base_is_not_testable():
+    cell = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
+    rec = read_recording(ROOT / "adaptive_cal/data/cheng2025/round0_initial.csv")
+    e = explain([rec], cell)
+    entry = next(x for x in e.report["not_identifiable"] if x["effect"] == "arm_sag")
+    assert "robot.base_xy_mm" in entry["why"] and "base_xy_mm" in entry["suggested_design"]["description"]
+    assert e.report["mismatch"]["by"]["reach"]["p_value"] is None
+
+
+def test_belief_rows_reproduce_the_fitted_effect():
+    c = _case("arm_sag", 0, 8.0)
+    e = explain([c.recording], c.cell, identifiability=False)
+    params, _ = effect_params(e.winner, e.context.design)
+    d = e.context.design
+    rows, names = belief_rows("arm_sag", params, d.features, d.geometry)
+    assert names == ("sag_mm_at_1m",)
+    np.testing.assert_allclose(rows @ [params["sag_mm_at_1m"]],
+                               physics.reading_change("arm_sag", params, d.features, d.geometry))
+
+
+def test_cheng_rounds_form_shared_and_flatness_change_within_noise(cheng_round0, cheng_round1):
+    cell = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
+    e = explain([read_recording(cheng_round0), read_recording(cheng_round1)], cell)
+    rep = e.report
+    assert rep["verdict"] == "form"
+    form = rep["left_out"][0]
+    assert form["sharing"] == "shared" and form["log_bayes_factor"] > 50
+    assert 0.25 < form["params"]["bow_y"] < 0.4  # the readme's bow of ~0.28 mm across y
+    assert rep["fit"]["rms_after_mm"] < 0.25 * rep["fit"]["rms_before_mm"]
+    assert rep["fit"]["cv_rms_after_mm"] < 0.25 * rep["fit"]["cv_rms_before_mm"]
+    r = rep["rounds"]
+    assert r["flatness_mm"][0] == pytest.approx(0.5414, abs=1e-3)
+    assert r["flatness_mm"][1] == pytest.approx(0.5960, abs=1e-3)
+    assert 0.01 < r["repeatability_mm"] < 0.025
+    assert r["p_value"] > 0.05 and not r["exceeds_noise"]
+    assert rep["calibration"][0]["about_y_deg"] == pytest.approx(0.80, abs=0.02)

@@ -1,0 +1,83 @@
+"""The explain subcommand: files it writes, the JSON it promises, and bad input."""
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from adaptive_cal.cli import main
+from adaptive_cal.config import load_cell
+from conftest import ROOT
+
+CELL = ROOT / "configs" / "cheng2025-cell.yaml"
+KEYS = {"verdict", "left_out", "not_identifiable", "mismatch", "fit", "model"}
+
+
+def test_cli_on_the_reference_rounds(tmp_path, cheng_round0, cheng_round1, capsys):
+    out = tmp_path / "out"
+    rc = main(["explain", str(cheng_round0), str(cheng_round1), "--sim", str(CELL),
+               "--json", str(tmp_path / "r.json"), "--out", str(out)])
+    assert rc == 0
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert KEYS <= set(rep)
+    assert rep["verdict"] == "form"
+    e = rep["left_out"][0]
+    assert {"effect", "params", "params_std", "log_bayes_factor", "summary"} <= set(e)
+    for x in rep["not_identifiable"]:
+        assert {"effect", "aliased_with", "why", "suggested_design"} <= set(x)
+    assert set(rep["mismatch"]) >= {"rms_mm", "by", "where"}
+    assert set(rep["mismatch"]["by"]) == {"position", "time", "direction", "reach", "indication"}
+    assert set(rep["fit"]) >= {"rms_before_mm", "rms_after_mm", "cv_rms_before_mm", "cv_rms_after_mm"}
+    cell = load_cell(rep["model"])  # the updated cell file is a valid cell with the effect
+    assert cell.simulation.effects["form"]["pv_mm"] == pytest.approx(e["params"]["pv_mm"])
+    for name in ("residual_map.png", "residual_vs_position.png", "fitted_effect.png"):
+        assert (out / name).stat().st_size > 1000
+    text = capsys.readouterr().out
+    assert "verdict: form" in text and "flatness 0.5417 -> 0.5960" in text
+
+
+def _write(path, rows, header="seq,t_s,x_mm,y_mm,z_mm,reading_mm"):
+    lines = ["# adaptive-cal recording v1", header] + [",".join(map(str, r)) for r in rows]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _grid_rows(n=40):
+    rng = np.random.default_rng(0)
+    xs = np.tile(np.linspace(-200, 200, 10), n // 10 + 1)[:n]
+    ys = np.repeat(np.linspace(-165, 165, n // 10 + 1), 10)[:n]
+    return [[i, "", x, y, 0, round(0.01 * x + 0.001 * rng.standard_normal(), 6)]
+            for i, (x, y) in enumerate(zip(xs, ys))]
+
+
+@pytest.mark.parametrize("mutate,expect", [
+    (lambda r: r.__setitem__(7, [7, "", 300.0, 0.0, 0, 1.0]), ["seq 7", "x_mm", "300"]),
+    (lambda r: r.__setitem__(slice(5, None), []), ["5 rows", "at least"]),
+    (lambda r: r.__setitem__(3, [3, "", 0.0, 0.0, 0, "abc"]), [":6:", "reading_mm", "abc"]),
+    (lambda r: r.__setitem__(4, [2, "", 0.0, 0.0, 0, 1.0]), [":7:", "seq", "does not increase"]),
+])
+def test_bad_recordings_name_line_or_column(tmp_path, capsys, mutate, expect):
+    rows = _grid_rows()
+    mutate(rows)
+    path = _write(tmp_path / "bad.csv", rows)
+    assert main(["explain", str(path), "--sim", str(CELL)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    for word in expect:
+        assert word in err, err
+
+
+def test_missing_column_is_named(tmp_path, capsys):
+    rows = [r[:5] for r in _grid_rows()]
+    path = _write(tmp_path / "bad.csv", rows, header="seq,t_s,x_mm,y_mm,z_mm")
+    assert main(["explain", str(path), "--sim", str(CELL)]) == 2
+    assert "reading_mm" in capsys.readouterr().err
+
+
+def test_known_arm_sag_without_base_is_a_config_error(tmp_path, capsys, cheng_round0):
+    data = yaml.safe_load(CELL.read_text())
+    data["simulation"]["effects"]["arm_sag"] = {"sag_mm_at_1m": 0.1, "p": 2}
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(yaml.safe_dump(data))
+    assert main(["explain", str(cheng_round0), "--sim", str(cell)]) == 2
+    assert "robot.base_xy_mm" in capsys.readouterr().err

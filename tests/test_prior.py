@@ -1,0 +1,64 @@
+"""Prior and hyper-parameter oracles: dense multivariate normal, finite differences, recovery."""
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from adaptive_cal import prior as pr
+from adaptive_cal.spline import Surface
+
+
+def _model():
+    surf = Surface.create(np.linspace(-200, 200, 6), np.linspace(-150, 150, 5))
+    return pr.PriorModel(surf, np.tan(np.radians(1.0)), 0.5, (0.0, 0.0),
+                         pr.Hyper(0.05, 150.0, 0.005))
+
+
+def test_tilt_part_is_a_plane_with_the_stated_variances():
+    m = _model()
+    c = m.tilt_cov()
+    x, y = np.array([150.0]), np.array([-100.0])
+    h = m.surface.basis(x, y)[0]
+    expected = (150**2 + 100**2) * m.slope_std**2 + m.offset_std_mm**2
+    assert h @ c @ h == pytest.approx(expected, rel=1e-10)
+
+
+def test_log_marginal_equals_dense_mvn_and_jax_objective():
+    m = _model()
+    rng = np.random.default_rng(0)
+    xy = rng.uniform([-190, -140], [190, 140], (23, 2))
+    rows = m.surface.basis(xy[:, 0], xy[:, 1])
+    y = rng.normal(size=23) * 0.1
+    hyp = pr.Hyper(0.08, 120.0, 0.007)
+    cov = rows @ m.belief(hyp).cov @ rows.T + hyp.noise_std_mm**2 * np.eye(23)
+    dense = multivariate_normal(np.zeros(23), cov).logpdf(y)
+    assert pr.log_marginal(m, hyp, rows, y) == pytest.approx(dense, rel=1e-9)
+    # the jit objective (padded to 32 rows) = -(log marginal + log hyper-prior)
+    args = pr._padded(rows, y) + pr._model_args(m)
+    theta = np.log(np.array(hyp))
+    v, g = pr._value_and_grad(theta, *args)
+    logprior = -0.5 * np.sum(((theta - np.log(np.array(m.hyper0))) / np.array(m.hyper_log_std)) ** 2)
+    assert float(v) == pytest.approx(-(dense + logprior), rel=1e-9)
+    # gradient against central differences
+    eps = 1e-6
+    fd = [(float(pr._value_and_grad(theta + eps * e, *args)[0])
+           - float(pr._value_and_grad(theta - eps * e, *args)[0])) / (2 * eps) for e in np.eye(3)]
+    np.testing.assert_allclose(np.asarray(g), fd, rtol=1e-5, atol=1e-6)
+
+
+def test_fit_recovers_noise_and_amplitude_from_prior_draws():
+    """Readings drawn from the prior with known theta: the MAP noise is within 25 % and the form
+    amplitude within a factor 2.5 (n = 200 readings)."""
+    m = _model()
+    truth = pr.Hyper(0.1, 150.0, 0.006)
+    rng = np.random.default_rng(5)
+    xy = rng.uniform([-200, -150], [200, 150], (200, 2))
+    rows = m.surface.basis(xy[:, 0], xy[:, 1])
+    coef = rng.multivariate_normal(np.zeros(m.surface.size), m.belief(truth).cov)
+    y = rows @ coef + truth.noise_std_mm * rng.standard_normal(200)
+    fit = pr.fit_hyper(m, rows, y)
+    assert fit.noise_std_mm == pytest.approx(truth.noise_std_mm, rel=0.25)
+    assert truth.form_std_mm / 2.5 < fit.form_std_mm < truth.form_std_mm * 2.5
+    points = pr.hyper_posterior(m, rows, y)
+    assert len(points) == 7
+    assert sum(w for _, w in points) == pytest.approx(1.0)
+    assert points[0][0] == fit

@@ -1,0 +1,234 @@
+"""The measurement loop end to end on the simulated cell: stopping, outputs, resume, Ctrl-C,
+gating, prior-from, criteria, bad input."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from adaptive_cal import session
+from adaptive_cal.adapters.factory import open_cell
+from adaptive_cal.cli import main
+from adaptive_cal.config import ConfigError, load_yaml, parse_cell
+from adaptive_cal.mapper import Mapper
+from adaptive_cal.recording import RecordingError, read_recording
+
+from helpers import SIM_CELL, drive, sim_cell
+
+
+def test_cli_run_stops_at_the_bound_and_writes_everything(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 0
+    for f in ("recording.csv", "result.json", "surface.png", "convergence.png", "belief.npz",
+              "cell.yaml"):
+        assert (out / f).exists(), f
+    r = json.loads((out / "result.json").read_text())
+    assert r["stopped_because"] == "mean_std_bound"
+    assert r["posterior"]["mean_std_mm"] <= 0.004
+    assert r["touches"] == len(read_recording(out / "recording.csv"))
+    assert set(r["tilt"]) >= {"rx_deg", "ry_deg", "a", "b", "c"}
+    for k in ("least_squares", "range", "minimum_zone"):
+        lo, hi = r["flatness_mm"][k]["ci95"]
+        assert lo <= hi
+    assert set(r["truth"]) == {"rms_error_mm", "max_error_mm", "coverage95"}
+    # the simulated plate: tilt a = 0.0140, b = 0.0019 (configs/sim-cell.yaml)
+    assert r["tilt"]["a"] == pytest.approx(0.0140, abs=5e-5)
+    assert r["tilt"]["b"] == pytest.approx(0.0019, abs=5e-5)
+    assert "stopped: mean_std_bound" in capsys.readouterr().out
+
+
+def test_no_reading_lands_outside_the_stroke_and_first_touches_wait_for_the_belief(tmp_path):
+    cell = sim_cell()
+    m = Mapper.create(cell)
+    t0 = m.ask()[0]
+    assert t0.predicted_std_mm * 4.89 <= 4.5  # the first touch is one the stroke can promise
+    drive(m, open_cell(cell))
+    rec_dir = tmp_path / "r"
+    session.run(cell, rec_dir, progress=False)
+    rec = read_recording(rec_dir / "recording.csv")
+    assert np.all((rec.reading_mm > 0.5) & (rec.reading_mm < 9.5))
+
+
+def test_no_point_can_be_promised_gives_a_clear_error(tmp_path):
+    cell = sim_cell(model={"offset_std_mm": 5.0})
+    with pytest.raises(session.NoAdmissiblePoint, match="usable probe stroke"):
+        session.run(cell, tmp_path / "x", progress=False)
+    assert len(read_recording(tmp_path / "x" / "recording.csv")) == 0
+
+
+def test_interrupted_run_resumes_without_repeating_or_losing_a_touch(tmp_path):
+    cell = sim_cell()
+    out = tmp_path / "run"
+    r1 = session.run(cell, out, progress=False, max_new_touches=7)
+    assert r1["stopped_because"] == "interrupted" and r1["touches"] == 7
+    first = (out / "recording.csv").read_text().splitlines()
+    r2 = session.run(cell, out, resume=True, progress=False)
+    assert r2["stopped_because"] == "mean_std_bound"
+    lines = (out / "recording.csv").read_text().splitlines()
+    assert lines[: len(first)] == first  # nothing rewritten
+    rec = read_recording(out / "recording.csv")
+    np.testing.assert_array_equal(rec.seq, np.arange(len(rec)))
+    assert r2["touches"] == len(rec) > 7
+    with pytest.raises(FileExistsError, match="--resume"):
+        session.run(cell, out, progress=False)
+
+
+def test_ctrl_c_leaves_a_recording_that_resume_continues(tmp_path):
+    cell_file = tmp_path / "cell.yaml"
+    data = load_yaml(SIM_CELL)
+    data["plan"] = {"stop": {"mean_std_mm": 0.0005, "max_touches": 400}}
+    import yaml
+    cell_file.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot",
+                             str(cell_file), "--out", str(out), "--no-progress"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    rec = out / "recording.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if rec.exists() and len(rec.read_text().splitlines()) > 12:
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=120)
+    assert proc.returncode == 130, proc.stderr.read().decode()
+    result = json.loads((out / "result.json").read_text())
+    assert result["stopped_because"] == "interrupted"
+    n = len(read_recording(rec))
+    assert result["touches"] == n >= 8
+    data["plan"]["stop"]["mean_std_mm"] = 0.004  # reachable: the resumed run finishes
+    cell_file.write_text(yaml.safe_dump(data))
+    assert main(["run", "--resume", str(out), "--robot", str(cell_file), "--no-progress"]) == 0
+    rec2 = read_recording(rec)
+    np.testing.assert_array_equal(rec2.seq, np.arange(len(rec2)))
+    assert len(rec2) >= n
+
+
+class _OutlierCycle:
+    """Wraps a probe cycle and adds +0.3 mm to one chosen touch (a chip under the probe)."""
+
+    def __init__(self, cycle, bad):
+        self.cycle, self.bad, self.count = cycle, bad, 0
+        self.motion = cycle.motion
+
+    def touch(self, x, y, z):
+        t = self.cycle.touch(x, y, z)
+        self.count += 1
+        if self.count == self.bad:
+            from dataclasses import replace
+            return replace(t, reading_mm=t.reading_mm + 0.3)
+        return t
+
+
+def test_an_outlier_is_gated_retaken_and_both_rows_kept(tmp_path, monkeypatch):
+    real_open = session.open_cell
+
+    def fake_open(cell, **kw):
+        oc = real_open(cell, **kw)
+        oc.cycle = _OutlierCycle(oc.cycle, bad=10)
+        return oc
+
+    monkeypatch.setattr(session, "open_cell", fake_open)
+    result = session.run(sim_cell(), tmp_path / "g", progress=False)
+    rec = read_recording(tmp_path / "g" / "recording.csv")
+    assert "gated" in rec.flags[9] and "retake" in rec.flags[10]
+    assert rec.x_mm[9] == rec.x_mm[10] and rec.y_mm[9] == rec.y_mm[10]
+    assert not rec.fused[9] and rec.fused[10]
+    assert result["fused"] == int(rec.fused.sum())
+    assert result["truth"]["max_error_mm"] < 0.05  # the 0.3 mm chip did not enter the map
+
+
+def test_prior_from_an_earlier_run_needs_only_a_handful_of_touches(tmp_path):
+    cell = sim_cell()
+    fresh = session.run(cell, tmp_path / "a", progress=False)
+    again = sim_cell(simulation={"seed": 5})
+    r = session.run(again, tmp_path / "b", prior_from=tmp_path / "a", progress=False)
+    assert r["stopped_because"] == "mean_std_bound"
+    assert r["touches"] <= 10 and r["touches"] < 0.5 * fresh["touches"]
+    assert r["truth"]["rms_error_mm"] < 0.006
+
+
+def test_worst_point_criterion_beats_integrated_variance_on_a_max_bound():
+    touches = {}
+    for crit in ("max", "integrated"):
+        cell = sim_cell(model={"knots_x": 8, "knots_y": 8, "learn_hyper": False},
+                        plan={"stop": {"mean_std_mm": None, "max_std_mm": 0.006, "max_touches": 300},
+                              "criterion": crit, "candidates": 4000})
+        m = drive(Mapper.create(cell), open_cell(cell))
+        assert m.stop_reason() == "max_std_bound"
+        touches[crit] = m.touches
+    assert touches["max"] < 0.8 * touches["integrated"]
+
+
+def test_batch_mode_plans_k_touches_ordered_for_travel():
+    from adaptive_cal.planner import path_length_mm, travel_order
+
+    cell = sim_cell(plan={"batch": 6})
+    m = Mapper.create(cell)
+    drive_some = open_cell(cell)
+    while len(m.heights) < 4 or m.ask(1)[0].retake:  # learn the tilt: all points in the stroke
+        t = m.ask(1)[0]
+        m.tell(t.x_mm, t.y_mm, t.z_mm, drive_some.cycle.touch(t.x_mm, t.y_mm, t.z_mm).reading_mm)
+    batch = m.ask(from_xy=(0.0, 0.0))
+    assert len(batch) == 6
+    pts = np.array([[t.x_mm, t.y_mm] for t in batch])
+    assert path_length_mm((0, 0), pts) <= path_length_mm((0, 0), pts[::-1]) + 1e-9 or \
+        travel_order((0, 0), pts) == list(range(6))
+
+
+def test_dry_run_moves_nothing(tmp_path, capsys):
+    assert main(["run", "--robot", str(SIM_CELL), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "nothing moves" in out and len(out.splitlines()) >= 5
+
+
+@pytest.mark.parametrize("patch,key", [
+    ({"workplane": {"x_mm": [-225, 225], "y_mm": [-185, 185], "colour": 1}}, "workplane.colour"),
+    ({"probe": {"noise_std_mm": 0}}, "probe.noise_std_mm"),
+    ({"workplane": {"x_mm": [10, 10], "y_mm": [-185, 185]}}, "workplane.x_mm"),
+    ({"plan": {"stop": {"mean_std_mm": -0.001}}}, "plan.stop.mean_std_mm"),
+    ({"workplane": {"x_mm": [-225, 225], "y_mm": [-185, 185],
+                    "keep_outs": [{"x_mm": [-300, 300], "y_mm": [-300, 300]}]}}, "keep_outs[0]"),
+    ({"workplane": None}, "workplane"),
+])
+def test_bad_cell_files_name_the_key(tmp_path, patch, key, capsys):
+    import yaml
+    data = load_yaml(SIM_CELL)
+    data.update(patch)
+    if data["workplane"] is None:
+        del data["workplane"]
+    f = tmp_path / "bad.yaml"
+    f.write_text(yaml.safe_dump(data))
+    assert main(["run", "--robot", str(f), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert key in err and "Traceback" not in err
+    assert not (tmp_path / "o" / "recording.csv").exists()  # nothing moved, nothing written
+
+
+def test_malformed_recording_row_is_refused_with_its_line(tmp_path, cheng_round0):
+    lines = cheng_round0.read_text().splitlines()
+    lines[6] = lines[6].replace("-157.5", "abc")  # line 7 of the file: touch 1
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match=r"bad.csv:7: column x_mm: 'abc'"):
+        read_recording(bad)
+    lines = cheng_round0.read_text().splitlines()
+    lines[7] = lines[7].replace("2,,", "1,,", 1)  # touch 2 numbered 1 again
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match="does not increase"):
+        read_recording(bad)
+
+
+def test_flatness_command_reproduces_the_paper_with_intervals(cheng_round0, capsys):
+    assert main(["flatness", str(cheng_round0), "--json", "--samples", "100"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    ls = out["flatness_mm"]["least_squares"]
+    assert ls["value"] == pytest.approx(0.5414, abs=0.001)
+    assert ls["ci95"][0] < ls["value"] < ls["ci95"][1]
+    assert set(out["flatness_mm"]) == {"least_squares", "range", "minimum_zone"}
+    assert out["tilt"]["ry_deg"] == pytest.approx(-0.80, abs=0.01)
