@@ -191,7 +191,10 @@ class Mapper:
                 return []
             xy = self.candidates.xy_mm[i]
             if self.criterion == "integrated" and self.cell.plan.refine:
-                xy = self._refined(xy)
+                d, var = variance_drop(rows, cov, self.gram, r)
+                d = np.where(stroke_ok(var, r, usable) & z_ok, d, -np.inf)
+                top = np.argsort(-d)[: self.cell.plan.refine]
+                xy = self._refined(self.candidates.xy_mm[top[np.isfinite(d[top])]])
             return [self._target(*xy)]
         chosen = plan_batch(pick, rows, cov, r, n)
         chosen = [i for i in chosen if i >= 0]
@@ -199,7 +202,8 @@ class Mapper:
         start = from_xy if from_xy is not None else pts[0]
         return [self._target(*pts[i]) for i in travel_order(start, pts)]
 
-    def _refined(self, xy):
+    def _refined(self, starts: np.ndarray) -> np.ndarray:
+        """Gradient refinement of the best few candidates; the best refined point wins."""
         wp, m = self.cell.workplane, self.cell.workplane.edge_margin_mm
         bounds = [(wp.x_mm[0] + m, wp.x_mm[1] - m), (wp.y_mm[0] + m, wp.y_mm[1] - m)]
         r, usable = self.noise_var, self.cell.probe.usable_mm
@@ -209,8 +213,9 @@ class Mapper:
             var = float(h[0] @ self.belief.cov @ h[0])
             return wp.allows(x, y) and bool(stroke_ok(np.array([var]), r, usable)[0])
 
-        best, _ = refine(self.model.surface, xy, self.belief.cov, self.gram, r, bounds, accept)
-        return best
+        results = [refine(self.model.surface, xy, self.belief.cov, self.gram, r, bounds, accept)
+                   for xy in starts]
+        return max(results, key=lambda res: res[1])[0]
 
     def _target(self, x, y, *, z_mm=None, retake=False) -> Target:
         h = self.model.surface.basis(np.array([x]), np.array([y]))[0]

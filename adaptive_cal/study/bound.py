@@ -73,27 +73,35 @@ def _objective(prob: DesignProblem, weights: np.ndarray, n: float, scores: bool 
     return float(np.sum(prob.gram * cov)), scores
 
 
-def relaxed_design(prob: DesignProblem, n: float, *, iterations: int = 200, tol: float = 1e-4,
+def relaxed_design(prob: DesignProblem, n: float, *, iterations: int = 300, tol: float = 2e-3,
                    start: np.ndarray | None = None):
-    """Frank-Wolfe on the simplex for J(n, w). Returns (weights, J, certified lower bound)."""
+    """Weights minimising J(n, w) on the simplex: the multiplicative algorithm
+    w_i <- w_i (s_i / w^T s)^(1/2) (a fixed point is exactly the optimality condition
+    s_i <= w^T s with equality on the support), each step followed by a Frank-Wolfe step
+    with exact line search. Returns (weights, J, certified lower bound on J*(n))."""
     size = len(prob.rows)
-    w = np.full(size, 1.0 / size) if start is None else start.copy()
+    w = np.full(size, 1.0 / size) if start is None else np.maximum(start, 1e-12 / size)
+    w /= w.sum()
     best_lower = -np.inf
-    for it in range(iterations):
-        j, s = _objective(prob, w, n)
+    j, s = _objective(prob, w, n)
+    for _ in range(iterations):
         gap = n / prob.noise_var * (s.max() - w @ s)
         best_lower = max(best_lower, j - gap)
-        if gap <= tol * j:
+        if j - best_lower <= tol * j:
             break
-        vertex = int(np.argmax(s))
-        # line search on [0, 1] by golden section (J is convex along the segment)
+        w = w * np.sqrt(s / (w @ s))
+        w /= w.sum()
+        w[w < 1e-10 * w.max()] = 0.0
+        w /= w.sum()
+        j, s = _objective(prob, w, n)
+        # Frank-Wolfe step towards the best vertex (golden-section line search, J convex)
         direction = -w.copy()
-        direction[vertex] += 1.0
-        lo, hi = 0.0, 1.0
-        g = (math.sqrt(5) - 1) / 2
+        direction[int(np.argmax(s))] += 1.0
+        lo, hi, g = 0.0, 1.0, (math.sqrt(5) - 1) / 2
         a, b = hi - g * (hi - lo), lo + g * (hi - lo)
-        fa, fb = _objective(prob, w + a * direction, n, False)[0], _objective(prob, w + b * direction, n, False)[0]
-        for _ in range(14):
+        fa = _objective(prob, w + a * direction, n, False)[0]
+        fb = _objective(prob, w + b * direction, n, False)[0]
+        for _ in range(12):
             if fa < fb:
                 hi, b, fb = b, a, fa
                 a = hi - g * (hi - lo)
@@ -102,12 +110,12 @@ def relaxed_design(prob: DesignProblem, n: float, *, iterations: int = 200, tol:
                 lo, a, fa = a, b, fb
                 b = lo + g * (hi - lo)
                 fb = _objective(prob, w + b * direction, n, False)[0]
-        step = 0.5 * (lo + hi)
-        w = np.maximum(w + step * direction, 0.0)
-        w /= w.sum()
-    j, s = _objective(prob, w, n)
-    best_lower = max(best_lower, j - n / prob.noise_var * (s.max() - w @ s))
-    return w, j, best_lower
+        cand = np.maximum(w + 0.5 * (lo + hi) * direction, 0.0)
+        jc, sc = _objective(prob, cand / cand.sum(), n)
+        if jc < j:
+            w, j, s = cand / cand.sum(), jc, sc
+    gap = n / prob.noise_var * (s.max() - w @ s)
+    return w, j, max(best_lower, j - gap)
 
 
 def relaxed_integrated_variance(prob: DesignProblem, n: float, iterations: int = 200) -> float:
@@ -125,7 +133,7 @@ def relaxed_touches(prob: DesignProblem, target_j: float, max_touches: int,
         return math.inf
     if _objective(prob, np.full(len(prob.rows), 1.0 / len(prob.rows)), 0.0)[0] <= target_j:
         return 0.0
-    while hi - lo > 0.05:
+    while hi - lo > 0.02 * max(hi, 1.0):
         mid = 0.5 * (lo + hi)
         w, j, lower = relaxed_design(prob, mid, iterations=iterations, start=w)
         if lower > target_j:

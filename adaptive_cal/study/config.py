@@ -81,7 +81,7 @@ class LowerBound(Strict):
     """Lower bound on touches: relaxed optimal design; exhaustive integer search if small."""
 
     plates: int = Field(20, ge=0, description="computed on the first N plates")
-    candidates: int = Field(2500, ge=16)
+    candidates: int = Field(1000, ge=16)
     exhaustive_limit: int = Field(200000, ge=0, description="largest number of designs "
                                   "enumerated by the exhaustive search")
 

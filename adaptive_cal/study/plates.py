@@ -1,0 +1,83 @@
+"""Synthetic plates: each drawn from its own seed, so a study can grow or resume and plate i is
+always the same plate. A plate is a variation of the base cell: its simulation block (tilt,
+form, noise) and the study's bound and keep-outs."""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..adapters.sim import SimulatedCell
+from ..config import Cell, parse_cell
+from .config import Study
+
+
+@dataclass(frozen=True)
+class Plate:
+    """One synthetic plate: index, seed, effects (effect-table names), noise (mm)."""
+
+    index: int
+    seed: int
+    effects: dict
+    noise_std_mm: float
+    repeatability_mm: float
+
+
+def sample_plate(study: Study, index: int) -> Plate:
+    """Plate ``index`` of the study: drawn from default_rng([study.seed, index])."""
+    p = study.plate
+    rng = np.random.default_rng([study.seed, index])
+    slope = math.tan(math.radians(p.tilt_deg))
+    a, b = rng.uniform(-slope, slope, 2)
+    c = rng.uniform(-p.offset_mm, p.offset_mm)
+    pv = rng.uniform(*p.form_pv_mm)
+    weights = {k: 0.0 for k in ("bow_x", "bow_y", "twist", "warp")}
+    for k in p.form_shapes:
+        weights[k] = float(rng.uniform(-1.0, 1.0))
+    noise = float(rng.uniform(*p.noise_std_mm))
+    effects = {"tilt": {"a": float(a), "b": float(b), "c": float(c)}}
+    if pv > 0 and any(weights.values()):
+        effects["form"] = {"pv_mm": float(pv), **weights}
+    return Plate(index, int(rng.integers(2**31)), effects, noise, p.repeatability_mm)
+
+
+def plate_cell(study: Study, base: dict, plate: Plate) -> Cell:
+    """The base cell with this plate's truth, the study's bound and keep-outs."""
+    data = copy.deepcopy(base)
+    sim = dict(data.get("simulation") or {})
+    sim.update(seed=plate.seed, effects=plate.effects, noise_std_mm=plate.noise_std_mm,
+               repeatability_mm=plate.repeatability_mm)
+    data["simulation"] = sim
+    plan = dict(data.get("plan") or {})
+    stop = dict(plan.get("stop") or {})
+    stop.update(mean_std_mm=study.bound.mean_std_mm, max_std_mm=None,
+                max_touches=study.bound.max_touches)
+    plan["stop"] = stop
+    data["plan"] = plan
+    if study.plate.keep_outs is not None:
+        wp = dict(data["workplane"])
+        wp["keep_outs"] = [k.model_dump() for k in study.plate.keep_outs]
+        data["workplane"] = wp
+    return parse_cell(data, f"plate {plate.index}")
+
+
+def truth(cell: Cell):
+    """The plate's true height function (mm) of (x_mm, y_mm)."""
+    return SimulatedCell.from_cell(cell).surface_mm
+
+
+def heights_at(cell: Cell, xy: np.ndarray, first_touch: int = 0) -> np.ndarray:
+    """Surface heights implied by touches at ``xy`` taken as touch numbers first_touch, ...:
+    the simulated cell's draws (xy and z repeatability, reading noise) for each touch, so a
+    design sees the same noise the probe cycle would give it."""
+    sim = cell.simulation
+    f = truth(cell)
+    out = np.empty(len(xy))
+    for k, (x, y) in enumerate(np.asarray(xy, float)):
+        rng = np.random.default_rng([sim.seed, first_touch + k])
+        e = rng.standard_normal(4)
+        surface = float(f(x + sim.xy_repeatability_mm * e[0], y + sim.xy_repeatability_mm * e[1]))
+        out[k] = surface - sim.repeatability_mm * e[2] + sim.noise_std_mm * e[3]
+    return out
