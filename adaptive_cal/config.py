@@ -50,8 +50,8 @@ class Workplane(Strict):
 
     x_mm: Interval
     y_mm: Interval
-    edge_margin_mm: float = Field(5.0, ge=0)
-    keep_outs: list[Rect] = []
+    edge_margin_mm: float = Field(5.0, ge=0, description="no touch closer than this to the plate edge")
+    keep_outs: list[Rect] = Field([], description="rectangles never touched (clamps, holes)")
 
     @field_validator("x_mm", "y_mm")
     @classmethod
@@ -105,9 +105,11 @@ class Workspace(Strict):
 class Robot(Strict):
     """Motion: which adapter moves the probe, where the robot stands, how fast it travels."""
 
-    adapter: Literal["sim", "manual", "hses", "modbus", "robodk"] = "sim"
-    base_xy_mm: tuple[float, float] | None = None
-    speed_mm_per_s: float = Field(100.0, gt=0)
+    adapter: Literal["sim", "manual", "hses", "modbus", "robodk"] = Field(
+        "sim", description="what moves the probe: see docs/adapters/")
+    base_xy_mm: tuple[float, float] | None = Field(
+        None, description="robot base in the workplane frame (arm_sag, reach)")
+    speed_mm_per_s: float = Field(100.0, gt=0, description="travel speed (robot time estimates)")
     safe_height_mm: float = Field(15.0, description="travel height (workplane z) between touches")
     touch_time_s: float = Field(3.0, ge=0, description="approach, settle, read and retract")
     manual: ManualConfig | None = None
@@ -126,16 +128,17 @@ class Robot(Strict):
 class Probe(Strict):
     """The contact probe: stroke, the usable part of it, its zero, noise and the probe cycle."""
 
-    adapter: Literal["sim", "manual", "serial", "modbus"] = "sim"
-    stroke_mm: float = Field(10.0, gt=0)
-    usable_mm: Interval = (0.5, 9.5)
+    adapter: Literal["sim", "manual", "serial", "modbus"] = Field(
+        "sim", description="what reads the probe: see docs/adapters/")
+    stroke_mm: float = Field(10.0, gt=0, description="full probe stroke")
+    usable_mm: Interval = Field((0.5, 9.5), description="indications accepted; others are rejected")
     zero_mm: float = Field(5.0, description="indication with the tip at the commanded height")
-    resolution_mm: float = Field(1e-4, gt=0)
+    resolution_mm: float = Field(1e-4, gt=0, description="readout step")
     noise_std_mm: float = Field(0.005, gt=0, description="first guess of the reading noise")
-    samples: int = Field(1, ge=1)
-    samples_tolerance_mm: float = Field(0.005, gt=0)
-    retries: int = Field(2, ge=0)
-    settle_s: float = Field(0.2, ge=0)
+    samples: int = Field(1, ge=1, description="samples per touch (median taken)")
+    samples_tolerance_mm: float = Field(0.005, gt=0, description="largest spread of the samples")
+    retries: int = Field(2, ge=0, description="re-samplings when the spread is too large")
+    settle_s: float = Field(0.2, ge=0, description="wait after the approach before reading")
     serial: SerialConfig | None = None
     modbus: ModbusConfig | None = None
 
@@ -154,16 +157,18 @@ class Model(Strict):
 
     knots_x: int | list[float] | None = Field(None, description="count or positions (mm); "
                                                "default from Brunn eq. 15")
-    knots_y: int | list[float] | None = None
-    ends: Literal["not_a_knot", "natural"] = "not_a_knot"
-    tilt_std_deg: float = Field(1.0, gt=0, le=30)
-    offset_std_mm: float = Field(0.5, gt=0)
-    form_std_mm: float = Field(0.05, gt=0)
-    length_scale_mm: float | None = Field(None, gt=0)
+    knots_y: int | list[float] | None = Field(None, description="as knots_x, along y")
+    ends: Literal["not_a_knot", "natural"] = Field(
+        "not_a_knot", description="spline end conditions; not_a_knot reproduces a bow at the edge")
+    tilt_std_deg: float = Field(1.0, gt=0, le=30, description="prior std of the tilt about x and y")
+    offset_std_mm: float = Field(0.5, gt=0, description="prior std of the height at the plate centre")
+    form_std_mm: float = Field(0.05, gt=0, description="prior form amplitude (learned)")
+    length_scale_mm: float | None = Field(
+        None, gt=0, description="prior form length scale (learned); default half the shorter side")
     form_tolerance_mm: float = Field(0.1, gt=0, description="S_u - S_l of Brunn eq. 15")
     max_curvature_per_mm: float = Field(5e-5, gt=0, description="k_max of Brunn eq. 15")
-    learn_hyper: bool = True
-    gate_sigma: float = Field(4.0, gt=0)
+    learn_hyper: bool = Field(True, description="refit form amplitude, length scale and noise")
+    gate_sigma: float = Field(4.0, gt=0, description="Mahalanobis gate; a failing reading is retaken")
 
     @field_validator("knots_x", "knots_y")
     @classmethod
@@ -180,15 +185,15 @@ class Stop(Strict):
 
     mean_std_mm: float | None = Field(0.01, gt=0, description="RMS posterior std over the plate")
     max_std_mm: float | None = Field(None, gt=0, description="largest posterior std on the plate")
-    max_touches: int = Field(200, ge=1)
+    max_touches: int = Field(200, ge=1, description="touch budget")
 
 
 class Plan(Strict):
     """The planner: candidates, refinement, batches, hyper-parameter learning."""
 
-    stop: Stop = Stop()
-    candidates: int = Field(10000, ge=16)
-    refine: int = Field(4, ge=0, description="best candidates refined by gradient steps")
+    stop: Stop = Field(Stop(), description="stopping rules (any one stops)")
+    candidates: int = Field(10000, ge=16, description="grid points scored per decision")
+    refine: int = Field(3, ge=0, description="best candidates refined by gradient steps")
     batch: int = Field(1, ge=1, description="touches planned ahead and ordered for travel")
     criterion: Literal["auto", "integrated", "max"] = Field(
         "auto", description="auto: the worst-point criterion when only max_std_mm bounds the "
@@ -201,12 +206,13 @@ class Plan(Strict):
 class Simulation(Strict):
     """The simulated cell's truth: effects from the effect table and the noise it adds."""
 
-    seed: int = 0
-    effects: dict[str, dict[str, float]] = {}
-    unknown: list[str] = ["tilt"]
+    seed: int = Field(0, description="seed of the simulated noise")
+    effects: dict[str, dict[str, float]] = Field(
+        {}, description="effect name -> parameters (DESIGN.md effect table)")
+    unknown: list[str] = Field(["tilt"], description="effects explain calibrates from a recording")
     noise_std_mm: float = Field(0.002, ge=0, description="probe noise")
     repeatability_mm: float = Field(0.005, ge=0, description="robot z repeatability (1 sigma)")
-    xy_repeatability_mm: float = Field(0.01, ge=0)
+    xy_repeatability_mm: float = Field(0.01, ge=0, description="robot x/y repeatability (1 sigma)")
 
     @field_validator("effects")
     @classmethod
@@ -230,14 +236,16 @@ class Simulation(Strict):
 class Cell(Strict):
     """A whole cell file."""
 
-    name: str = "cell"
+    name: str = Field("cell", description="shown in reports and figures")
     workplane: Workplane
-    workspace: Workspace | None = None
+    workspace: Workspace | None = Field(
+        None, description="box the probe tip may be sent to; none: the workplane only")
     robot: Robot = Robot()
     probe: Probe = Probe()
     model: Model = Model()
     plan: Plan = Plan()
-    simulation: Simulation | None = None
+    simulation: Simulation | None = Field(
+        None, description="the simulated truth (robot.adapter sim, emulate, explain)")
 
     @model_validator(mode="after")
     def _consistent(self):

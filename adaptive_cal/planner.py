@@ -103,7 +103,7 @@ def refine(surface: Surface, start_xy: np.ndarray, cov, gram, noise_var, bounds,
 
     start_val = -fun(start_xy)[0]
     res = minimize(fun, np.asarray(start_xy, float), jac=True, method="L-BFGS-B", bounds=bounds,
-                   options={"maxiter": 30})
+                   options={"maxiter": 20})
     if np.isfinite(res.fun) and -res.fun > start_val and accept(*res.x):
         return res.x, float(-res.fun)
     return np.asarray(start_xy, float), start_val

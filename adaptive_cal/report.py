@@ -111,9 +111,9 @@ def surface_png(run_dir: Path, cell: Cell, rec, result: dict) -> str | None:
     gx, gy = np.linspace(*wp.x_mm, 81), np.linspace(*wp.y_mm, 81)
     xx, yy = np.meshgrid(gx, gy, indexing="ij")
     mean, var = predict(Belief(data["mean"], data["cov"]), surface.basis(xx.ravel(), yy.ravel()))
-    f = rec.fused
+    # every touch, so the numbers are the recording's seq (a retake lands where its gated touch did)
     fig = plots.surface_figure(gx, gy, mean.reshape(xx.shape), np.sqrt(np.maximum(var, 0)).reshape(xx.shape),
-                               np.c_[rec.x_mm[f], rec.y_mm[f]], wp.x_mm, wp.y_mm,
+                               np.c_[rec.x_mm, rec.y_mm], wp.x_mm, wp.y_mm,
                                keep_outs=[(k.x_mm, k.y_mm) for k in wp.keep_outs], title=cell.name)
     return _png(fig)
 
@@ -207,8 +207,8 @@ def _tilt_section(tilt: dict) -> str:
             + f"<p>rotx(rx) roty(ry), the rotation to multiply on the right (no translation):</p>"
               f"<pre class='code'>{matrix}</pre>"
               "<p class='note'>± is one posterior standard deviation (surfaces sampled from the "
-              "belief). c is the plate height at the frame origin relative to the probe zero; "
-              "a z offset of the frame, if wanted, is -c.</p>")
+              "belief). c is the plate height at the frame origin, measured from where the probe "
+              "reads its zero: moving the frame origin by +c along z puts it on the plate.</p>")
 
 
 def _flatness_section(result: dict) -> str:
@@ -235,7 +235,9 @@ def _explain_section(run_dir: Path) -> str:
     rep = json.loads(path.read_text(encoding="utf-8"))
     fit = rep.get("fit", {})
     parts = ["<h2>Explain: what the simulation left out</h2>",
-             f"<p class='verdict'>verdict: <b>{_e(rep.get('verdict', '-'))}</b></p>"]
+             f"<p class='verdict'>verdict: <b>{_e(rep.get('verdict', '-'))}</b>"
+             + (" (no left-out effect is supported by the data)" if rep.get("verdict") == "none" else "")
+             + "</p>"]
     rows = [(_e(e["effect"]), _e(e["summary"])) for e in rep.get("left_out", [])]
     if rows:
         parts.append(_table(rows, head=("effect", "fitted (log Bayes factor against none)")))
@@ -244,7 +246,13 @@ def _explain_section(run_dir: Path) -> str:
             ("RMS residual", f"{_um(fit.get('rms_before_mm'))} &rarr; {_um(fit.get('rms_after_mm'))}"),
             ("leave-one-out RMS", f"{_um(fit.get('cv_rms_before_mm'))} &rarr; "
                                   f"{_um(fit.get('cv_rms_after_mm'))}")],
-            head=("fit", "nominal &rarr; with the effect"), cls="kv"))
+            head=("fit", "nominal → with the effect"), cls="kv"))
+    by = rep.get("mismatch", {}).get("by", {})
+    if by:
+        parts.append(_table([(_e(k), f"{v['p_value']:.3g}" + (" <b>real</b>" if v.get("real") else "")
+                              if v.get("p_value") is not None else _e(v.get("note", "-")))
+                             for k, v in by.items()],
+                            head=("residual against", "F-test p (small = a real trend)"), cls="kv"))
     r = rep.get("rounds")
     if r and "p_value" in r:
         lo, hi = r["null_change_95_mm"]

@@ -150,7 +150,7 @@ def _trajectory(rows, heights, truth_eval, touches, prior_mean, prior_cov, gram,
     (mean, cov), _ = jax.lax.scan(step, (prior_mean, prior_cov), (rows, heights, on))
     err = eval_rows @ mean - truth_eval
     var = jnp.einsum("ek,kl,el->e", eval_rows, cov, eval_rows)
-    cover = jnp.mean(jnp.abs(err) <= 1.959964 * jnp.sqrt(jnp.maximum(var, 0.0)))
+    cover = jnp.mean((jnp.abs(err) <= 1.959964 * jnp.sqrt(jnp.maximum(var, 0.0))).astype(err.dtype))
     final = (jnp.sqrt(jnp.maximum(jnp.sum(gram * cov), 0.0) / area), jnp.sqrt(jnp.mean(err**2)),
              jnp.max(jnp.abs(err)), cover)
     return per_touch, final

@@ -1,0 +1,18 @@
+"""``adaptive-cal report DIR``: one self-contained HTML page of a run (figures embedded)."""
+from __future__ import annotations
+
+
+def add_arguments(p) -> None:
+    p.add_argument("run_dir", metavar="DIR", help="a run folder written by 'adaptive-cal run --out "
+                   "DIR' (result.json, recording.csv, cell.yaml, belief.npz; explain.json and "
+                   "explain's figures are included when present)")
+    p.add_argument("--out", metavar="FILE.html", default=None,
+                   help="where to write the page (default: DIR/report.html)")
+
+
+def command(args) -> int:
+    from .report import write
+
+    path = write(args.run_dir, args.out)
+    print(f"wrote {path}")
+    return 0

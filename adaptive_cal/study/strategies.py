@@ -1,0 +1,238 @@
+"""The strategies of a study on one plate, each returning a record (a JSON-able dict).
+
+* ``adaptive`` / ``greedy_fixed`` (per plate): the engine's ask/tell loop on the simulated cell,
+  through the probe cycle (stroke checks, gating, retakes), with and without hyper-parameter
+  learning. The run goes on past its own stop until the true error also meets the target, so
+  "touches to reach an accuracy" can be read off its trajectory.
+* ``paper`` / ``grid`` / ``random``: fixed designs judged by the same model (``estimator``:
+  learned like the planner, or fixed and vectorised over plates in ``batch.py``). Their
+  readings are taken as if every touch landed inside the stroke (a levelled frame or a jogging
+  operator), which favours them.
+
+Robot time = xy travel from the plate centre at robot.speed_mm_per_s + touch_time_s per touch.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import belief as bl
+from ..adapters.base import TouchRejected
+from ..adapters.factory import open_cell
+from ..config import Cell
+from ..mapper import Mapper, prior_model
+from ..planner import path_length_mm
+from ..prior import PriorModel
+from .config import Study
+from .designs import (Evaluator, grid_points, grid_sizes, learned_belief, level_tilt_mm,
+                      paper_points, random_points)
+from .plates import Plate, heights_at, truth
+
+
+@dataclass
+class Context:
+    """What every strategy needs to know about one plate."""
+
+    study: Study
+    plate: Plate
+    cell: Cell
+    model: PriorModel
+    evaluator: Evaluator
+    truth_eval: np.ndarray
+
+    @classmethod
+    def create(cls, study: Study, plate: Plate, cell: Cell) -> "Context":
+        mapper = Mapper.create(cell)
+        ev = Evaluator(mapper.eval_rows, mapper.gram, mapper.model.surface.area_mm2)
+        t = truth(cell)(mapper.eval_xy[:, 0], mapper.eval_xy[:, 1])
+        return cls(study, plate, cell, mapper.model, ev, t)
+
+    def robot_time_s(self, xy) -> float:
+        wp, robot = self.cell.workplane, self.cell.robot
+        start = (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm))
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        travel = path_length_mm(start, xy) if len(xy) else 0.0
+        return travel / robot.speed_mm_per_s + len(xy) * robot.touch_time_s
+
+
+def record(ctx: Context, strategy: str, trajectory: list, stop: int, final: dict, xy,
+           stop_reason: str, target_true: float, **extra) -> dict:
+    """A strategy's result on one plate. ``trajectory``: [touches, mean_std_mm, true_rms_mm] at
+    each point the strategy could stop; ``stop``: touches at its own stop; ``final``: the four
+    figures there; ``xy``: every touch sent, in order."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    reached = [t for t, _, rms in trajectory if rms <= target_true]
+    true_touches = reached[0] if reached else None
+    return {"strategy": strategy, "plate": ctx.plate.index, "seed": ctx.plate.seed,
+            "noise_std_mm": ctx.plate.noise_std_mm, "touches": int(stop),
+            "stop_reason": stop_reason, "robot_time_s": ctx.robot_time_s(xy[:stop]),
+            **{k: float(final[k]) for k in ("mean_std_mm", "true_rms_mm", "true_max_mm",
+                                             "coverage95")},
+            "touches_true": true_touches,
+            "robot_time_true_s": None if true_touches is None else ctx.robot_time_s(xy[:true_touches]),
+            "trajectory": [[int(t), float(m), float(r)] for t, m, r in trajectory],
+            "xy": np.round(xy[: max(stop, true_touches or 0)], 2).tolist(), **extra}
+
+
+# -- the engine's loop --------------------------------------------------------------------------
+def run_planner(ctx: Context, *, learn: bool, target_true: float) -> dict:
+    """Ask/tell on the simulated cell until the cell's stop rule fires and the true RMS error is
+    at most ``target_true`` (or the touch budget is spent)."""
+    data = ctx.cell.model_copy(update={"model": ctx.cell.model.model_copy(
+        update={"learn_hyper": learn})})
+    mapper = Mapper.create(data)
+    opened = open_cell(data)
+    f = opened.simulated.surface_mm
+    budget = ctx.study.bound.max_touches
+    trajectory, xy, stop, reason, final = [], [], None, None, None
+    while True:
+        err = mapper.truth_error(f)
+        status = mapper.status()
+        trajectory.append([mapper.touches, status.mean_std_mm, err["rms_error_mm"]])
+        why = mapper.stop_reason()
+        if stop is None and why:
+            stop, reason = mapper.touches, why
+            final = {"mean_std_mm": status.mean_std_mm, "true_rms_mm": err["rms_error_mm"],
+                     "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
+        if (stop is not None and err["rms_error_mm"] <= target_true) or mapper.touches >= budget:
+            break
+        targets = mapper.ask(from_xy=opened.cycle.motion.position()[:2])
+        if not targets:
+            break
+        for t in targets:
+            xy.append((t.x_mm, t.y_mm))
+            try:
+                touch = opened.cycle.touch(t.x_mm, t.y_mm, t.z_mm)
+            except TouchRejected:
+                mapper.skip()
+            else:
+                mapper.tell(touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
+    if stop is None:  # budget spent, or no admissible point: the last state is the stop
+        err = mapper.truth_error(f)
+        stop, reason = mapper.touches, mapper.stop_reason() or "no_admissible_point"
+        final = {"mean_std_mm": mapper.status().mean_std_mm, "true_rms_mm": err["rms_error_mm"],
+                 "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
+    return record(ctx, "adaptive" if learn else "greedy_fixed", trajectory, stop, final, xy,
+                  reason, target_true, hyper=list(mapper.hyper))
+
+
+# -- fixed designs, learned estimator -------------------------------------------------------------
+class _Learner:
+    """Beliefs of growing designs under the learned estimator (hyper-parameters carried)."""
+
+    def __init__(self, ctx: Context):
+        self.ctx, self.hyper = ctx, ctx.model.hyper0
+
+    def figures(self, xy, heights) -> dict:
+        ctx = self.ctx
+        rows = ctx.model.surface.basis(xy[:, 0], xy[:, 1])
+        if len(xy) >= ctx.cell.plan.hyper_after:
+            belief, self.hyper = learned_belief(ctx.model, rows, heights, self.hyper)
+        else:
+            belief = bl.condition(ctx.model.belief(self.hyper), rows, heights,
+                                  self.hyper.noise_std_mm**2)
+        return ctx.evaluator(belief, ctx.truth_eval)
+
+
+def _sequence(ctx: Context, name: str, xy: np.ndarray, checkpoints: list[int],
+              own_stop, target_true: float, reason_budget="touch_budget") -> dict:
+    """Run a fixed touch sequence, judged at checkpoints; ``own_stop(n, figures, heights)`` says
+    whether the strategy's own rule stops after n touches."""
+    heights = heights_at(ctx.cell, xy)
+    learner = _Learner(ctx)
+    trajectory, stop, final, reason = [], None, None, None
+    for n in checkpoints:
+        fig = learner.figures(xy[:n], heights[:n])
+        trajectory.append([n, fig["mean_std_mm"], fig["true_rms_mm"]])
+        if stop is None:
+            why = own_stop(n, fig, heights)
+            if why:
+                stop, final, reason = n, fig, why
+        if stop is not None and fig["true_rms_mm"] <= target_true:
+            break
+    if stop is None:
+        stop, final, reason = n, fig, reason_budget
+    return record(ctx, name, trajectory, stop, final, xy, reason, target_true,
+                  hyper=list(learner.hyper))
+
+
+def paper_schedule(ctx: Context):
+    """Touch sequence of the reference procedure up to the budget, and the round ends."""
+    level, path = paper_points(ctx.cell, ctx.study.paper)
+    budget = ctx.study.bound.max_touches
+    rounds = max(1, (budget - len(level)) // len(path))
+    xy = np.vstack([level] + [path] * rounds)
+    ends = [len(level) + len(path) * (r + 1) for r in range(rounds)]
+    return xy, ends, len(level), len(path)
+
+
+def paper_stop(ctx: Context, n_level: int, n_path: int):
+    """The paper's criterion: after each round the frame is levelled by the round's plane; stop
+    when a round's least-squares plane tilts by at most level_tolerance_mm across the plate."""
+    paper = ctx.study.paper
+    wp = ctx.cell.workplane
+    span = (wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
+
+    def stop(n, fig, heights, xy):
+        r = (n - n_level) // n_path
+        if r < 1:
+            return None
+        lev = xy[:n_level]
+        a = np.column_stack([lev, np.ones(n_level)])
+        plane = np.linalg.lstsq(a, heights[:n_level], rcond=None)[0]
+        for k in range(r):  # level by each round's plane in turn
+            sl = slice(n_level + k * n_path, n_level + (k + 1) * n_path)
+            pts = xy[sl]
+            resid = heights[sl] - np.column_stack([pts, np.ones(len(pts))]) @ plane
+            tilt = level_tilt_mm(pts, resid, span)
+            if tilt <= paper.level_tolerance_mm:
+                return "paper_level" if k == r - 1 else None
+            plane = plane + np.linalg.lstsq(np.column_stack([pts, np.ones(len(pts))]), resid,
+                                            rcond=None)[0]
+        return "paper_rounds" if r >= paper.max_rounds else None
+
+    return stop
+
+
+def run_paper(ctx: Context, target_true: float) -> dict:
+    xy, ends, n_level, n_path = paper_schedule(ctx)
+    rule = paper_stop(ctx, n_level, n_path)
+    return _sequence(ctx, "paper", xy, [n_level] + ends,
+                     lambda n, fig, h: rule(n, fig, h, xy), target_true)
+
+
+def run_grid(ctx: Context, target_true: float) -> dict:
+    """Serpentine grids of growing size, each a fresh run; stop at the first meeting the bound."""
+    bound = ctx.study.bound
+    learner = _Learner(ctx)
+    trajectory, stop, final, best_xy, true_xy = [], None, None, None, None
+    for nx, ny in grid_sizes(ctx.cell, bound.max_touches):
+        xy = grid_points(ctx.cell, nx, ny)
+        fig = learner.figures(xy, heights_at(ctx.cell, xy))
+        trajectory.append([len(xy), fig["mean_std_mm"], fig["true_rms_mm"]])
+        if stop is None and fig["mean_std_mm"] <= bound.mean_std_mm:
+            stop, final, best_xy = len(xy), fig, xy
+        if fig["true_rms_mm"] <= target_true and true_xy is None:
+            true_xy = xy
+        if stop is not None and true_xy is not None:
+            break
+    reason = "mean_std_bound"
+    if stop is None:
+        stop, final, best_xy, reason = len(xy), fig, xy, "touch_budget"
+    rec = record(ctx, "grid", trajectory, stop, final, best_xy, reason, target_true,
+                 hyper=list(learner.hyper), grid=[nx, ny])
+    rec["robot_time_s"] = ctx.robot_time_s(best_xy)
+    if true_xy is not None:  # each grid is its own run: time the grid that met the target
+        rec["robot_time_true_s"] = ctx.robot_time_s(true_xy)
+    return rec
+
+
+def run_random(ctx: Context, target_true: float) -> dict:
+    bound = ctx.study.bound
+    xy = random_points(ctx.cell, bound.max_touches, np.random.default_rng([ctx.plate.seed, 7]))
+    plan = ctx.cell.plan
+    checkpoints = list(range(plan.hyper_after, bound.max_touches + 1, plan.hyper_every))
+    return _sequence(ctx, "random", xy, checkpoints,
+                     lambda n, fig, h: "mean_std_bound" if fig["mean_std_mm"] <= bound.mean_std_mm
+                     else None, target_true)
