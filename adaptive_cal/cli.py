@@ -20,6 +20,7 @@ SUBCOMMANDS = {
     "run": ("adaptive_cal.cmd_run", "map a workplane: plan touches, drive the cell, stop at the bound"),
     "flatness": ("adaptive_cal.cmd_flatness", "flatness and tilt correction of a recording"),
     "emulate": ("adaptive_cal.cmd_emulate", "serve an emulated cell (HSES, Modbus PLC, gauge) on loopback"),
+    "study": ("adaptive_cal.cmd_study", "simulation studies: strategies on synthetic plates, lower bound, Dask"),
     "report": ("adaptive_cal.cmd_report", "one self-contained HTML page of a run folder, for whoever adjusts the robot"),
 }
 

@@ -21,6 +21,7 @@ def add_arguments(p) -> None:
     p.add_argument("--workers", type=int, default=0,
                    help="run on a Dask LocalCluster of N worker processes (0: in-process)")
     p.add_argument("--plates", type=int, help="override the study's number of plates")
+    p.add_argument("--strategies", help="override the study's strategies (comma separated)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -31,6 +32,12 @@ def command(args) -> int:
     study, base = load_study(args.study)
     if args.plates:
         study = study.model_copy(update={"plates": args.plates})
+    if args.strategies:
+        from .study.config import parse_study
+
+        data = study.model_dump(mode="json")
+        data["strategies"] = [s.strip() for s in args.strategies.split(",") if s.strip()]
+        study = parse_study(data, "--strategies")
     out_json = Path(args.json)
     out_dir = Path(args.out) if args.out else None
     checkpoint = (out_dir / "plates.jsonl" if out_dir

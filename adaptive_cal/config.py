@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from . import physics
 from .adapters.schema import (HsesConfig, ManualConfig, ModbusConfig, RobodkConfig, SerialConfig,
@@ -251,6 +251,17 @@ class Cell(Strict):
     def _consistent(self):
         if self.robot.adapter == "sim" and self.simulation is None:
             object.__setattr__(self, "simulation", Simulation())
+        r, p = self.robot, self.probe
+        if (r.adapter == "sim") != (p.adapter == "sim"):
+            raise ValueError(f"robot.adapter={r.adapter!r} with probe.adapter={p.adapter!r}: the "
+                             "simulated robot and probe only exist together; set both to 'sim'")
+        if r.adapter == "modbus" and p.adapter == "modbus":
+            a, b = r.modbus, p.modbus
+            same = all(getattr(a, k, None) == getattr(b, k, None)
+                       for k in ("transport", "host", "port", "serial_port", "device_id"))
+            if same and a != b:
+                raise ValueError("robot.modbus and probe.modbus name the same PLC with different "
+                                 "settings; make the two blocks identical")
         st = self.plan.stop
         if st.mean_std_mm is None and st.max_std_mm is None and st.max_touches is None:
             raise ValueError("plan.stop needs mean_std_mm, max_std_mm or max_touches")

@@ -40,7 +40,7 @@ def reference() -> str:
                 "| key | type | default | meaning |", "|---|---|---|---|"]
         for name, field in model.model_fields.items():
             default = "required" if field.is_required() else field.get_default()
-            default = (f"see below" if isinstance(default, BaseModel) else
+            default = ("see below" if isinstance(default, BaseModel) else
                        default if default == "required" else repr(default))
             out.append(f"| `{name}` | {_type(field.annotation)} | {default if default in ('required', 'see below') else '`' + default + '`'} | "
                        f"{(field.description or '').replace('|', '/')} |")

@@ -250,6 +250,34 @@ class Mapper:
         self.history.append(self.status())
         return told
 
+    @property
+    def retake_pending(self) -> bool:
+        """True after a gated reading: the next ask() returns the same point again."""
+        return self._retake is not None
+
+    def replay(self, recording) -> None:
+        """Rebuild the state from a recording: fused rows by their flags, the touch count, the
+        hyper-parameters, and a retake the interrupted run still owed."""
+        rec, fused = recording, recording.fused
+        zero = self.cell.probe.zero_mm
+        if fused.any():
+            rows = self.model.surface.basis(rec.x_mm[fused], rec.y_mm[fused])
+            heights = rec.reading_mm[fused] - zero + rec.z_mm[fused]
+            self.xs, self.ys = rec.x_mm[fused].tolist(), rec.y_mm[fused].tolist()
+            self.heights, self._rows = heights.tolist(), list(rows)
+            if (self.cell.model.learn_hyper and self.base is None
+                    and len(heights) >= self.cell.plan.hyper_after):
+                self.refit()
+            else:
+                start = self.base if self.base is not None else self.model.belief(self.hyper)
+                self.belief = bl.condition(start, rows, heights, self.noise_var)
+        self.touches = len(rec)
+        if len(rec) and rec.flags and "gated" in rec.flags[-1]:
+            i = len(rec) - 1
+            self._retake = (rec.x_mm[i], rec.y_mm[i], rec.z_mm[i],
+                            rec.reading_mm[i] - zero + rec.z_mm[i])
+        self.history = [self.status()]
+
     def skip(self) -> None:
         """Count a touch whose reading was rejected by the probe cycle (not fused)."""
         self.touches += 1

@@ -7,7 +7,6 @@ every touch and ``--resume`` continues it: no touch repeated, none lost.
 """
 from __future__ import annotations
 
-import json
 import math
 import signal
 from contextlib import contextmanager
@@ -40,27 +39,9 @@ class RunPaths:
 
 
 def replay(mapper: Mapper, path: Path) -> tuple[int, float]:
-    """Rebuild the belief from a recording (fused rows by their flags). Returns the number of
-    touches and the last time stamp."""
+    """Rebuild the belief from a recording; returns the number of touches and the last time."""
     rec = read_recording(path)
-    fused = rec.fused
-    if fused.any():
-        rows = mapper.model.surface.basis(rec.x_mm[fused], rec.y_mm[fused])
-        heights = rec.reading_mm[fused] - mapper.cell.probe.zero_mm + rec.z_mm[fused]
-        mapper.xs, mapper.ys = rec.x_mm[fused].tolist(), rec.y_mm[fused].tolist()
-        mapper.heights, mapper._rows = heights.tolist(), list(rows)
-        m, plan = mapper.cell.model, mapper.cell.plan
-        if m.learn_hyper and mapper.base is None and len(heights) >= plan.hyper_after:
-            mapper.refit()
-        else:
-            start = mapper.base if mapper.base is not None else mapper.model.belief(mapper.hyper)
-            mapper.belief = bl.condition(start, rows, heights, mapper.noise_var)
-    mapper.touches = len(rec)
-    if len(rec) and rec.flags and "gated" in rec.flags[-1]:
-        i = len(rec) - 1  # the interrupted run owed a retake of its last touch
-        mapper._retake = (rec.x_mm[i], rec.y_mm[i], rec.z_mm[i],
-                          rec.reading_mm[i] - mapper.cell.probe.zero_mm + rec.z_mm[i])
-    mapper.history = [mapper.status()]
+    mapper.replay(rec)
     t = rec.t_s[np.isfinite(rec.t_s)]
     return len(rec), float(t[-1]) if len(t) else 0.0
 
@@ -174,7 +155,7 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
                     if truth is not None:
                         true_rms.append(mapper.truth_error(truth)["rms_error_mm"])
                     _update(bar, mapper)
-                    if told_retake(mapper) or flag["stop"]:
+                    if mapper.retake_pending or flag["stop"]:
                         break
     except KeyboardInterrupt:
         stopped = "interrupted"
@@ -186,10 +167,6 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
     result = write_results(mapper, paths.out, stopped or "interrupted", truth, true_rms or None)
     save_belief(mapper, paths.out / "belief.npz")
     return result
-
-
-def told_retake(mapper: Mapper) -> bool:
-    return mapper._retake is not None
 
 
 def _progress(enabled: bool, cell: Cell, initial: int):

@@ -85,3 +85,13 @@ def test_delta_and_dop_names_translated(name, table, address):
 def test_shipped_cell_files_load(name):
     cell = load_cell(ROOT / "configs" / f"{name}.yaml")
     assert cell.robot.adapter in ("hses", "modbus", "manual")
+
+
+def test_sim_probe_with_a_real_robot_is_refused_at_load_time():
+    from adaptive_cal.config import ConfigError, load_yaml, parse_cell
+    from helpers import SIM_CELL
+
+    data = load_yaml(SIM_CELL)
+    data["probe"] = {**data["probe"], "adapter": "manual"}
+    with pytest.raises(ConfigError, match="probe.adapter='manual'"):
+        parse_cell(data)

@@ -13,7 +13,7 @@ import pytest
 from adaptive_cal import session
 from adaptive_cal.adapters.factory import open_cell
 from adaptive_cal.cli import main
-from adaptive_cal.config import ConfigError, load_yaml, parse_cell
+from adaptive_cal.config import load_yaml
 from adaptive_cal.mapper import Mapper
 from adaptive_cal.recording import RecordingError, read_recording
 

@@ -38,6 +38,7 @@ from .evidence import (Projector, log_evidence, log_evidence_columns_mixture,
 PRIOR_RANGE = {"form": (1e-3, 1.0), "thermal_drift": (1e-6, 1e-3), "reversal": (1e-4, 0.1),
                "arm_sag": (1e-3, 1.0), "probe_gain": (1e-5, 1e-2), "local_defect": (1e-3, 1.0)}
 TAU_PER_DECADE = 4
+PRIOR_SHAPE = "design"  # multi-parameter effects: "design" (prior_shape) or "iid"
 SAG_EXPONENTS = (1.0, 1.5, 2.0, 2.5, 3.0)
 DEFECT_RADII_MM = (15.0, 30.0, 60.0)
 
@@ -46,6 +47,35 @@ def prior_grid(name: str) -> np.ndarray:
     """The log-uniform grid of the prior standard deviation tau of an effect's parameters."""
     lo, hi = PRIOR_RANGE[name]
     return np.geomspace(lo, hi, int(round(TAU_PER_DECADE * np.log10(hi / lo))) + 1)
+
+
+GPRIOR_RIDGE = 0.01  # caps the design-scaled prior sd of a nearly absorbed direction at 10 tau
+
+
+def prior_shape(Xt: np.ndarray, ridge: float = GPRIOR_RIDGE) -> np.ndarray | None:
+    """Design-scaled prior shape S0 of a multi-parameter effect (theta ~ N(0, tau^2 S0)).
+
+    S0 = lbar (Z^T Z + ridge lbar I)^-1 with Z the columns after the tilt is projected out and
+    lbar = trace(Z^T Z) / k: Zellner's g-prior, scaled so the expected signal energy
+    E|Z theta|^2 = tau^2 trace(Z^T Z) equals that of the i.i.d. prior theta ~ N(0, tau^2 I)
+    (tau keeps its physical meaning), but spread evenly over the directions the design can
+    see. With the i.i.d. prior a signal along a weakly measured direction needs a large tau,
+    and every well-measured direction then pays an Occam factor for it (about 7 nats for the
+    four form shapes on a 10 x 4 grid, whose Z^T Z eigenvalues span a factor 24). The ridge
+    keeps the prior proper and physical when a shape is nearly absorbed by the tilt. One-column
+    effects keep S0 = 1 (None).
+    """
+    k = Xt.shape[1]
+    if k <= 1:
+        return None
+    G = Xt.T @ Xt
+    lbar = float(np.trace(G)) / k
+    if lbar <= 0.0:
+        return None
+    A = 0.5 * (G + G.T) / lbar + ridge * np.eye(k)
+    L = np.linalg.cholesky(A)
+    Li = np.linalg.solve(L, np.eye(k))
+    return Li.T @ Li
 
 
 def prior_scale(name: str) -> float:
@@ -113,16 +143,22 @@ def _linear(ctx: Context, name: str) -> Candidate:
     d = ctx.design
     X = physics.effect_regressor(name, d.features, d.geometry)
     taus = prior_grid(name)
-    lz_s, best_s, _ = log_evidence_mixture(ctx.project(X), ctx.yt, taus, ctx.m)
-    var = lambda k, i: np.full(k, taus[i] ** 2)
+
+    def score(cols):
+        Xt = ctx.project(cols)
+        S0 = prior_shape(Xt) if PRIOR_SHAPE == "design" else None
+        lz, best, _ = log_evidence_mixture(Xt, ctx.yt, taus, ctx.m, S0)
+        var = taus[best] ** 2 * (np.ones(cols.shape[1]) if S0 is None else S0)
+        return lz, var
+
+    lz_s, var_s = score(X)
     if d.rounds == 1:
-        return Candidate(name, lz_s - ctx.log_z0, X, var(X.shape[1], best_s)).fit_posterior(ctx)
+        return Candidate(name, lz_s - ctx.log_z0, X, var_s).fit_posterior(ctx)
     Xp = d.per_round(X)
-    lz_p, best_p, _ = log_evidence_mixture(ctx.project(Xp), ctx.yt, taus, ctx.m)
+    lz_p, var_p = score(Xp)
     lz = float(logsumexp([lz_s, lz_p]) - np.log(2.0))
     shared = lz_s >= lz_p
-    cand = Candidate(name, lz - ctx.log_z0, X if shared else Xp,
-                     var(X.shape[1], best_s) if shared else var(Xp.shape[1], best_p),
+    cand = Candidate(name, lz - ctx.log_z0, X if shared else Xp, var_s if shared else var_p,
                      "shared" if shared else "per_round", float(lz_s - lz_p))
     return cand.fit_posterior(ctx)
 

@@ -16,7 +16,7 @@ from ..config import Cell
 from ..recording import Recording
 from .candidates import PRIOR_RANGE, Candidate, Context, score_candidates
 from .design import Design, build_design
-from .evidence import loo_residuals
+from .evidence import loo_residuals, prior_precision
 from .identify import not_identifiable
 from .locate import locate
 from .rounds import flatness_change
@@ -127,7 +127,9 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD, margin: floa
     if winner is not None:
         after = before - ctx.project(winner.columns) @ winner.mean
         D = np.hstack([N, winner.columns])
-        pen = np.concatenate([np.zeros(N.shape[1]), winner.noise_var / winner.prior_var])
+        k0, k1 = N.shape[1], winner.columns.shape[1]
+        pen = np.zeros((k0 + k1, k0 + k1))
+        pen[k0:, k0:] = winner.noise_var * prior_precision(winner.prior_var)
         loo1 = loo_residuals(D, design.target, pen)
     else:
         after, loo1 = before, loo0

@@ -102,10 +102,22 @@ def log_evidence_spectral(lam, c2, yy, m) -> tuple[np.ndarray, np.ndarray]:
     return log_z, w
 
 
-def spectrum(Xt: np.ndarray, yt: np.ndarray, prior_var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lam, c2) of the model with projected columns Xt (n x k), projected data yt, S = diag."""
-    s = np.sqrt(np.asarray(prior_var, float))
-    B = Xt * s
+def prior_root(prior_var) -> np.ndarray:
+    """R with S = R R^T: S a vector (diagonal prior variances) or a full covariance matrix."""
+    S = np.asarray(prior_var, float)
+    if S.ndim == 1:
+        return np.diag(np.sqrt(S))
+    lam, V = np.linalg.eigh(0.5 * (S + S.T))
+    return V * np.sqrt(np.maximum(lam, 0.0))
+
+
+def spectrum(Xt: np.ndarray, yt: np.ndarray, prior_var) -> tuple[np.ndarray, np.ndarray]:
+    """(lam, c2) of the model with projected columns Xt (n x k), projected data yt.
+
+    ``prior_var``: the prior covariance S of theta, as its diagonal (vector) or a k x k matrix.
+    """
+    S = np.asarray(prior_var, float)
+    B = Xt * np.sqrt(S) if S.ndim == 1 else Xt @ prior_root(S)
     A = B.T @ B
     lam, U = np.linalg.eigh(0.5 * (A + A.T))
     proj = U.T @ (B.T @ yt)
@@ -135,13 +147,16 @@ def log_evidence_columns(Xt: np.ndarray, yt: np.ndarray, prior_var: float, m: in
     return log_evidence_spectral(s[:, None], c2[:, None], float(yt @ yt), m)
 
 
-def log_evidence_mixture(Xt: np.ndarray, yt: np.ndarray, prior_std: np.ndarray, m: int):
-    """log Z with theta ~ N(0, tau^2 I), tau log-uniform on the grid ``prior_std``.
+def log_evidence_mixture(Xt: np.ndarray, yt: np.ndarray, prior_std: np.ndarray, m: int,
+                         shape=None):
+    """log Z with theta ~ N(0, tau^2 S0), tau log-uniform on the grid ``prior_std``.
 
-    Scaling the prior only scales the spectrum (lam -> tau^2 lam, c2 unchanged), so the whole
-    grid costs one eigendecomposition. Returns (log Z, index of the best tau, log Z per tau).
+    S0 (``shape``) is the identity by default, or a k x k matrix (e.g. the design-scaled prior of
+    ``candidates.prior_shape``). Scaling the prior only scales the spectrum (lam -> tau^2 lam, c2
+    unchanged), so the whole grid costs one eigendecomposition. Returns (log Z, index of the best
+    tau, log Z per tau).
     """
-    lam1, c2 = spectrum(Xt, yt, np.ones(Xt.shape[1]))
+    lam1, c2 = spectrum(Xt, yt, np.ones(Xt.shape[1]) if shape is None else shape)
     tau2 = np.asarray(prior_std, float)[:, None] ** 2
     lz, _ = log_evidence_spectral(tau2 * lam1, np.broadcast_to(c2, (tau2.shape[0], c2.size)),
                                   float(yt @ yt), m)
@@ -161,9 +176,19 @@ def log_evidence_columns_mixture(Xt: np.ndarray, yt: np.ndarray, prior_std: np.n
     return logsumexp(lz, axis=1) - np.log(tau2.size), np.argmax(lz, axis=1)
 
 
+def prior_precision(prior_var) -> np.ndarray:
+    """S^-1 of a prior given as its diagonal or as a (non-singular) covariance matrix."""
+    S = np.asarray(prior_var, float)
+    if S.ndim == 1:
+        return np.diag(1.0 / S)
+    L = np.linalg.cholesky(0.5 * (S + S.T))
+    Li = np.linalg.solve(L, np.eye(S.shape[0]))
+    return Li.T @ Li
+
+
 def posterior(Xt: np.ndarray, yt: np.ndarray, prior_var, noise_var: float):
     """Mean and covariance of theta given v: (Xt^T Xt / v + S^-1)^-1 Xt^T yt / v."""
-    P = Xt.T @ Xt / noise_var + np.diag(1.0 / np.asarray(prior_var, float))
+    P = Xt.T @ Xt / noise_var + prior_precision(prior_var)
     L = np.linalg.cholesky(0.5 * (P + P.T))
     cov = np.linalg.solve(L.T, np.linalg.solve(L, np.eye(P.shape[0])))
     mean = cov @ (Xt.T @ yt) / noise_var
@@ -174,9 +199,11 @@ def loo_residuals(D: np.ndarray, y: np.ndarray, penalty: np.ndarray) -> np.ndarr
     """Leave-one-out residuals of the penalised least squares fit y ~ D coef, penalty diag.
 
     Exact shortcut for a linear smoother: e_i / (1 - H_ii), H = D (D^T D + diag(penalty))^-1 D^T.
-    Columns with zero penalty are the flat-prior nuisance (tilt, offset).
+    Columns with zero penalty are the flat-prior nuisance (tilt, offset). ``penalty`` is the
+    diagonal or a full (k x k) penalty matrix (noise variance x prior precision).
     """
-    A = D.T @ D + np.diag(penalty)
+    pen = np.asarray(penalty, float)
+    A = D.T @ D + (np.diag(pen) if pen.ndim == 1 else pen)
     A = 0.5 * (A + A.T) + 1e-12 * np.trace(A) / A.shape[0] * np.eye(A.shape[0])
     L = np.linalg.cholesky(A)
     W = np.linalg.solve(L, D.T)  # k x n

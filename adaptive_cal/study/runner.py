@@ -187,7 +187,7 @@ def connect(scheduler: str | None, workers: int, timeout_s: float = 5.0):
                                  "and is the address right?") from None
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # inherited by the worker processes
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=None)
+                           dashboard_address=":0")
     return Client(cluster)
 
 

@@ -1,0 +1,52 @@
+"""The lower bound on touches: never above any integer design (brute force on a tiny case)."""
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from adaptive_cal.prior import Hyper, PriorModel
+from adaptive_cal.spline import Surface
+from adaptive_cal.study.bound import (DesignProblem, best_integer_touches, relaxed_design,
+                                      relaxed_touches)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    surface = Surface.create(np.linspace(0, 100, 3), np.linspace(0, 80, 3))
+    model = PriorModel(surface, 0.01, 0.2, (50.0, 40.0), Hyper(0.05, 60.0, 0.01))
+    gx, gy = np.meshgrid(np.linspace(5, 95, 4), np.linspace(5, 75, 3), indexing="ij")
+    rows = surface.basis(gx.ravel(), gy.ravel())
+    return DesignProblem(model.belief(model.hyper0).cov, surface.gram(), rows, 0.01**2,
+                         surface.area_mm2)
+
+
+def _all_designs(prob, n):
+    size = len(prob.rows)
+    for combo in itertools.combinations_with_replacement(range(size), n):
+        yield prob.integrated_variance(np.bincount(np.asarray(combo, int), minlength=size))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_relaxed_variance_is_below_every_integer_design(tiny, n):
+    w, j, lower = relaxed_design(tiny, n)
+    best = min(_all_designs(tiny, n))
+    assert lower <= j + 1e-12
+    assert lower <= best * (1 + 1e-9)
+    assert j <= best * (1 + 1e-6)  # the relaxation is at least as good as the best integer design
+
+
+def test_relaxed_touches_below_best_integer(tiny):
+    j2 = min(_all_designs(tiny, 2))
+    j4 = min(_all_designs(tiny, 4))
+    for target in (j2 * 1.01, 0.5 * (j2 + j4), j4 * 1.0001):
+        best = best_integer_touches(tiny, target, 6, limit=10**6)
+        relaxed = relaxed_touches(tiny, target, 6)
+        assert best is not None and relaxed <= best
+        # brute force agrees: no design of best - 1 touches reaches the target
+        assert min(_all_designs(tiny, best - 1)) > target
+    assert best_integer_touches(tiny, j4 * 1.0001, 6, limit=10) is None  # too many to enumerate
+
+
+def test_unreachable_target_is_inf(tiny):
+    assert math.isinf(relaxed_touches(tiny, 1e-12, 3))

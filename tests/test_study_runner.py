@@ -1,0 +1,98 @@
+"""Running studies: Dask equals in-process, interrupted studies resume, vmap equals the loop."""
+import json
+import time
+
+import numpy as np
+import pytest
+
+from adaptive_cal.study.config import load_study, parse_study
+from adaptive_cal.study.designs import evaluate_loop, evaluate_vmap
+from adaptive_cal.study.plates import plate_cell, sample_plate
+from adaptive_cal.study.runner import SchedulerError, connect, run_study, summarise
+from adaptive_cal.study.strategies import Context
+
+from conftest import ROOT
+
+SMOKE = ROOT / "configs" / "study-smoke.yaml"
+
+
+def _small(**changes):
+    study, base = load_study(SMOKE)
+    data = study.model_dump(mode="json")
+    data.update(plates=2, strategies=["adaptive", "paper", "random"], estimator="fixed",
+                lower_bound={"plates": 0})
+    data["bound"].update(mean_std_mm=0.015, max_touches=45)
+    data.update(changes)
+    return parse_study(data), base
+
+
+def _strip(records):
+    return sorted(((r["plate"], r["strategy"]), {k: v for k, v in r.items()}) for r in records)
+
+
+def test_dask_local_cluster_equals_in_process(tmp_path):
+    study, base = _small()
+    local = run_study(study, base, tmp_path / "a.jsonl")
+    client = connect(None, 2)
+    try:
+        assert len(client.scheduler_info()["workers"]) == 2
+        remote = run_study(study, base, tmp_path / "b.jsonl", client=client)
+    finally:
+        client.close()
+    a, b = _strip(local), _strip(remote)
+    assert [k for k, _ in a] == [k for k, _ in b] and len(a) == 6
+    for (_, ra), (_, rb) in zip(a, b):
+        assert ra.keys() == rb.keys()
+        for key in ra:
+            if isinstance(ra[key], float):
+                assert ra[key] == pytest.approx(rb[key], rel=1e-9, abs=1e-12), key
+            else:
+                assert ra[key] == rb[key] or key in ("trajectory", "xy"), key
+        np.testing.assert_allclose(np.asarray(ra["trajectory"], float),
+                                   np.asarray(rb["trajectory"], float), rtol=1e-9, atol=1e-12)
+    assert summarise(study, local)["strategies"].keys() == {"adaptive", "paper", "random"}
+
+
+def test_interrupted_study_keeps_finished_plates(tmp_path):
+    study, base = _small(strategies=["adaptive"])
+    path = tmp_path / "plates.jsonl"
+    first = run_study(study, base, path, limit=1)  # "interrupted" after one plate
+    assert len(first) == 1
+    with open(path, "a") as f:
+        f.write('{"cut": ')  # a line cut by the interruption
+    calls = []
+    again = run_study(study, base, path, progress=lambda d, t: calls.append((d, t)))
+    assert calls == [(1, 1)]  # only the missing plate ran
+    assert len(again) == 2 and again[0] == first[0]
+    lines = path.read_text().splitlines()
+    assert json.loads(lines[0])["study_key"] and len(lines) == 3
+    other, _ = _small(seed=99, strategies=["adaptive"])
+    with pytest.raises(ValueError, match="another study"):
+        run_study(other, base, path)
+
+
+def test_unreachable_scheduler_fails_fast_naming_the_address():
+    t0 = time.monotonic()
+    with pytest.raises(SchedulerError, match="tcp://127.0.0.1:9"):
+        connect("tcp://127.0.0.1:9", 1, timeout_s=2.0)
+    assert time.monotonic() - t0 < 10.0
+
+
+def test_vmap_equals_loop():
+    study, base = _small()
+    contexts = [Context.create(study, p, plate_cell(study, base, p))
+                for p in (sample_plate(study, i) for i in range(3))]
+    model, ev = contexts[0].model, contexts[0].evaluator
+    rng = np.random.default_rng(0)
+    xy = rng.uniform([-200, -170], [200, 170], (3, 12, 2))
+    rows = np.array([model.surface.basis(p[:, 0], p[:, 1]) for p in xy])
+    heights = rng.normal(0, 0.05, (3, 12))
+    truth = np.array([c.truth_eval for c in contexts])
+    touches = np.array([12, 5, 0])
+    prior, r = model.belief(model.hyper0), model.hyper0.noise_std_mm**2
+    per_v, fin_v = evaluate_vmap(prior, r, ev, rows, heights, truth, touches)
+    per_l, fin_l = evaluate_loop(prior, r, ev, rows, heights, truth, touches)
+    for a, b in zip(per_v, per_l):
+        np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-12)
+    for k in fin_v:
+        np.testing.assert_allclose(fin_v[k], fin_l[k], rtol=1e-7, atol=1e-12)
