@@ -6,8 +6,9 @@ def add_arguments(p) -> None:
     p.add_argument("run_dir", metavar="DIR", help="a run folder written by 'adaptive-cal run --out "
                    "DIR' (result.json, recording.csv, cell.yaml, belief.npz; explain.json and "
                    "explain's figures are included when present)")
+    # "%(default).0s" prints nothing; it stops the formatter appending "(default: None)"
     p.add_argument("--out", metavar="FILE.html", default=None,
-                   help="where to write the page (default: DIR/report.html)")
+                   help="where to write the page (default: DIR/report.html)%(default).0s")
 
 
 def command(args) -> int:

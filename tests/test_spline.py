@@ -110,3 +110,18 @@ def test_default_knots_follow_brunn_eq15():
 def test_bad_knots_are_refused():
     with pytest.raises(ValueError, match="increasing"):
         Spline1D.create([0, 1, 1, 2])
+
+
+@pytest.mark.parametrize("n,natural_um", [(4, 18.07), (8, 2.82), (12, 1.12)])
+def test_default_ends_reproduce_a_bow_natural_ends_bias_the_edge(n, natural_um):
+    """DESIGN.md: a least-squares fit of the reference cell's bow (0.35 mm over 370 mm) leaves
+    18 / 2.8 / 1.1 um at the edge with 4 / 8 / 12 natural knots, and 0 with not-a-knot ends."""
+    y = np.linspace(-185, 185, 2001)
+    bow = 0.35 * (1 - (y / 185) ** 2)
+    edge = {}
+    for ends in ("natural", "not_a_knot"):
+        b = Spline1D.create(np.linspace(-185, 185, n), ends).basis(y)
+        coef, *_ = np.linalg.lstsq(b, bow, rcond=None)
+        edge[ends] = abs(b[0] @ coef - bow[0]) * 1e3
+    assert edge["natural"] == pytest.approx(natural_um, abs=0.05)
+    assert edge["not_a_knot"] < 1e-6

@@ -38,7 +38,8 @@ from .evidence import (Projector, log_evidence, log_evidence_columns_mixture,
 PRIOR_RANGE = {"form": (1e-3, 1.0), "thermal_drift": (1e-6, 1e-3), "reversal": (1e-4, 0.1),
                "arm_sag": (1e-3, 1.0), "probe_gain": (1e-5, 1e-2), "local_defect": (1e-3, 1.0)}
 TAU_PER_DECADE = 4
-PRIOR_SHAPE = "design"  # multi-parameter effects: "design" (prior_shape) or "iid"
+PRIOR_SHAPE = "design"
+DEFECT_PRIOR = "footprint"  # centres: "footprint" (uniform over touch neighbourhoods) or "area"  # multi-parameter effects: "design" (prior_shape) or "iid"
 SAG_EXPONENTS = (1.0, 1.5, 2.0, 2.5, 3.0)
 DEFECT_RADII_MM = (15.0, 30.0, 60.0)
 
@@ -192,6 +193,20 @@ def defect_grid(geometry: physics.Geometry, radius_mm: float) -> tuple[np.ndarra
     return gx.ravel(), gy.ravel()
 
 
+def footprint_classes(X: np.ndarray) -> tuple[np.ndarray, int]:
+    """Group search centres by their footprint: the set of touches within one radius.
+
+    X: touches x centres regressor. Returns (class index per centre, number of classes); centres
+    no touch reaches form one class. Two centres with the same footprint are the same hypothesis
+    up to the bump's exact placement, so the classes are the design's effectively independent
+    locations for this radius (the look-elsewhere count), not the grid points.
+    """
+    bits = np.packbits(X != 0.0, axis=0)  # ceil(n / 8) x centres
+    _, inverse = np.unique(bits.T, axis=0, return_inverse=True)
+    inverse = np.asarray(inverse).ravel()
+    return inverse, int(inverse.max()) + 1 if inverse.size else 0
+
+
 def _local_defect(ctx: Context) -> Candidate:
     d = ctx.design
     taus = prior_grid("local_defect")
@@ -201,33 +216,46 @@ def _local_defect(ctx: Context) -> Candidate:
         gx, gy = defect_grid(d.geometry, radius)
         lz = np.empty(gx.size)
         bt = np.empty(gx.size, int)
+        bits = []
         for s in range(0, gx.size, chunk):
             X = physics.defect_regressor_grid(d.features, gx[s:s + chunk], gy[s:s + chunk], radius)
+            bits.append(np.packbits(X != 0.0, axis=0))
             seen = np.flatnonzero(np.any(X != 0.0, axis=0))  # a bump no touch reaches: BF 1
             lz[s:s + chunk], bt[s:s + chunk] = ctx.log_z0, 0
             if seen.size:
                 lz[s + seen], bt[s + seen] = log_evidence_columns_mixture(
                     ctx.project(X[:, seen]), ctx.yt, taus, ctx.m)
-        per_radius.append(float(logsumexp(lz) - np.log(lz.size)))
-        records.append((radius, gx, gy, lz, bt))
+        if DEFECT_PRIOR == "footprint":
+            # uniform over footprints (the distinct touch neighbourhoods), then over the centres
+            # of a footprint: log prior weight of a centre = -log(classes) - log(class size)
+            _, cls = np.unique(np.hstack(bits).T, axis=0, return_inverse=True)
+            cls = np.asarray(cls).ravel()
+            size = np.bincount(cls)
+            logp = -np.log(size.size) - np.log(size[cls])
+        else:  # uniform over the grid of centres (area)
+            logp = np.full(gx.size, -np.log(gx.size))
+        per_radius.append(float(logsumexp(lz + logp)))
+        records.append((radius, gx, gy, lz, bt, logp))
     total = float(logsumexp(per_radius) - np.log(len(per_radius)))
-    # posterior over (radius, centre): uniform prior over radii, then over each radius' grid
-    logw = np.concatenate([lz - np.log(lz.size) for _, _, _, lz, _ in records])
+    # posterior over (radius, centre): uniform prior over radii, then the prior within a radius
+    logw = np.concatenate([lz + logp for _, _, _, lz, _, logp in records])
     wts = np.exp(logw - logsumexp(logw))
-    allx = np.concatenate([gx for _, gx, _, _, _ in records])
-    ally = np.concatenate([gy for _, _, gy, _, _ in records])
-    allr = np.concatenate([np.full(gx.size, r) for r, gx, _, _, _ in records])
+    allx = np.concatenate([gx for _, gx, _, _, _, _ in records])
+    ally = np.concatenate([gy for _, _, gy, _, _, _ in records])
+    allr = np.concatenate([np.full(gx.size, r) for r, gx, _, _, _, _ in records])
     best = int(np.argmax(logw))
     mean = {k: float(wts @ v) for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
     std = {k: float(np.sqrt(wts @ (v - mean[k]) ** 2))
            for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
     fixed = {"x_mm": float(allx[best]), "y_mm": float(ally[best]), "radius_mm": float(allr[best])}
     X = physics.effect_regressor("local_defect", d.features, d.geometry, fixed)
-    lz_best = max(float(lz.max()) for _, _, _, lz, _ in records)
-    all_tau = np.concatenate([taus[bt] for _, _, _, _, bt in records])
+    lz_best = max(float(lz.max()) for _, _, _, lz, _, _ in records)
+    all_tau = np.concatenate([taus[bt] for _, _, _, _, bt, _ in records])
+    searched = (int(sum(np.unique(np.exp(-lp)).size for *_, lp in records))
+                if DEFECT_PRIOR == "footprint" else int(allx.size))
     cand = Candidate("local_defect", total - ctx.log_z0, X, np.array([all_tau[best] ** 2]), fixed=fixed,
                      nonlinear_mean=mean, nonlinear_std=std, look_elsewhere=lz_best - total,
-                     searched=int(allx.size))
+                     searched=searched)
     return cand.fit_posterior(ctx)
 
 

@@ -1,0 +1,119 @@
+"""The command line explains itself: every option in --help with its unit and default, and
+errors on stderr with a non-zero exit and no traceback (unless --debug)."""
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from adaptive_cal.cli import SUBCOMMANDS, build_parser, main
+
+ROOT = Path(__file__).resolve().parents[1]
+CHENG0 = ROOT / "adaptive_cal" / "data" / "cheng2025" / "round0_initial.csv"
+
+# options whose value has a unit: the unit their help must name
+UNITS = {
+    ("run", "--prior-from"): "(mm)",
+    ("emulate", "--move-s"): "(s)",
+    ("emulate", "--seconds"): "seconds",
+}
+
+
+def _help(argv, capsys) -> str:
+    with pytest.raises(SystemExit) as e:
+        main(argv + ["--help"])
+    assert e.value.code == 0
+    return " ".join(capsys.readouterr().out.split())  # unwrap the formatter's line breaks
+
+
+def _actions(name):
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return [a for a in sub.choices[name]._actions if not isinstance(a, argparse._HelpAction)]
+
+
+def test_top_level_help_lists_every_command_and_the_units(capsys):
+    text = _help([], capsys)
+    assert "mm, s, deg" in text and "--debug" in text
+    for name, (_, line) in SUBCOMMANDS.items():
+        assert name in text
+        assert " ".join(line.split()) in text
+
+
+@pytest.mark.parametrize("name", sorted(SUBCOMMANDS))
+def test_each_command_lists_its_options_with_defaults(name, capsys):
+    text = _help([name], capsys)
+    for action in _actions(name):
+        shown = action.option_strings[0] if action.option_strings else action.metavar or action.dest
+        assert shown in text, f"{name}: {shown} missing from --help"
+        assert action.help, f"{name}: {shown} has no help text"
+        if action.option_strings and action.default not in (None, False, argparse.SUPPRESS):
+            assert f"(default: {action.default})" in text, f"{name}: {shown} hides its default"
+
+
+@pytest.mark.parametrize("name, option, unit", [(n, o, u) for (n, o), u in UNITS.items()])
+def test_options_with_a_unit_name_it(name, option, unit, capsys):
+    text = _help([name], capsys)
+    start = text.index(option + " ", text.index("options:"))  # its entry, not the usage line
+    assert unit in text[start:start + 200], f"{name} {option}: unit {unit} not in its help"
+
+
+def test_report_help(capsys):
+    text = _help(["report"], capsys)
+    assert "DIR" in text and "(default: DIR/report.html)" in text and "(default: None)" not in text
+
+
+def _fails(argv, capsys, *expected):
+    assert main(argv) != 0
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err and "Traceback" not in out.out
+    assert out.err.startswith(f"adaptive-cal {argv[0]}: error:"), out.err
+    for text in expected:
+        assert text in out.err, out.err
+    return out.err
+
+
+def test_bad_cell_file_names_the_key(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nworkplane: {x_mm: [0, 100], y_mm: [0, 100]}\n"
+                   "probe: {noise_std_mm: 0, colour: red}\n")
+    _fails(["run", "--robot", str(bad), "--out", str(tmp_path / "o")], capsys,
+           "probe.noise_std_mm", "greater than 0", "probe.colour", "unknown key")
+    assert not (tmp_path / "o").exists()  # nothing written, nothing moved
+
+
+def test_missing_and_unreadable_cell_files(tmp_path, capsys):
+    _fails(["run", "--robot", str(tmp_path / "nope.yaml"), "--out", str(tmp_path / "o")], capsys,
+           "nope.yaml: no such file")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("workplane: [\n")
+    _fails(["run", "--robot", str(broken), "--out", str(tmp_path / "o")], capsys, "not valid YAML")
+
+
+def test_missing_recording(tmp_path, capsys):
+    _fails(["flatness", str(tmp_path / "missing.csv")], capsys, "missing.csv: no such file")
+    _fails(["explain", str(tmp_path / "missing.csv"), "--sim", str(ROOT / "configs" / "cheng2025-cell.yaml")],
+           capsys, "missing.csv: no such file")
+
+
+def test_malformed_recording_row_names_line_and_column(tmp_path, capsys):
+    lines = CHENG0.read_text(encoding="utf-8").splitlines()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines[:8] + ["6,,abc,-165,0,1.2"]) + "\n", encoding="utf-8")
+    _fails(["flatness", str(bad)], capsys, "bad.csv:9", "x_mm", "'abc' is not a number")
+
+
+def test_report_on_a_folder_that_is_not_a_run(tmp_path, capsys):
+    _fails(["report", str(tmp_path)], capsys, "result.json: missing")
+
+
+def test_the_installed_command_keeps_stdout_clean_and_debug_shows_the_traceback(tmp_path):
+    exe = [sys.executable, "-m", "adaptive_cal.cli"]
+    missing = str(tmp_path / "missing.csv")
+    p = subprocess.run(exe + ["flatness", missing], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and p.stdout == ""
+    assert p.stderr.strip() == f"adaptive-cal flatness: error: {missing}: no such file"
+    p = subprocess.run(exe + ["--debug", "flatness", missing], capture_output=True, text=True, timeout=120)
+    assert p.returncode != 0 and "Traceback" in p.stderr
+    p = subprocess.run(exe + ["bogus"], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "invalid choice" in p.stderr and p.stdout == ""

@@ -1,0 +1,135 @@
+"""``adaptive-cal report DIR``: one self-contained HTML page per run, checked as text and as
+rendered by headless Chromium (skipped, with the reason, where chromium is not installed)."""
+import base64
+import json
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from adaptive_cal import flatness as fl
+from adaptive_cal.cli import main
+from adaptive_cal.report import rotation
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """A finished simulated run (a quick bound) with explain's findings beside it."""
+    d = tmp_path_factory.mktemp("run")
+    cell = yaml.safe_load((ROOT / "configs" / "sim-cell.yaml").read_text())
+    cell["plan"].update(candidates=2000, stop={"mean_std_mm": 0.006, "max_touches": 40})
+    path = d / "quick-cell.yaml"
+    path.write_text(yaml.safe_dump(cell))
+    out = d / "run"
+    assert main(["run", "--robot", str(path), "--out", str(out), "--no-progress"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def explained(run_dir, tmp_path_factory):
+    d = tmp_path_factory.mktemp("explained") / "run"
+    shutil.copytree(run_dir, d)
+    assert main(["explain", str(d / "recording.csv"), "--sim", str(d / "cell.yaml"),
+                 "--json", str(d / "explain.json"), "--out", str(d)]) == 0
+    return d
+
+
+def _page(d, capsys):
+    assert main(["report", str(d)]) == 0
+    assert f"wrote {d / 'report.html'}" in capsys.readouterr().out
+    return (d / "report.html").read_text(encoding="utf-8")
+
+
+def test_rotation_turns_z_onto_the_plate_normal():
+    for a, b in [(0.014, 0.0019), (-0.03, 0.02), (0.0, -0.05)]:
+        rx, ry = fl.tilt_correction_deg(a, b)
+        n = np.array([-a, -b, 1.0]) / np.sqrt(1 + a * a + b * b)
+        np.testing.assert_allclose(rotation(rx, ry) @ [0, 0, 1], n, atol=1e-12)
+        R = rotation(rx, ry)
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+
+
+def test_page_is_self_contained_with_every_section_and_unit(run_dir, capsys):
+    html = _page(run_dir, capsys)
+    result = json.loads((run_dir / "result.json").read_text())
+    t, ls = result["tilt"], result["flatness_mm"]["least_squares"]
+    # nothing fetched from elsewhere: no links, scripts or remote images
+    assert not re.search(r"<(script|link|iframe)\b", html)
+    assert not re.search(r"src=['\"](?!data:image/png;base64,)", html)
+    images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", html)
+    assert len(images) >= 3  # touches, surface, convergence
+    for b64 in images:
+        assert base64.b64decode(b64)[:8] == b"\x89PNG\r\n\x1a\n"
+    for heading in ("Tilt correction for the controller", "Flatness", "Touches on the plate",
+                    "Surface and its uncertainty", "Convergence", "The run", "The cell", "Explain"):
+        assert f">{heading}" in html, heading
+    # the controller's numbers, in deg, and the corrected user frame
+    assert f"rx {t['rx_deg']:+.4f} deg" in html and f"ry {t['ry_deg']:+.4f} deg" in html
+    assert (f"frame_new = frame_nominal * rotx({t['rx_deg']:+.4f} deg) * "
+            f"roty({t['ry_deg']:+.4f} deg)") in html
+    assert f"rotx({np.radians(t['rx_deg']):+.6f})" in html  # RoboDK takes radians
+    # flatness with its interval, in mm and um
+    assert f"{ls['value']:.4f} mm" in html
+    assert f"{ls['ci95'][0]:.4f} .. {ls['ci95'][1]:.4f} mm" in html
+    assert "minimum zone (ISO 1101)" in html and "95 % interval" in html
+    assert "No explain findings" in html  # and it says how to get them
+
+
+def test_explain_findings_appear_when_present(explained, capsys):
+    html = _page(explained, capsys)
+    rep = json.loads((explained / "explain.json").read_text())
+    assert "Explain: what the simulation left out" in html
+    assert f"verdict: <b>{rep['verdict']}</b>" in html
+    assert "leave-one-out RMS" in html
+    assert "residual_map.png" in html  # explain's own figure, embedded
+    assert "No explain findings" not in html
+
+
+def test_out_option_and_errors_without_traceback(run_dir, tmp_path, capsys):
+    target = tmp_path / "elsewhere" / "page.html"
+    assert main(["report", str(run_dir), "--out", str(target)]) == 0
+    assert target.read_text(encoding="utf-8").startswith("<!DOCTYPE html>")
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err
+    assert "adaptive-cal report: error:" in err and "no such folder" in err
+    assert "Traceback" not in err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["report", str(empty)]) == 2
+    err = capsys.readouterr().err
+    assert "result.json: missing" in err and "adaptive-cal run --out DIR" in err
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="headless render check needs chromium "
+                    "(Debian: apt-get install -y chromium); .ci/run installs it")
+def test_renders_in_headless_chromium(explained, capsys):
+    from matplotlib.image import imread
+
+    _page(explained, capsys)
+    shot = Path(os.environ.get("ADAPTIVE_CAL_SCREENSHOT_DIR") or explained) / "report.png"
+    shot.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as profile:
+        proc = subprocess.run(
+            [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+             "--disable-component-update", "--disable-sync", "--no-first-run",
+             f"--user-data-dir={profile}", f"--screenshot={shot}", "--window-size=1200,3000",
+             (explained / "report.html").as_uri()],
+            capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    img = imread(shot)[..., :3]
+    assert img.shape[:2] == (3000, 1200)
+    ink = np.any(img < 0.9, axis=-1)
+    assert ink.mean() > 0.05, "the page rendered (nearly) blank"
+    # the embedded figures decoded: the viridis/magma maps put strongly coloured pixels on the page
+    saturation = img.max(axis=-1) - img.min(axis=-1)
+    assert (saturation > 0.4).mean() > 0.01, "no coloured figure pixels: images did not render"
