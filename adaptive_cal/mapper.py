@@ -198,6 +198,8 @@ class Mapper:
             return [self._target(*xy)]
         chosen = plan_batch(pick, rows, cov, r, n)
         chosen = [i for i in chosen if i >= 0]
+        if not chosen:
+            return []
         pts = self.candidates.xy_mm[chosen]
         start = from_xy if from_xy is not None else pts[0]
         return [self._target(*pts[i]) for i in travel_order(start, pts)]

@@ -4,7 +4,10 @@ Prints the confusion matrix (true effect x verdict), parameter errors, the false
 nulls, the threshold calibration (FP rate and accuracy for several log Bayes factor thresholds),
 and the time for 40 and 10,000 rows. Writes benchmarks/results/explain.json.
 
-    python benchmarks/bench_explain.py [--seeds 20] [--nulls 200] [--workers 2]
+    python benchmarks/bench_explain.py [--seeds 20] [--nulls 200] [--workers 2] [--scan-nulls 1000]
+
+It also computes an upper bound (``oracle_bounds``): the power of the best test for each effect
+alone at the same false-positive budget, so a missed target can be told apart from a weak method.
 """
 from __future__ import annotations
 
@@ -16,16 +19,75 @@ from pathlib import Path
 
 import numpy as np
 
+from scipy import stats
+
 from adaptive_cal import physics
+from adaptive_cal.explain.candidates import DEFECT_RADII_MM, Context, defect_grid
 from adaptive_cal.explain.core import MARGIN, THRESHOLD, effect_params, explain
+from adaptive_cal.explain.design import build_design
 from adaptive_cal.explain.generator import EFFECTS, concealed_recording
 
-MAGNITUDES = (2.0, 3.0, 4.0, 5.0, 6.0, 8.0)
+MAGNITUDES = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0)  # uniform: >= 4 pools 4..8 evenly
 NULL_DESIGNS = ({}, {"ny": 6}, {"raster": True}, {"varied_z": True})
 MAIN = {"form": "pv_mm", "thermal_drift": "rate_mm_per_s", "reversal": "span_mm",
         "arm_sag": "sag_mm_at_1m", "probe_gain": "gain", "local_defect": "height_mm"}
 THRESHOLDS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0)
 LABELS = EFFECTS + ("none",)
+
+
+def defect_max_z2(recording, cell) -> float:
+    """max over the defect search grid (all radii) of z^2 = (x^T M y)^2 / (|M x|^2 s^2): the
+    statistic of the best possible scan test for a bump (location and radius unknown)."""
+    ctx = Context.of(build_design([recording], cell))
+    d = ctx.design
+    s2 = float(ctx.yt @ ctx.yt) / ctx.m
+    best = 0.0
+    for r in DEFECT_RADII_MM:
+        gx, gy = defect_grid(d.geometry, r)
+        X = ctx.project(physics.defect_regressor_grid(d.features, gx, gy, r))
+        nn = np.einsum("ij,ij->j", X, X)
+        ok = nn > 1e-18
+        best = max(best, float(np.max((X[:, ok].T @ ctx.yt) ** 2 / nn[ok])) / s2)
+    return best
+
+
+def oracle_bounds(runs, null_max_z2, alphas=(0.05, 0.05 / 6)) -> dict:
+    """Power of the best test for each effect alone, at size alpha, per magnitude (an upper bound).
+
+    Effects of one known regressor (drift, reversal, gain, sag with its true p): the two-sided
+    t-test on that regressor (F with 1 and m - 1 dof, m = 37 after the tilt on 40 touches),
+    noncentrality = norm^2. Form: the F-test on the four shapes (4 and m - 4 dof), the most
+    powerful invariant test when the shape direction is unknown. Local defect: the scan test
+    max z^2 over the search grid, threshold from null recordings of the defect's design.
+    alpha = 5 % is the whole false-positive budget given to one effect (no test with <= 5 % can do
+    better); 5 %/6 is the budget split evenly over the six candidates.
+    """
+    m = 37
+    out = {}
+    for a in alphas:
+        per = {}
+        for name in EFFECTS:
+            row = {}
+            for mag in MAGNITUDES:
+                if name == "local_defect":
+                    crit = float(np.quantile(null_max_z2, 1 - a))
+                    zz = [r["defect_max_z2"] for r in runs
+                          if r["effect"] == name and r["magnitude"] == mag]
+                    row[str(mag)] = float(np.mean(np.asarray(zz) > crit))
+                else:
+                    k = 4 if name == "form" else 1
+                    crit = stats.f.ppf(1 - a, k, m - k)
+                    row[str(mag)] = float(stats.ncf.sf(crit, k, m - k, mag ** 2))
+            row["4_and_above"] = float(np.mean([row[str(g)] for g in MAGNITUDES if g >= 4]))
+            per[name] = row
+        per["all_4_and_above"] = float(np.mean([per[n]["4_and_above"] for n in EFFECTS]))
+        out[f"alpha_{a:.4f}"] = per
+    return out
+
+
+def _null_scan(seed):
+    c = concealed_recording("none", np.random.default_rng([11, seed]), ny=6)
+    return defect_max_z2(c.recording, c.cell)
 
 
 def _one(job):
@@ -50,6 +112,7 @@ def _one(job):
                         "rel_error": (params[key] - truth) / abs(truth),
                         "z": (params[key] - truth) / max(std[key], 1e-300)}
         if effect == "local_defect":
+            out["defect_max_z2"] = defect_max_z2(c.recording, c.cell)
             out["param"]["location_error_mm"] = float(np.hypot(params["x_mm"] - c.params["x_mm"],
                                                                params["y_mm"] - c.params["y_mm"]))
         if effect == "arm_sag":
@@ -76,8 +139,15 @@ def summarise(runs, threshold):
         per[name] = {str(m): float(np.mean([verdict(r["candidates"], threshold) == name
                                             for r in rr if r["magnitude"] == m]))
                      for m in MAGNITUDES}
+    per4 = {name: float(np.mean([verdict(r["candidates"], threshold) == name for r in eff
+                                 if r["effect"] == name and r["magnitude"] >= 4]))
+            for name in EFFECTS}
+    wrong4 = float(np.mean([verdict(r["candidates"], threshold) not in (r["effect"], "none")
+                            for r in eff if r["magnitude"] >= 4]))
     return {"threshold": threshold, "null_fp_rate": fp, "accuracy_at_4sigma_and_above":
-            float(np.mean(acc4)), "accuracy_by_effect_and_magnitude": per}
+            float(np.mean(acc4)), "accuracy_4sigma_by_effect": per4,
+            "wrong_effect_at_4sigma_and_above": wrong4,
+            "accuracy_by_effect_and_magnitude": per}
 
 
 def confusion(runs, threshold, min_mag=0.0):
@@ -113,6 +183,8 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=20, help="seeds per effect and magnitude")
     ap.add_argument("--nulls", type=int, default=200)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--scan-nulls", type=int, default=1000,
+                    help="null recordings for the defect scan-test threshold of the bound")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "explain.json"))
     args = ap.parse_args(argv)
     jobs = [(e, m, s, {}) for e in EFFECTS for m in MAGNITUDES for s in range(args.seeds)]
@@ -120,9 +192,14 @@ def main(argv=None):
     t0 = time.perf_counter()
     with Pool(args.workers) as pool:
         runs = pool.map(_one, jobs, chunksize=8)
+        null_z2 = pool.map(_null_scan, range(args.scan_nulls), chunksize=16)
     elapsed = time.perf_counter() - t0
     calib = [summarise(runs, t) for t in THRESHOLDS]
     print(f"{len(runs)} recordings in {elapsed:.0f} s; margin over the runner-up {MARGIN}")
+    ms = summarise(runs, THRESHOLD)
+    print("right verdict >= 4 sigma by effect: " + ", ".join(
+        f"{k} {v:.3f}" for k, v in ms["accuracy_4sigma_by_effect"].items())
+        + f"; wrong effect named {ms['wrong_effect_at_4sigma_and_above']:.3f}")
     print("\nthreshold  null FP  accuracy >= 4 sigma")
     for c in calib:
         print(f"{c['threshold']:>9.1f}  {c['null_fp_rate']:7.3f}  {c['accuracy_at_4sigma_and_above']:7.3f}")
@@ -149,6 +226,12 @@ def main(argv=None):
                 [abs(p["p_est"] - p["p_true"]) for p in rr]))
         print(f"  {name:>14} {MAIN[name]:>14}: " + ", ".join(f"{k} {v:.3g}" for k, v in
                                                              errors[name].items() if k != "param"))
+    bounds = oracle_bounds(runs, null_z2)
+    print("\nupper bound: power of the best test for each effect alone (see oracle_bounds)")
+    for key, per in bounds.items():
+        print(f"  {key}: " + ", ".join(f"{n} {per[n]['4_and_above']:.3f}" for n in EFFECTS)
+              + f"; all {per['all_4_and_above']:.3f} (>= 4 sigma)")
+        print("   at 4 sigma: " + ", ".join(f"{n} {per[n]['4.0']:.2f}" for n in EFFECTS))
     tim = timing()
     print("\ntiming (full explain incl. identifiability, no figures):")
     for k, v in tim.items():
@@ -157,6 +240,7 @@ def main(argv=None):
               "seeds": args.seeds, "nulls": args.nulls, "calibration": calib,
               "summary": main_sum, "confusion_all": confusion(runs, THRESHOLD),
               "confusion_4sigma": confusion(runs, THRESHOLD, 4.0), "parameter_errors": errors,
+              "oracle_bounds": bounds, "scan_nulls": args.scan_nulls,
               "timing": tim, "elapsed_s": elapsed}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1, default=float))

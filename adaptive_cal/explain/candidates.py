@@ -13,14 +13,19 @@ thermal_drift  rate_mm_per_s: 1e-6..1e-3               --
 reversal       span_mm: 1e-4..0.1                      --
 arm_sag        sag_mm_at_1m: 1e-3..1                   p uniform on {1, 1.5, 2, 2.5, 3}
 probe_gain     gain: 1e-5..1e-2                        --
-local_defect   height_mm: 1e-3..1                      centre uniform on a grid over the
-                                                       workplane (spacing radius / 2), radius
-                                                       uniform on {15, 30, 60} mm
+local_defect   height_mm: 1e-3..1                      radius uniform on {15, 30, 60} mm;
+                                                       centre uniform over the footprints (the
+                                                       distinct sets of touches within one
+                                                       radius), then over the centres of a grid
+                                                       (spacing radius / 2) with that footprint
 =============  =====================================  =======================================
 
-Nonlinear parameters are averaged over their grid (the evidence of a uniform discrete prior):
-that average is the look-elsewhere penalty -- about log(number of effectively independent
-locations) below the best single location, which is reported. With several rounds a linear effect
+Nonlinear parameters are averaged over their prior (a discrete prior): that average is the
+look-elsewhere penalty -- about log(number of effectively independent locations) below the best
+single location, which is reported. For a defect the independent locations are the footprints: two
+centres reaching the same touches are one hypothesis for this design (up to the bump's exact
+placement), so the prior is uniform over footprints (all centres no touch reaches are one), not
+over plate area. With several rounds a linear effect
 is either shared (one parameter set) or per round; both are scored and averaged with prior 1/2.
 """
 from __future__ import annotations
@@ -193,24 +198,10 @@ def defect_grid(geometry: physics.Geometry, radius_mm: float) -> tuple[np.ndarra
     return gx.ravel(), gy.ravel()
 
 
-def footprint_classes(X: np.ndarray) -> tuple[np.ndarray, int]:
-    """Group search centres by their footprint: the set of touches within one radius.
-
-    X: touches x centres regressor. Returns (class index per centre, number of classes); centres
-    no touch reaches form one class. Two centres with the same footprint are the same hypothesis
-    up to the bump's exact placement, so the classes are the design's effectively independent
-    locations for this radius (the look-elsewhere count), not the grid points.
-    """
-    bits = np.packbits(X != 0.0, axis=0)  # ceil(n / 8) x centres
-    _, inverse = np.unique(bits.T, axis=0, return_inverse=True)
-    inverse = np.asarray(inverse).ravel()
-    return inverse, int(inverse.max()) + 1 if inverse.size else 0
-
-
 def _local_defect(ctx: Context) -> Candidate:
     d = ctx.design
     taus = prior_grid("local_defect")
-    per_radius, records = [], []
+    per_radius, records, classes = [], [], 0
     chunk = max(1, int(min(2_000_000 // max(d.n, 1), 400_000 // taus.size)))
     for radius in DEFECT_RADII_MM:
         gx, gy = defect_grid(d.geometry, radius)
@@ -232,8 +223,10 @@ def _local_defect(ctx: Context) -> Candidate:
             cls = np.asarray(cls).ravel()
             size = np.bincount(cls)
             logp = -np.log(size.size) - np.log(size[cls])
+            classes += size.size
         else:  # uniform over the grid of centres (area)
             logp = np.full(gx.size, -np.log(gx.size))
+            classes += gx.size
         per_radius.append(float(logsumexp(lz + logp)))
         records.append((radius, gx, gy, lz, bt, logp))
     total = float(logsumexp(per_radius) - np.log(len(per_radius)))
@@ -251,11 +244,9 @@ def _local_defect(ctx: Context) -> Candidate:
     X = physics.effect_regressor("local_defect", d.features, d.geometry, fixed)
     lz_best = max(float(lz.max()) for _, _, _, lz, _, _ in records)
     all_tau = np.concatenate([taus[bt] for _, _, _, _, bt, _ in records])
-    searched = (int(sum(np.unique(np.exp(-lp)).size for *_, lp in records))
-                if DEFECT_PRIOR == "footprint" else int(allx.size))
     cand = Candidate("local_defect", total - ctx.log_z0, X, np.array([all_tau[best] ** 2]), fixed=fixed,
                      nonlinear_mean=mean, nonlinear_std=std, look_elsewhere=lz_best - total,
-                     searched=searched)
+                     searched=int(classes))
     return cand.fit_posterior(ctx)
 
 
