@@ -102,6 +102,7 @@ class Mapper:
     heights: list = field(default_factory=list)
     touches: int = 0
     history: list = field(default_factory=list)
+    touched: list = field(default_factory=list)  # (x, y) of every touch, fused or not, in order
     _rows: list = field(default_factory=list)
     _retake: tuple | None = None
     _fitted_at: int = 0
@@ -233,6 +234,7 @@ class Mapper:
     def tell(self, x_mm: float, y_mm: float, z_mm: float, reading_mm: float) -> Told:
         """Gate and fuse one reading that was taken. Returns the flags for the recording."""
         self.touches += 1
+        self.touched.append((x_mm, y_mm))
         h = self.model.surface.basis(np.array([x_mm]), np.array([y_mm]))[0]
         y = self.height(z_mm, reading_mm)
         inn = bl.innovation(self.belief, h, y, self.noise_var)
@@ -274,15 +276,17 @@ class Mapper:
                 start = self.base if self.base is not None else self.model.belief(self.hyper)
                 self.belief = bl.condition(start, rows, heights, self.noise_var)
         self.touches = len(rec)
+        self.touched = list(zip(rec.x_mm.tolist(), rec.y_mm.tolist()))
         if len(rec) and rec.flags and "gated" in rec.flags[-1]:
             i = len(rec) - 1
             self._retake = (rec.x_mm[i], rec.y_mm[i], rec.z_mm[i],
                             rec.reading_mm[i] - zero + rec.z_mm[i])
         self.history = [self.status()]
 
-    def skip(self) -> None:
+    def skip(self, x_mm: float = float("nan"), y_mm: float = float("nan")) -> None:
         """Count a touch whose reading was rejected by the probe cycle (not fused)."""
         self.touches += 1
+        self.touched.append((x_mm, y_mm))
         self.history.append(self.status())
 
     def _add(self, x, y, height, h) -> None:

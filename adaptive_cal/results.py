@@ -62,14 +62,15 @@ def write_results(mapper: Mapper, out: Path, stopped_because: str, truth=None,
 
 
 def write_figures(mapper: Mapper, out: Path, true_rms_mm=None) -> None:
-    """surface.png (mean and std maps, touches numbered) and convergence.png (std against
+    """surface.png (mean and std maps, touches numbered by seq) and convergence.png (std against
     touches; ``true_rms_mm`` per history entry when the truth is known)."""
     from . import plots
 
     wp = mapper.cell.workplane
     gx, gy, mean, std = mapper.grid()
     keep = [(k.x_mm, k.y_mm) for k in wp.keep_outs]
-    fig = plots.surface_figure(gx, gy, mean, std, np.c_[mapper.xs, mapper.ys], wp.x_mm, wp.y_mm,
+    touched = np.array(mapper.touched, float).reshape(-1, 2)  # numbered as in the recording
+    fig = plots.surface_figure(gx, gy, mean, std, touched, wp.x_mm, wp.y_mm,
                                keep_outs=keep, title=mapper.cell.name)
     fig.savefig(out / "surface.png", dpi=110)
     h = mapper.history

@@ -144,7 +144,7 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
                                       y_mm=target.y_mm, z_mm=target.z_mm,
                                       reading_mm=e.reading_mm if math.isfinite(e.reading_mm) else 0.0,
                                       flags=e.flags, round=0)
-                        mapper.skip()
+                        mapper.skip(target.x_mm, target.y_mm)
                     else:
                         told = mapper.tell(touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
                         writer.append(seq=seq, t_s=touch.t_s, x_mm=touch.x_mm, y_mm=touch.y_mm,

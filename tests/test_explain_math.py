@@ -137,3 +137,32 @@ def test_canonical_correlations():
     assert canonical_correlations(e[:, None], F)[0] == pytest.approx(0.0, abs=1e-10)
     mix = inside / np.linalg.norm(inside) + e / np.linalg.norm(e)
     assert canonical_correlations(mix[:, None], F)[0] == pytest.approx(np.sqrt(0.5))
+
+
+def test_full_covariance_prior_matches_dense_gaussian_and_sigma_integral():
+    """Matrix prior (the design-scaled shape): closed form vs the dense marginal density
+    N(z; 0, v I + Z S Z^T) integrated over sigma with p(sigma) = 1/sigma by quadrature."""
+    from adaptive_cal.explain.candidates import prior_shape
+    rng = np.random.default_rng(7)
+    n = 14
+    N = np.column_stack([np.ones(n), rng.standard_normal(n)])
+    proj = Projector.of(N)
+    Q = np.linalg.svd(np.eye(n) - proj.basis @ proj.basis.T)[0][:, :n - proj.rank]
+    X = rng.standard_normal((n, 3)) @ np.diag([1.0, 0.2, 3.0])
+    y = N @ [1.0, 0.3] + X @ [0.2, -0.5, 0.05] + 0.3 * rng.standard_normal(n)
+    S = 0.4 ** 2 * prior_shape(proj(X))
+    m = n - proj.rank
+    lz, _ = log_evidence(proj(X), proj(y), S, m)
+    z, Z = Q.T @ y, Q.T @ X
+
+    def dens(w):
+        C = np.exp(w) * np.eye(m) + Z @ S @ Z.T
+        return np.exp(stats.multivariate_normal.logpdf(z, np.zeros(m), C) - lz)
+
+    val, _ = integrate.quad(dens, -12, 6, limit=400)
+    assert 0.5 * val == pytest.approx(1.0, rel=1e-6)
+    # the design-scaled shape spreads the i.i.d. prior's signal energy evenly over directions
+    S0 = prior_shape(proj(X), ridge=0.0)
+    G = proj(X).T @ proj(X)
+    assert np.trace(G @ S0) == pytest.approx(np.trace(G), rel=1e-9)
+    assert np.allclose(np.linalg.eigvalsh(G @ S0), np.trace(G) / 3, rtol=1e-8)
