@@ -22,6 +22,7 @@ def add_arguments(p) -> None:
                    help="run on a Dask LocalCluster of N worker processes (0: in-process)")
     p.add_argument("--plates", type=int, help="override the study's number of plates")
     p.add_argument("--strategies", help="override the study's strategies (comma separated)")
+    p.add_argument("--doc", metavar="PAGE.md", help="write the study page (docs/study.md)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -67,7 +68,11 @@ def command(args) -> int:
         from .study.report import write_report
 
         write_report(study, summary, records, base, out_dir)
-    from .study.report import table
+    from .study.report import table, write_doc
 
+    if args.doc:
+        write_doc(Path(args.doc), study, summary, study_file=args.study, json_file=args.json,
+                  out_dir=args.out or str(out_json.parent),
+                  plates_arg=f"--plates {args.plates}" if args.plates else "")
     print(table(summary))
     return 0

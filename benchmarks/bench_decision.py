@@ -56,8 +56,9 @@ def make_mapper(kx: int, ky: int, candidates: int, readings: int = 20, seed: int
     return mapper
 
 
-def timeit(fn, repeat: int = 7) -> tuple[float, object]:
-    fn()  # warm-up (compile)
+def timeit(fn, repeat: int = 7, warm: bool = True) -> tuple[float, object]:
+    if warm:
+        fn()  # warm-up (compile)
     times, out = [], None
     for _ in range(repeat):
         t0 = time.perf_counter()
@@ -142,8 +143,8 @@ def botorch_choice(mapper: Mapper, repeat: int, mc_points: int = 256, restarts: 
         cand, _ = optimize_acqf_discrete(acq, q=1, choices=choices, max_batch_size=512)
         return cand[0].detach().numpy()
 
-    t_c, xy_c = timeit(continuous, repeat)
-    t_d, xy_d = timeit(discrete, max(1, repeat // 3))
+    t_c, xy_c = timeit(continuous, repeat, warm=False)
+    t_d, xy_d = timeit(discrete, repeat, warm=False)
     return {"botorch_s": t_c, "botorch_choice": xy_c.tolist(), "botorch_J": j_after(mapper, xy_c),
             "botorch_discrete_s": t_d, "botorch_discrete_choice": xy_d.tolist(),
             "botorch_discrete_J": j_after(mapper, xy_d)}
@@ -183,7 +184,7 @@ def main() -> None:
     res.update(ours(mapper, repeat))
     if not args.no_botorch:
         try:
-            res.update(botorch_choice(mapper, max(1, repeat // 2)))
+            res.update(botorch_choice(mapper, 1))
         except ImportError as e:
             print(f"BoTorch not installed ({e}): pip install 'adaptive-cal[bench]'")
     j0 = float(np.sum(mapper.gram * mapper.belief.cov))

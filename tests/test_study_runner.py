@@ -96,3 +96,25 @@ def test_vmap_equals_loop():
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-12)
     for k in fin_v:
         np.testing.assert_allclose(fin_v[k], fin_l[k], rtol=1e-7, atol=1e-12)
+
+
+def test_cli_writes_summary_table_and_plots(tmp_path):
+    from adaptive_cal.cli import main
+
+    out = tmp_path / "out.json"
+    code = main(["study", str(SMOKE), "--plates", "1", "--strategies", "paper,grid", "--json",
+                 str(out), "--out", str(tmp_path / "dir"), "--doc", str(tmp_path / "study.md"),
+                 "--quiet"])
+    assert code == 0
+    summary = json.loads(out.read_text())
+    for name in ("paper", "grid"):
+        s = summary["strategies"][name]
+        for key in ("touches_mean", "touches_p90", "robot_time_s_mean", "true_rms_mm_mean",
+                    "true_max_mm_mean", "coverage95_mean"):
+            assert key in s
+        assert s["touches_mean"] >= 1
+    assert set(summary["lower_bound"]) >= {"relaxed_touches", "best_integer_touches"}
+    for f in ("table.md", "touches_vs_bound.png", "coverage.png", "example_plate.png",
+              "plates.jsonl"):
+        assert (tmp_path / "dir" / f).exists()
+    assert "| paper |" in (tmp_path / "study.md").read_text()

@@ -43,8 +43,8 @@ from .evidence import (Projector, log_evidence, log_evidence_columns_mixture,
 PRIOR_RANGE = {"form": (1e-3, 1.0), "thermal_drift": (1e-6, 1e-3), "reversal": (1e-4, 0.1),
                "arm_sag": (1e-3, 1.0), "probe_gain": (1e-5, 1e-2), "local_defect": (1e-3, 1.0)}
 TAU_PER_DECADE = 4
-PRIOR_SHAPE = "design"
-DEFECT_PRIOR = "footprint"  # centres: "footprint" (uniform over touch neighbourhoods) or "area"  # multi-parameter effects: "design" (prior_shape) or "iid"
+PRIOR_SHAPE = "iid"  # multi-parameter effects: "iid" or "design" (prior_shape; measured, docs)
+DEFECT_PRIOR = "area"  # defect centres: "area" (uniform over the grid) or "footprint" (measured, docs)
 SAG_EXPONENTS = (1.0, 1.5, 2.0, 2.5, 3.0)
 DEFECT_RADII_MM = (15.0, 30.0, 60.0)
 

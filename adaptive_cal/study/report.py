@@ -41,7 +41,9 @@ def table(summary: dict) -> str:
                   f"{vp['paper_true_rms_mm_mean'] * 1e3:.2f} um; adaptive reaches each plate's "
                   f"paper accuracy with {_f(vp['adaptive_touches_to_paper_accuracy_mean'])} "
                   f"touches ({vp['reached']:.0%} of plates), ratio of means "
-                  f"{_f(vp['touch_ratio_of_means'], 1, '{:.2f}')}"]
+                  f"{_f(vp['touch_ratio_of_means'], 1, '{:.2f}')}; to the paper's mean accuracy "
+                  f"{_f(vp.get('adaptive_touches_to_paper_mean_accuracy'))} touches (ratio "
+                  f"{_f(vp.get('touch_ratio_mean_accuracy'), 1, '{:.2f}')})"]
     return "\n".join(lines)
 
 
@@ -105,3 +107,137 @@ def write_report(study: Study, summary: dict, records: list[dict], base: dict, o
     fig.tight_layout()
     fig.savefig(out / "example_plate.png", dpi=110)
     plt.close(fig)
+
+
+DOC = """# Simulation studies
+
+How many touches does the adaptive planner save over the reference procedure, and is its
+uncertainty honest? `adaptive-cal study` answers both on synthetic plates. This page is written
+by one command (about {minutes} minutes on a 2-core machine):
+
+```
+OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} \\
+    --out {out_dir} --doc {doc_file} --workers 2 {plates_arg}
+```
+
+## Headline ({plates} plates of `{study_file}`)
+
+Plates: tilt uniform in +-{tilt} deg about each axis, form (bow, twist, warp with random
+weights) {pv0}-{pv1} mm peak to valley, reading noise {n0}-{n1} um. Every strategy runs on the
+same plates and is judged by the same spline model; the bound is {bound} um.
+
+{table}
+
+* **touches to true bound**: first touch count at which the TRUE RMS error over the plate is at
+  most the bound (the budget of {budget} counted where it never was); robot time for those
+  touches: xy travel at `robot.speed_mm_per_s` plus `robot.touch_time_s` per touch.
+* **touches at own stop, true RMS / max, coverage95**: where each strategy's own rule stops
+  (posterior RMS std at the bound; the paper: its levelling check), and there the true errors
+  and the share of the plate inside the posterior 95 % band.
+* `adaptive`: the engine with hyper-parameter learning; `greedy_fixed`: the same planner with the
+  cell's fixed hyper-parameters (noise guess 5 um); `paper`: 5-point levelling then rounds of the
+  10 x 4 S-shaped path until a round's least-squares plane tilts by at most
+  `paper.level_tolerance_mm` across the plate; `grid`: serpentine grids of growing size, each a
+  fresh run; `random`: uniform random touches. paper/grid/random readings are taken as if every
+  touch landed in the probe stroke (levelled frame or jogging), which favours them; their
+  hyper-parameters are learned like the planner's (`estimator: learned`), or kept fixed
+  (`estimator: fixed`, vectorised over plates with `jax.vmap`).
+* lower bound: the continuous relaxation of the I-optimal design (multiplicative algorithm +
+  Frank-Wolfe, certified by the duality gap) under each plate's final hyper-parameters, bisected
+  on the number of touches: no design on the candidate grid meets the posterior bound with fewer.
+  The exhaustive best-integer search is only feasible on tiny problems (tests).
+
+![touches against bound]({out_rel}/touches_vs_bound.png)
+
+More figures in `{out_dir}/`: `coverage.png`, `example_plate.png` (one plate, every strategy's
+touches), `table.md`; per-plate records in `{out_dir}/plates.jsonl`.
+
+## Running studies
+
+* `--workers N` runs on a Dask LocalCluster of N processes; `--scheduler tcp://host:port` on a
+  running cluster (start workers with `OPENBLAS_NUM_THREADS=1`). An unreachable scheduler fails
+  within seconds naming the address.
+* Each finished plate is appended to `plates.jsonl` at once; an interrupted study keeps them, and
+  the same command skips them on the rerun.
+* A study file is validated like a cell file: unknown keys are refused, and distributions no
+  planner can serve (negative noise, a tilt past what the probe stroke allows under the cell's
+  prior, a bound below the noise floor of `bound.max_touches` touches) are refused naming the key.
+* Benchmarks: `benchmarks/bench_decision.py` (decision latency against BoTorch),
+  `benchmarks/bench_study.py` (plate-runs per second: vmap against a loop, Dask 1 against 2
+  workers); results in `benchmarks/results/`.
+"""
+
+
+def benchmarks_section(results: Path) -> str:
+    """Figures of benchmarks/results/*.json, where present."""
+    import json
+
+    lines = ["## Benchmarks", "",
+             "Measured on the development machine (2 cores shared with other jobs, "
+             "`OPENBLAS_NUM_THREADS=1`); rerun the scripts named to refresh them.", ""]
+    cov = results / "study-coverage.json"
+    if cov.exists():
+        c = json.loads(cov.read_text())
+        a = c["strategies"].get("adaptive", {})
+        lines += [f"* **Coverage** (`adaptive-cal study configs/study-tilts.yaml --strategies "
+                  f"adaptive --workers 2 --json {cov}`): over {a.get('plates')} plates the "
+                  f"adaptive planner's 95 % band holds {a.get('coverage95_mean', 0):.3f} of the "
+                  f"plate at its stop (true RMS {a.get('true_rms_mm_mean', 0) * 1e3:.2f} um, "
+                  f"{a.get('stop_touches_mean', 0):.1f} touches on average); lower bound "
+                  f"ratio {c['lower_bound'].get('adaptive_over_relaxed') or float('nan'):.2f} "
+                  f"on {c['lower_bound'].get('plates')} plates."]
+    dec = results / "decision.json"
+    if dec.exists():
+        d = json.loads(dec.read_text())
+        p = d["problem"]
+        lines += ["", f"**Decision latency** (`python benchmarks/bench_decision.py`): "
+                  f"{p['coefficients']} coefficients, {p['candidates']} candidates, "
+                  f"{p['readings']} readings fused.", "",
+                  "| method | decision (ms) | J after the touch (mm^4) |", "|---|---|---|"]
+        for name, t, j in (("ours: variance_drop + argmax (jit)", "ours_score_s", "ours_J"),
+                           ("ours: Mapper.ask (with refinement)", "ours_ask_s", "ours_ask_J"),
+                           ("plain numpy, same closed form", "numpy_score_s", "numpy_J"),
+                           ("BoTorch qNIPV, optimize_acqf, 5 restarts, 256 points", "botorch_s",
+                            "botorch_J"),
+                           ("BoTorch qNIPV, optimize_acqf_discrete on our candidates",
+                            "botorch_discrete_s", "botorch_discrete_J")):
+            if t in d:
+                lines.append(f"| {name} | {d[t] * 1e3:.1f} | {d[j]:.6g} |")
+        if "scaling" in d:
+            lines += ["", "| coefficients | candidates | ours (ms) | numpy (ms) |",
+                      "|---|---|---|---|"]
+            lines += [f"| {r['coefficients']} ({r['knots'][0]} x {r['knots'][1]}) | "
+                      f"{r['candidates']} | {r['ours_score_s'] * 1e3:.1f} | "
+                      f"{r['numpy_score_s'] * 1e3:.1f} |" for r in d["scaling"]]
+    thr = results / "study.json"
+    if thr.exists():
+        t = json.loads(thr.read_text())
+        v, k = t["vmap_vs_loop"], t["dask"]
+        lines += ["", f"**Throughput** (`python benchmarks/bench_study.py`): a fixed design with "
+                  f"fixed hyper-parameters, {v['touches_per_plate']} touches per plate: jax.vmap "
+                  f"{v['vmap_plates_per_s']:.1f} plate-runs/s against a Python loop "
+                  f"{v['loop_plates_per_s']:.2f} plate-runs/s. The adaptive planner on "
+                  f"{k['plates']} plates: in-process {k['in_process_plates_per_s']:.2f}, Dask 1 "
+                  f"worker {k['workers_1_plates_per_s']:.2f}, 2 workers "
+                  f"{k['workers_2_plates_per_s']:.2f} plate-runs/s ({t['machine']})."]
+    return "\n".join(lines) + "\n"
+
+
+def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_file: str,
+              out_dir: str, plates_arg: str = "", results: Path = Path("benchmarks/results")) -> None:
+    path = Path(path)
+    p = study.plate
+    out_rel = Path(out_dir).name
+    try:
+        out_rel = Path(out_dir).resolve().relative_to(path.resolve().parent)
+    except ValueError:
+        pass
+    text = DOC.format(minutes=max(1, round((summary.get("wall_s") or 60) / 60)),
+                      study_file=study_file, json_file=json_file, out_dir=out_dir,
+                      doc_file=str(path), plates_arg=plates_arg, plates=summary["plates"],
+                      tilt=p.tilt_deg, pv0=p.form_pv_mm[0], pv1=p.form_pv_mm[1],
+                      n0=p.noise_std_mm[0] * 1e3, n1=p.noise_std_mm[1] * 1e3,
+                      bound=study.bound.mean_std_mm * 1e3, budget=study.bound.max_touches,
+                      table=table(summary), out_rel=out_rel)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text + "\n" + benchmarks_section(Path(results)), encoding="utf-8")
