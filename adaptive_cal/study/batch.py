@@ -10,7 +10,7 @@ import numpy as np
 
 from .designs import evaluate_loop, evaluate_vmap, grid_points, grid_sizes, random_points
 from .plates import heights_at
-from .strategies import Context, paper_schedule, paper_stop, record
+from .strategies import Context, paper_native, paper_schedule, paper_stop, record
 
 EVALUATE = {"vmap": evaluate_vmap, "loop": evaluate_loop}
 
@@ -43,8 +43,11 @@ def run_fixed(strategy: str, contexts: list[Context], targets: list[float], *,
         for p, c in enumerate(contexts):
             traj = [[n, per[0][p, n - 1], per[1][p, n - 1]] for n in checkpoints]
             reason = rule(stops[p], None, heights[p], xy) or "touch_budget"
-            out.append(record(c, "paper", traj, stops[p], {k: v[p] for k, v in fin.items()},
-                              xy, reason, targets[p], hyper=hyper))
+            rec = record(c, "paper", traj, stops[p], {k: v[p] for k, v in fin.items()},
+                         xy, reason, targets[p], hyper=hyper)
+            if stops[p] > n_level:
+                rec.update(paper_native(c, xy, heights[p], stops[p], n_path))
+            out.append(rec)
         return out
     if strategy == "random":
         xys = [random_points(c.cell, bound.max_touches, np.random.default_rng([c.plate.seed, 7]))

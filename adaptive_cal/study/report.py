@@ -43,7 +43,12 @@ def table(summary: dict) -> str:
                   f"touches ({vp['reached']:.0%} of plates), ratio of means "
                   f"{_f(vp['touch_ratio_of_means'], 1, '{:.2f}')}; to the paper's mean accuracy "
                   f"{_f(vp.get('adaptive_touches_to_paper_mean_accuracy'))} touches (ratio "
-                  f"{_f(vp.get('touch_ratio_mean_accuracy'), 1, '{:.2f}')})"]
+                  f"{_f(vp.get('touch_ratio_mean_accuracy'), 1, '{:.2f}')})"
+                  + (f". The paper's own map (last round's readings interpolated) has true RMS "
+                     f"{vp['paper_native_true_rms_mm_mean'] * 1e3:.2f} um; adaptive reaches it "
+                     f"with {vp['adaptive_touches_to_paper_native_accuracy_mean']:.1f} touches "
+                     f"(ratio {vp['touch_ratio_native']:.2f})" if "touch_ratio_native" in vp
+                     else "")]
     return "\n".join(lines)
 
 

@@ -300,4 +300,15 @@ def summarise(study: Study, records: list[dict]) -> dict:
             "touch_ratio_mean_accuracy": float(np.mean(pop) / np.mean([p["touches"]
                                                                        for _, p in pairs])),
         }
+        native = [(a, p) for a, p in pairs if p.get("native_true_rms_mm") is not None]
+        if native:
+            # the paper's procedure as published: its own map (last round, interpolated)
+            t_native = [next((t for t, _, rms in a["trajectory"]
+                              if rms <= p["native_true_rms_mm"]), budget) for a, p in native]
+            n_paper = float(np.mean([p["touches"] for _, p in native]))
+            out["adaptive_vs_paper"].update(
+                paper_native_true_rms_mm_mean=float(np.mean([p["native_true_rms_mm"]
+                                                             for _, p in native])),
+                adaptive_touches_to_paper_native_accuracy_mean=float(np.mean(t_native)),
+                touch_ratio_native=float(np.mean(t_native) / n_paper))
     return out

@@ -40,13 +40,14 @@ class Context:
     model: PriorModel
     evaluator: Evaluator
     truth_eval: np.ndarray
+    eval_xy: np.ndarray
 
     @classmethod
     def create(cls, study: Study, plate: Plate, cell: Cell) -> "Context":
         mapper = Mapper.create(cell)
         ev = Evaluator(mapper.eval_rows, mapper.gram, mapper.model.surface.area_mm2)
         t = truth(cell)(mapper.eval_xy[:, 0], mapper.eval_xy[:, 1])
-        return cls(study, plate, cell, mapper.model, ev, t)
+        return cls(study, plate, cell, mapper.model, ev, t, mapper.eval_xy)
 
     def robot_time_s(self, xy) -> float:
         wp, robot = self.cell.workplane, self.cell.robot
@@ -195,11 +196,34 @@ def paper_stop(ctx: Context, n_level: int, n_path: int):
     return stop
 
 
+def paper_native(ctx: Context, xy: np.ndarray, heights: np.ndarray, stop: int,
+                 n_path: int) -> dict:
+    """The paper's own map: the least-squares plane of the last round's readings (their
+    eqs. 1-6) plus its residuals, linearly interpolated between the path points (the nearest
+    residual outside them), against the truth on the evaluation grid."""
+    from scipy.interpolate import griddata
+
+    pts, h = xy[stop - n_path : stop], heights[stop - n_path : stop]
+    design = np.column_stack([pts, np.ones(len(pts))])
+    plane = np.linalg.lstsq(design, h, rcond=None)[0]
+    resid = h - design @ plane
+    est = griddata(pts, resid, ctx.eval_xy, method="linear")
+    gap = ~np.isfinite(est)
+    est[gap] = griddata(pts, resid, ctx.eval_xy[gap], method="nearest")
+    est = est + np.column_stack([ctx.eval_xy, np.ones(len(ctx.eval_xy))]) @ plane
+    err = est - ctx.truth_eval
+    return {"native_true_rms_mm": float(np.sqrt(np.mean(err**2))),
+            "native_true_max_mm": float(np.abs(err).max())}
+
+
 def run_paper(ctx: Context, target_true: float) -> dict:
     xy, ends, n_level, n_path = paper_schedule(ctx)
     rule = paper_stop(ctx, n_level, n_path)
-    return _sequence(ctx, "paper", xy, [n_level] + ends,
-                     lambda n, fig, h: rule(n, fig, h, xy), target_true)
+    rec = _sequence(ctx, "paper", xy, [n_level] + ends,
+                    lambda n, fig, h: rule(n, fig, h, xy), target_true)
+    if rec["touches"] > n_level:
+        rec.update(paper_native(ctx, xy, heights_at(ctx.cell, xy), rec["touches"], n_path))
+    return rec
 
 
 def run_grid(ctx: Context, target_true: float) -> dict:
