@@ -23,6 +23,8 @@ def add_arguments(p) -> None:
     p.add_argument("--plates", type=int, help="override the study's number of plates")
     p.add_argument("--strategies", help="override the study's strategies (comma separated)")
     p.add_argument("--doc", metavar="PAGE.md", help="write the study page (docs/study.md)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one study key, e.g. --set bound.true_rms_mm=0.01 (YAML value)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -33,12 +35,29 @@ def command(args) -> int:
     study, base = load_study(args.study)
     if args.plates:
         study = study.model_copy(update={"plates": args.plates})
-    if args.strategies:
-        from .study.config import parse_study
+    if args.strategies or args.set:
+        import yaml
+
+        from .config import ConfigError
+        from .study.config import check_feasible, parse_study
+        from .config import parse_cell
 
         data = study.model_dump(mode="json")
-        data["strategies"] = [s.strip() for s in args.strategies.split(",") if s.strip()]
-        study = parse_study(data, "--strategies")
+        if args.strategies:
+            data["strategies"] = [s.strip() for s in args.strategies.split(",") if s.strip()]
+        for item in args.set:
+            key, sep, value = item.partition("=")
+            if not sep:
+                raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
+            *path, leaf = key.split(".")
+            node = data
+            for part in path:
+                if not isinstance(node.get(part), dict):
+                    raise ConfigError(f"--set {key}: {part!r} is not a block of the study file")
+                node = node[part]
+            node[leaf] = yaml.safe_load(value)
+        study = parse_study(data, "overrides")
+        check_feasible(study, parse_cell(base), "overrides")
     out_json = Path(args.json)
     out_dir = Path(args.out) if args.out else None
     checkpoint = (out_dir / "plates.jsonl" if out_dir

@@ -117,13 +117,17 @@ def write_report(study: Study, summary: dict, records: list[dict], base: dict, o
 DOC = """# Simulation studies
 
 How many touches does the adaptive planner save over the reference procedure, and is its
-uncertainty honest? `adaptive-cal study` answers both on synthetic plates. This page is written
-by one command (about {minutes} minutes on a 2-core machine):
+uncertainty honest? `adaptive-cal study` answers both on synthetic plates. This page (table,
+figures, and the benchmark figures from `benchmarks/results/`) is written by one command:
 
 ```
 OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} \\
     --out {out_dir} --doc {doc_file} --workers 2 {plates_arg}
 ```
+
+Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun, so the page is
+rewritten in seconds; a fresh 40-plate run took about 25 minutes on the 2-core development
+machine (shared with other jobs).
 
 ## Headline ({plates} plates of `{study_file}`)
 
@@ -173,6 +177,56 @@ touches), `table.md`; per-plate records in `{out_dir}/plates.jsonl`.
 """
 
 
+def targets_section(summary: dict, results: Path) -> str:
+    """The issue's targets against what was measured."""
+    import json
+
+    def mark(ok):
+        return "met" if ok else "**missed**"
+
+    lines = ["## Targets", ""]
+    vp, lb = summary.get("adaptive_vs_paper"), summary.get("lower_bound") or {}
+    if vp:
+        same, native = vp.get("touch_ratio_mean_accuracy"), vp.get("touch_ratio_native")
+        lines.append(
+            f"* adaptive reaches the paper's true accuracy with at most half its touches: against "
+            f"the paper's procedure as published (its own map) {native:.2f} x its touches "
+            f"({mark(native <= 0.5)}); against the paper's design judged by our model (the same "
+            f"estimator, learned hyper-parameters) {same:.2f} x ({mark(same <= 0.5)}): the 10 x 4 "
+            "path is a good space-filling design once it is given a Bayesian estimator, and the "
+            "planner's edge over it is the levelling touches and repeated rounds, not 2 x."
+            if native is not None and same is not None else "* paper comparison: not run")
+    if lb.get("adaptive_over_relaxed"):
+        r = lb["adaptive_over_relaxed"]
+        lines.append(f"* adaptive at most 1.2 x the lower bound: {r:.2f} x the relaxed optimal "
+                     f"design on {lb['plates']} plates ({mark(r <= 1.2)}; same hyper-parameters "
+                     "as the run ended with, candidate grid of the bound)")
+    cov = results / "study-coverage.json"
+    if cov.exists():
+        a = json.loads(cov.read_text())["strategies"]["adaptive"]
+        c = a["coverage95_mean"]
+        lines.append(f"* coverage95 of adaptive in 0.93-0.97 over >= 200 plates: {c:.3f} over "
+                     f"{a['plates']} plates ({mark(0.93 <= c <= 0.97 and a['plates'] >= 200)})")
+        if c < 0.93:
+            lines.append("  The posterior is overconfident at the stop: the true RMS error is "
+                         f"{a['true_rms_mm_mean'] / a['stop_mean_std_mm_mean']:.2f} x the "
+                         "posterior RMS std. On these plates the learned noise std at the stop is "
+                         "about 0.8 x the true noise for plates of 5-15 um (runs of 20-60 "
+                         "touches), and a run stops when its learned uncertainty happens to be "
+                         "low (optional stopping). This is the engine's hyper-parameter learning "
+                         "(prior.py), reported to the lead, not changed here.")
+    dec = results / "decision.json"
+    if dec.exists():
+        d = json.loads(dec.read_text())
+        if "botorch_s" in d:
+            ok = d["speedup_vs_botorch"] >= 100 and d["ours_J"] <= d["botorch_J"] * (1 + 1e-9)
+            lines.append(f"* decision latency >= 100 x lower than BoTorch at equal or smaller "
+                         f"integrated variance: {d['speedup_vs_botorch']:.0f} x (scoring), "
+                         f"{d['speedup_ask_vs_botorch']:.0f} x (whole ask); J {d['ours_J']:.6g} "
+                         f"against {d['botorch_J']:.6g} mm^4 ({mark(ok)})")
+    return "\n".join(lines) + "\n"
+
+
 def benchmarks_section(results: Path) -> str:
     """Figures of benchmarks/results/*.json, where present."""
     import json
@@ -184,13 +238,14 @@ def benchmarks_section(results: Path) -> str:
     if cov.exists():
         c = json.loads(cov.read_text())
         a = c["strategies"].get("adaptive", {})
-        lines += [f"* **Coverage** (`adaptive-cal study configs/study-tilts.yaml --strategies "
-                  f"adaptive --workers 2 --json {cov}`): over {a.get('plates')} plates the "
-                  f"adaptive planner's 95 % band holds {a.get('coverage95_mean', 0):.3f} of the "
-                  f"plate at its stop (true RMS {a.get('true_rms_mm_mean', 0) * 1e3:.2f} um, "
-                  f"{a.get('stop_touches_mean', 0):.1f} touches on average); lower bound "
-                  f"ratio {c['lower_bound'].get('adaptive_over_relaxed') or float('nan'):.2f} "
-                  f"on {c['lower_bound'].get('plates')} plates."]
+        lines += [f"* **Coverage** (`adaptive-cal study configs/study-tilts.yaml --plates "
+                  f"{a.get('plates')} --strategies adaptive --set bound.true_rms_mm=1 --set "
+                  f"lower_bound.plates=0 --workers 2 --json {cov}`; the true-error bound is "
+                  "lifted so each run ends at its own stop): the adaptive planner's 95 % band "
+                  f"holds {a.get('coverage95_mean', 0):.3f} of the plate at its stop (true RMS "
+                  f"{a.get('true_rms_mm_mean', 0) * 1e3:.2f} um against a posterior RMS std of "
+                  f"{a.get('stop_mean_std_mm_mean', 0) * 1e3:.2f} um, "
+                  f"{a.get('stop_touches_mean', 0):.1f} touches on average)."]
     dec = results / "decision.json"
     if dec.exists():
         d = json.loads(dec.read_text())
@@ -224,7 +279,15 @@ def benchmarks_section(results: Path) -> str:
                   f"{v['loop_plates_per_s']:.2f} plate-runs/s. The adaptive planner on "
                   f"{k['plates']} plates: in-process {k['in_process_plates_per_s']:.2f}, Dask 1 "
                   f"worker {k['workers_1_plates_per_s']:.2f}, 2 workers "
-                  f"{k['workers_2_plates_per_s']:.2f} plate-runs/s ({t['machine']})."]
+                  f"{k['workers_2_plates_per_s']:.2f} plate-runs/s ({t['machine']}). End to end "
+                  f"(readings drawn per touch, records built) the fixed design runs at "
+                  f"{v.get('end_to_end_vmap_plates_per_s', float('nan')):.1f} (vmap) against "
+                  f"{v.get('end_to_end_loop_plates_per_s', float('nan')):.1f} (loop) "
+                  "plate-runs/s. A Dask worker runs the planner at about half the in-process "
+                  "speed on this 2-core machine (the task thread shares the GIL with the "
+                  "worker's event loop, and the nanny and scheduler share the two cores), so 2 "
+                  "workers beat 1 but not a single in-process run here; with more cores or "
+                  "machines the workers add up."]
     return "\n".join(lines) + "\n"
 
 
@@ -245,4 +308,5 @@ def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_
                       bound=study.bound.mean_std_mm * 1e3, budget=study.bound.max_touches,
                       table=table(summary), out_rel=out_rel)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text + "\n" + benchmarks_section(Path(results)), encoding="utf-8")
+    path.write_text(text + "\n" + targets_section(summary, Path(results)) + "\n"
+                    + benchmarks_section(Path(results)), encoding="utf-8")

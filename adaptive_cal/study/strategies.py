@@ -21,7 +21,7 @@ from .. import belief as bl
 from ..adapters.base import TouchRejected
 from ..adapters.factory import open_cell
 from ..config import Cell
-from ..mapper import Mapper, prior_model
+from ..mapper import Mapper
 from ..planner import path_length_mm
 from ..prior import PriorModel
 from .config import Study
