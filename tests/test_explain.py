@@ -7,9 +7,8 @@ from adaptive_cal.config import load_cell
 from adaptive_cal.explain import belief_rows, effect_params, explain, suggest_touches
 from adaptive_cal.explain.candidates import Context
 from adaptive_cal.explain.design import build_design
-from adaptive_cal.explain.generator import EFFECTS, concealed_recording, serpentine
-from adaptive_cal.explain.identify import canonical_correlations
-from adaptive_cal.recording import Recording, read_recording
+from adaptive_cal.explain.generator import EFFECTS, concealed_recording
+from adaptive_cal.recording import read_recording
 from conftest import ROOT
 
 MAIN = {"form": "pv_mm", "thermal_drift": "rate_mm_per_s", "reversal": "span_mm",

@@ -42,7 +42,6 @@ def test_evidence_given_noise_matches_brute_force_integral():
 
 
 def test_noise_integral_matches_quadrature():
-    rng = np.random.default_rng(1)
     lam, c2, yy, m = np.array([3.0, 0.5]), np.array([2.0, 0.1]), 5.0, 20
     lz, _ = log_evidence_spectral(lam, c2, yy, m)
     f = lambda w: np.exp(_spectral(lam, c2, yy, m, np.array([w]))[0] - lz)

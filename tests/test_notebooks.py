@@ -1,5 +1,4 @@
 """The notebooks run top to bottom (nbclient, a fresh kernel each) and are committed stripped."""
-import os
 import time
 from pathlib import Path
 

@@ -86,7 +86,6 @@ def _summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
 
 
 def _calibration(ctx: Context, sigma: float) -> list[dict]:
-    N = ctx.nuisance[:, :3 * ctx.design.rounds]
     coef, *_ = np.linalg.lstsq(ctx.nuisance, ctx.design.target, rcond=None)
     cov = sigma ** 2 * np.linalg.pinv(ctx.nuisance.T @ ctx.nuisance)
     out = []
