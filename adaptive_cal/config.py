@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from . import physics
 from .adapters.schema import (HsesConfig, ManualConfig, ModbusConfig, RobodkConfig, SerialConfig,
@@ -284,14 +284,19 @@ def _format(err: ValidationError, source: str) -> str:
     return "\n".join(lines)
 
 
-def parse_cell(data: dict, source: str = "cell") -> Cell:
-    """Validate a cell given as a dict; raise ConfigError naming each bad key and value."""
+def validate(model: type[BaseModel], data: dict, source: str):
+    """Validate ``data`` against a schema; raise ConfigError naming each bad key and value."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping of keys, got {type(data).__name__}")
     try:
-        return Cell.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as e:
         raise ConfigError(_format(e, source)) from None
+
+
+def parse_cell(data: dict, source: str = "cell") -> Cell:
+    """Validate a cell given as a dict; raise ConfigError naming each bad key and value."""
+    return validate(Cell, data, source)
 
 
 def load_yaml(path: str | Path) -> dict:

@@ -11,10 +11,10 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from ..adapters.schema import Strict
-from ..config import Cell, ConfigError, Rect, _format, load_yaml, parse_cell
+from ..config import Cell, ConfigError, Rect, load_yaml, parse_cell, validate
 
 STRATEGIES = ("adaptive", "greedy_fixed", "paper", "grid", "random")
 SHAPES = ("bow_x", "bow_y", "twist", "warp")
@@ -120,12 +120,8 @@ class Study(Strict):
 
 
 def parse_study(data: dict, source: str = "study") -> Study:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{source}: expected a mapping of keys, got {type(data).__name__}")
-    try:
-        return Study.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(_format(e, source)) from None
+    """Validate a study given as a dict; raise ConfigError naming each bad key and value."""
+    return validate(Study, data, source)
 
 
 def base_cell_dict(study: Study, study_path: str | Path | None) -> dict:
