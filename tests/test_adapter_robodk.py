@@ -4,13 +4,20 @@ server it fails fast with a clear message and never tries to launch the app. Wha
 cannot tell about a real RoboDK is listed in docs/adapters/robodk.md."""
 import math
 import socket
+import threading
 import time
 from importlib.metadata import version
 
 import numpy as np
 import pytest
 
-from adaptive_cal.adapters.base import AdapterError, BadSample, ProbeCycle, Sample, UnsafeTarget
+from adaptive_cal.adapters.base import (
+    AdapterError,
+    BadSample,
+    ProbeCycle,
+    Sample,
+    UnsafeTarget,
+)
 from adaptive_cal.adapters.factory import open_cell, safety_check
 from adaptive_cal.adapters.manual import ManualCell
 from adaptive_cal.adapters.robodk import RobodkMotion
@@ -202,6 +209,34 @@ def test_a_server_that_accepts_and_says_nothing_times_out():
                          timeout_s=0.3)
         assert time.monotonic() - t < 2.0
     finally:
+        srv.close()
+
+
+def test_a_server_that_hangs_up_during_the_handshake_does_not_hang_the_client():
+    # the bare client reads a line byte by byte until LF and spins forever on a closed socket
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    srv.settimeout(2.0)
+
+    def hang_up():
+        conn, _ = srv.accept()
+        got = b""
+        while len(got) < 36:  # "RDK_API\n", int 3, 3 doubles
+            got += conn.recv(100)
+        conn.sendall(b"RDK")  # part of a line, then gone
+        conn.close()
+
+    th = threading.Thread(target=hang_up, daemon=True)
+    th.start()
+    try:
+        t = time.monotonic()
+        with pytest.raises(AdapterError, match="cannot connect.*closed the connection"):
+            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME),
+                         timeout_s=1.0)
+        assert time.monotonic() - t < 2.0
+    finally:
+        th.join(timeout=2.0)
         srv.close()
 
 

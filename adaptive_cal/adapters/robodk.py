@@ -221,4 +221,5 @@ class RobodkMotion:
             raise AdapterError(f"{self.where}: reading the pose failed: {e}") from e
 
     def close(self) -> None:
+        self._lost = self._lost or "the adapter was closed"
         self._drop()
