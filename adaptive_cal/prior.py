@@ -44,7 +44,7 @@ class PriorModel:
     offset_std_mm: float
     centre_mm: tuple[float, float]
     hyper0: Hyper  # configured values: start of the fit and centre of the hyper-prior
-    hyper_log_std: tuple[float, float, float] = (1.0, 0.7, 2.0)  # noise guesses are often far off
+    hyper_log_std: tuple[float, float, float] = (1.0, 0.7, 1.0)
 
     @property
     def tilt_basis(self) -> np.ndarray:
