@@ -186,6 +186,9 @@ class Stop(Strict):
     mean_std_mm: float | None = Field(0.01, gt=0, description="RMS posterior std over the plate")
     max_std_mm: float | None = Field(None, gt=0, description="largest posterior std on the plate")
     max_touches: int = Field(200, ge=1, description="touch budget")
+    min_touches: int | None = Field(
+        None, ge=0, description="no variance bound stops the run before this many touches; "
+        "default: the number of spline coefficients")
 
 
 class Plan(Strict):

@@ -18,7 +18,8 @@ import numpy as np
 
 from . import belief as bl
 from .config import Cell
-from .planner import (Candidates, MaxStdBelow, MeanStdBelow, Status, StopRule, TouchBudget,
+from .planner import (AtLeast, Candidates, MaxStdBelow, MeanStdBelow, Status, StopRule,
+                      TouchBudget,
                       candidate_grid, minimax_choice, plan_batch, refine, stroke_ok,
                       travel_order, variance_drop)
 from .prior import Hyper, PriorModel, hyper_posterior
@@ -74,13 +75,23 @@ def prior_model(cell: Cell) -> PriorModel:
                       (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)), hyper0)
 
 
-def stop_rule(cell: Cell) -> StopRule:
+def stop_rule(cell: Cell, coefficients: int, *, informed_prior: bool = False) -> StopRule:
+    """(variance bounds, after at least min_touches touches) | touch budget.
+
+    By default a bound may stop the run only after as many touches as the spline has
+    coefficients: before that the hyper-parameters rest on too few readings, and runs that
+    stopped at 10-14 touches were over-confident (study plates: coverage 0.908 -> 0.934 with
+    the rule, about 5 % more touches). A prior from an earlier run (``informed_prior``)
+    already carries them, so a re-check may stop at once."""
     s = cell.plan.stop
+    bounds = [MeanStdBelow(s.mean_std_mm)] if s.mean_std_mm is not None else []
+    bounds += [MaxStdBelow(s.max_std_mm)] if s.max_std_mm is not None else []
     rule: StopRule = TouchBudget(s.max_touches)
-    if s.mean_std_mm is not None:
-        rule = MeanStdBelow(s.mean_std_mm) | rule
-    if s.max_std_mm is not None:
-        rule = MaxStdBelow(s.max_std_mm) | rule
+    if bounds:
+        bound = bounds[0] if len(bounds) == 1 else bounds[0] | bounds[1]
+        least = s.min_touches if s.min_touches is not None else (
+            0 if informed_prior else coefficients)
+        rule = (bound & AtLeast(least)) | rule
     return rule
 
 
@@ -151,7 +162,8 @@ class Mapper:
                       float(np.sqrt(max(var.max(), 0.0))))
 
     def stop_reason(self) -> str | None:
-        return stop_rule(self.cell)(self.status())
+        rule = stop_rule(self.cell, self.model.surface.size, informed_prior=self.base is not None)
+        return rule(self.status())
 
     @property
     def criterion(self) -> str:

@@ -217,6 +217,17 @@ class MaxStdBelow(StopRule):
 
 
 @dataclass(frozen=True)
+class AtLeast(StopRule):
+    """Holds once ``touches`` touches were made: ``bound & AtLeast(n)`` stops no earlier."""
+
+    touches: int
+    name = "at_least"
+
+    def __call__(self, status):
+        return self.name if status.touches >= self.touches else None
+
+
+@dataclass(frozen=True)
 class TouchBudget(StopRule):
     touches: int
     name = "touch_budget"

@@ -20,6 +20,15 @@ from adaptive_cal.recording import RecordingError, read_recording
 from helpers import SIM_CELL, drive, sim_cell
 
 
+def test_no_bound_stops_before_as_many_touches_as_coefficients_unless_told():
+    cell = sim_cell()
+    m = drive(Mapper.create(cell), open_cell(cell))
+    assert m.stop_reason() == "mean_std_bound" and m.touches >= m.model.surface.size
+    early = sim_cell(plan={"stop": {"mean_std_mm": 0.004, "max_touches": 120, "min_touches": 0}})
+    m0 = drive(Mapper.create(early), open_cell(early))
+    assert m0.stop_reason() == "mean_std_bound" and m0.touches < m.model.surface.size
+
+
 def test_cli_run_stops_at_the_bound_and_writes_everything(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 0
@@ -157,7 +166,8 @@ def test_worst_point_criterion_beats_integrated_variance_on_a_max_bound():
     touches = {}
     for crit in ("max", "integrated"):
         cell = sim_cell(model={"knots_x": 8, "knots_y": 8, "learn_hyper": False},
-                        plan={"stop": {"mean_std_mm": None, "max_std_mm": 0.006, "max_touches": 300},
+                        plan={"stop": {"mean_std_mm": None, "max_std_mm": 0.006, "max_touches": 300,
+                                       "min_touches": 0},  # compare the criteria, not the guard
                               "criterion": crit, "candidates": 4000})
         m = drive(Mapper.create(cell), open_cell(cell))
         assert m.stop_reason() == "max_std_bound"
