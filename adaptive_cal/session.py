@@ -121,6 +121,7 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
     stopped, seq, new = None, start_touch, 0
     true_rms = [] if truth is None else [mapper.truth_error(truth)["rms_error_mm"]] * len(mapper.history)
     bar = _progress(progress, cell, start_touch)
+    error = None
     try:
         with _deferred_interrupt() as flag:
             while True:
@@ -159,13 +160,19 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
                         break
     except KeyboardInterrupt:
         stopped = "interrupted"
+    except AdapterError as e:  # a device stopped the run: report what was measured, then raise
+        stopped, error = "interrupted", e
     finally:
         writer.close()
         opened.close()
         if bar is not None:
             bar.close()
-    result = write_results(mapper, paths.out, stopped or "interrupted", truth, true_rms or None)
-    save_belief(mapper, paths.out / "belief.npz")
+    result = None
+    if error is None or mapper.touches:
+        result = write_results(mapper, paths.out, stopped or "interrupted", truth, true_rms or None)
+        save_belief(mapper, paths.out / "belief.npz")
+    if error is not None:
+        raise error
     return result
 
 

@@ -152,6 +152,40 @@ def test_an_outlier_is_gated_retaken_and_both_rows_kept(tmp_path, monkeypatch):
     assert result["truth"]["max_error_mm"] < 0.05  # the 0.3 mm chip did not enter the map
 
 
+def test_a_device_failure_keeps_every_reading_reports_and_resumes(tmp_path, monkeypatch):
+    from adaptive_cal.adapters.base import AdapterError
+
+    real_open = session.open_cell
+
+    class _Dies:
+        def __init__(self, cycle):
+            self.cycle, self.motion, self.count = cycle, cycle.motion, 0
+
+        def touch(self, x, y, z):
+            self.count += 1
+            if self.count == 6:
+                raise AdapterError("link lost: jog the probe clear and --resume")
+            return self.cycle.touch(x, y, z)
+
+    def dying_open(cell, **kw):
+        oc = real_open(cell, **kw)
+        oc.cycle = _Dies(oc.cycle)
+        return oc
+
+    monkeypatch.setattr(session, "open_cell", dying_open)
+    out = tmp_path / "d"
+    with pytest.raises(AdapterError, match="link lost"):
+        session.run(sim_cell(), out, progress=False)
+    assert len(read_recording(out / "recording.csv")) == 5  # every reading taken is kept
+    result = json.loads((out / "result.json").read_text())
+    assert result["stopped_because"] == "interrupted" and result["touches"] == 5
+    monkeypatch.setattr(session, "open_cell", real_open)
+    r = session.run(sim_cell(), out, resume=True, progress=False)
+    assert r["stopped_because"] == "mean_std_bound"
+    rec = read_recording(out / "recording.csv")
+    np.testing.assert_array_equal(rec.seq, np.arange(len(rec)))
+
+
 def test_prior_from_an_earlier_run_needs_only_a_handful_of_touches(tmp_path):
     cell = sim_cell()
     fresh = session.run(cell, tmp_path / "a", progress=False)
