@@ -25,7 +25,9 @@ def add_arguments(parser) -> None:
 
 def _print(report: dict) -> None:
     fit = report["fit"]
-    print(f"verdict: {report['verdict']}")
+    amb = report.get("ambiguous_with") or []
+    print(f"verdict: {report['verdict']} (probability {report['verdict_probability']:.2f}"
+          + (f"; cannot be told apart from {', '.join(amb)} on this design" if amb else "") + ")")
     for e in report["left_out"]:
         print(f"  left out: {e['summary']}")
     for e in report["not_identifiable"]:

@@ -13,19 +13,18 @@ thermal_drift  rate_mm_per_s: 1e-6..1e-3               --
 reversal       span_mm: 1e-4..0.1                      --
 arm_sag        sag_mm_at_1m: 1e-3..1                   p uniform on {1, 1.5, 2, 2.5, 3}
 probe_gain     gain: 1e-5..1e-2                        --
-local_defect   height_mm: 1e-3..1                      radius uniform on {15, 30, 60} mm;
-                                                       centre uniform over the footprints (the
-                                                       distinct sets of touches within one
-                                                       radius), then over the centres of a grid
-                                                       (spacing radius / 2) with that footprint
+local_defect   height_mm: 1e-3..1                      radius uniform on {15, 30, 60} mm, centre
+                                                       uniform over a grid (spacing radius / 2);
+                                                       conditioned on the bump reaching at least
+                                                       two touches (one touch: an outlier)
 =============  =====================================  =======================================
 
 Nonlinear parameters are averaged over their prior (a discrete prior): that average is the
 look-elsewhere penalty -- about log(number of effectively independent locations) below the best
-single location, which is reported. For a defect the independent locations are the footprints: two
-centres reaching the same touches are one hypothesis for this design (up to the bump's exact
-placement), so the prior is uniform over footprints (all centres no touch reaches are one), not
-over plate area. With several rounds a linear effect
+single location, which is reported. For a defect the prior is uniform over the plate area,
+conditioned on the bump reaching at least two touches: a bump seen by one touch cannot be told
+from an outlier (the gate and the retake handle those), so it is not a hypothesis explain can
+name, and it must not dilute the ones it can. With several rounds a linear effect
 is either shared (one parameter set) or per round; both are scored and averaged with prior 1/2.
 """
 from __future__ import annotations
@@ -47,6 +46,7 @@ PRIOR_SHAPE = "iid"  # multi-parameter effects: "iid" or "design" (prior_shape; 
 DEFECT_PRIOR = "area"  # defect centres: "area" (uniform over the grid) or "footprint" (measured, docs)
 SAG_EXPONENTS = (1.0, 1.5, 2.0, 2.5, 3.0)
 DEFECT_RADII_MM = (15.0, 30.0, 60.0)
+DEFECT_MIN_TOUCHES = 2  # a bump that reaches one touch is an outlier, not a nameable defect
 
 
 def prior_grid(name: str) -> np.ndarray:
@@ -201,18 +201,20 @@ def defect_grid(geometry: physics.Geometry, radius_mm: float) -> tuple[np.ndarra
 def _local_defect(ctx: Context) -> Candidate:
     d = ctx.design
     taus = prior_grid("local_defect")
-    per_radius, records, classes = [], [], 0
+    records, classes = [], 0
     chunk = max(1, int(min(2_000_000 // max(d.n, 1), 400_000 // taus.size)))
     for radius in DEFECT_RADII_MM:
         gx, gy = defect_grid(d.geometry, radius)
         lz = np.empty(gx.size)
         bt = np.empty(gx.size, int)
-        bits = []
+        bits, counts = [], []
         for s in range(0, gx.size, chunk):
             X = physics.defect_regressor_grid(d.features, gx[s:s + chunk], gy[s:s + chunk], radius)
             bits.append(np.packbits(X != 0.0, axis=0))
-            seen = np.flatnonzero(np.any(X != 0.0, axis=0))  # a bump no touch reaches: BF 1
+            reach = np.count_nonzero(X, axis=0)
+            seen = np.flatnonzero(reach >= DEFECT_MIN_TOUCHES)
             lz[s:s + chunk], bt[s:s + chunk] = ctx.log_z0, 0
+            counts.append(reach)
             if seen.size:
                 lz[s + seen], bt[s + seen] = log_evidence_columns_mixture(
                     ctx.project(X[:, seen]), ctx.yt, taus, ctx.m)
@@ -226,11 +228,18 @@ def _local_defect(ctx: Context) -> Candidate:
             classes += size.size
         else:  # uniform over the grid of centres (area)
             logp = np.full(gx.size, -np.log(gx.size))
-            classes += gx.size
-        per_radius.append(float(logsumexp(lz + logp)))
+        # a bump that reaches fewer than DEFECT_MIN_TOUCHES touches is an outlier, not a nameable
+        # defect: the prior is conditioned on the defect being nameable by this design
+        ok = np.concatenate(counts) >= DEFECT_MIN_TOUCHES
+        logp = np.where(ok, logp - np.log(len(DEFECT_RADII_MM)), -np.inf)
+        classes += int(ok.sum()) if DEFECT_PRIOR != "footprint" else 0
         records.append((radius, gx, gy, lz, bt, logp))
-    total = float(logsumexp(per_radius) - np.log(len(per_radius)))
-    # posterior over (radius, centre): uniform prior over radii, then the prior within a radius
+    prior_mass = float(logsumexp(np.concatenate([logp for *_, logp in records])))
+    if not np.isfinite(prior_mass):
+        return None  # no bump of the searched radii reaches two touches of this design
+    total = float(logsumexp(np.concatenate([lz + logp for _, _, _, lz, _, logp in records]))
+                  - prior_mass)
+    # posterior over (radius, centre): the same prior, restricted to the nameable centres
     logw = np.concatenate([lz + logp for _, _, _, lz, _, logp in records])
     wts = np.exp(logw - logsumexp(logw))
     allx = np.concatenate([gx for _, gx, _, _, _, _ in records])
@@ -259,7 +268,9 @@ def score_candidates(ctx: Context, skip: frozenset[str] = frozenset()) -> list[C
         if name == "arm_sag":
             out.append(_arm_sag(ctx))
         elif name == "local_defect":
-            out.append(_local_defect(ctx))
+            cand = _local_defect(ctx)
+            if cand is not None:
+                out.append(cand)
         else:
             out.append(_linear(ctx, name))
     return sorted(out, key=lambda c: -c.log_bf)

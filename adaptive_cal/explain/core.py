@@ -1,9 +1,14 @@
 """``explain``: calibrate, locate the mismatch, name the left-out physics, model it, show the fit.
 
-The verdict is the candidate with the largest evidence when its log Bayes factor against ``none``
-exceeds ``THRESHOLD`` (calibrated on null recordings, benchmarks/bench_explain.py) and beats the
-runner-up by ``MARGIN``; otherwise ``none``. A tool that names the wrong physics with confidence
-is worse than none.
+The verdict is the candidate with the largest evidence (the most probable effect: the Bayes
+decision) when its log Bayes factor against ``none`` exceeds ``THRESHOLD`` (calibrated on null
+recordings, benchmarks/bench_explain.py); otherwise ``none``. A tool that names the wrong physics
+with confidence is worse than none, so the report says how sure it is: ``verdict_probability``
+(posterior probability of the verdict: none has prior 1/2, the candidates share the other half) and
+``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
+plate design arm_sag and form are the usual pair). ``MARGIN`` > 0 restores a stricter rule that
+answers ``none`` when the runner-up is that close (measured in docs/explain.md: fewer wrong names,
+fewer right ones).
 """
 from __future__ import annotations
 
@@ -22,7 +27,8 @@ from .locate import locate
 from .rounds import flatness_change
 
 THRESHOLD = 1.0  # log Bayes factor against none, calibrated on 600 nulls: FP 3.5 % (docs/explain.md)
-MARGIN = 1.0  # log Bayes factor the verdict must hold over the runner-up
+MARGIN = 0.0  # log Bayes factor the verdict must hold over the runner-up (0: most probable wins)
+AMBIGUOUS = 1.0  # runner-ups within this many nats of the verdict are reported as ambiguous_with
 
 
 @dataclass
@@ -133,8 +139,14 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD, margin: floa
     else:
         after, loo1 = before, loo0
     rms = lambda r: float(np.sqrt(np.mean(r ** 2)))
+    # posterior over none and the candidates: none has prior 1/2, the candidates share the rest
+    logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
+    prob = np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
     report = {
         "verdict": winner.effect if winner else "none",
+        "verdict_probability": float(prob[1 + cands.index(winner)] if winner else prob[0]),
+        "ambiguous_with": [c.effect for c in cands if winner is not None and c is not winner
+                           and c.log_bf > threshold and winner.log_bf - c.log_bf < AMBIGUOUS],
         "left_out": left_out,
         "not_identifiable": not_identifiable(ctx, sigma) if identifiability else [],
         "mismatch": locate(ctx),
@@ -171,4 +183,4 @@ def belief_rows(effect: str, params: dict, features: physics.Features,
 
 
 __all__ = ["explain", "explain_design", "Explanation", "belief_rows", "effect_params",
-           "PRIOR_RANGE", "THRESHOLD", "MARGIN"]
+           "PRIOR_RANGE", "THRESHOLD", "MARGIN", "AMBIGUOUS"]
