@@ -218,6 +218,9 @@ def _local_defect(ctx: Context) -> Candidate:
             if seen.size:
                 lz[s + seen], bt[s + seen] = log_evidence_columns_mixture(
                     ctx.project(X[:, seen]), ctx.yt, taus, ctx.m)
+        # a bump that reaches fewer than DEFECT_MIN_TOUCHES touches is an outlier, not a nameable
+        # defect: the prior is conditioned on the defect being nameable by this design
+        ok = np.concatenate(counts) >= DEFECT_MIN_TOUCHES
         if DEFECT_PRIOR == "footprint":
             # uniform over footprints (the distinct touch neighbourhoods), then over the centres
             # of a footprint: log prior weight of a centre = -log(classes) - log(class size)
@@ -228,11 +231,8 @@ def _local_defect(ctx: Context) -> Candidate:
             classes += size.size
         else:  # uniform over the grid of centres (area)
             logp = np.full(gx.size, -np.log(gx.size))
-        # a bump that reaches fewer than DEFECT_MIN_TOUCHES touches is an outlier, not a nameable
-        # defect: the prior is conditioned on the defect being nameable by this design
-        ok = np.concatenate(counts) >= DEFECT_MIN_TOUCHES
+            classes += int(ok.sum())
         logp = np.where(ok, logp - np.log(len(DEFECT_RADII_MM)), -np.inf)
-        classes += int(ok.sum()) if DEFECT_PRIOR != "footprint" else 0
         records.append((radius, gx, gy, lz, bt, logp))
     prior_mass = float(logsumexp(np.concatenate([logp for *_, logp in records])))
     if not np.isfinite(prior_mass):
