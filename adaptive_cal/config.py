@@ -134,7 +134,12 @@ class Probe(Strict):
     usable_mm: Interval = Field((0.5, 9.5), description="indications accepted; others are rejected")
     zero_mm: float = Field(5.0, description="indication with the tip at the commanded height")
     resolution_mm: float = Field(1e-4, gt=0, description="readout step")
-    noise_std_mm: float = Field(0.005, gt=0, description="first guess of the reading noise")
+    noise_std_mm: float = Field(0.005, gt=0, description="first guess of the reading noise "
+                                "(a weak prior: the noise is learned from the readings)")
+    noise_range_mm: Interval | None = Field(
+        None, description="[low, high] the reading noise is known to lie in (datasheet, a gauge "
+        "study): a log-normal prior with 95 % inside, centred at sqrt(low * high); it replaces "
+        "noise_std_mm and keeps the learned noise from collapsing on few readings")
     samples: int = Field(1, ge=1, description="samples per touch (median taken)")
     samples_tolerance_mm: float = Field(0.005, gt=0, description="largest spread of the samples")
     retries: int = Field(2, ge=0, description="re-samplings when the spread is too large")
@@ -147,9 +152,23 @@ class Probe(Strict):
         lo, hi = _interval(self.usable_mm, "usable_mm")
         if lo < 0 or hi > self.stroke_mm:
             raise ValueError(f"usable_mm={[lo, hi]} must lie inside the stroke [0, {self.stroke_mm}]")
+        if self.noise_range_mm is not None:
+            n_lo, n_hi = _interval(self.noise_range_mm, "noise_range_mm")
+            if n_lo <= 0:
+                raise ValueError(f"noise_range_mm={[n_lo, n_hi]} must be above 0 mm")
+            if "noise_std_mm" in self.model_fields_set and not n_lo <= self.noise_std_mm <= n_hi:
+                raise ValueError(f"noise_std_mm={self.noise_std_mm} lies outside "
+                                 f"noise_range_mm={[n_lo, n_hi]}: give one or make them agree")
         if self.adapter in ("serial", "modbus") and getattr(self, self.adapter) is None:
             raise ValueError(f"adapter '{self.adapter}' needs a probe.{self.adapter} block")
         return self
+
+    def noise_prior(self) -> tuple[float, float | None]:
+        """(centre mm, log-std) of the prior on the reading noise; log-std None: the weak default."""
+        if self.noise_range_mm is None:
+            return self.noise_std_mm, None
+        lo, hi = self.noise_range_mm
+        return math.sqrt(lo * hi), math.log(hi / lo) / (2 * 1.959964)
 
 
 class Model(Strict):
@@ -188,7 +207,8 @@ class Stop(Strict):
     max_touches: int = Field(200, ge=1, description="touch budget")
     min_touches: int | None = Field(
         None, ge=0, description="no variance bound stops the run before this many touches; "
-        "default: the number of spline coefficients")
+        "default: the number of spline coefficients, or 0 with probe.noise_range_mm or a prior "
+        "from an earlier run (--prior-from)")
 
 
 class Plan(Strict):
