@@ -91,7 +91,7 @@ def command(args) -> int:
 
     if args.doc:
         write_doc(Path(args.doc), study, summary, study_file=args.study, json_file=args.json,
-                  out_dir=args.out or str(out_json.parent),
+                  out_dir=args.out or str(out_json.parent), base=base,
                   plates_arg=f"--plates {args.plates}" if args.plates else "")
     print(table(summary))
     return 0

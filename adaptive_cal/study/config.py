@@ -37,6 +37,9 @@ class PlateDistribution(Strict):
     form_shapes: list[Literal["bow_x", "bow_y", "twist", "warp"]] = list(SHAPES)
     noise_std_mm: Span = (0.005, 0.02)
     repeatability_mm: float = Field(0.0, ge=0, description="robot z repeatability (1 sigma)")
+    noise_range_known: bool = Field(True, description="tell the planner the span of the reading "
+                                    "noise (probe.noise_range_mm), as a user quotes the probe's "
+                                    "datasheet; false: only the cell's first guess")
     keep_outs: list[Rect] | None = Field(None, description="replace the cell's keep-outs")
 
     @field_validator("form_pv_mm", "noise_std_mm")

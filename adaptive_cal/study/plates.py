@@ -50,6 +50,15 @@ def plate_cell(study: Study, base: dict, plate: Plate) -> Cell:
     sim.update(seed=plate.seed, effects=plate.effects, noise_std_mm=plate.noise_std_mm,
                repeatability_mm=plate.repeatability_mm)
     data["simulation"] = sim
+    if study.plate.noise_range_known:
+        # the reading noise the planner sees: probe noise and z repeatability together; a
+        # single value is told as [0.8, 1.25] x (a datasheet figure is not exact)
+        lo, hi = (math.hypot(n, plate.repeatability_mm) for n in study.plate.noise_std_mm)
+        lo, hi = (0.8 * lo, 1.25 * hi) if hi <= lo else (lo, hi)
+        probe = dict(data.get("probe") or {})
+        probe.pop("noise_std_mm", None)
+        probe["noise_range_mm"] = [lo, hi]
+        data["probe"] = probe
     plan = dict(data.get("plan") or {})
     stop = dict(plan.get("stop") or {})
     stop.update(mean_std_mm=study.bound.mean_std_mm, max_std_mm=None,

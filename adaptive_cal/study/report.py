@@ -126,14 +126,14 @@ OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} \\
 ```
 
 Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun, so the page is
-rewritten in seconds; a fresh 40-plate run took about 25 minutes on the 2-core development
-machine (shared with other jobs).
+rewritten in seconds; a fresh 40-plate run took about 8 minutes on the 2-core development
+machine (25 when it was shared with other jobs).
 
 ## Headline ({plates} plates of `{study_file}`)
 
 Plates: tilt uniform in +-{tilt} deg about each axis, form (bow, twist, warp with random
 weights) {pv0}-{pv1} mm peak to valley, reading noise {n0}-{n1} um. Every strategy runs on the
-same plates and is judged by the same spline model; the bound is {bound} um.
+same plates and is judged by the same spline model; the bound is {bound} um. {noise_prior}
 
 {table}
 
@@ -144,7 +144,7 @@ same plates and is judged by the same spline model; the bound is {bound} um.
   (posterior RMS std at the bound; the paper: its levelling check), and there the true errors
   and the share of the plate inside the posterior 95 % band.
 * `adaptive`: the engine with hyper-parameter learning; `greedy_fixed`: the same planner with the
-  cell's fixed hyper-parameters (noise guess 5 um); `paper`: 5-point levelling then rounds of the
+  fixed hyper-parameters it starts from (noise {fixed_noise:g} um); `paper`: 5-point levelling then rounds of the
   10 x 4 S-shaped path until a round's least-squares plane tilts by at most
   `paper.level_tolerance_mm` across the plate; `grid`: serpentine grids of growing size, each a
   fresh run; `random`: uniform random touches. paper/grid/random readings are taken as if every
@@ -210,11 +210,7 @@ def targets_section(summary: dict, results: Path) -> str:
         if c < 0.93:
             lines.append("  The posterior is overconfident at the stop: the true RMS error is "
                          f"{a['true_rms_mm_mean'] / a['stop_mean_std_mm_mean']:.2f} x the "
-                         "posterior RMS std. On these plates the learned noise std at the stop is "
-                         "about 0.8 x the true noise for plates of 5-15 um (runs of 20-60 "
-                         "touches), and a run stops when its learned uncertainty happens to be "
-                         "low (optional stopping). This is the engine's hyper-parameter learning "
-                         "(prior.py), reported to the lead, not changed here.")
+                         "posterior RMS std.")
     dec = results / "decision.json"
     if dec.exists():
         d = json.loads(dec.read_text())
@@ -291,8 +287,29 @@ def benchmarks_section(results: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _plate0_cell(study: Study, base: dict):
+    from .plates import plate_cell, sample_plate
+
+    return plate_cell(study, base, sample_plate(study, 0))
+
+
+def _fixed_noise_um(study: Study, base: dict) -> float:
+    return round(_plate0_cell(study, base).probe.noise_prior()[0] * 1e3, 1)
+
+
+def _noise_prior_text(study: Study, base: dict) -> str:
+    probe = _plate0_cell(study, base).probe
+    if probe.noise_range_mm is None:
+        return (f"The planner learns the reading noise from a weak prior around the cell's first "
+                f"guess, {probe.noise_std_mm * 1e3:g} um (`plate.noise_range_known: false`).")
+    lo, hi = probe.noise_range_mm
+    return (f"The planner is told the span of the reading noise, {lo * 1e3:g}-{hi * 1e3:g} um, "
+            "as a user quotes the probe's datasheet (`probe.noise_range_mm`, a log-normal prior "
+            "with 95 % inside), and learns the noise within it.")
+
+
 def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_file: str,
-              out_dir: str, plates_arg: str = "", results: Path = Path("benchmarks/results")) -> None:
+              out_dir: str, base: dict, plates_arg: str = "", results: Path = Path("benchmarks/results")) -> None:
     path = Path(path)
     p = study.plate
     out_rel = Path(out_dir).name
@@ -306,6 +323,8 @@ def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_
                       tilt=p.tilt_deg, pv0=p.form_pv_mm[0], pv1=p.form_pv_mm[1],
                       n0=p.noise_std_mm[0] * 1e3, n1=p.noise_std_mm[1] * 1e3,
                       bound=study.bound.mean_std_mm * 1e3, budget=study.bound.max_touches,
+                      noise_prior=_noise_prior_text(study, base),
+                      fixed_noise=_fixed_noise_um(study, base),
                       table=table(summary), out_rel=out_rel)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text + "\n" + targets_section(summary, Path(results)) + "\n"
