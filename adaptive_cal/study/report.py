@@ -144,8 +144,8 @@ same plates and is judged by the same spline model; the bound is {bound} um. {no
   (posterior RMS std at the bound; the paper: its levelling check), and there the true errors
   and the share of the plate inside the posterior 95 % band.
 * `adaptive`: the engine with hyper-parameter learning; `greedy_fixed`: the same planner with the
-  fixed hyper-parameters it starts from (noise {fixed_noise:g} um); `paper`: 5-point levelling then rounds of the
-  10 x 4 S-shaped path until a round's least-squares plane tilts by at most
+  fixed hyper-parameters it starts from (noise {fixed_noise:g} um); `paper`: 5-point levelling
+  then rounds of the 10 x 4 S-shaped path until a round's least-squares plane tilts by at most
   `paper.level_tolerance_mm` across the plate; `grid`: serpentine grids of growing size, each a
   fresh run; `random`: uniform random touches. paper/grid/random readings are taken as if every
   touch landed in the probe stroke (levelled frame or jogging), which favours them; their
@@ -309,7 +309,8 @@ def _noise_prior_text(study: Study, base: dict) -> str:
 
 
 def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_file: str,
-              out_dir: str, base: dict, plates_arg: str = "", results: Path = Path("benchmarks/results")) -> None:
+              out_dir: str, base: dict, plates_arg: str = "",
+              results: Path = Path("benchmarks/results")) -> None:
     path = Path(path)
     p = study.plate
     out_rel = Path(out_dir).name
