@@ -5,6 +5,7 @@ nulls, the threshold calibration (FP rate and accuracy for several log Bayes fac
 and the time for 40 and 10,000 rows. Writes benchmarks/results/explain.json.
 
     python benchmarks/bench_explain.py [--seeds 20] [--nulls 200] [--workers 2] [--scan-nulls 1000]
+        [--first-seed 0] [--first-null 0] [--runs-out RUNS.json]
 
 It also computes an upper bound (``oracle_bounds``): the power of the best test for each effect
 alone at the same false-positive budget, so a missed target can be told apart from a weak method.
@@ -185,15 +186,23 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--scan-nulls", type=int, default=1000,
                     help="null recordings for the defect scan-test threshold of the bound")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="effect seeds first..first+seeds-1 (a fresh set: not 0)")
+    ap.add_argument("--first-null", type=int, default=0, help="null seeds likewise")
+    ap.add_argument("--runs-out", help="also write every recording's candidates and verdict here")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "explain.json"))
     args = ap.parse_args(argv)
-    jobs = [(e, m, s, {}) for e in EFFECTS for m in MAGNITUDES for s in range(args.seeds)]
-    jobs += [("none", 0.0, s, NULL_DESIGNS[s % len(NULL_DESIGNS)]) for s in range(args.nulls)]
+    f = args.first_seed
+    jobs = [(e, m, s, {}) for e in EFFECTS for m in MAGNITUDES for s in range(f, f + args.seeds)]
+    jobs += [("none", 0.0, s, NULL_DESIGNS[s % len(NULL_DESIGNS)])
+             for s in range(args.first_null, args.first_null + args.nulls)]
     t0 = time.perf_counter()
     with Pool(args.workers) as pool:
         runs = pool.map(_one, jobs, chunksize=8)
         null_z2 = pool.map(_null_scan, range(args.scan_nulls), chunksize=16)
     elapsed = time.perf_counter() - t0
+    if args.runs_out:
+        Path(args.runs_out).write_text(json.dumps(runs, default=float))
     calib = [summarise(runs, t) for t in THRESHOLDS]
     print(f"{len(runs)} recordings in {elapsed:.0f} s; margin over the runner-up {MARGIN}")
     ms = summarise(runs, THRESHOLD)
@@ -237,7 +246,8 @@ def main(argv=None):
     for k, v in tim.items():
         print(f"  {v['rows']:>6} rows: {v['seconds']:.2f} s (verdict {v['verdict']})")
     result = {"threshold": THRESHOLD, "margin": MARGIN, "magnitudes": MAGNITUDES,
-              "seeds": args.seeds, "nulls": args.nulls, "calibration": calib,
+              "seeds": args.seeds, "first_seed": args.first_seed, "nulls": args.nulls,
+              "first_null": args.first_null, "calibration": calib,
               "summary": main_sum, "confusion_all": confusion(runs, THRESHOLD),
               "confusion_4sigma": confusion(runs, THRESHOLD, 4.0), "parameter_errors": errors,
               "oracle_bounds": bounds, "scan_nulls": args.scan_nulls,

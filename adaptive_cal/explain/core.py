@@ -26,7 +26,7 @@ from .identify import not_identifiable
 from .locate import locate
 from .rounds import flatness_change
 
-THRESHOLD = 1.0  # log Bayes factor against none, calibrated on 600 nulls: FP 3.8 % (docs/explain.md)
+THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
 MARGIN = 0.0  # log Bayes factor the verdict must hold over the runner-up (0: most probable wins)
 AMBIGUOUS = 1.0  # runner-ups within this many nats of the verdict are reported as ambiguous_with
 
