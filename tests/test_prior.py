@@ -87,3 +87,34 @@ def test_a_noise_range_keeps_the_learned_noise_from_collapsing_on_few_readings()
     assert np.sum(weak_r < 0.5) >= 4  # the failure the range prevents is there without it
     assert np.sum(range_r < 0.5) <= 1
     assert 0.8 <= np.median(range_r) <= 1.2
+
+
+def test_probe_noise_range_sets_the_noise_prior_and_lifts_the_touch_floor():
+    from adaptive_cal.config import ConfigError, load_yaml, parse_cell
+    from adaptive_cal.mapper import prior_model, stop_rule
+    from adaptive_cal.planner import Status
+
+    from conftest import ROOT
+
+    data = load_yaml(ROOT / "configs" / "sim-cell.yaml")
+    weak = parse_cell(data)
+    assert prior_model(weak).hyper_log_std[2] == 1.0
+    data["probe"] = {k: v for k, v in data["probe"].items() if k != "noise_std_mm"}
+    data["probe"]["noise_range_mm"] = [0.005, 0.02]
+    cell = parse_cell(data)
+    model = prior_model(cell)
+    assert model.hyper0.noise_std_mm == pytest.approx(0.01)
+    # 95 % of the log-normal inside [5, 20] um
+    z = np.log(0.02 / 0.01) / model.hyper_log_std[2]
+    assert z == pytest.approx(1.959964)
+    k = model.surface.size
+    early = Status(touches=5, mean_std_mm=1e-4, max_std_mm=1e-4)
+    assert stop_rule(cell, k)(early) == "mean_std_bound"
+    assert stop_rule(weak, k)(early) is None  # without the range: the floor of k touches
+    for probe, words in (({"noise_range_mm": [0.0, 0.02]}, "above 0"),
+                         ({"noise_range_mm": [0.02, 0.01]}, "low < high"),
+                         ({"noise_range_mm": [0.005, 0.01], "noise_std_mm": 0.03}, "outside")):
+        bad = {**data, "probe": {**data["probe"], **probe}}
+        with pytest.raises(ConfigError, match="noise_range_mm") as err:
+            parse_cell(bad)
+        assert words in str(err.value)

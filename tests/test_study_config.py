@@ -1,7 +1,6 @@
 """Study files: impossible distributions are refused with a message naming the key."""
 import copy
 
-import numpy as np
 import pytest
 
 from adaptive_cal.cli import main
@@ -73,34 +72,6 @@ def test_cli_refuses_bad_study(tmp_path, capsys):
     path.write_text(yaml.safe_dump(bad))
     assert main(["study", str(path), "--json", str(tmp_path / "o.json")]) == 2
     assert "plate.noise_std_mm" in capsys.readouterr().err
-
-
-def test_probe_noise_range_sets_the_noise_prior_and_lifts_the_touch_floor():
-    from adaptive_cal.mapper import prior_model, stop_rule
-    from adaptive_cal.planner import Status
-
-    data = load_yaml(ROOT / "configs" / "sim-cell.yaml")
-    weak = parse_cell(data)
-    assert prior_model(weak).hyper_log_std[2] == 1.0
-    data["probe"] = {k: v for k, v in data["probe"].items() if k != "noise_std_mm"}
-    data["probe"]["noise_range_mm"] = [0.005, 0.02]
-    cell = parse_cell(data)
-    model = prior_model(cell)
-    assert model.hyper0.noise_std_mm == pytest.approx(0.01)
-    # 95 % of the log-normal inside [5, 20] um
-    z = np.log(0.02 / 0.01) / model.hyper_log_std[2]
-    assert z == pytest.approx(1.959964)
-    k = model.surface.size
-    early = Status(touches=5, mean_std_mm=1e-4, max_std_mm=1e-4)
-    assert stop_rule(cell, k)(early) == "mean_std_bound"
-    assert stop_rule(weak, k)(early) is None  # without the range: the floor of k touches
-    for probe, words in (({"noise_range_mm": [0.0, 0.02]}, "above 0"),
-                         ({"noise_range_mm": [0.02, 0.01]}, "low < high"),
-                         ({"noise_range_mm": [0.005, 0.01], "noise_std_mm": 0.03}, "outside")):
-        bad = {**data, "probe": {**data["probe"], **probe}}
-        with pytest.raises(ConfigError, match="noise_range_mm") as err:
-            parse_cell(bad)
-        assert words in str(err.value)
 
 
 def test_study_tells_the_planner_the_noise_span_unless_switched_off():
