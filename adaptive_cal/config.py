@@ -207,8 +207,9 @@ class Stop(Strict):
     max_touches: int = Field(200, ge=1, description="touch budget")
     min_touches: int | None = Field(
         None, ge=0, description="no variance bound stops the run before this many touches; "
-        "default: the number of spline coefficients, or 0 with probe.noise_range_mm or a prior "
-        "from an earlier run (--prior-from)")
+        "default: the number of spline coefficients while hyper-parameters are learned from "
+        "scratch; 0 with probe.noise_range_mm, a prior from an earlier run (--prior-from) or "
+        "learn_hyper: false")
 
 
 class Plan(Strict):

@@ -87,16 +87,18 @@ def stop_rule(cell: Cell, coefficients: int, *, informed_prior: bool = False) ->
     stopped at 10-14 touches were over-confident -- the learned noise collapsed to 2-4 um on
     plates read with 8-18 um (study plates: coverage 0.908 -> 0.934 with the rule, about 5 %
     more touches). A noise range from the probe's datasheet (``probe.noise_range_mm``) keeps
-    the noise from collapsing, and a prior from an earlier run (``informed_prior``) already
-    carries the hyper-parameters: then a bound may stop the run at once."""
+    the noise from collapsing, a prior from an earlier run (``informed_prior``) already
+    carries the hyper-parameters, and with ``model.learn_hyper: false`` nothing is learned:
+    then a bound may stop the run at once."""
     s = cell.plan.stop
     bounds = [MeanStdBelow(s.mean_std_mm)] if s.mean_std_mm is not None else []
     bounds += [MaxStdBelow(s.max_std_mm)] if s.max_std_mm is not None else []
     rule: StopRule = TouchBudget(s.max_touches)
     if bounds:
         bound = bounds[0] if len(bounds) == 1 else bounds[0] | bounds[1]
-        least = s.min_touches if s.min_touches is not None else (
-            0 if informed_prior or cell.probe.noise_range_mm is not None else coefficients)
+        guard = (cell.model.learn_hyper and not informed_prior
+                 and cell.probe.noise_range_mm is None)
+        least = s.min_touches if s.min_touches is not None else (coefficients if guard else 0)
         rule = (bound & AtLeast(least)) | rule
     return rule
 

@@ -111,6 +111,9 @@ def test_probe_noise_range_sets_the_noise_prior_and_lifts_the_touch_floor():
     early = Status(touches=5, mean_std_mm=1e-4, max_std_mm=1e-4)
     assert stop_rule(cell, k)(early) == "mean_std_bound"
     assert stop_rule(weak, k)(early) is None  # without the range: the floor of k touches
+    fixed = parse_cell({**load_yaml(ROOT / "configs" / "sim-cell.yaml"),
+                        "model": {**data["model"], "learn_hyper": False}})
+    assert stop_rule(fixed, k)(early) == "mean_std_bound"  # nothing learned: no floor either
     for probe, words in (({"noise_range_mm": [0.0, 0.02]}, "above 0"),
                          ({"noise_range_mm": [0.02, 0.01]}, "low < high"),
                          ({"noise_range_mm": [0.005, 0.01], "noise_std_mm": 0.03}, "outside")):
