@@ -50,3 +50,24 @@ def test_relaxed_touches_below_best_integer(tiny):
 
 def test_unreachable_target_is_inf(tiny):
     assert math.isinf(relaxed_touches(tiny, 1e-12, 3))
+
+
+def test_greedy_design_brackets_the_best_integer_design(tiny):
+    """relaxed <= best integer (enumerated) <= greedy, and the greedy count is a real design:
+    its touches reach the target, one fewer does not."""
+    from adaptive_cal.study.bound import greedy_touches
+
+    j2 = min(_all_designs(tiny, 2))
+    j4 = min(_all_designs(tiny, 4))
+    for target in (j2 * 1.01, 0.5 * (j2 + j4), j4 * 1.0001):
+        best = best_integer_touches(tiny, target, 8, limit=10**6)
+        greedy = greedy_touches(tiny, target, 8)
+        assert relaxed_touches(tiny, target, 8) <= best <= greedy
+    assert greedy_touches(tiny, 1e-12, 3) is None
+    # brute-force the greedy choice for a few steps: the closed-form drop picks the argmin of J
+    size = len(tiny.rows)
+    counts = np.zeros(size, int)
+    for step in range(1, 4):
+        trial = [tiny.integrated_variance(counts + np.eye(size, dtype=int)[i]) for i in range(size)]
+        counts[int(np.argmin(trial))] += 1
+        assert greedy_touches(tiny, min(trial) * (1 + 1e-9), 8) <= step

@@ -145,6 +145,24 @@ def relaxed_touches(prob: DesignProblem, target_j: float, max_touches: int,
     return lo
 
 
+def greedy_touches(prob: DesignProblem, target_j: float, max_touches: int) -> int | None:
+    """Touches of the greedy sequential design under the same hyper-parameters (each touch the
+    candidate with the largest drop of J, as the planner scores it, with nothing to learn): a
+    feasible integer design, so relaxed <= best integer <= greedy brackets the best integer
+    design where enumeration is out of reach. None if max_touches do not reach ``target_j``."""
+    cov = prob.prior_cov.copy()
+    for n in range(max_touches + 1):
+        if float(np.sum(prob.gram * cov)) <= target_j:
+            return n
+        ch = prob.rows @ cov
+        drop = np.einsum("nk,kl,nl->n", ch, prob.gram, ch) / (
+            np.einsum("nk,nk->n", ch, prob.rows) + prob.noise_var)
+        i = int(np.argmax(drop))
+        cov = cov - np.outer(ch[i], ch[i]) / (ch[i] @ prob.rows[i] + prob.noise_var)
+        cov = 0.5 * (cov + cov.T)
+    return None
+
+
 def best_integer_touches(prob: DesignProblem, target_j: float, max_touches: int,
                          limit: int) -> int | None:
     """Smallest n for which some n-touch design (a multiset of candidates) reaches ``target_j``,
