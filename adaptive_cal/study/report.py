@@ -213,6 +213,13 @@ def targets_section(summary: dict, results: Path) -> str:
                          f"relaxed bound, and adaptive {lb['adaptive_over_greedy_known']:.2f} x "
                          "the greedy design (mean of per-plate ratios). The greedy design is not "
                          "a lower bound.")
+        for rep in sorted(results.glob("study-*-seed*.json")):  # replications on other seeds
+            rl = (json.loads(rep.read_text()).get("lower_bound") or {})
+            rr = rl.get("adaptive_over_relaxed")
+            if rr:
+                lines.append(f"  Replication `{rep.name}` ({rl['plates']} plates): {rr:.2f} x "
+                             f"({mark(rr <= 1.2)}); ratio of means "
+                             f"{rl['adaptive_stop_touches_same_plates'] / rl['relaxed_touches']:.2f}.")
     cov = results / "study-coverage.json"
     if cov.exists():
         a = json.loads(cov.read_text())["strategies"]["adaptive"]
