@@ -228,12 +228,10 @@ class AtLeast(StopRule):
 
 
 @dataclass(frozen=True)
-class TouchBudget(StopRule):
-    touches: int
-    name = "touch_budget"
+class TouchBudget(AtLeast):
+    """Stops once ``touches`` touches were made (the same test as AtLeast, named for a stop)."""
 
-    def __call__(self, status):
-        return self.name if status.touches >= self.touches else None
+    name = "touch_budget"
 
 
 @dataclass(frozen=True)

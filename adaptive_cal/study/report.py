@@ -306,18 +306,14 @@ def benchmarks_section(results: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _plate0_cell(study: Study, base: dict):
+def _planner_probe(study: Study, base: dict):
+    """The probe block the planner sees on the study's plates (plate 0 stands for all)."""
     from .plates import plate_cell, sample_plate
 
-    return plate_cell(study, base, sample_plate(study, 0))
+    return plate_cell(study, base, sample_plate(study, 0)).probe
 
 
-def _fixed_noise_um(study: Study, base: dict) -> float:
-    return round(_plate0_cell(study, base).probe.noise_prior()[0] * 1e3, 1)
-
-
-def _noise_prior_text(study: Study, base: dict) -> str:
-    probe = _plate0_cell(study, base).probe
+def _noise_prior_text(probe) -> str:
     if probe.noise_range_mm is None:
         return (f"The planner learns the reading noise from a weak prior around the cell's first "
                 f"guess, {probe.noise_std_mm * 1e3:g} um (`plate.noise_range_known: false`).")
@@ -337,14 +333,15 @@ def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_
         out_rel = Path(out_dir).resolve().relative_to(path.resolve().parent)
     except ValueError:
         pass
+    probe = _planner_probe(study, base)
     text = DOC.format(minutes=max(1, round((summary.get("wall_s") or 60) / 60)),
                       study_file=study_file, json_file=json_file, out_dir=out_dir,
                       doc_file=str(path), plates_arg=plates_arg, plates=summary["plates"],
                       tilt=p.tilt_deg, pv0=p.form_pv_mm[0], pv1=p.form_pv_mm[1],
                       n0=p.noise_std_mm[0] * 1e3, n1=p.noise_std_mm[1] * 1e3,
                       bound=study.bound.mean_std_mm * 1e3, budget=study.bound.max_touches,
-                      noise_prior=_noise_prior_text(study, base),
-                      fixed_noise=_fixed_noise_um(study, base),
+                      noise_prior=_noise_prior_text(probe),
+                      fixed_noise=round(probe.noise_prior()[0] * 1e3, 1),
                       table=table(summary), out_rel=out_rel)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text + "\n" + targets_section(summary, Path(results)) + "\n"
