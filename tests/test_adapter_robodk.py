@@ -198,10 +198,16 @@ def test_no_answer_mid_move_ends_within_the_move_timeout(fake):
     m.close()
 
 
-def test_a_server_that_accepts_and_says_nothing_times_out():
+def _listener() -> socket.socket:
+    """A local server socket that accepts connections and says nothing (until told)."""
     srv = socket.socket()
     srv.bind(("127.0.0.1", 0))
     srv.listen(1)
+    return srv
+
+
+def test_a_server_that_accepts_and_says_nothing_times_out():
+    srv = _listener()
     try:
         t = time.monotonic()
         with pytest.raises(AdapterError, match="cannot connect.*TimeoutError"):
@@ -214,9 +220,7 @@ def test_a_server_that_accepts_and_says_nothing_times_out():
 
 def test_a_server_that_hangs_up_during_the_handshake_does_not_hang_the_client():
     # the bare client reads a line byte by byte until LF and spins forever on a closed socket
-    srv = socket.socket()
-    srv.bind(("127.0.0.1", 0))
-    srv.listen(1)
+    srv = _listener()
     srv.settimeout(2.0)
 
     def hang_up():
