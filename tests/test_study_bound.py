@@ -71,3 +71,23 @@ def test_greedy_design_brackets_the_best_integer_design(tiny):
         trial = [tiny.integrated_variance(counts + np.eye(size, dtype=int)[i]) for i in range(size)]
         counts[int(np.argmin(trial))] += 1
         assert greedy_touches(tiny, min(trial) * (1 + 1e-9), 8) <= step
+
+
+def test_whole_touch_bound_rounds_up_and_stays_below_every_design(tiny):
+    """The relaxation in whole touches: above the real-valued bound by less than one touch (or
+    the certificate's own slack), never above the best design found by enumeration, and no
+    design of one touch fewer reaches the target (brute force)."""
+    from adaptive_cal.study.bound import integer_touches
+
+    j2, j3, j4 = (min(_all_designs(tiny, n)) for n in (2, 3, 4))
+    raised = 0
+    for target in (j3 * 1.0001, j2 * 1.01, 0.5 * (j2 + j4), 0.7 * j2 + 0.3 * j4, j4 * 1.0001):
+        relaxed = relaxed_touches(tiny, target, 8)
+        whole = integer_touches(tiny, target, 8)
+        best = best_integer_touches(tiny, target, 8, limit=10**6)
+        assert whole == int(whole) and relaxed < whole <= best
+        assert integer_touches(tiny, target, 8, relaxed=relaxed) == whole
+        assert min(_all_designs(tiny, int(whole) - 1)) > target
+        raised += whole - relaxed
+    assert raised >= 1.0  # rounding up tightened the bound by at least a touch in all
+    assert math.isinf(integer_touches(tiny, 1e-12, 3))
