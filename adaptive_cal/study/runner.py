@@ -48,7 +48,8 @@ def _worker_setup() -> None:
 def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) -> list[dict]:
     """Every per-plate strategy of ``todo`` on plate ``index`` (runs in a worker)."""
     _worker_setup()
-    from .bound import best_integer_touches, design_problem, greedy_touches, relaxed_touches
+    from .bound import (best_integer_touches, design_problem, greedy_touches, integer_touches,
+                        relaxed_touches)
     from .config import Study as _Study
     from .plates import plate_cell, sample_plate
     from .strategies import Context, run_grid, run_paper, run_planner, run_random
@@ -80,9 +81,20 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) 
                                       candidates=study.lower_bound.candidates)
                 j = prob.area_mm2 * study.bound.mean_std_mm**2
                 rec["relaxed_touches"] = relaxed_touches(prob, j, study.bound.max_touches)
+                rec["relaxed_whole_touches"] = integer_touches(
+                    prob, j, study.bound.max_touches, relaxed=rec["relaxed_touches"])
                 rec["best_integer_touches"] = best_integer_touches(
                     prob, j, study.bound.max_touches, study.lower_bound.exhaustive_limit)
                 rec["greedy_known_touches"] = greedy_touches(prob, j, study.bound.max_touches)
+                # the same bound under what the planner believed when it stopped (the run goes
+                # on past its stop until the true error meets the target, and refits on the way)
+                if rec["hyper_at_stop"] == rec["hyper"]:
+                    rec["relaxed_whole_touches_at_stop"] = rec["relaxed_whole_touches"]
+                else:
+                    prob = design_problem(cell, ctx.model, Hyper(*rec["hyper_at_stop"]),
+                                          candidates=study.lower_bound.candidates)
+                    rec["relaxed_whole_touches_at_stop"] = integer_touches(
+                        prob, j, study.bound.max_touches)
             out.append(rec)
         elif name == "greedy_fixed":
             out.append(run_planner(ctx, learn=False, target_true=target))
@@ -277,6 +289,18 @@ def summarise(study: Study, records: list[dict]) -> dict:
         "adaptive_over_relaxed": _mean(r["touches"] / r["relaxed_touches"] for r in lb
                                        if r["relaxed_touches"] and np.isfinite(r["relaxed_touches"])),
     }
+    whole = [r for r in lb if r.get("relaxed_whole_touches") is not None]
+    if whole:  # the relaxation rounded up to whole touches: the tightest bound computed
+        out["lower_bound"].update(
+            relaxed_whole_touches=_mean(r["relaxed_whole_touches"] for r in whole),
+            adaptive_over_relaxed_whole=_mean(
+                r["touches"] / r["relaxed_whole_touches"] for r in whole
+                if r["relaxed_whole_touches"] and np.isfinite(r["relaxed_whole_touches"])))
+    at_stop = [r for r in lb if r.get("relaxed_whole_touches_at_stop")]
+    if at_stop:
+        out["lower_bound"].update(adaptive_over_relaxed_whole_at_stop=_mean(
+            r["touches"] / r["relaxed_whole_touches_at_stop"] for r in at_stop
+            if np.isfinite(r["relaxed_whole_touches_at_stop"])))
     greedy = [r for r in lb if r.get("greedy_known_touches")]
     if greedy:  # a feasible integer design under the same hyper-parameters: brackets the best one
         out["lower_bound"].update(

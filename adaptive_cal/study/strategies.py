@@ -93,7 +93,7 @@ def run_planner(ctx: Context, *, learn: bool, target_true: float) -> dict:
         trajectory.append([mapper.touches, status.mean_std_mm, err["rms_error_mm"]])
         why = mapper.stop_reason()
         if stop is None and why:
-            stop, reason = mapper.touches, why
+            stop, reason, stop_hyper = mapper.touches, why, list(mapper.hyper)
             final = {"mean_std_mm": status.mean_std_mm, "true_rms_mm": err["rms_error_mm"],
                      "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
         if (stop is not None and err["rms_error_mm"] <= target_true) or mapper.touches >= budget:
@@ -112,10 +112,11 @@ def run_planner(ctx: Context, *, learn: bool, target_true: float) -> dict:
     if stop is None:  # budget spent, or no admissible point: the last state is the stop
         err = mapper.truth_error(f)
         stop, reason = mapper.touches, mapper.stop_reason() or "no_admissible_point"
+        stop_hyper = list(mapper.hyper)
         final = {"mean_std_mm": mapper.status().mean_std_mm, "true_rms_mm": err["rms_error_mm"],
                  "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
     return record(ctx, "adaptive" if learn else "greedy_fixed", trajectory, stop, final, xy,
-                  reason, target_true, hyper=list(mapper.hyper))
+                  reason, target_true, hyper=list(mapper.hyper), hyper_at_stop=stop_hyper)
 
 
 # -- fixed designs, learned estimator -------------------------------------------------------------
