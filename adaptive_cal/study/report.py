@@ -136,8 +136,8 @@ OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} \\
 ```
 
 Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun, so the page is
-rewritten in seconds; a fresh 40-plate run took about 8 minutes on the 2-core development
-machine (25 when it was shared with other jobs).
+rewritten in seconds; a fresh 40-plate run took about 10 minutes on the 2-core development
+machine, with the lower bound on 20 plates (25 when it was shared with other jobs).
 
 ## Headline ({plates} plates of `{study_file}`)
 
