@@ -49,6 +49,11 @@ class DesignProblem:
         p = cho_solve(cho_factor(self.prior_cov, lower=True), np.eye(k))
         return 0.5 * (p + p.T)
 
+    @cached_property
+    def prior_integrated_variance(self) -> float:
+        """J with no touches: trace(Q C0)."""
+        return float(np.sum(self.gram * self.prior_cov))
+
     def integrated_variance(self, counts: np.ndarray) -> float:
         """J of an integer design given as touch counts per candidate."""
         return _objective(self, np.asarray(counts, float), 1.0)[0]
@@ -135,7 +140,7 @@ def relaxed_touches(prob: DesignProblem, target_j: float, max_touches: int,
     lo, hi = 0.0, float(max_touches)
     if relaxed_design(prob, hi, iterations=iterations)[2] > target_j:
         return math.inf
-    if _objective(prob, np.full(len(prob.rows), 1.0 / len(prob.rows)), 0.0)[0] <= target_j:
+    if prob.prior_integrated_variance <= target_j:
         return 0.0
     while hi - lo > 0.02 * max(hi, 1.0):
         mid = 0.5 * (lo + hi)
@@ -161,7 +166,7 @@ def integer_touches(prob: DesignProblem, target_j: float, max_touches: int,
         if relaxed is None else relaxed
     if not math.isfinite(lo):
         return math.inf
-    if float(np.sum(prob.gram * prob.prior_cov)) <= target_j:
+    if prob.prior_integrated_variance <= target_j:
         return 0.0  # the prior alone meets the target
     n, w = math.floor(lo) + 1, None
     while n <= max_touches:

@@ -77,8 +77,11 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) 
             if index < study.lower_bound.plates:
                 from ..prior import Hyper
 
-                prob = design_problem(cell, ctx.model, Hyper(*rec["hyper"]),
-                                      candidates=study.lower_bound.candidates)
+                def problem(hyper):
+                    return design_problem(cell, ctx.model, Hyper(*hyper),
+                                          candidates=study.lower_bound.candidates)
+
+                prob = problem(rec["hyper"])
                 j = prob.area_mm2 * study.bound.mean_std_mm**2
                 rec["relaxed_touches"] = relaxed_touches(prob, j, study.bound.max_touches)
                 rec["relaxed_whole_touches"] = integer_touches(
@@ -91,10 +94,8 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) 
                 if rec["hyper_at_stop"] == rec["hyper"]:
                     rec["relaxed_whole_touches_at_stop"] = rec["relaxed_whole_touches"]
                 else:
-                    prob = design_problem(cell, ctx.model, Hyper(*rec["hyper_at_stop"]),
-                                          candidates=study.lower_bound.candidates)
                     rec["relaxed_whole_touches_at_stop"] = integer_touches(
-                        prob, j, study.bound.max_touches)
+                        problem(rec["hyper_at_stop"]), j, study.bound.max_touches)
             out.append(rec)
         elif name == "greedy_fixed":
             out.append(run_planner(ctx, learn=False, target_true=target))
