@@ -125,6 +125,9 @@ class Mapper:
     _rows: list = field(default_factory=list)
     _retake: tuple | None = None
     _fitted_at: int = 0
+    # the weighted hyper-parameter points of the last refit (the belief mixes their posteriors);
+    # empty before the first refit, when the belief rests on ``hyper`` alone
+    hyper_points: list = field(default_factory=list)
 
     @classmethod
     def create(cls, cell: Cell, *, prior: bl.Belief | None = None, hyper: Hyper | None = None,
@@ -327,7 +330,7 @@ class Mapper:
         carries the hyper-parameter uncertainty); the MAP's noise serves later fusions."""
         rows, heights = np.array(self._rows), np.array(self.heights)
         points = hyper_posterior(self.model, rows, heights, start=self.hyper)
-        self.hyper = points[0][0]
+        self.hyper, self.hyper_points = points[0][0], points
         self._fitted_at = len(heights)
         self.belief = bl.mixture(
             [bl.condition(self.model.belief(h), rows, heights, h.noise_std_mm**2) for h, _ in points],

@@ -122,20 +122,20 @@ def test_cli_writes_summary_table_and_plots(tmp_path):
 
 def test_summary_lower_bound_ratios_are_means_of_per_plate_ratios():
     """OUT.json's lower_bound block, from hand-made records: each ratio is the mean over plates of
-    adaptive touches over that plate's bound (whole touches, and under the stop's
-    hyper-parameters), plates without a bound are left out."""
+    adaptive touches over that plate's bound (whole touches, under the stop's hyper-parameters,
+    and for the stop's hyper-parameter posterior), plates without a bound are left out."""
     study, _ = _small(strategies=["adaptive"])
 
-    def rec(plate, touches, relaxed, whole, at_stop, greedy):
+    def rec(plate, touches, relaxed, whole, at_stop, greedy, marginal=None):
         bound = {} if relaxed is None else {
             "relaxed_touches": relaxed, "relaxed_whole_touches": whole,
             "relaxed_whole_touches_at_stop": at_stop, "greedy_known_touches": greedy,
-            "best_integer_touches": None}
+            "marginal_whole_touches_at_stop": marginal, "best_integer_touches": None}
         return {"strategy": "adaptive", "plate": plate, "touches": touches, "touches_true": touches,
                 "robot_time_s": 1.0, "robot_time_true_s": 1.0, "mean_std_mm": 0.01,
                 "true_rms_mm": 0.01, "true_max_mm": 0.02, "coverage95": 0.95, **bound}
 
-    records = [rec(0, 12, 6.8, 7.0, 8.0, 8), rec(1, 30, 27.5, 28.0, 28.0, 29),
+    records = [rec(0, 12, 6.8, 7.0, 8.0, 8, 10.0), rec(1, 30, 27.5, 28.0, 28.0, 29, 31.0),
                rec(2, 99, None, None, None, None)]
     lb = summarise(study, records)["lower_bound"]
     assert lb["plates"] == 2
@@ -145,4 +145,7 @@ def test_summary_lower_bound_ratios_are_means_of_per_plate_ratios():
     assert lb["adaptive_over_relaxed_whole"] == pytest.approx((12 / 7 + 30 / 28) / 2)
     assert lb["adaptive_over_relaxed_whole_at_stop"] == pytest.approx((12 / 8 + 30 / 28) / 2)
     assert lb["adaptive_over_greedy_known"] == pytest.approx((12 / 8 + 30 / 29) / 2)
+    assert lb["marginal_whole_touches_at_stop"] == pytest.approx(20.5)
+    assert lb["adaptive_over_marginal_whole_at_stop"] == pytest.approx((12 / 10 + 30 / 31) / 2)
+    assert lb["adaptive_below_marginal_plates"] == 1
     assert lb["best_integer_touches"] is None

@@ -49,7 +49,7 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) 
     """Every per-plate strategy of ``todo`` on plate ``index`` (runs in a worker)."""
     _worker_setup()
     from .bound import (best_integer_touches, design_problem, greedy_touches, integer_touches,
-                        relaxed_touches)
+                        marginal_problem, relaxed_touches)
     from .config import Study as _Study
     from .plates import plate_cell, sample_plate
     from .strategies import Context, run_grid, run_paper, run_planner, run_random
@@ -96,6 +96,13 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) 
                 else:
                     rec["relaxed_whole_touches_at_stop"] = integer_touches(
                         problem(rec["hyper_at_stop"]), j, study.bound.max_touches)
+                # and for the question the planner's stop answers: its belief mixes the posteriors
+                # under the weighted hyper-parameter points of its last refit
+                points = [(p[:3], p[3]) for p in rec["hyper_points_at_stop"]]
+                rec["marginal_whole_touches_at_stop"] = integer_touches(
+                    marginal_problem(cell, ctx.model, points,
+                                     candidates=study.lower_bound.candidates),
+                    j, study.bound.max_touches)
             out.append(rec)
         elif name == "greedy_fixed":
             out.append(run_planner(ctx, learn=False, target_true=target))
@@ -302,6 +309,16 @@ def summarise(study: Study, records: list[dict]) -> dict:
         out["lower_bound"].update(adaptive_over_relaxed_whole_at_stop=_mean(
             r["touches"] / r["relaxed_whole_touches_at_stop"] for r in at_stop
             if np.isfinite(r["relaxed_whole_touches_at_stop"])))
+    marginal = [r for r in lb if r.get("marginal_whole_touches_at_stop")]
+    if marginal:  # the bound for the planner's own stop, under its hyper-parameter posterior
+        out["lower_bound"].update(
+            marginal_whole_touches_at_stop=_mean(r["marginal_whole_touches_at_stop"]
+                                                 for r in marginal),
+            adaptive_over_marginal_whole_at_stop=_mean(
+                r["touches"] / r["marginal_whole_touches_at_stop"] for r in marginal
+                if np.isfinite(r["marginal_whole_touches_at_stop"])),
+            adaptive_below_marginal_plates=sum(
+                r["touches"] < r["marginal_whole_touches_at_stop"] for r in marginal))
     greedy = [r for r in lb if r.get("greedy_known_touches")]
     if greedy:  # a feasible integer design under the same hyper-parameters: brackets the best one
         out["lower_bound"].update(

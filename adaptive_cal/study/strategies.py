@@ -94,6 +94,7 @@ def run_planner(ctx: Context, *, learn: bool, target_true: float) -> dict:
         why = mapper.stop_reason()
         if stop is None and why:
             stop, reason, stop_hyper = mapper.touches, why, list(mapper.hyper)
+            stop_points = _points(mapper)
             final = {"mean_std_mm": status.mean_std_mm, "true_rms_mm": err["rms_error_mm"],
                      "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
         if (stop is not None and err["rms_error_mm"] <= target_true) or mapper.touches >= budget:
@@ -112,11 +113,19 @@ def run_planner(ctx: Context, *, learn: bool, target_true: float) -> dict:
     if stop is None:  # budget spent, or no admissible point: the last state is the stop
         err = mapper.truth_error(f)
         stop, reason = mapper.touches, mapper.stop_reason() or "no_admissible_point"
-        stop_hyper = list(mapper.hyper)
+        stop_hyper, stop_points = list(mapper.hyper), _points(mapper)
         final = {"mean_std_mm": mapper.status().mean_std_mm, "true_rms_mm": err["rms_error_mm"],
                  "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
     return record(ctx, "adaptive" if learn else "greedy_fixed", trajectory, stop, final, xy,
-                  reason, target_true, hyper=list(mapper.hyper), hyper_at_stop=stop_hyper)
+                  reason, target_true, hyper=list(mapper.hyper), hyper_at_stop=stop_hyper,
+                  hyper_points_at_stop=stop_points)
+
+
+def _points(mapper: Mapper) -> list:
+    """[[form_std_mm, length_scale_mm, noise_std_mm, weight], ...]: the hyper-parameter posterior
+    the belief mixes (the point the belief rests on, weight 1, before any refit)."""
+    points = mapper.hyper_points or [(mapper.hyper, 1.0)]
+    return [[*map(float, h), float(w)] for h, w in points]
 
 
 # -- fixed designs, learned estimator -------------------------------------------------------------
