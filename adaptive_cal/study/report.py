@@ -141,7 +141,7 @@ OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} \\
 ```
 
 Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun, so the page is
-rewritten in seconds; a fresh 40-plate run took about 10 minutes on the 2-core development
+rewritten in seconds; a fresh 40-plate run took about 11 minutes on the 2-core development
 machine, with the lower bound on 20 plates (25 when it was shared with other jobs).
 
 ## Headline ({plates} plates of `{study_file}`)
@@ -239,7 +239,8 @@ def targets_section(summary: dict, results: Path) -> str:
                          "which the mixture's variance can only exceed), in whole touches: "
                          f"adaptive {m:.2f} x ({mark(m <= 1.2)}); "
                          f"{lb['adaptive_below_marginal_plates']} of {lb['plates']} plates "
-                         "stopped below it (between refits the belief is fused under one noise).")
+                         "stopped below it (possible only for a stop between refits, where new "
+                         "readings are fused under one noise).")
         if lb.get("greedy_known_touches"):
             lines.append(f"  For scale: a greedy integer design that knows those hyper-parameters "
                          f"from the first touch needs {lb['greedy_known_over_relaxed']:.2f} x the "
