@@ -23,13 +23,16 @@ variance of its belief marginalised over their posterior (sigma points theta_k w
 ``prior.hyper_posterior``), whose covariance is sum_k a_k C_k plus the spread of the component
 means. So a design meeting the planner's own stop with that hyper-parameter posterior has
 
-    J_marg(n, w) = sum_k a_k trace(Q M_k(w)^-1) <= target,   M_k = C0_k^-1 + (n / r_k) sum_i w_i h_i h_i^T,
+    J_marg(n, w) = sum_k a_k trace(Q M_k(w)^-1) <= target,
+    M_k = C0_k^-1 + (n / r_k) sum_i w_i h_i h_i^T,
 
 the pseudo-Bayesian I-criterion (Chaloner & Verdinelli 1995): convex in w, gradient
 -n sum_k (a_k / r_k) h_i^T W_k h_i, and the same certificate with the weighted scores
 (``MarginalProblem``). Its bound answers "how few touches could meet this stop, knowing the
-posterior over the hyper-parameters the run ended with"; the single-hyper bound answers "how few
-touches could an oracle that knows the hyper-parameters need". Both are reported.
+posterior over the hyper-parameters the planner held when it stopped" (at a refit the mixture's
+variance is at least J_marg; after it, new readings are fused under the MAP's noise); the
+single-hyper bound answers "how few touches could an oracle that knows the hyper-parameters
+need". Both are reported.
 """
 from __future__ import annotations
 
