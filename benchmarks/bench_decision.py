@@ -32,10 +32,10 @@ import numpy as np  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
-from adaptive_cal.belief import covariance_after  # noqa: E402
-from adaptive_cal.config import load_yaml, parse_cell  # noqa: E402
-from adaptive_cal.mapper import Mapper  # noqa: E402
-from adaptive_cal.planner import variance_drop, variance_drop_numpy  # noqa: E402
+from adaptive_cal.gaussian.belief import covariance_after  # noqa: E402
+from adaptive_cal.cell.schema import load_yaml, parse_cell  # noqa: E402
+from adaptive_cal.planning.survey import Mapper  # noqa: E402
+from adaptive_cal.planning.scoring import variance_drop, variance_drop_numpy  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -22,11 +22,11 @@ import numpy as np
 
 from scipy import stats
 
-from adaptive_cal import physics
-from adaptive_cal.explain.candidates import DEFECT_RADII_MM, Context, defect_grid
-from adaptive_cal.explain.core import MARGIN, THRESHOLD, effect_params, explain
-from adaptive_cal.explain.design import build_design
-from adaptive_cal.explain.generator import EFFECTS, concealed_recording
+from adaptive_cal.effects import library as physics
+from adaptive_cal.analysis.explain.candidates import DEFECT_RADII_MM, Context, defect_grid
+from adaptive_cal.analysis.explain.core import MARGIN, THRESHOLD, effect_params, explain
+from adaptive_cal.analysis.explain.design import build_design
+from adaptive_cal.simulation.concealed import EFFECTS, concealed_recording
 
 MAGNITUDES = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0)  # uniform: >= 4 pools 4..8 evenly
 NULL_DESIGNS = ({}, {"ny": 6}, {"raster": True}, {"varied_z": True})

@@ -1,7 +1,7 @@
 """Shared helpers for tests: cells built from the simulated reference cell with overrides."""
 from pathlib import Path
 
-from adaptive_cal.config import load_yaml, parse_cell
+from adaptive_cal.cell.schema import load_yaml, parse_cell
 
 ROOT = Path(__file__).resolve().parents[1]
 SIM_CELL = ROOT / "configs" / "sim-cell.yaml"

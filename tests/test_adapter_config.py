@@ -4,8 +4,8 @@ import copy
 import pytest
 import yaml
 
-from adaptive_cal.adapters.modbus_map import resolve
-from adaptive_cal.config import ConfigError, load_cell, parse_cell
+from adaptive_cal.hardware.modbus_map import resolve
+from adaptive_cal.cell.schema import ConfigError, load_cell, parse_cell
 from tests.conftest import ROOT
 
 HSES = yaml.safe_load((ROOT / "configs" / "cell-hses-emulated.yaml").read_text())
@@ -88,7 +88,7 @@ def test_shipped_cell_files_load(name):
 
 
 def test_sim_probe_with_a_real_robot_is_refused_at_load_time():
-    from adaptive_cal.config import ConfigError, load_yaml, parse_cell
+    from adaptive_cal.cell.schema import ConfigError, load_yaml, parse_cell
     from helpers import SIM_CELL
 
     data = load_yaml(SIM_CELL)

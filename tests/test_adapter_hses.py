@@ -4,13 +4,13 @@ import time
 
 import pytest
 
-from adaptive_cal.adapters import hses_protocol as P
-from adaptive_cal.adapters.base import AdapterError
-from adaptive_cal.adapters.hses import HsesError, HsesMotion
-from adaptive_cal.adapters.schema import HsesConfig
-from adaptive_cal.config import load_cell
-from adaptive_cal.emulate.hses_server import HsesServer
-from adaptive_cal.emulate.robot import EmulatedRobot
+from adaptive_cal.hardware import hses_protocol as P
+from adaptive_cal.hardware.base import AdapterError
+from adaptive_cal.hardware.hses import HsesError, HsesMotion
+from adaptive_cal.hardware.schema import HsesConfig
+from adaptive_cal.cell.schema import load_cell
+from adaptive_cal.simulation.emulator.hses_server import HsesServer
+from adaptive_cal.simulation.emulator.robot import EmulatedRobot
 from tests.conftest import ROOT
 
 

@@ -3,8 +3,8 @@ import io
 
 import pytest
 
-from adaptive_cal.adapters.base import AdapterError, BadSample, ProbeCycle
-from adaptive_cal.adapters.manual import ManualCell
+from adaptive_cal.hardware.base import AdapterError, BadSample, ProbeCycle
+from adaptive_cal.hardware.manual import ManualCell
 
 
 def manual(text, **kw):

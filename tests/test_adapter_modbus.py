@@ -4,11 +4,11 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from adaptive_cal.adapters.base import AdapterError, BadSample
-from adaptive_cal.adapters.modbus import ModbusLink, ModbusMotion, ModbusProbe
-from adaptive_cal.config import load_cell
-from adaptive_cal.emulate.plc import PlcServer
-from adaptive_cal.emulate.robot import EmulatedRobot
+from adaptive_cal.hardware.base import AdapterError, BadSample
+from adaptive_cal.hardware.modbus import ModbusLink, ModbusMotion, ModbusProbe
+from adaptive_cal.cell.schema import load_cell
+from adaptive_cal.simulation.emulator.plc import PlcServer
+from adaptive_cal.simulation.emulator.robot import EmulatedRobot
 from tests.conftest import ROOT
 
 CELL = load_cell(ROOT / "configs" / "cell-modbus-emulated.yaml")

@@ -11,17 +11,17 @@ from importlib.metadata import version
 import numpy as np
 import pytest
 
-from adaptive_cal.adapters.base import (
+from adaptive_cal.hardware.base import (
     AdapterError,
     BadSample,
     ProbeCycle,
     Sample,
     UnsafeTarget,
 )
-from adaptive_cal.adapters.factory import open_cell, safety_check
-from adaptive_cal.adapters.manual import ManualCell
-from adaptive_cal.adapters.robodk import RobodkMotion
-from adaptive_cal.adapters.schema import RobodkConfig
+from adaptive_cal.run.devices import open_cell, safety_check
+from adaptive_cal.hardware.manual import ManualCell
+from adaptive_cal.hardware.robodk import RobodkMotion
+from adaptive_cal.hardware.schema import RobodkConfig
 from tests.fake_robodk import ROBODK_VERSION, FakeRoboDK, _xyz
 from tests.helpers import sim_cell
 

@@ -1,10 +1,10 @@
 """The serial probe adapter over a pty pair with a responder thread (a real port to pyserial)."""
 import pytest
 
-from adaptive_cal.adapters.base import AdapterError, BadSample
-from adaptive_cal.adapters.schema import SerialConfig
-from adaptive_cal.adapters.serial_probe import SerialProbe, parse
-from adaptive_cal.emulate.gauge import PtyGauge, answer_line
+from adaptive_cal.hardware.base import AdapterError, BadSample
+from adaptive_cal.hardware.schema import SerialConfig
+from adaptive_cal.hardware.serial_probe import SerialProbe, parse
+from adaptive_cal.simulation.emulator.gauge import PtyGauge, answer_line
 
 
 @pytest.fixture

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.linalg import cho_factor, cho_solve
 
-from adaptive_cal import belief as bl
+from adaptive_cal.gaussian import belief as bl
 
 RNG = np.random.default_rng(3)
 K = 12

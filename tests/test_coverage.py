@@ -6,9 +6,9 @@ map errors are spatially correlated)."""
 import numpy as np
 import pytest
 
-from adaptive_cal.adapters.factory import open_cell
-from adaptive_cal.config import load_yaml, parse_cell
-from adaptive_cal.mapper import Mapper
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.cell.schema import load_yaml, parse_cell
+from adaptive_cal.planning.survey import Mapper
 
 from helpers import SIM_CELL, drive
 

@@ -9,10 +9,10 @@ import time
 import pytest
 import yaml
 
-from adaptive_cal.adapters.base import AdapterError, BadSample, UnsafeTarget
-from adaptive_cal.adapters.factory import open_cell
-from adaptive_cal.config import load_cell, parse_cell
-from adaptive_cal.emulate import start_emulator
+from adaptive_cal.hardware.base import AdapterError, BadSample, UnsafeTarget
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.cell.schema import load_cell, parse_cell
+from adaptive_cal.simulation.emulator import start_emulator
 from tests.conftest import ROOT
 
 POINTS = [(0.0, 0.0), (120.0, -80.0), (-150.0, 140.0), (200.0, 170.0)]

@@ -2,13 +2,13 @@
 import numpy as np
 import pytest
 
-from adaptive_cal import physics
-from adaptive_cal.config import load_cell
-from adaptive_cal.explain import belief_rows, effect_params, explain, suggest_touches
-from adaptive_cal.explain.candidates import Context
-from adaptive_cal.explain.design import build_design
-from adaptive_cal.explain.generator import EFFECTS, concealed_recording
-from adaptive_cal.recording import read_recording
+from adaptive_cal.effects import library as physics
+from adaptive_cal.cell.schema import load_cell
+from adaptive_cal.analysis.explain import belief_rows, effect_params, explain, suggest_touches
+from adaptive_cal.analysis.explain.candidates import Context
+from adaptive_cal.analysis.explain.design import build_design
+from adaptive_cal.simulation.concealed import EFFECTS, concealed_recording
+from adaptive_cal.formats.recording import read_recording
 from conftest import ROOT
 
 MAIN = {"form": "pv_mm", "thermal_drift": "rate_mm_per_s", "reversal": "span_mm",

@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from adaptive_cal.cli import main
-from adaptive_cal.config import load_cell
+from adaptive_cal.cell.schema import load_cell
 from conftest import ROOT
 
 CELL = ROOT / "configs" / "cheng2025-cell.yaml"

@@ -4,11 +4,11 @@ import pytest
 from scipy import integrate, stats
 from scipy.special import logsumexp
 
-from adaptive_cal import physics
-from adaptive_cal.explain.evidence import (Projector, _spectral, log_evidence,
+from adaptive_cal.effects import library as physics
+from adaptive_cal.analysis.explain.evidence import (Projector, _spectral, log_evidence,
                                            log_evidence_columns_mixture, log_evidence_mixture,
                                            log_evidence_spectral, loo_residuals, spectrum)
-from adaptive_cal.explain.identify import canonical_correlations
+from adaptive_cal.analysis.explain.identify import canonical_correlations
 
 GEOM = physics.Geometry((-225.0, 225.0), (-185.0, 185.0), (0.0, -650.0))
 
@@ -141,7 +141,7 @@ def test_canonical_correlations():
 def test_full_covariance_prior_matches_dense_gaussian_and_sigma_integral():
     """Matrix prior (the design-scaled shape): closed form vs the dense marginal density
     N(z; 0, v I + Z S Z^T) integrated over sigma with p(sigma) = 1/sigma by quadrature."""
-    from adaptive_cal.explain.candidates import prior_shape
+    from adaptive_cal.analysis.explain.candidates import prior_shape
     rng = np.random.default_rng(7)
     n = 14
     N = np.column_stack([np.ones(n), rng.standard_normal(n)])

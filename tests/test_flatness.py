@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from adaptive_cal import flatness as fl
-from adaptive_cal.recording import read_recording
+from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.formats.recording import read_recording
 
 
 def _xyz(path):

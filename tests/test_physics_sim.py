@@ -3,9 +3,9 @@ reading relation checked by Monte Carlo."""
 import numpy as np
 import pytest
 
-from adaptive_cal import physics
-from adaptive_cal.adapters.factory import open_cell
-from adaptive_cal.recording import read_recording
+from adaptive_cal.effects import library as physics
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.formats.recording import read_recording
 
 from helpers import sim_cell
 
@@ -72,7 +72,7 @@ def test_simulated_reading_relation_monte_carlo():
 
 def test_simulated_effects_reach_the_recording(tmp_path):
     """A drift switched on in the simulation shows up in the recorded readings."""
-    from adaptive_cal import session
+    from adaptive_cal.run import session
 
     cell = sim_cell(simulation={"effects": {"tilt": {"a": 0.0, "b": 0.0, "c": 0.0},
                                             "thermal_drift": {"rate_mm_per_s": 1e-4}},

@@ -6,7 +6,7 @@ import pytest
 from matplotlib.collections import QuadMesh
 from matplotlib.patches import Rectangle
 
-from adaptive_cal import plots
+from adaptive_cal.report import figures as plots
 
 PLATE_X, PLATE_Y = (-225.0, 225.0), (-185.0, 185.0)
 

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from adaptive_cal import prior as pr
-from adaptive_cal.spline import Surface
+from adaptive_cal.gaussian import prior as pr
+from adaptive_cal.gaussian.spline import Surface
 
 
 def _model():
@@ -93,9 +93,9 @@ def test_a_noise_range_keeps_the_learned_noise_from_collapsing_on_few_readings()
 
 
 def test_probe_noise_range_sets_the_noise_prior_and_lifts_the_touch_floor():
-    from adaptive_cal.config import ConfigError, load_yaml, parse_cell
-    from adaptive_cal.mapper import prior_model, stop_rule
-    from adaptive_cal.planner import Status
+    from adaptive_cal.cell.schema import ConfigError, load_yaml, parse_cell
+    from adaptive_cal.planning.survey import prior_model, stop_rule
+    from adaptive_cal.planning.stopping import Status
 
     from conftest import ROOT
 

@@ -3,7 +3,7 @@ bad samples retried within the bound, retract always."""
 import numpy as np
 import pytest
 
-from adaptive_cal.adapters.base import (AdapterError, BadSample, ProbeCycle, Sample,
+from adaptive_cal.hardware.base import (AdapterError, BadSample, ProbeCycle, Sample,
                                         TouchRejected, UnsafeTarget)
 
 

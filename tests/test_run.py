@@ -10,12 +10,12 @@ import time
 import numpy as np
 import pytest
 
-from adaptive_cal import session
-from adaptive_cal.adapters.factory import open_cell
+from adaptive_cal.run import session
+from adaptive_cal.run.devices import open_cell
 from adaptive_cal.cli import main
-from adaptive_cal.config import load_yaml
-from adaptive_cal.mapper import Mapper
-from adaptive_cal.recording import RecordingError, read_recording
+from adaptive_cal.cell.schema import load_yaml
+from adaptive_cal.planning.survey import Mapper
+from adaptive_cal.formats.recording import RecordingError, read_recording
 
 from helpers import SIM_CELL, drive, sim_cell
 
@@ -153,7 +153,7 @@ def test_an_outlier_is_gated_retaken_and_both_rows_kept(tmp_path, monkeypatch):
 
 
 def test_a_device_failure_keeps_every_reading_reports_and_resumes(tmp_path, monkeypatch):
-    from adaptive_cal.adapters.base import AdapterError
+    from adaptive_cal.hardware.base import AdapterError
 
     real_open = session.open_cell
 
@@ -210,7 +210,7 @@ def test_worst_point_criterion_beats_integrated_variance_on_a_max_bound():
 
 
 def test_batch_mode_plans_k_touches_ordered_for_travel():
-    from adaptive_cal.planner import path_length_mm, travel_order
+    from adaptive_cal.planning.route import path_length_mm, travel_order
 
     cell = sim_cell(plan={"batch": 6})
     m = Mapper.create(cell)

@@ -6,7 +6,7 @@ import pytest
 from scipy.integrate import trapezoid
 from scipy.interpolate import CubicSpline
 
-from adaptive_cal.spline import Spline1D, Surface, default_knots
+from adaptive_cal.gaussian.spline import Spline1D, Surface, default_knots
 
 RNG = np.random.default_rng(7)
 KNOTS = np.array([0.0, 1.3, 2.0, 3.7, 5.1, 6.0, 8.4, 10.0])

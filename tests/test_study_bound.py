@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from adaptive_cal.prior import Hyper, PriorModel
-from adaptive_cal.spline import Surface
+from adaptive_cal.gaussian.prior import Hyper, PriorModel
+from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.study.bound import (DesignProblem, best_integer_touches, relaxed_design,
                                       relaxed_touches)
 

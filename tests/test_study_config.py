@@ -4,7 +4,7 @@ import copy
 import pytest
 
 from adaptive_cal.cli import main
-from adaptive_cal.config import ConfigError, load_yaml, parse_cell
+from adaptive_cal.cell.schema import ConfigError, load_yaml, parse_cell
 from adaptive_cal.study.config import check_feasible, load_study, parse_study
 from adaptive_cal.study.plates import plate_cell, sample_plate
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .designs import evaluate_loop, evaluate_vmap, grid_points, grid_sizes, random_points
-from .plates import heights_at
-from .strategies import Context, paper_native, paper_schedule, paper_stop, record
+from adaptive_cal.study.designs import evaluate_loop, evaluate_vmap, grid_points, grid_sizes, random_points
+from adaptive_cal.study.plates import heights_at
+from adaptive_cal.study.strategies import Context, paper_native, paper_schedule, paper_stop, record
 
 EVALUATE = {"vmap": evaluate_vmap, "loop": evaluate_loop}
 

@@ -44,9 +44,9 @@ from functools import cached_property
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
-from ..config import Cell
-from ..planner import candidate_grid
-from ..prior import Hyper, PriorModel
+from adaptive_cal.cell.schema import Cell
+from adaptive_cal.planning.scoring import candidate_grid
+from adaptive_cal.gaussian.prior import Hyper, PriorModel
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,8 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from ..adapters.schema import Strict
-from ..config import Cell, ConfigError, Rect, load_yaml, parse_cell, validate
+from adaptive_cal.hardware.schema import Strict
+from adaptive_cal.cell.schema import Cell, ConfigError, Rect, load_yaml, parse_cell, validate
 
 STRATEGIES = ("adaptive", "greedy_fixed", "paper", "grid", "random")
 SHAPES = ("bow_x", "bow_y", "twist", "warp")
@@ -157,7 +157,7 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
     * bound.mean_std_mm / true_rms_mm: below the noise floor -- the relaxed optimal design with
       bound.max_touches touches at the largest noise cannot reach it, so no design can.
     """
-    from ..planner import STROKE_Z
+    from adaptive_cal.planning.scoring import STROKE_Z
 
     p, m, probe = study.plate, cell.model, cell.probe
     steepest = math.sqrt(2.0) * math.tan(math.radians(p.tilt_deg))
@@ -200,8 +200,8 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
 def noise_floor_mm(study: Study, cell: Cell) -> float:
     """Smallest RMS posterior std any design of bound.max_touches touches reaches at the largest
     noise of the distribution (relaxed optimal design, a lower bound)."""
-    from ..mapper import prior_model
-    from .bound import design_problem, relaxed_integrated_variance
+    from adaptive_cal.planning.survey import prior_model
+    from adaptive_cal.study.bound import design_problem, relaxed_integrated_variance
 
     model = prior_model(cell)
     noise = math.hypot(study.plate.noise_std_mm[1], study.plate.repeatability_mm)

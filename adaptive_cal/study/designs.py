@@ -19,10 +19,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import belief as bl
-from ..config import Cell
-from ..prior import Hyper, PriorModel, hyper_posterior
-from .config import Paper
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.cell.schema import Cell
+from adaptive_cal.gaussian.prior import Hyper, PriorModel, hyper_posterior
+from adaptive_cal.study.config import Paper
 
 
 # -- designs ----------------------------------------------------------------------------------

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..adapters.sim import SimulatedCell
-from ..config import Cell, parse_cell
-from .config import Study
+from adaptive_cal.simulation.cell import SimulatedCell
+from adaptive_cal.cell.schema import Cell, parse_cell
+from adaptive_cal.study.config import Study
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Study
+from adaptive_cal.study.config import Study
 
 
 def _f(v, scale=1.0, fmt="{:.1f}"):
@@ -350,7 +350,7 @@ def benchmarks_section(results: Path) -> str:
 
 def _planner_probe(study: Study, base: dict):
     """The probe block the planner sees on the study's plates (plate 0 stands for all)."""
-    from .plates import plate_cell, sample_plate
+    from adaptive_cal.study.plates import plate_cell, sample_plate
 
     return plate_cell(study, base, sample_plate(study, 0)).probe
 

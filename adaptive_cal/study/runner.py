@@ -14,8 +14,8 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from ..config import parse_cell
-from .config import Study
+from adaptive_cal.cell.schema import parse_cell
+from adaptive_cal.study.config import Study
 
 PER_PLATE = ("paper", "adaptive", "greedy_fixed")  # paper first: adaptive runs on to its accuracy
 FIXED_DESIGNS = ("paper", "grid", "random")
@@ -48,11 +48,11 @@ def _worker_setup() -> None:
 def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) -> list[dict]:
     """Every per-plate strategy of ``todo`` on plate ``index`` (runs in a worker)."""
     _worker_setup()
-    from .bound import (best_integer_touches, design_problem, greedy_touches, integer_touches,
+    from adaptive_cal.study.bound import (best_integer_touches, design_problem, greedy_touches, integer_touches,
                         marginal_problem, relaxed_touches)
-    from .config import Study as _Study
-    from .plates import plate_cell, sample_plate
-    from .strategies import Context, run_grid, run_paper, run_planner, run_random
+    from adaptive_cal.study.config import Study as _Study
+    from adaptive_cal.study.plates import plate_cell, sample_plate
+    from adaptive_cal.study.strategies import Context, run_grid, run_paper, run_planner, run_random
 
     study = _Study.model_validate(study_data)
     plate = sample_plate(study, index)
@@ -75,7 +75,7 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) 
             if paper_rms is not None:
                 rec["paper_true_rms_mm"] = paper_rms
             if index < study.lower_bound.plates:
-                from ..prior import Hyper
+                from adaptive_cal.gaussian.prior import Hyper
 
                 def problem(hyper):
                     return design_problem(cell, ctx.model, Hyper(*hyper),
@@ -117,10 +117,10 @@ def fixed_batch_task(study_data: dict, base: dict, indices: list[int], strategy:
                      how: str = "vmap") -> list[dict]:
     """One fixed design (estimator: fixed) on many plates at once (jax.vmap)."""
     _worker_setup()
-    from .batch import run_fixed
-    from .config import Study as _Study
-    from .plates import plate_cell, sample_plate
-    from .strategies import Context
+    from adaptive_cal.study.batch import run_fixed
+    from adaptive_cal.study.config import Study as _Study
+    from adaptive_cal.study.plates import plate_cell, sample_plate
+    from adaptive_cal.study.strategies import Context
 
     study = _Study.model_validate(study_data)
     contexts = []

@@ -17,17 +17,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import belief as bl
-from ..adapters.base import TouchRejected
-from ..adapters.factory import open_cell
-from ..config import Cell
-from ..mapper import Mapper
-from ..planner import path_length_mm
-from ..prior import PriorModel
-from .config import Study
-from .designs import (Evaluator, grid_points, grid_sizes, learned_belief, level_tilt_mm,
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.hardware.base import TouchRejected
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.cell.schema import Cell
+from adaptive_cal.planning.survey import Mapper
+from adaptive_cal.planning.route import path_length_mm
+from adaptive_cal.gaussian.prior import PriorModel
+from adaptive_cal.study.config import Study
+from adaptive_cal.study.designs import (Evaluator, grid_points, grid_sizes, learned_belief, level_tilt_mm,
                       paper_points, random_points)
-from .plates import Plate, heights_at, truth
+from adaptive_cal.study.plates import Plate, heights_at, truth
 
 
 @dataclass

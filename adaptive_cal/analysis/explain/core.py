@@ -1,0 +1,186 @@
+"""``explain``: calibrate, locate the mismatch, name the left-out physics, model it, show the fit.
+
+The verdict is the candidate with the largest evidence (the most probable effect: the Bayes
+decision) when its log Bayes factor against ``none`` exceeds ``THRESHOLD`` (calibrated on null
+recordings, benchmarks/bench_explain.py); otherwise ``none``. A tool that names the wrong physics
+with confidence is worse than none, so the report says how sure it is: ``verdict_probability``
+(posterior probability of the verdict: none has prior 1/2, the candidates share the other half) and
+``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
+plate design arm_sag and form are the usual pair). ``MARGIN`` > 0 restores a stricter rule that
+answers ``none`` when the runner-up is that close (measured in docs/explain.md: fewer wrong names,
+fewer right ones).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from adaptive_cal.effects import library as physics
+from adaptive_cal.cell.schema import Cell
+from adaptive_cal.formats.recording import Recording
+from adaptive_cal.analysis.explain.candidates import PRIOR_RANGE, Candidate, Context, score_candidates
+from adaptive_cal.analysis.explain.design import Design, build_design
+from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
+from adaptive_cal.analysis.explain.identify import not_identifiable
+from adaptive_cal.analysis.explain.locate import locate
+from adaptive_cal.analysis.explain.rounds import flatness_change
+
+THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
+MARGIN = 0.0  # log Bayes factor the verdict must hold over the runner-up (0: most probable wins)
+AMBIGUOUS = 1.0  # runner-ups within this many nats of the verdict are reported as ambiguous_with
+
+
+@dataclass
+class Explanation:
+    """Everything explain found: the JSON report and the arrays the figures need."""
+
+    report: dict
+    context: Context
+    candidates: list[Candidate]
+    winner: Candidate | None
+    residual_before: np.ndarray
+    residual_after: np.ndarray
+
+
+def effect_params(cand: Candidate, design: Design) -> tuple[dict, dict]:
+    """Parameters and standard deviations in the effect table's names and signs.
+
+    Shared effects give numbers; effects fitted per round give one number per round.
+    """
+    names = physics.LINEAR_PARAMS[cand.effect]
+    k = len(names)
+    blocks = 1 if cand.sharing == "shared" else design.rounds
+    mean = cand.mean.reshape(blocks, k)
+    std = np.sqrt(np.diag(cand.cov)).reshape(blocks, k)
+    params, stds = [], []
+    for b in range(blocks):
+        if cand.effect == "form":
+            p = physics.form_params(mean[b], design.geometry)
+            g = physics.form_pv_gradient(mean[b], design.geometry)
+            cov = cand.cov[b * k:(b + 1) * k, b * k:(b + 1) * k]
+            s = {"pv_mm": float(np.sqrt(g @ cov @ g))}
+        else:
+            p, s = {}, {}
+        p.update({n: float(v) for n, v in zip(names, mean[b])})
+        s.update({n: float(v) for n, v in zip(names, std[b])})
+        p.update(cand.fixed)
+        s.update({n: cand.nonlinear_std.get(n, 0.0) for n in cand.fixed})
+        params.append(p), stds.append(s)
+    if blocks == 1:
+        return params[0], stds[0]
+    return ({n: [p[n] for p in params] for n in params[0]},
+            {n: [s[n] for s in stds] for n in stds[0]})
+
+
+def _summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
+    main = {"form": "pv_mm", "thermal_drift": "rate_mm_per_s", "reversal": "span_mm",
+            "arm_sag": "sag_mm_at_1m", "probe_gain": "gain", "local_defect": "height_mm"}[cand.effect]
+    val, sd = params[main], stds[main]
+    fmt = lambda v: ", ".join(f"{x:.4g}" for x in np.atleast_1d(v))
+    text = f"{cand.effect}: {main} = {fmt(val)} +- {fmt(sd)}"
+    if cand.fixed:
+        text += " at " + ", ".join(f"{k} = {v:g} (+- {cand.nonlinear_std.get(k, 0):.2g})"
+                                   for k, v in cand.fixed.items())
+        text += f"; look-elsewhere penalty {cand.look_elsewhere:.2f} over {cand.searched} values"
+    if design.rounds > 1 and cand.log_bf_shared_vs_per_round is not None:
+        text += (f"; {cand.sharing.replace('_', ' ')} (log BF shared vs per round "
+                 f"{cand.log_bf_shared_vs_per_round:.2f})")
+    if cand.effect == "thermal_drift" and not all(design.time_known):
+        text += "; t_s blank: time taken as seq x robot.touch_time_s"
+    return text + f"; log BF vs none {cand.log_bf:.2f}"
+
+
+def _calibration(ctx: Context, sigma: float) -> list[dict]:
+    coef, *_ = np.linalg.lstsq(ctx.nuisance, ctx.design.target, rcond=None)
+    cov = sigma ** 2 * np.linalg.pinv(ctx.nuisance.T @ ctx.nuisance)
+    out = []
+    for r in range(ctx.design.rounds):
+        a, b, c = coef[3 * r:3 * r + 3]
+        sa, sb, sc = np.sqrt(np.diag(cov)[3 * r:3 * r + 3])
+        out.append({"a": float(a), "b": float(b), "c": float(c), "a_std": float(sa),
+                    "b_std": float(sb), "c_std": float(sc),
+                    "about_y_deg": float(np.degrees(np.arctan(a))),
+                    "about_x_deg": float(np.degrees(np.arctan(b)))})
+    return out
+
+
+def explain_design(design: Design, *, threshold: float = THRESHOLD, margin: float = MARGIN,
+                   rng: np.random.Generator | None = None, identifiability: bool = True) -> Explanation:
+    """Run the whole analysis on a built design (see ``explain`` for recordings and a cell)."""
+    ctx = Context.of(design)
+    calibrated = design.features.displacement_mm + (design.target - ctx.yt)
+    design = design.with_displacement(calibrated)  # probe_gain sees the calibrated indication
+    ctx = Context.of(design)
+    sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
+    skip = frozenset({"arm_sag"}) if design.geometry.base_xy_mm is None else frozenset()
+    cands = score_candidates(ctx, skip)
+    best = cands[0] if cands else None
+    runner = cands[1].log_bf if len(cands) > 1 else -np.inf
+    winner = best if best and best.log_bf > threshold and best.log_bf - runner >= margin else None
+    left_out = []
+    for c in cands:
+        if c.log_bf <= threshold:
+            continue
+        params, stds = effect_params(c, design)
+        left_out.append({"effect": c.effect, "params": params, "params_std": stds,
+                         "log_bayes_factor": float(c.log_bf), "summary": _summary(c, params, stds, design),
+                         "sharing": c.sharing})
+    before = ctx.yt
+    N = ctx.nuisance
+    loo0 = loo_residuals(N, design.target, np.zeros(N.shape[1]))
+    if winner is not None:
+        after = before - ctx.project(winner.columns) @ winner.mean
+        D = np.hstack([N, winner.columns])
+        k0, k1 = N.shape[1], winner.columns.shape[1]
+        pen = np.zeros((k0 + k1, k0 + k1))
+        pen[k0:, k0:] = winner.noise_var * prior_precision(winner.prior_var)
+        loo1 = loo_residuals(D, design.target, pen)
+    else:
+        after, loo1 = before, loo0
+    rms = lambda r: float(np.sqrt(np.mean(r ** 2)))
+    # posterior over none and the candidates: none has prior 1/2, the candidates share the rest
+    logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
+    prob = np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
+    report = {
+        "verdict": winner.effect if winner else "none",
+        "verdict_probability": float(prob[1 + cands.index(winner)] if winner else prob[0]),
+        "ambiguous_with": [c.effect for c in cands if winner is not None and c is not winner
+                           and c.log_bf > threshold and winner.log_bf - c.log_bf < AMBIGUOUS],
+        "left_out": left_out,
+        "not_identifiable": not_identifiable(ctx, sigma) if identifiability else [],
+        "mismatch": locate(ctx),
+        "fit": {"rms_before_mm": rms(before), "rms_after_mm": rms(after),
+                "cv_rms_before_mm": rms(loo0), "cv_rms_after_mm": rms(loo1),
+                "log_bayes_factor": float(winner.log_bf) if winner else 0.0,
+                "cv": "leave-one-out (exact shortcut; nonlinear parameters held at their best value)"},
+        "model": None,
+        "candidates": [{"effect": c.effect, "log_bayes_factor": float(c.log_bf),
+                        "sharing": c.sharing} for c in cands],
+        "calibration": _calibration(ctx, sigma),
+        "threshold": {"log_bayes_factor": threshold, "margin": margin},
+    }
+    if design.rounds > 1:
+        report["rounds"] = flatness_change(design, rng or np.random.default_rng(0))
+    return Explanation(report, ctx, cands, winner, before, after)
+
+
+def explain(recordings: list[Recording], cell: Cell, **kw) -> Explanation:
+    """Calibrate the cell's unknowns on the recordings (rounds), then ``explain_design``."""
+    return explain_design(build_design(list(recordings), cell), **kw)
+
+
+def belief_rows(effect: str, params: dict, features: physics.Features,
+                geometry: physics.Geometry) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Measurement rows of an effect's linear parameters, for a belief that keeps estimating them.
+
+    reading_change(effect, params) = rows @ theta; theta named by the returned tuple (form: shape
+    coefficients in mm). Nonlinear parameters are held at ``params``.
+    """
+    fixed = {k: v for k, v in params.items() if k in physics.NONLINEAR_PARAMS[effect]}
+    return (physics.effect_regressor(effect, features, geometry, fixed),
+            physics.LINEAR_PARAMS[effect])
+
+
+__all__ = ["explain", "explain_design", "Explanation", "belief_rows", "effect_params",
+           "PRIOR_RANGE", "THRESHOLD", "MARGIN", "AMBIGUOUS"]

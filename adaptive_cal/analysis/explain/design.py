@@ -1,0 +1,139 @@
+"""The design: recordings of one cell (rounds) as per-touch features, the nominal simulation's
+prediction, and the nuisance columns calibrated first (tilt per round, other unknown effects).
+
+Nominal reading = probe zero - z_mm + known effects (the cell's simulation.effects that are not
+marked unknown); the target of every fit is reading - nominal. Tilt is always calibrated per round
+(a x + b y + c: the offset c also takes the probe zero); other unknown linear effects are shared.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from adaptive_cal.effects import library as physics
+from adaptive_cal.cell.schema import Cell, ConfigError, Simulation
+from adaptive_cal.formats.recording import Recording, RecordingError
+
+MIN_ROWS_PER_ROUND = 8  # tilt (3) + an effect with up to 4 parameters + a noise estimate
+
+
+@dataclass(frozen=True)
+class Design:
+    """All rounds stacked. ``time_s`` is t_s, or seq x robot.touch_time_s where t_s is blank."""
+
+    features: physics.Features  # displacement_mm filled after calibration (see calibrated)
+    geometry: physics.Geometry
+    round_index: np.ndarray
+    seq: np.ndarray
+    z_mm: np.ndarray
+    reading_mm: np.ndarray
+    nominal_mm: np.ndarray
+    time_known: tuple[bool, ...]
+    unknown: tuple[str, ...]
+    paths: tuple[str, ...]
+
+    @property
+    def n(self) -> int:
+        return int(self.reading_mm.shape[0])
+
+    @property
+    def rounds(self) -> int:
+        return len(self.paths)
+
+    @property
+    def target(self) -> np.ndarray:
+        return self.reading_mm - self.nominal_mm
+
+    def per_round(self, columns: np.ndarray) -> np.ndarray:
+        """Block-diagonal copy of columns (n x k -> n x k*rounds), one block per round."""
+        out = np.zeros((self.n, columns.shape[1] * self.rounds))
+        for r in range(self.rounds):
+            rows = self.round_index == r
+            out[rows, r * columns.shape[1]:(r + 1) * columns.shape[1]] = columns[rows]
+        return out
+
+    def nuisance(self) -> tuple[np.ndarray, list[str]]:
+        """Columns calibrated before anything else: tilt per round, other unknown effects."""
+        cols = [self.per_round(physics.effect_regressor("tilt", self.features, self.geometry))]
+        names = [f"tilt.{p}[{r}]" for r in range(self.rounds) for p in ("a", "b", "c")]
+        for name in self.unknown:
+            if name == "tilt":
+                continue
+            X = physics.effect_regressor(name, self.features, self.geometry, self._fixed(name))
+            cols.append(X)
+            names += [f"{name}.{p}" for p in physics.LINEAR_PARAMS[name]]
+        return np.hstack(cols), names
+
+    def _fixed(self, name: str) -> dict:
+        return {}
+
+    def with_displacement(self, displacement_mm: np.ndarray) -> "Design":
+        f = self.features
+        feats = physics.Features(f.x_mm, f.y_mm, f.t_s, f.direction, np.asarray(displacement_mm))
+        return Design(feats, self.geometry, self.round_index, self.seq, self.z_mm,
+                      self.reading_mm, self.nominal_mm, self.time_known, self.unknown, self.paths)
+
+
+def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
+    wp = cell.workplane
+    if len(rec) < MIN_ROWS_PER_ROUND:
+        raise RecordingError(f"{label}: {len(rec)} rows; explain needs at least "
+                             f"{MIN_ROWS_PER_ROUND} per recording (tilt, one effect and the noise)")
+    for c, lo, hi in (("x_mm", *wp.x_mm), ("y_mm", *wp.y_mm)):
+        values = getattr(rec, c)
+        bad = np.flatnonzero((values < lo - 1e-9) | (values > hi + 1e-9))
+        if bad.size:
+            i = int(bad[0])
+            raise RecordingError(
+                f"{label}: touch seq {int(rec.seq[i])}: column {c} = {values[i]:g} lies outside "
+                f"the workplane {c} [{lo:g}, {hi:g}] of the cell file ({bad.size} such touches)")
+    if np.ptp(rec.x_mm) <= 0 or np.ptp(rec.y_mm) <= 0:
+        raise RecordingError(f"{label}: all touches share one x or one y: the tilt cannot be "
+                             "calibrated (columns x_mm, y_mm)")
+
+
+def build_design(recordings: list[Recording], cell: Cell) -> Design:
+    """Stack rounds, compute features and the nominal prediction; check the recordings fit."""
+    sim = cell.simulation or Simulation()
+    if "tilt" not in sim.unknown:
+        raise ConfigError("simulation.unknown: explain calibrates the tilt first; add 'tilt' "
+                          f"(got {sim.unknown})")
+    unknown = tuple(dict.fromkeys(n.split(".")[0] for n in sim.unknown))
+    for name in unknown:
+        if physics.NONLINEAR_PARAMS[name]:
+            raise ConfigError(f"simulation.unknown: {name!r} has nonlinear parameters "
+                              f"{physics.NONLINEAR_PARAMS[name]}; explain calibrates only effects "
+                              "linear in their parameters (give them in simulation.effects)")
+    cols = {k: [] for k in ("x", "y", "t", "d", "z", "r", "seq", "read")}
+    known = []
+    for i, rec in enumerate(recordings):
+        label = rec.path or f"recording {i}"
+        _check_recording(rec, cell, label)
+        keep = rec.fused
+        rec = rec.select(keep)
+        direction = rec.direction
+        time_known = bool(np.all(np.isfinite(rec.t_s)))
+        t = rec.t_s if time_known else rec.seq * cell.robot.touch_time_s
+        known.append(time_known)
+        for k, v in (("x", rec.x_mm), ("y", rec.y_mm), ("t", np.asarray(t, float)),
+                     ("d", direction), ("z", rec.z_mm), ("r", np.full(len(rec), i)),
+                     ("seq", rec.seq), ("read", rec.reading_mm)):
+            cols[k].append(np.asarray(v))
+    cat = {k: np.concatenate(v) for k, v in cols.items()}
+    geometry = cell.geometry
+    zero = cell.probe.zero_mm
+    base = zero - cat["z"]
+    feats = physics.Features(cat["x"], cat["y"], cat["t"], cat["d"], base)
+    known_effects = {k: v for k, v in sim.effects.items() if k not in unknown}
+    surface = {k: v for k, v in known_effects.items() if k in physics.SURFACE_EFFECTS}
+    others = {k: v for k, v in known_effects.items() if k not in physics.SURFACE_EFFECTS}
+    if "arm_sag" in others and geometry.base_xy_mm is None:
+        raise ConfigError("simulation.effects.arm_sag needs robot.base_xy_mm (the robot base "
+                          "position in the workplane frame)")
+    ideal = base + physics.total_change(surface, feats, geometry)
+    feats = physics.Features(cat["x"], cat["y"], cat["t"], cat["d"], ideal)
+    nominal = ideal + physics.total_change(others, feats, geometry)
+    return Design(feats, geometry, cat["r"].astype(int), cat["seq"].astype(int), cat["z"],
+                  cat["read"], nominal, tuple(known), unknown,
+                  tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)))

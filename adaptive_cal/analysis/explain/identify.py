@@ -1,0 +1,213 @@
+"""Identifiability for this design, and the smallest change of plan that separates effects.
+
+An effect E is aliased with a set F (the tilt of each round, possibly another effect) when every
+direction of span(E) lies nearly in span(F): the smallest canonical correlation between the two
+spans exceeds ``ALIAS_CC`` (0.99: the tilt absorbs more than 99 % of the regressor's norm, less
+than 14 % is left to see). For one-column effects the canonical correlation is |P_F x| / |x|.
+
+``suggest_touches`` adds touches from a menu that fits the effect (repeats of reference points
+at a later time for drift, a reversed pass for reversal, a second approach height for gain, touches
+in the largest gaps for a local defect) greedily, one at a time, until the canonical correlation
+falls to ``TARGET_CC`` (0.9), and returns them as (x_mm, y_mm, z_mm, order) rows for the planner.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from adaptive_cal.effects import library as physics
+from adaptive_cal.analysis.explain.candidates import CANDIDATES, Context, defect_grid, prior_scale
+from adaptive_cal.analysis.explain.evidence import Projector
+
+ALIAS_CC = 0.99
+TARGET_CC = 0.9
+MAX_EXTRA = 12
+
+
+def _orth(X: np.ndarray) -> np.ndarray:
+    U, s, _ = np.linalg.svd(X, full_matrices=False)
+    return U[:, s > 1e-9 * max(s.max(initial=0.0), 1e-300)]
+
+
+def canonical_correlations(E: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Cosines of the principal angles between span(E) and span(F), largest first."""
+    QE, QF = _orth(E), _orth(F)
+    if QE.shape[1] == 0:
+        return np.ones(1)  # an all-zero regressor is invisible: fully aliased
+    if QF.shape[1] == 0:
+        return np.zeros(QE.shape[1])
+    return np.clip(np.linalg.svd(QF.T @ QE, compute_uv=False), 0.0, 1.0)
+
+
+def _centred(off: Projector, E: np.ndarray) -> np.ndarray:
+    """E about each round's mean; columns that were (nearly) constant become exactly zero."""
+    C = off(E)
+    small = np.linalg.norm(C, axis=0) <= 1e-9 * np.maximum(np.linalg.norm(E, axis=0), 1e-300)
+    C[:, small] = 0.0
+    return C
+
+
+def representative(ctx: Context, name: str, features=None, round_index=None) -> np.ndarray:
+    """The effect's regressor (shared parameters; arm_sag at p = 2)."""
+    d = ctx.design
+    f = features if features is not None else d.features
+    return physics.effect_regressor(name, f, d.geometry, {"p": 2.0} if name == "arm_sag" else None)
+
+
+def _tilt(features, round_index, rounds, geometry) -> np.ndarray:
+    T = physics.effect_regressor("tilt", features, geometry)
+    out = np.zeros((T.shape[0], 3 * rounds))
+    for r in range(rounds):
+        out[round_index == r, 3 * r:3 * r + 3] = T[round_index == r]
+    return out
+
+
+def _augment(ctx: Context, extra: list[dict]) -> tuple[physics.Features, np.ndarray]:
+    """Features of the design plus extra touches (each a dict with x, y, z, t, dir, disp, round)."""
+    f = ctx.design.features
+    cat = lambda a, k: np.concatenate([a, np.array([e[k] for e in extra], float)])
+    feats = physics.Features(cat(f.x_mm, "x_mm"), cat(f.y_mm, "y_mm"), cat(f.t_s, "t_s"),
+                             cat(f.direction, "direction"), cat(f.displacement_mm, "disp"))
+    return feats, cat(ctx.design.round_index.astype(float), "round").astype(int)
+
+
+def _alias_cc(ctx, name, partners, feats, ridx) -> float:
+    d = ctx.design
+    T = _tilt(feats, ridx, d.rounds, d.geometry)
+    off = Projector.of(T[:, 2::3])
+    E = _centred(off, representative(ctx, name, feats))
+    F = [off(T)] + [_centred(off, representative(ctx, p, feats)) for p in partners if p != "tilt"]
+    return float(canonical_correlations(E, np.hstack(F)).min())
+
+
+def _last_round(ctx: Context) -> np.ndarray:
+    return np.flatnonzero(ctx.design.round_index == ctx.design.rounds - 1)
+
+
+def _menu(ctx: Context, name: str, dz_mm: float) -> list[list[dict]]:
+    """Candidate additions (each a short list of touches, in order) for this effect."""
+    d = ctx.design
+    f = d.features
+    idx = _last_round(ctx)
+    t_end = float(f.t_s[idx].max())
+    dt = float(np.median(np.diff(f.t_s[idx]))) if idx.size > 1 else 1.0
+    pick = idx[np.linspace(0, idx.size - 1, min(idx.size, 40)).astype(int)]
+    r = d.rounds - 1
+    touch = lambda i, **k: {"x_mm": f.x_mm[i], "y_mm": f.y_mm[i], "z_mm": d.z_mm[i],
+                            "t_s": t_end + dt, "direction": f.direction[i],
+                            "disp": f.displacement_mm[i], "round": r, **k}
+    if name == "thermal_drift":
+        return [[touch(i)] for i in pick]
+    if name == "probe_gain":
+        return [[touch(i, z_mm=d.z_mm[i] + dz_mm, disp=f.displacement_mm[i] - dz_mm)]
+                for i in pick]
+    if name == "reversal":
+        rows = {}
+        for i in idx:
+            rows.setdefault(round(float(f.y_mm[i]), 3), []).append(i)
+        out = []
+        for members in rows.values():
+            members = sorted(members, key=lambda i: f.x_mm[i])
+            if len(members) < 2:
+                continue
+            mean_dir = np.mean(f.direction[members])
+            order = members[::-1] if mean_dir >= 0 else members  # against the usual direction
+            step = -1.0 if mean_dir >= 0 else 1.0
+            out.append([touch(i, direction=step) for i in order])
+        return out
+    return []
+
+
+def suggest_touches(ctx: Context, name: str, partners: list[str], dz_mm: float = 2.0) -> dict:
+    """Smallest set of extra touches (greedy) that separates ``name`` from ``partners``."""
+    d = ctx.design
+    if name == "local_defect":
+        return _gap_touches(ctx)
+    if name == "arm_sag" or ("arm_sag" in partners and name == "form"):
+        return {"description": "no touch on this plate separates sag with reach from the plate's "
+                "form (reach is a function of x, y): measure a reference flat of known form, or "
+                "the same plate with the robot base moved", "touches": [], "canonical_correlation_after": None}
+    menu = _menu(ctx, name, dz_mm)
+    chosen: list[dict] = []
+    cc = _alias_cc(ctx, name, partners, *_augment(ctx, []))
+    while cc > TARGET_CC and menu and len(chosen) < MAX_EXTRA:
+        scores = [_alias_cc(ctx, name, partners, *_augment(ctx, chosen + item)) for item in menu]
+        best = int(np.argmin(scores))
+        chosen += menu.pop(best)
+        cc = scores[best]
+    what = {"thermal_drift": "repeat reference point(s) at the end of the run",
+            "reversal": "a reversed pass (same points, arriving from the other side)",
+            "probe_gain": f"second approach height (z + {dz_mm:g} mm) at some points"}.get(
+        name, "extra touches")
+    n0 = int((d.round_index == d.rounds - 1).sum())
+    touches = [{"x_mm": float(e["x_mm"]), "y_mm": float(e["y_mm"]), "z_mm": float(e["z_mm"]),
+                "order": n0 + k} for k, e in enumerate(chosen)]
+    return {"description": f"{what}: {len(touches)} touch(es) appended to the last round",
+            "touches": touches, "canonical_correlation_after": round(cc, 4)}
+
+
+def _gap_touches(ctx: Context, count: int = 4) -> dict:
+    """Touches at the centres of the largest empty circles of the design (greedy maximin)."""
+    d = ctx.design
+    gx, gy = defect_grid(d.geometry, 10.0)
+    px, py = list(d.features.x_mm), list(d.features.y_mm)
+    touches, fill0 = [], None
+    for k in range(count):
+        dist = np.min(np.hypot(gx[:, None] - np.asarray(px), gy[:, None] - np.asarray(py)), 1)
+        i = int(np.argmax(dist))
+        fill0 = float(dist[i]) if fill0 is None else fill0
+        touches.append({"x_mm": float(gx[i]), "y_mm": float(gy[i]), "z_mm": float(np.median(d.z_mm)),
+                        "order": int((d.round_index == d.rounds - 1).sum()) + k})
+        px.append(gx[i]), py.append(gy[i])
+    return {"description": f"fill distance {fill0:.0f} mm: a defect of smaller radius between "
+            "touches reaches no touch; touches at the centres of the largest gaps",
+            "touches": touches, "fill_distance_mm": fill0}
+
+
+def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0) -> list[dict]:
+    """The ``not_identifiable`` block: aliased effects with why and a suggested design."""
+    d = ctx.design
+    out = []
+    names = [n for n in CANDIDATES if n not in d.unknown]
+    if d.geometry.base_xy_mm is None and "arm_sag" in names:
+        names.remove("arm_sag")
+        out.append({"effect": "arm_sag", "aliased_with": [], "why": "not testable: the cell file "
+                    "lacks robot.base_xy_mm, the robot base position the reach is measured from",
+                    "suggested_design": {"description": "add robot.base_xy_mm: [x, y] (mm, "
+                                         "workplane frame) to the cell file", "touches": []}})
+    T = _tilt(d.features, d.round_index, d.rounds, d.geometry)
+    offsets = Projector.of(T[:, 2::3])  # the variation about each round's mean
+    regs = {n: representative(ctx, n) for n in names if n != "local_defect"}
+    for name, E in regs.items():
+        cc_t = canonical_correlations(_centred(offsets, E), offsets(T))
+        left = float(np.linalg.norm(ctx.project(E), axis=0).max()) * prior_scale(name) / sigma_mm
+        if cc_t.min() > ALIAS_CC:
+            why = (f"the tilt absorbs {100 * cc_t.min() ** 2:.2f} % of the regressor's variation "
+                   f"(canonical correlation {cc_t.min():.4f}); an effect of typical prior size "
+                   f"leaves {left:.2f} sigma after the tilt")
+            out.append({"effect": name, "aliased_with": ["tilt"], "why": why,
+                        "suggested_design": suggest_touches(ctx, name, ["tilt"], dz_mm)})
+            continue
+        partners = []
+        for other, F in regs.items():
+            if other == name:
+                continue
+            cc = canonical_correlations(ctx.project(E), ctx.project(F))
+            if cc.min() > ALIAS_CC:
+                partners.append((other, float(cc.min())))
+        if partners:
+            why = "after the tilt, its regressor lies in the span of " + ", ".join(
+                f"{p} (canonical correlation {c:.4f})" for p, c in partners)
+            out.append({"effect": name, "aliased_with": [p for p, _ in partners], "why": why,
+                        "suggested_design": suggest_touches(ctx, name, ["tilt"] + [p for p, _ in partners], dz_mm)})
+        elif cc_t.max() > ALIAS_CC and E.shape[1] > 1:
+            out.append({"effect": name, "aliased_with": ["tilt"], "why": (
+                f"partly: one combination of its shapes is absorbed by the tilt (canonical "
+                f"correlation {cc_t.max():.4f}); the others are identifiable"),
+                "suggested_design": {"description": "touches at more distinct x and y values",
+                                     "touches": []}})
+    gap = _gap_touches(ctx)
+    if gap["fill_distance_mm"] > min(40.0, 0.5 * max(np.ptp(d.geometry.x_range_mm), 1.0)):
+        out.append({"effect": "local_defect", "aliased_with": [],
+                    "why": f"coverage: a defect of radius below {gap['fill_distance_mm']:.0f} mm "
+                    "can sit between touches and reach none of them", "suggested_design": gap})
+    return out

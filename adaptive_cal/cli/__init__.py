@@ -1,0 +1,76 @@
+"""``adaptive-cal``: the command line. Each subcommand lives in its own module that provides
+``add_arguments(parser)`` and ``command(args) -> int``; this file only dispatches.
+
+Errors go to stderr with a non-zero exit and no traceback unless ``--debug``.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+# Our matrices are small (K <= ~500): one BLAS thread is fastest, and a threaded OpenBLAS that
+# spins against other processes on a shared 2-core machine is 100x slower. Set before numpy loads.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+# name -> (module, one-line help)
+SUBCOMMANDS = {
+    "explain": ("adaptive_cal.cli.explain", "where simulation and recordings differ: the physics left out"),
+    "run": ("adaptive_cal.cli.run", "map a workplane: plan touches, drive the cell, stop at the bound"),
+    "flatness": ("adaptive_cal.cli.flatness", "flatness and tilt correction of a recording"),
+    "emulate": ("adaptive_cal.cli.emulate", "serve an emulated cell (HSES, Modbus PLC, gauge) on loopback"),
+    "study": ("adaptive_cal.cli.study", "simulation studies: strategies on synthetic plates, lower bound, Dask"),
+    "report": ("adaptive_cal.cli.report", "one self-contained HTML page of a run folder, for whoever adjusts the robot"),
+}
+
+
+class UserError(Exception):
+    """An error the user can fix; printed without a traceback."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="adaptive-cal",
+        description="Plans and runs probe measurements on robot cells (mm, s, deg throughout).")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="subcommand", metavar="COMMAND")
+    for name, (module, help_) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_, description=help_,
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        p.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_module", None):
+        parser.print_help()
+        return 2
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from adaptive_cal.hardware.base import AdapterError
+    from adaptive_cal.cell.schema import ConfigError
+    from adaptive_cal.formats.recording import RecordingError
+
+    try:
+        return int(importlib.import_module(args._module).command(args) or 0)
+    except (UserError, ConfigError, RecordingError, AdapterError, FileNotFoundError,
+            FileExistsError, PermissionError, ValueError) as e:
+        if args.debug:
+            raise
+        print(f"adaptive-cal {args.subcommand}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"adaptive-cal {args.subcommand}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # a bug, not bad input: still no traceback unless --debug
+        if args.debug:
+            raise
+        print(f"adaptive-cal {args.subcommand}: internal error: {type(e).__name__}: {e} "
+              "(run again with --debug for the traceback, and please report it)", file=sys.stderr)
+        return 1
+

@@ -1,0 +1,43 @@
+"""``adaptive-cal emulate --robot CELL.yaml``: serve an emulated cell on loopback.
+
+Serves the HSES controller, Modbus PLC and serial gauge that the cell file names (ports from the
+file), all backed by the simulated plate of its ``simulation`` block, until Ctrl-C or
+``--seconds``. Run ``adaptive-cal run --robot CELL.yaml`` against it from another shell.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--robot", required=True, metavar="CELL.yaml",
+                        help="cell file whose robot/probe blocks name the loopback ports")
+    parser.add_argument("--move-s", type=float, default=0.02,
+                        help="time every emulated move takes (s)")
+    parser.add_argument("--seconds", type=float, default=None,
+                        help="stop after this many seconds (default: until Ctrl-C)")
+
+
+def command(args: argparse.Namespace) -> int:
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.simulation.emulator import start_emulator
+
+    cell = load_cell(args.robot)
+    emu = start_emulator(cell, move_s=args.move_s)
+    try:
+        ports = ", ".join(f"{k} 127.0.0.1:{v}" for k, v in emu.ports().items())
+        print(f"emulating '{cell.name}': {ports or 'nothing to serve'} "
+              f"(plate seed {emu.robot.sim.sim.seed}); Ctrl-C stops", flush=True)
+        if not ports:
+            return 2
+        end = None if args.seconds is None else time.monotonic() + args.seconds
+        while end is None or time.monotonic() < end:
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emu.close()
+        print(f"emulator stopped after {emu.robot.moves} moves and {emu.robot.readings} "
+              "readings", flush=True)
+    return 0

@@ -1,0 +1,97 @@
+"""``adaptive-cal run``: map a workplane on the cell a cell file describes."""
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+from adaptive_cal.cli import UserError
+from adaptive_cal.cell.schema import load_cell
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--robot", metavar="CELL.yaml", help="cell file (configs/sim-cell.yaml is the "
+                   "built-in simulated cell); with --resume it defaults to DIR/cell.yaml")
+    p.add_argument("--out", metavar="DIR", help="output folder: recording.csv, result.json, "
+                   "surface.png, convergence.png, belief.npz, cell.yaml")
+    p.add_argument("--resume", metavar="DIR", help="continue an interrupted run from DIR/recording.csv")
+    p.add_argument("--prior-from", metavar="RUN_DIR", help="start from an earlier run's belief, "
+                   "widened by plan.drift_std_mm (mm)")
+    p.add_argument("--dry-run", action="store_true", help="plan and print the first touches, move nothing")
+    p.add_argument("--yes", action="store_true", help="do not ask before moving a real robot")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def command(args) -> int:
+    from adaptive_cal.run import session
+
+    if args.dry_run:
+        if not args.robot:
+            raise UserError("--dry-run needs --robot CELL.yaml")
+        return _dry_run(load_cell(args.robot))
+    if args.resume:
+        out = Path(args.resume)
+        cell_path = Path(args.robot) if args.robot else out / "cell.yaml"
+    else:
+        if not args.robot or not args.out:
+            raise UserError("run needs --robot CELL.yaml and --out DIR (or --resume DIR)")
+        out, cell_path = Path(args.out), Path(args.robot)
+    cell = load_cell(cell_path)
+    real = cell.robot.adapter not in ("sim", "manual") and not getattr(cell.robot, "emulated", False)
+    if real and not args.yes:
+        if not sys.stdin.isatty():
+            raise UserError(f"{cell_path} drives a real robot ({cell.robot.adapter}): pass --yes to "
+                            "confirm, or --dry-run to see the plan first")
+        answer = input(f"Move the robot of '{cell.name}' ({cell.robot.adapter})? [y/N] ")
+        if answer.strip().lower() not in ("y", "yes"):
+            print("nothing moved", file=sys.stderr)
+            return 1
+    if not args.resume:
+        if (out / "recording.csv").exists():
+            raise UserError(f"{out}/recording.csv exists: continue it with --resume {out}, or "
+                            "choose another --out")
+        out.mkdir(parents=True, exist_ok=True)
+        if cell_path.resolve() != (out / "cell.yaml").resolve():
+            shutil.copyfile(cell_path, out / "cell.yaml")
+    result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,
+                         progress=not args.no_progress)
+    _summary(result, out)
+    return 130 if result["stopped_because"] == "interrupted" else 0
+
+
+def _ci(f: dict) -> str:
+    lo, hi = f["ci95"]
+    return f"{f['value'] * 1e3:.1f} um (95 % {lo * 1e3:.1f} .. {hi * 1e3:.1f})"
+
+
+def _summary(r: dict, out: Path) -> None:
+    t, p, fl = r["tilt"], r["posterior"], r["flatness_mm"]
+    lines = [
+        f"stopped: {r['stopped_because']} after {r['touches']} touches ({r['fused']} fused)",
+        f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
+        f"tilt correction: rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
+        f"(a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm, c {t['c']:+.4f} mm)",
+        f"flatness: least squares {_ci(fl['least_squares'])}; minimum zone {_ci(fl['minimum_zone'])}",
+    ]
+    if "truth" in r:
+        tr = r["truth"]
+        lines.append(f"true error: RMS {tr['rms_error_mm'] * 1e3:.2f} um, max "
+                     f"{tr['max_error_mm'] * 1e3:.2f} um, 95 % band covers {tr['coverage95']:.0%} "
+                     "of the plate")
+    lines.append(f"wrote {out}/recording.csv, result.json, surface.png, convergence.png")
+    print("\n".join(lines))
+
+
+def _dry_run(cell) -> int:
+    from adaptive_cal.planning.survey import Mapper
+
+    mapper = Mapper.create(cell)
+    n = min(cell.plan.stop.max_touches, 20)
+    targets = mapper.ask(n)
+    print(f"dry run: the first {len(targets)} planned touches, in travel order; nothing moves.\n"
+          "The plan adapts as readings arrive, and each approach height is set from the belief "
+          "at that touch.")
+    print("  #     x_mm     y_mm")
+    for i, t in enumerate(targets):
+        print(f"{i:3d} {t.x_mm:8.2f} {t.y_mm:8.2f}")
+    return 0

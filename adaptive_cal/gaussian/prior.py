@@ -1,0 +1,178 @@
+"""Gaussian prior over the spline coefficients, marginal likelihood and hyper-parameter fit.
+
+Prior: a = a_tilt + a_form, independent Gaussians.
+
+* tilt:  a_tilt = P (s_x, s_y, c), P = [x_k - x_c, y_k - y_c, 1] at the knots; slopes with
+  std tan(tilt_std_deg), offset at the plate centre with std offset_std_mm. Splines reproduce a
+  plane exactly, so the tilt is inside the model.
+* form:  a_form ~ N(0, sigma_f^2 K_x kron K_y), K(u, v) = exp(-(u - v)^2 / (2 l^2)) at the knots.
+
+Hyper-parameters theta = (sigma_f, l, sigma_n) are fitted by maximising the log marginal
+likelihood of the readings, log N(y; H m0, H C0(theta) H^T + sigma_n^2 I), plus a weak
+log-normal hyper-prior around the configured values (MAP-II), with JAX gradients.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.optimize import minimize
+
+from adaptive_cal.gaussian.belief import Belief
+from adaptive_cal.gaussian.spline import Surface
+
+JITTER_MM2 = 1e-10
+
+
+class Hyper(NamedTuple):
+    """Form amplitude (mm), form length scale (mm), reading noise std (mm)."""
+
+    form_std_mm: float
+    length_scale_mm: float
+    noise_std_mm: float
+
+
+@dataclass(frozen=True, eq=False)  # hashed by identity: caches its compiled objective
+class PriorModel:
+    """What the prior needs besides the hyper-parameters."""
+
+    surface: Surface
+    slope_std: float  # mm/mm
+    offset_std_mm: float
+    centre_mm: tuple[float, float]
+    hyper0: Hyper  # configured values: start of the fit and centre of the hyper-prior
+    hyper_log_std: tuple[float, float, float] = (1.0, 0.7, 1.0)
+
+    @property
+    def tilt_basis(self) -> np.ndarray:
+        """P (K x 3): coefficients of the plane a (x - x_c) + b (y - y_c) + c."""
+        gx, gy = self.surface.knot_grid()
+        return np.stack([gx - self.centre_mm[0], gy - self.centre_mm[1], np.ones_like(gx)], 1)
+
+    def tilt_cov(self) -> np.ndarray:
+        var = np.array([self.slope_std**2, self.slope_std**2, self.offset_std_mm**2])
+        p = self.tilt_basis
+        return (p * var) @ p.T
+
+    def form_cov(self, form_std_mm, length_scale_mm, xp=np):
+        kx = _se(self.surface.sx.knots[: self.surface.sx.size], length_scale_mm, xp)
+        ky = _se(self.surface.sy.knots[: self.surface.sy.size], length_scale_mm, xp)
+        return form_std_mm**2 * xp.kron(kx, ky)
+
+    def belief(self, hyper: Hyper) -> Belief:
+        """The prior belief N(0, C_tilt + C_form(theta))."""
+        k = self.surface.size
+        cov = self.tilt_cov() + self.form_cov(hyper.form_std_mm, hyper.length_scale_mm)
+        return Belief(np.zeros(k), cov + JITTER_MM2 * np.eye(k))
+
+
+def _se(knots: np.ndarray, length, xp):
+    d = np.subtract.outer(knots, knots)
+    return xp.exp(-0.5 * (d / length) ** 2)
+
+
+def log_marginal(model: PriorModel, hyper: Hyper, rows: np.ndarray, readings: np.ndarray) -> float:
+    """log N(y; 0, H C0 H^T + sigma_n^2 I) -- the evidence of the readings under theta."""
+    rows = np.asarray(rows, float)
+    prior = model.belief(hyper)
+    s = rows @ prior.cov @ rows.T + hyper.noise_std_mm**2 * np.eye(len(rows))
+    lower = np.linalg.cholesky(s)
+    z = np.linalg.solve(lower, np.asarray(readings, float))
+    return float(-0.5 * z @ z - np.log(np.diag(lower)).sum() - 0.5 * len(z) * np.log(2 * np.pi))
+
+
+def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, mu, sd):
+    """-(log N(y; 0, H C0(theta) H^T + sigma_n^2 I) + log hyper-prior); padded rows masked."""
+    sf, ls, sn = jnp.exp(log_theta)
+    kx = jnp.exp(-0.5 * ((knots_x[:, None] - knots_x[None, :]) / ls) ** 2)
+    ky = jnp.exp(-0.5 * ((knots_y[:, None] - knots_y[None, :]) / ls) ** 2)
+    cov = tilt_cov + sf**2 * jnp.kron(kx, ky) + JITTER_MM2 * jnp.eye(tilt_cov.shape[0])
+    s = rows @ cov @ rows.T
+    s = s + jnp.diag(mask * sn**2 + (1.0 - mask))  # padded rows: unit variance, zero data
+    lower = jnp.linalg.cholesky(s)
+    z = jax.scipy.linalg.solve_triangular(lower, readings * mask, lower=True)
+    loglik = -0.5 * z @ z - jnp.sum(jnp.log(jnp.diag(lower))) \
+        - 0.5 * jnp.sum(mask) * jnp.log(2 * jnp.pi)
+    logprior = -0.5 * jnp.sum(((log_theta - mu) / sd) ** 2)
+    return -(loglik + logprior)
+
+
+# compiled once per array shape (coefficients, padded readings), shared by every model
+_value_and_grad = jax.jit(jax.value_and_grad(_neg_log_post))
+
+
+def _model_args(model: PriorModel) -> tuple:
+    s = model.surface
+    return (jnp.asarray(model.tilt_cov()), jnp.asarray(s.sx.knots[: s.sx.size]),
+            jnp.asarray(s.sy.knots[: s.sy.size]), jnp.log(jnp.asarray(model.hyper0)),
+            jnp.asarray(model.hyper_log_std))
+
+
+def _padded(rows, readings):
+    rows = np.asarray(rows, float)
+    n = len(rows)
+    size = max(16, 1 << int(np.ceil(np.log2(max(n, 1)))))  # power-of-two buckets: few compiles
+    padded = np.zeros((size, rows.shape[1]))
+    padded[:n] = rows
+    y = np.zeros(size)
+    y[:n] = readings
+    mask = np.zeros(size)
+    mask[:n] = 1.0
+    return jnp.asarray(padded), jnp.asarray(y), jnp.asarray(mask)
+
+
+def fit_hyper(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
+              start: Hyper | None = None) -> Hyper:
+    """MAP-II hyper-parameters from the readings (L-BFGS-B on log theta, JAX gradients)."""
+    return hyper_posterior(model, rows, readings, start, points=False)[0][0]
+
+
+def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
+                    start: Hyper | None = None, *, points: bool = True
+                    ) -> list[tuple[Hyper, float]]:
+    """Hyper-parameters with weights: the MAP, and with ``points`` also 2 x 3 sigma points of
+    the Laplace approximation in log theta (at +-2 sd along each principal axis, unscented
+    weights with kappa = 1, corrected by the true posterior density). Conditioning on each and
+    mixing carries the hyper-parameter uncertainty into the belief."""
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError("fit_hyper needs float64: call adaptive_cal.use_float64() first")
+    args = _padded(rows, readings) + _model_args(model)
+
+    def fun(x):
+        v, g = _value_and_grad(jnp.asarray(x), *args)
+        return float(v), np.asarray(g, float)
+
+    h0 = model.hyper0
+    x0 = np.log(np.asarray(start or h0, float))
+    span = model.surface.sx.period + model.surface.sy.period
+    bounds = [(np.log(1e-5), np.log(10.0)), (np.log(0.02 * span), np.log(5 * span)),
+              (np.log(1e-5), np.log(1.0))]
+    x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
+    res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds)
+    best = res.x if np.isfinite(res.fun) else x0
+    out = [(Hyper(*np.exp(best).tolist()), 1.0)]
+    if not points:
+        return out
+    eps = 1e-4  # Hessian by central differences of the exact gradient (no extra compile)
+    h = np.array([(fun(best + eps * e)[1] - fun(best - eps * e)[1]) / (2 * eps)
+                  for e in np.eye(len(best))])
+    w, v = np.linalg.eigh(0.5 * (h + h.T))
+    if not np.all(np.isfinite(w)) or w.min() <= 0:
+        return out  # not a proper maximum (on a bound): keep the MAP alone
+    kappa, n = 1.0, len(best)
+    lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
+    nodes, weights = [best], [kappa / (n + kappa)]
+    for i in range(n):
+        step = np.sqrt(n + kappa) * v[:, i] / np.sqrt(w[i])
+        for sign in (1.0, -1.0):
+            nodes.append(np.clip(best + sign * step, lo, hi))
+            weights.append(0.5 / (n + kappa))
+    # density correction: true posterior over the Laplace approximation at each node
+    f0 = fun(best)[0]
+    logc = [-(fun(x)[0] - f0) + 0.5 * (x - best) @ h @ (x - best) for x in nodes]
+    wts = np.asarray(weights) * np.exp(np.clip(np.asarray(logc) - max(logc), -30, 0))
+    wts = wts / wts.sum()
+    return [(Hyper(*np.exp(x).tolist()), float(wi)) for x, wi in zip(nodes, wts)]

@@ -1,0 +1,94 @@
+"""PLC address names -> Modbus (table, address), and the register-map checks done at load time.
+
+Delta DVP (HARDWARE.md): M0-M1535 coils at 0x0800, M1536+ at 0xB000, D0-D4095 holding registers
+at 0x1000, X inputs at 0x0400 and Y outputs at 0x0500, X and Y numbered in octal.
+Delta DOP HMI as a slave: ``$n`` is holding register n (0-1023), ``$Mn`` is coil 2000+n.
+Raw names: ``hr:N``, ``coil:N``, ``di:N``, ``ir:N`` (decimal or 0x hex).
+"""
+from __future__ import annotations
+
+import re
+from typing import NamedTuple
+
+TABLES = ("coil", "di", "hr", "ir")  # coils, discrete inputs, holding and input registers
+BIT_TABLES = ("coil", "di")
+
+
+class Address(NamedTuple):
+    """A resolved Modbus address: table and 0-based protocol address."""
+
+    table: str
+    address: int
+    name: str
+
+
+def resolve(name: str) -> Address:
+    """Translate a PLC address name; ValueError names the bad value."""
+    s = str(name).strip()
+    m = re.fullmatch(r"(hr|coil|di|ir):(0x[0-9a-fA-F]+|\d+)", s, re.I)
+    if m:
+        addr = int(m.group(2), 0)
+        if addr > 0xFFFF:
+            raise ValueError(f"address {name!r} is beyond 65535")
+        return Address(m.group(1).lower(), addr, s)
+    m = re.fullmatch(r"\$(M?)(\d+)", s, re.I)
+    if m:
+        n = int(m.group(2))
+        if m.group(1):
+            return Address("coil", 2000 + n, s)
+        if n > 1023:
+            raise ValueError(f"DOP register {name!r} is beyond $1023")
+        return Address("hr", n, s)
+    m = re.fullmatch(r"([DMXY])(\d+)", s, re.I)
+    if not m:
+        raise ValueError(f"{name!r} is not a PLC address: use D100, M10, X17, Y7 (Delta), $100, "
+                         "$M10 (DOP HMI) or hr:N, coil:N, di:N, ir:N")
+    kind, digits = m.group(1).upper(), m.group(2)
+    if kind in "XY":
+        if re.search(r"[89]", digits):
+            raise ValueError(f"{name!r}: Delta X/Y addresses are octal, so 8 and 9 cannot appear")
+        n = int(digits, 8)
+        if n > 0xFF:
+            raise ValueError(f"{name!r} is beyond the X/Y range (X377/Y377)")
+        return Address("di" if kind == "X" else "coil", (0x0400 if kind == "X" else 0x0500) + n, s)
+    n = int(digits)
+    if kind == "D":
+        if n > 4095:
+            raise ValueError(f"{name!r} is beyond D4095")
+        return Address("hr", 0x1000 + n, s)
+    if n > 4095:
+        raise ValueError(f"{name!r} is beyond M4095")
+    return Address("coil", 0x0800 + n if n < 1536 else 0xB000 + n - 1536, s)
+
+
+def check_map(roles: dict[str, str], value_words: int) -> dict[str, Address]:
+    """Resolve every role, check flags are bits and values are words, and refuse overlaps.
+
+    Values (targets, probe value) span ``value_words`` registers; counters and the watchdog one.
+    """
+    from adaptive_cal.hardware.schema import FLAG_ROLES, WRITTEN_FLAGS
+
+    out: dict[str, Address] = {}
+    spans: list[tuple[str, str, int, int]] = []
+    for role, name in roles.items():
+        try:
+            a = resolve(name)
+        except ValueError as e:
+            raise ValueError(f"registers.{role}: {e}") from None
+        if role in FLAG_ROLES and a.table not in BIT_TABLES:
+            raise ValueError(f"registers.{role}={name!r} must be a bit (M, X, Y, $M, coil:, di:)")
+        if role not in FLAG_ROLES and a.table in BIT_TABLES:
+            raise ValueError(f"registers.{role}={name!r} must be a register (D, $, hr:, ir:)")
+        if role in WRITTEN_FLAGS and a.table == "di":
+            raise ValueError(f"registers.{role}={name!r} is an input (read-only); the PC writes it")
+        if role not in FLAG_ROLES and a.table == "ir" and role in ("target_x", "target_y",
+                                                                    "target_z", "watchdog"):
+            raise ValueError(f"registers.{role}={name!r} is an input register (read-only)")
+        words = value_words if role.startswith("target") or role == "probe_value" else 1
+        for other, table, lo, hi in spans:
+            if table == a.table and a.address < hi and lo < a.address + words:
+                raise ValueError(f"registers.{role}={name!r} overlaps registers.{other}="
+                                 f"{roles[other]!r}")
+        spans.append((role, a.table, a.address, a.address + words))
+        out[role] = a
+    return out

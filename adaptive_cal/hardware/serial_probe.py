@@ -1,0 +1,119 @@
+"""The ``serial`` probe adapter: digital indicators over pyserial.
+
+Presets (HARDWARE.md; request strings marked verify were not confirmed on a device):
+
+| preset | line | request | answer |
+|---|---|---|---|
+| mitutoyo | 9600 8N1 | ``1\\r`` (verify) | ``01A+0000.123\\r`` |
+| sylvac | 4800 7E2, DTR/RTS on (cable power) | ``?\\r`` | ``+0.1234\\r``, errors ``ERR<n>\\r`` |
+| keyence | 9600 8N1 (verify) | ``M0\\r\\n`` | ``M0,+012.3456,...\\r\\n`` |
+| custom | from the config | ``request`` | ``pattern`` with one group, times ``scale`` |
+"""
+from __future__ import annotations
+
+import codecs
+import math
+import re
+import time
+from dataclasses import dataclass
+
+import serial
+
+from adaptive_cal.hardware.base import AdapterError, BadSample, Sample
+from adaptive_cal.hardware.schema import SerialConfig
+
+
+@dataclass(frozen=True)
+class Preset:
+    baudrate: int
+    bytesize: int
+    parity: str
+    stopbits: int
+    request: bytes
+    pattern: str
+    dtr: bool | None = None
+    rts: bool | None = None
+
+
+PRESETS = {
+    "mitutoyo": Preset(9600, 8, "N", 1, b"1\r", r"^\d{2}A([-+]\s*\d+(?:\.\d+)?)\s*$"),
+    "sylvac": Preset(4800, 7, "E", 2, b"?\r", r"^([-+]?\s*\d+(?:\.\d+)?)\s*$", True, True),
+    "keyence": Preset(9600, 8, "N", 1, b"M0\r\n", r"^M0,([-+]?\d+(?:\.\d+)?)(?:,.*)?$"),
+    "custom": Preset(9600, 8, "N", 1, b"", ""),
+}
+ERROR = re.compile(rb"^(ERR\s*\d*|E\d+)", re.I)
+
+
+def unescape(text: str) -> bytes:
+    """``"?\\r"`` as written in YAML -> the bytes ``?`` CR."""
+    return codecs.decode(text, "unicode_escape").encode("latin-1")
+
+
+def parse(line: bytes, pattern: str, scale: float) -> float:
+    """One answer line -> value in mm; BadSample (with the raw bytes) when it does not parse."""
+    text = line.decode("ascii", "replace").strip()
+    if ERROR.match(line.strip()):
+        raise BadSample(f"gauge reported an error {text!r} (out of range or not zeroed?)", line)
+    m = re.search(pattern, text)
+    if not m:
+        raise BadSample(f"gauge answer {text!r} does not match the expected format {pattern!r}; "
+                        "check the preset, baud rate and parity", line)
+    group = m.group("value") if "value" in m.re.groupindex else m.group(1)
+    try:
+        value = float(group.replace(" ", "")) * scale
+    except ValueError:
+        raise BadSample(f"gauge answer {text!r}: {group!r} is not a number", line) from None
+    if not math.isfinite(value):
+        raise BadSample(f"gauge answer {text!r} is not a finite number", line)
+    return value
+
+
+class SerialProbe:
+    """A gauge on a serial port or a pyserial URL (``socket://host:port``)."""
+
+    def __init__(self, cfg: SerialConfig, *, clock=time.monotonic):
+        p = PRESETS[cfg.preset]
+        self.cfg, self.clock = cfg, clock
+        self.request = unescape(cfg.request) if cfg.request is not None else p.request
+        self.pattern = cfg.pattern or p.pattern
+        self.scale = cfg.scale
+        try:
+            self.port = serial.serial_for_url(
+                cfg.port, do_not_open=True, baudrate=cfg.baudrate or p.baudrate,
+                bytesize=cfg.bytesize or p.bytesize, parity=cfg.parity or p.parity,
+                stopbits=cfg.stopbits or p.stopbits, timeout=cfg.timeout_s,
+                write_timeout=cfg.timeout_s)
+            dtr = cfg.dtr if cfg.dtr is not None else p.dtr
+            rts = cfg.rts if cfg.rts is not None else p.rts
+            if dtr is not None:
+                self.port.dtr = dtr
+            if rts is not None:
+                self.port.rts = rts
+            self.port.open()
+        except (serial.SerialException, ValueError, OSError) as e:
+            raise AdapterError(f"probe.serial.port={cfg.port!r}: cannot open ({e}); check the "
+                               "cable, the device name and that no other program holds it") from e
+
+    def read(self) -> Sample:
+        try:
+            self.port.reset_input_buffer()  # a late answer to an earlier request is stale
+            if self.request:
+                self.port.write(self.request)
+            line = self.port.read_until(b"\n" if self.request.endswith(b"\n") else b"\r")
+        except (serial.SerialException, OSError) as e:
+            raise AdapterError(f"probe.serial.port={self.cfg.port!r}: link lost ({e}); "
+                               "reconnect the gauge and continue with --resume") from e
+        t = self.clock()
+        if not line or not line.endswith((b"\r", b"\n")):
+            raise BadSample(f"gauge on {self.cfg.port} did not answer within "
+                            f"{self.cfg.timeout_s} s (got {line!r}); check power (DTR/RTS), "
+                            "baud rate and the request string", line)
+        value = parse(line, self.pattern, self.scale)
+        rng = self.cfg.range_mm
+        if rng and not rng[0] <= value <= rng[1]:
+            raise BadSample(f"gauge value {value} mm is outside probe.serial.range_mm "
+                            f"{list(rng)}", line)
+        return Sample(value, t, line)
+
+    def close(self) -> None:
+        self.port.close()

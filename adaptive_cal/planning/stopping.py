@@ -1,0 +1,82 @@
+"""Stopping rules: each returns the reason to stop or None; compose with | (any) and & (all)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+@dataclass(frozen=True)
+class Status:
+    """What the stopping rules look at."""
+
+    touches: int
+    mean_std_mm: float  # RMS posterior std over the plate: sqrt(trace(Q C) / area)
+    max_std_mm: float  # largest posterior std on the evaluation grid
+
+
+class StopRule:
+    """A rule returns the reason to stop, or None. Compose with | (any) and & (all)."""
+
+    name = "rule"
+
+    def __call__(self, status: Status) -> str | None:
+        raise NotImplementedError
+
+    def __or__(self, other: "StopRule") -> "StopRule":
+        return _Any(self, other)
+
+    def __and__(self, other: "StopRule") -> "StopRule":
+        return _All(self, other)
+
+
+@dataclass(frozen=True)
+class MeanStdBelow(StopRule):
+    bound_mm: float
+    name = "mean_std_bound"
+
+    def __call__(self, status):
+        return self.name if status.mean_std_mm <= self.bound_mm else None
+
+
+@dataclass(frozen=True)
+class MaxStdBelow(StopRule):
+    bound_mm: float
+    name = "max_std_bound"
+
+    def __call__(self, status):
+        return self.name if status.max_std_mm <= self.bound_mm else None
+
+
+@dataclass(frozen=True)
+class AtLeast(StopRule):
+    """Holds once ``touches`` touches were made: ``bound & AtLeast(n)`` stops no earlier."""
+
+    touches: int
+    name = "at_least"
+
+    def __call__(self, status):
+        return self.name if status.touches >= self.touches else None
+
+
+@dataclass(frozen=True)
+class TouchBudget(AtLeast):
+    """Stops once ``touches`` touches were made (the same test as AtLeast, named for a stop)."""
+
+    name = "touch_budget"
+
+
+@dataclass(frozen=True)
+class _Any(StopRule):
+    a: StopRule
+    b: StopRule
+
+    def __call__(self, status):
+        return self.a(status) or self.b(status)
+
+
+@dataclass(frozen=True)
+class _All(StopRule):
+    a: StopRule
+    b: StopRule
+
+    def __call__(self, status):
+        ra, rb = self.a(status), self.b(status)
+        return ra if ra and rb else None

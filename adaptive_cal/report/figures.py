@@ -1,0 +1,160 @@
+"""Figures for a measured workplane: surface and uncertainty maps, convergence, residuals.
+
+Object API only: each function builds a ``matplotlib.figure.Figure`` (no pyplot state) and returns
+it; the caller saves it (``fig.savefig(path)``). Inputs are in mm, colour scales in um.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+
+from adaptive_cal.analysis.flatness import least_squares_plane
+
+UM_PER_MM = 1000.0
+MAX_NUMBERED_TOUCHES = 80
+
+Range = tuple[float, float]
+
+
+def _plate_axes(ax, workplane_x_mm: Range, workplane_y_mm: Range) -> None:
+    ax.set_xlim(*workplane_x_mm)
+    ax.set_ylim(*workplane_y_mm)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+
+
+def _keep_outs(ax, keep_outs: Sequence[tuple[Range, Range]]) -> None:
+    for (x0, x1), (y0, y1) in keep_outs:
+        ax.add_patch(Rectangle((min(x0, x1), min(y0, y1)), abs(x1 - x0), abs(y1 - y0),
+                               facecolor="0.85", edgecolor="0.3", hatch="///", alpha=0.7,
+                               label="keep-out", zorder=3))
+
+
+def _touches(ax, touches_xy_mm: np.ndarray, numbered: bool) -> None:
+    if len(touches_xy_mm) == 0:
+        return
+    ax.plot(touches_xy_mm[:, 0], touches_xy_mm[:, 1], "o", ms=3, mfc="white", mec="black",
+            mew=0.6, label="touches", zorder=4)
+    if numbered:
+        for seq, (x, y) in enumerate(touches_xy_mm):  # numbers are the recording's seq
+            ax.annotate(str(seq), (x, y), xytext=(2, 2), textcoords="offset points",
+                        fontsize=6, zorder=5)
+
+
+def _next_point(ax, next_xy_mm) -> None:
+    if next_xy_mm is not None:
+        ax.plot([next_xy_mm[0]], [next_xy_mm[1]], marker="*", ms=14, color="magenta",
+                mec="black", linestyle="none", label="next touch", zorder=6)
+
+
+def _detrend_grid(x_grid_mm, y_grid_mm, mean_mm) -> np.ndarray:
+    """mean - (a x + b y + c) with the least-squares plane of the map on its grid nodes."""
+    x, y = np.meshgrid(x_grid_mm, y_grid_mm, indexing="ij")
+    fit = least_squares_plane(x.ravel(), y.ravel(), mean_mm.ravel())
+    return fit.residuals_mm.reshape(mean_mm.shape)
+
+
+def surface_figure(x_grid_mm, y_grid_mm, mean_mm, std_mm, touches_xy_mm,
+                   workplane_x_mm: Range, workplane_y_mm: Range,
+                   keep_outs: Sequence[tuple[Range, Range]] = (), next_xy_mm=None,
+                   title: str = "", remove_tilt: bool = True) -> Figure:
+    """Posterior mean height (left) and posterior std (right) over the plate, in um.
+
+    ``mean_mm`` and ``std_mm`` are (nx, ny) on the grid ``x_grid_mm`` (nx,) x ``y_grid_mm`` (ny,).
+    With ``remove_tilt`` the least-squares plane of the mean map is subtracted (the title says
+    so). Touches are drawn on both panels and numbered by seq on the mean panel when there are at
+    most 80; keep-outs are hatched; ``next_xy_mm`` is a star.
+    """
+    x_grid_mm = np.asarray(x_grid_mm, dtype=np.float64)
+    y_grid_mm = np.asarray(y_grid_mm, dtype=np.float64)
+    mean_mm = np.asarray(mean_mm, dtype=np.float64)
+    std_mm = np.asarray(std_mm, dtype=np.float64)
+    expected = (x_grid_mm.size, y_grid_mm.size)
+    if mean_mm.shape != expected or std_mm.shape != expected:
+        raise ValueError(f"mean_mm and std_mm must be (nx, ny) = {expected}, "
+                         f"got {mean_mm.shape} and {std_mm.shape}")
+    touches_xy_mm = np.asarray(touches_xy_mm, dtype=np.float64).reshape(-1, 2)
+    height_mm = _detrend_grid(x_grid_mm, y_grid_mm, mean_mm) if remove_tilt else mean_mm
+
+    width_mm = workplane_x_mm[1] - workplane_x_mm[0]
+    height_ratio = (workplane_y_mm[1] - workplane_y_mm[0]) / width_mm
+    fig = Figure(figsize=(12.0, max(3.0, 5.6 * height_ratio) + 1.2), layout="constrained")
+    ax_mean, ax_std = fig.subplots(1, 2)
+    panels = [
+        (ax_mean, height_mm, "viridis",
+         "height minus LS plane (um)" if remove_tilt else "height (um)",
+         "posterior mean, tilt removed" if remove_tilt else "posterior mean"),
+        (ax_std, std_mm, "magma", "posterior std (um)", "posterior std"),
+    ]
+    for ax, values_mm, cmap, bar_label, panel_title in panels:
+        mesh = ax.pcolormesh(x_grid_mm, y_grid_mm, values_mm.T * UM_PER_MM, cmap=cmap,
+                             shading="gouraud", zorder=1)
+        fig.colorbar(mesh, ax=ax, shrink=0.9).set_label(bar_label)
+        _plate_axes(ax, workplane_x_mm, workplane_y_mm)
+        _keep_outs(ax, keep_outs)
+        _touches(ax, touches_xy_mm, numbered=ax is ax_mean and len(touches_xy_mm) <= MAX_NUMBERED_TOUCHES)
+        _next_point(ax, next_xy_mm)
+        ax.set_title(panel_title, fontsize=10)
+    ax_mean.set_label("mean")
+    ax_std.set_label("std")
+    handles, labels = ax_std.get_legend_handles_labels()
+    if handles:
+        unique = dict(zip(labels, handles))
+        ax_std.legend(unique.values(), unique.keys(), loc="upper right", fontsize=7, framealpha=0.8)
+    suffix = " (tilt removed)" if remove_tilt else ""
+    fig.suptitle(f"{title}{suffix}" if title else f"workplane{suffix}")
+    return fig
+
+
+def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
+                       bound_max_mm=None, true_rms_mm=None) -> Figure:
+    """Posterior std against touches: RMS/mean std and max std over the plate (um, log y).
+
+    Bounds (stopping thresholds) are dashed horizontal lines in the colour of their curve;
+    ``true_rms_mm`` (n,), the RMS of (posterior mean - true surface) when a simulated cell knows
+    the truth, is drawn as a dotted curve.
+    """
+    touches = np.asarray(touches, dtype=np.float64)
+    fig = Figure(figsize=(7.0, 4.5), layout="constrained")
+    ax = fig.subplots()
+    mean_line, = ax.plot(touches, np.asarray(mean_std_mm) * UM_PER_MM, "-o", ms=3,
+                         label="posterior std, RMS over plate")
+    max_line, = ax.plot(touches, np.asarray(max_std_mm) * UM_PER_MM, "-s", ms=3,
+                        label="posterior std, max over plate")
+    for bound, line, name in ((bound_mean_mm, mean_line, "RMS"), (bound_max_mm, max_line, "max")):
+        if bound is not None:
+            ax.axhline(bound * UM_PER_MM, linestyle="--", color=line.get_color(),
+                       label=f"{name} bound {bound * UM_PER_MM:.3g} um")
+    if true_rms_mm is not None:
+        ax.plot(touches, np.asarray(true_rms_mm) * UM_PER_MM, ":", color="black",
+                label="true RMS error (simulated)")
+    ax.set_yscale("log")
+    ax.set_xlabel("touches")
+    ax.set_ylabel("posterior std (um)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("convergence")
+    return fig
+
+
+def residual_figure(x_mm, y_mm, residual_mm, title: str = "") -> Figure:
+    """Residuals on the plate in um, diverging colours centred on zero (limits +-max|r|)."""
+    residual_um = np.asarray(residual_mm, dtype=np.float64) * UM_PER_MM
+    half_range = float(np.max(np.abs(residual_um))) if residual_um.size else 0.0
+    half_range = half_range if half_range > 0 else 1.0
+    fig = Figure(figsize=(7.5, 5.0), layout="constrained")
+    ax = fig.subplots()
+    points = ax.scatter(x_mm, y_mm, c=residual_um, cmap="RdBu_r", s=45, edgecolors="0.2",
+                        linewidths=0.4, norm=Normalize(-half_range, half_range))
+    fig.colorbar(points, ax=ax).set_label("residual (um)")
+    ax.set_aspect("equal")
+    ax.margins(0.05)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(title or "residuals")
+    return fig

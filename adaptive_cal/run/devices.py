@@ -1,0 +1,141 @@
+"""Open the probe cycle a cell file asks for: the adapters selected by ``robot.adapter`` and
+``probe.adapter``, wrapped in the safety check (workplane, keep-outs, workspace box)."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from adaptive_cal.cell.schema import Cell
+from adaptive_cal.hardware.base import AdapterError, Motion, ProbeCycle, ProbeDevice
+
+
+@dataclass
+class OpenCell:
+    """A connected cell: the probe cycle, a clock (s since the run start) and a closer."""
+
+    cycle: ProbeCycle
+    clock: Callable[[], float]
+    close: Callable[[], None]
+    simulated: object | None = None  # the SimulatedCell when the truth is known
+
+
+def safety_check(cell: Cell) -> Callable[[float, float, float], bool]:
+    """The one function that decides whether a target may be sent.
+
+    x, y must lie inside the workplane less its edge margin and
+    outside every keep-out; with a ``workspace`` box the target must also lie inside it.
+    """
+    wp, ws = cell.workplane, cell.workspace
+
+    def allowed(x: float, y: float, z: float) -> bool:
+        if not wp.allows(x, y):
+            return False
+        return ws is None or ws.contains(x, y, z)
+
+    return allowed
+
+
+def _modbus_links(cell: Cell, opened: list) -> dict:
+    """One ModbusLink per endpoint; robot and probe share it when they name the same PLC."""
+    from adaptive_cal.hardware.modbus import ModbusLink
+
+    links, by_end = {}, {}
+    for role, block in (("robot", cell.robot), ("probe", cell.probe)):
+        if block.adapter != "modbus":
+            continue
+        cfg = block.modbus
+        end = (cfg.transport, cfg.host, cfg.port, cfg.serial_port, cfg.device_id)
+        if end in by_end:
+            if by_end[end][0] != cfg:
+                raise AdapterError(f"robot.modbus and probe.modbus name the same PLC {end[1:]} "
+                                   "with different settings; make the two blocks identical")
+            links[role] = by_end[end][1]
+            continue
+        link = ModbusLink(cfg)
+        opened.append(link)
+        by_end[end] = (cfg, link)
+        links[role] = link
+    return links
+
+
+def _motion(cell: Cell, links: dict, manual) -> Motion:
+    r = cell.robot
+    if r.adapter == "manual":
+        return manual
+    if r.adapter == "hses":
+        from adaptive_cal.hardware.hses import HsesMotion
+
+        return HsesMotion(r.hses)
+    if r.adapter == "modbus":
+        from adaptive_cal.hardware.modbus import ModbusMotion
+
+        return ModbusMotion(links["robot"])
+    if r.adapter == "robodk":
+        from adaptive_cal.hardware.robodk import RobodkMotion
+
+        return RobodkMotion(r.robodk)
+    raise AdapterError(f"robot.adapter={r.adapter!r} cannot be combined with "
+                       f"probe.adapter={cell.probe.adapter!r}")
+
+
+def _probe(cell: Cell, links: dict, manual) -> ProbeDevice:
+    p = cell.probe
+    if p.adapter == "manual":
+        return manual
+    if p.adapter == "serial":
+        from adaptive_cal.hardware.serial_probe import SerialProbe
+
+        return SerialProbe(p.serial)
+    if p.adapter == "modbus":
+        from adaptive_cal.hardware.modbus import ModbusProbe
+
+        return ModbusProbe(links["probe"])
+    raise AdapterError(f"probe.adapter={p.adapter!r} needs robot.adapter 'sim' (the simulated "
+                       "probe only exists in the simulated cell)")
+
+
+def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
+              manual=None) -> OpenCell:
+    """Connect to the cell named by the cell file. ``manual`` replaces the operator console
+    (a ManualCell with injected streams, for notebooks and tests)."""
+    allowed = safety_check(cell)
+    p = cell.probe
+    if cell.robot.adapter == "sim":
+        from adaptive_cal.simulation.cell import SimulatedCell
+
+        sim = SimulatedCell.from_cell(cell, start_t_s=start_t_s, start_touch=start_touch)
+        cycle = ProbeCycle(sim, sim, allowed, cell.robot.safe_height_mm, p.usable_mm, p.samples,
+                           p.samples_tolerance_mm, p.retries, 0.0, clock=lambda: sim.t_s,
+                           sleep=lambda s: None)
+        return OpenCell(cycle, lambda: sim.t_s, sim.close, sim)
+    if "manual" in (cell.robot.adapter, p.adapter) and manual is None:
+        from adaptive_cal.hardware.manual import ManualCell
+
+        m = cell.robot.manual
+        manual = ManualCell(prompt=m.prompt if m else "", attempts=m.attempts if m else 3,
+                            range_mm=(0.0, p.stroke_mm))
+    opened: list = []
+    try:
+        links = _modbus_links(cell, opened)
+        motion = _motion(cell, links, manual)
+        opened.append(motion)
+        probe = _probe(cell, links, manual)
+        opened.append(probe)
+    except BaseException:
+        for dev in reversed(opened):
+            dev.close()
+        raise
+    t0 = time.monotonic() - start_t_s
+    clock = lambda: time.monotonic() - t0  # noqa: E731
+
+    def close() -> None:
+        seen = set()
+        for dev in reversed(opened):
+            if id(dev) not in seen:
+                seen.add(id(dev))
+                dev.close()
+
+    cycle = ProbeCycle(motion, probe, allowed, cell.robot.safe_height_mm, p.usable_mm,
+                       p.samples, p.samples_tolerance_mm, p.retries, p.settle_s, clock=clock)
+    return OpenCell(cycle, clock, close, None)

@@ -1,0 +1,90 @@
+"""What a run reports: tilt correction, posterior std, flatness with 95 % intervals, truth
+errors on a simulated cell, and the figures. Every figure with an interval is written as
+{"value": v, "ci95": [low, high]} in mm.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.planning.survey import Mapper
+
+SAMPLES = 200
+
+
+def posterior_report(mapper: Mapper, rng: np.random.Generator, samples: int = SAMPLES) -> dict:
+    """Tilt and flatness of the plate from the belief: value on the posterior mean surface,
+    interval over surfaces sampled from the belief (evaluation grid over the whole plate)."""
+    xy, rows = mapper.eval_xy, mapper.eval_rows
+    mean, _ = bl.predict(mapper.belief, rows)
+    draws = bl.sample(mapper.belief, rng, samples) @ rows.T  # (S, N)
+    x, y = xy[:, 0], xy[:, 1]
+    values = fl.figures(x, y, mean)
+    names = ("least_squares", "range", "minimum_zone")
+    sampled = fl.sampled_figures(x, y, draws)
+    flat = fl.interval_figures({k: values[k] for k in names}, {k: sampled[k] for k in names})
+    tilt = fl.plane_tilt(x, y, mean)
+    angles = np.array([fl.tilt_correction_deg(*fl.least_squares_plane(x, y, d)[:2]) for d in draws])
+    tilt["rx_std_deg"], tilt["ry_std_deg"] = (float(v) for v in angles.std(axis=0))
+    return {"tilt": tilt, "flatness_mm": flat}
+
+
+def write_results(mapper: Mapper, out: Path, stopped_because: str, truth=None,
+                  true_rms_mm=None) -> dict:
+    """result.json, surface.png and convergence.png in ``out``; returns the result dict."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    status = mapper.status()
+    result = {
+        "touches": mapper.touches,
+        "fused": len(mapper.heights),
+        "stopped_because": stopped_because,
+        "bound": {"mean_std_mm": mapper.cell.plan.stop.mean_std_mm,
+                  "max_std_mm": mapper.cell.plan.stop.max_std_mm,
+                  "max_touches": mapper.cell.plan.stop.max_touches},
+        "posterior": {"mean_std_mm": status.mean_std_mm, "max_std_mm": status.max_std_mm,
+                      "mean_std_is": "RMS posterior std over the whole plate"},
+        "hyper": dict(mapper.hyper._asdict()),
+        "knots_mm": {"x": mapper.model.surface.sx.knots.tolist(),
+                     "y": mapper.model.surface.sy.knots.tolist(),
+                     "ends": mapper.model.surface.sx.ends},
+    }
+    result.update(posterior_report(mapper, np.random.default_rng(0)))
+    if truth is not None:
+        result["truth"] = mapper.truth_error(truth)
+    (out / "result.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    write_figures(mapper, out, true_rms_mm)
+    return result
+
+
+def write_figures(mapper: Mapper, out: Path, true_rms_mm=None) -> None:
+    """surface.png (mean and std maps, touches numbered by seq) and convergence.png (std against
+    touches; ``true_rms_mm`` per history entry when the truth is known)."""
+    from adaptive_cal.report import figures as plots
+
+    wp = mapper.cell.workplane
+    gx, gy, mean, std = mapper.grid()
+    keep = [(k.x_mm, k.y_mm) for k in wp.keep_outs]
+    touched = np.array(mapper.touched, float).reshape(-1, 2)  # numbered as in the recording
+    fig = plots.surface_figure(gx, gy, mean, std, touched, wp.x_mm, wp.y_mm,
+                               keep_outs=keep, title=mapper.cell.name)
+    fig.savefig(out / "surface.png", dpi=110)
+    h = mapper.history
+    stop = mapper.cell.plan.stop
+    fig = plots.convergence_figure(np.array([s.touches for s in h]),
+                                   np.array([s.mean_std_mm for s in h]),
+                                   np.array([s.max_std_mm for s in h]),
+                                   bound_mean_mm=stop.mean_std_mm, bound_max_mm=stop.max_std_mm,
+                                   true_rms_mm=true_rms_mm)
+    fig.savefig(out / "convergence.png", dpi=110)
+
+
+def save_belief(mapper: Mapper, path: Path) -> None:
+    """The belief and its spline, for ``--prior-from`` in a later run."""
+    s = mapper.model.surface
+    np.savez(path, mean=mapper.belief.mean, cov=mapper.belief.cov, knots_x=s.sx.knots,
+             knots_y=s.sy.knots, hyper=np.array(mapper.hyper))

@@ -1,0 +1,197 @@
+"""The measurement loop: ask -> move/probe -> tell -> record -> stop. Resumable.
+
+Every reading that was taken is written (and fsynced) before anything else happens; a reading the
+probe cycle rejected is written too, flagged, and never fused. Ctrl-C stops after the current
+touch (a second Ctrl-C stops at once; the probe cycle still retracts); the recording then holds
+every touch and ``--resume`` continues it: no touch repeated, none lost.
+"""
+from __future__ import annotations
+
+import math
+import signal
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.hardware.base import AdapterError, TouchRejected
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.cell.schema import Cell
+from adaptive_cal.planning.survey import Mapper
+from adaptive_cal.gaussian.prior import Hyper
+from adaptive_cal.formats.recording import RecordingWriter, read_recording
+from adaptive_cal.run.results import save_belief, write_results
+
+
+class NoAdmissiblePoint(AdapterError):
+    """No allowed point can be promised to land inside the probe stroke."""
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    out: Path
+
+    @property
+    def recording(self) -> Path:
+        return self.out / "recording.csv"
+
+
+def replay(mapper: Mapper, path: Path) -> tuple[int, float]:
+    """Rebuild the belief from a recording; returns the number of touches and the last time."""
+    rec = read_recording(path)
+    mapper.replay(rec)
+    t = rec.t_s[np.isfinite(rec.t_s)]
+    return len(rec), float(t[-1]) if len(t) else 0.0
+
+
+def load_prior(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
+    """An earlier run's belief, widened by the drift allowance d = plan.drift_std_mm: the plate
+    may have moved rigidly since (offset std d, slopes std d over half the plate diagonal) and
+    its form may have changed by a quarter of that (form std d / 4, same length scale). A
+    routine re-check then needs a handful of touches."""
+    path = Path(run_dir) / "belief.npz"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
+    data = np.load(path)
+    hyper = Hyper(*data["hyper"].tolist())
+    from adaptive_cal.planning.survey import prior_model
+
+    model = prior_model(cell)
+    if (len(data["knots_x"]) != len(model.surface.sx.knots)
+            or not np.allclose(data["knots_x"], model.surface.sx.knots)
+            or not np.allclose(data["knots_y"], model.surface.sy.knots)):
+        raise ValueError(f"{path}: the earlier run used other knots; give the cell file the same "
+                         "model.knots_x / knots_y")
+    d = cell.plan.drift_std_mm
+    wp = cell.workplane
+    half = 0.5 * math.hypot(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
+    drift = type(model)(model.surface, d / half, d, model.centre_mm, hyper)
+    extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
+    return bl.widen(bl.Belief(data["mean"], data["cov"]), extra), hyper
+
+
+@contextmanager
+def _deferred_interrupt():
+    """First Ctrl-C sets a flag (stop after this touch); a second one interrupts at once."""
+    state = {"stop": False}
+    if signal.getsignal(signal.SIGINT) is None or not _main_thread():
+        yield state
+        return
+
+    def handler(signum, frame):
+        if state["stop"]:
+            raise KeyboardInterrupt
+        state["stop"] = True
+
+    old = signal.signal(signal.SIGINT, handler)
+    try:
+        yield state
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | Path | None = None,
+        progress: bool = True, max_new_touches: int | None = None) -> dict:
+    """Run the loop on the cell until a stopping rule fires; write recording, results, figures.
+
+    ``max_new_touches`` stops (as ``interrupted``) after that many touches: used by tests to
+    simulate an interruption at a chosen point."""
+    paths = RunPaths(Path(out))
+    if paths.recording.exists() and not resume:
+        raise FileExistsError(f"{paths.recording} exists: continue it with --resume, or choose "
+                              "another --out")
+    if resume and not paths.recording.exists():
+        raise FileNotFoundError(f"{paths.recording}: nothing to resume")
+    prior, hyper = load_prior(Path(prior_from), cell) if prior_from else (None, None)
+    mapper = Mapper.create(cell, prior=prior, hyper=hyper)
+    start_touch, start_t = replay(mapper, paths.recording) if resume else (0, 0.0)
+    extra = ("round",)
+    writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
+                                               "probe_zero_mm": str(cell.probe.zero_mm)}, extra)
+    opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
+    truth = opened.simulated.surface_mm if opened.simulated is not None else None
+    stopped, seq, new = None, start_touch, 0
+    true_rms = [] if truth is None else [mapper.truth_error(truth)["rms_error_mm"]] * len(mapper.history)
+    bar = _progress(progress, cell, start_touch)
+    error = None
+    try:
+        with _deferred_interrupt() as flag:
+            while True:
+                stopped = mapper.stop_reason()
+                if stopped:
+                    break
+                if flag["stop"] or (max_new_touches is not None and new >= max_new_touches):
+                    stopped = "interrupted"
+                    break
+                targets = mapper.ask(from_xy=opened.cycle.motion.position()[:2])
+                if not targets:
+                    raise NoAdmissiblePoint(
+                        "no allowed point can be promised to land inside the usable probe stroke "
+                        f"{list(cell.probe.usable_mm)} mm: the prior is too wide for the stroke. "
+                        "Level the plate first, or narrow model.offset_std_mm / tilt_std_deg")
+                for target in targets:
+                    try:
+                        touch = opened.cycle.touch(target.x_mm, target.y_mm, target.z_mm)
+                    except TouchRejected as e:
+                        writer.append(seq=seq, t_s=opened.clock(), x_mm=target.x_mm,
+                                      y_mm=target.y_mm, z_mm=target.z_mm,
+                                      reading_mm=e.reading_mm if math.isfinite(e.reading_mm) else 0.0,
+                                      flags=e.flags, round=0)
+                        mapper.skip(target.x_mm, target.y_mm)
+                    else:
+                        told = mapper.tell(touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
+                        writer.append(seq=seq, t_s=touch.t_s, x_mm=touch.x_mm, y_mm=touch.y_mm,
+                                      z_mm=touch.z_mm, reading_mm=touch.reading_mm,
+                                      flags=told.flags, round=0)
+                    seq += 1
+                    new += 1
+                    if truth is not None:
+                        true_rms.append(mapper.truth_error(truth)["rms_error_mm"])
+                    _update(bar, mapper)
+                    if mapper.retake_pending or flag["stop"]:
+                        break
+    except KeyboardInterrupt:
+        stopped = "interrupted"
+    except AdapterError as e:  # a device stopped the run: report what was measured, then raise
+        stopped, error = "interrupted", e
+    finally:
+        writer.close()
+        opened.close()
+        if bar is not None:
+            bar.close()
+    result = None
+    if error is None or mapper.touches:
+        result = write_results(mapper, paths.out, stopped or "interrupted", truth, true_rms or None)
+        save_belief(mapper, paths.out / "belief.npz")
+    if error is not None:
+        raise error
+    return result
+
+
+def _progress(enabled: bool, cell: Cell, initial: int):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=cell.plan.stop.max_touches, initial=initial, unit="touch",
+                desc="touches", dynamic_ncols=True)
+
+
+def _update(bar, mapper: Mapper) -> None:
+    if bar is None:
+        return
+    s, stop = mapper.status(), mapper.cell.plan.stop
+    post = {"mean_std": f"{s.mean_std_mm * 1e3:.1f}um"
+            + (f"/{stop.mean_std_mm * 1e3:.1f}" if stop.mean_std_mm else ""),
+            "max_std": f"{s.max_std_mm * 1e3:.1f}um"
+            + (f"/{stop.max_std_mm * 1e3:.1f}" if stop.max_std_mm else "")}
+    bar.set_postfix(post, refresh=False)
+    bar.update(1)

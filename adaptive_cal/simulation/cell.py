@@ -1,0 +1,90 @@
+"""The simulated cell: a plate with tilt and form, every effect of the effect table as a forward
+model, robot repeatability, probe stroke, resolution and noise, all seeded.
+
+It knows the truth, so runs on it report their true error. Randomness for touch number ``k`` is
+drawn from ``np.random.default_rng([seed, k])``: a resumed run sees the same plate and noise.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from adaptive_cal.effects import library as physics
+from adaptive_cal.cell.schema import Cell, Simulation
+from adaptive_cal.hardware.base import Sample
+
+
+@dataclass
+class SimulatedCell:
+    """Motion and probe of a simulated cell (implements both protocols).
+
+    The clock advances with travel (at ``speed_mm_per_s``) and ``touch_time_s`` per reading.
+    """
+
+    geometry: physics.Geometry
+    sim: Simulation
+    zero_mm: float
+    stroke_mm: float
+    resolution_mm: float
+    speed_mm_per_s: float
+    touch_time_s: float
+    t_s: float = 0.0
+    touches: int = 0
+    pose: tuple[float, float, float] = (0.0, 0.0, 50.0)
+    _last_x: float | None = None
+    _last_dir: float = 0.0
+    _reached: tuple[float, float, float] = field(default=(0.0, 0.0, 50.0))
+
+    @classmethod
+    def from_cell(cls, cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0) -> "SimulatedCell":
+        wp = cell.workplane
+        start = (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm), cell.robot.safe_height_mm)
+        return cls(cell.geometry, cell.simulation or Simulation(), cell.probe.zero_mm,
+                   cell.probe.stroke_mm, cell.probe.resolution_mm, cell.robot.speed_mm_per_s,
+                   cell.robot.touch_time_s, t_s=start_t_s, touches=start_touch, pose=start,
+                   _reached=start)
+
+    # -- truth -------------------------------------------------------------------------
+    def surface_mm(self, x_mm, y_mm) -> np.ndarray:
+        """True plate height (tilt + form + local defects) in the workplane frame."""
+        x = np.asarray(x_mm, float)
+        y = np.broadcast_to(np.asarray(y_mm, float), x.shape)
+        f = physics.Features(x, y, np.zeros(x.shape), np.zeros(x.shape), np.zeros(x.shape))
+        return physics.total_change(self.sim.effects, f, self.geometry,
+                                    only=physics.SURFACE_EFFECTS)
+
+    # -- Motion --------------------------------------------------------------------------
+    def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
+        dist = float(np.linalg.norm(np.subtract((x_mm, y_mm, z_mm), self.pose)))
+        self.t_s += dist / self.speed_mm_per_s
+        if self._last_x is not None and abs(x_mm - self._last_x) > 1e-9:
+            self._last_dir = 1.0 if x_mm > self._last_x else -1.0
+        self._last_x = x_mm
+        self.pose = (x_mm, y_mm, z_mm)
+
+    def position(self) -> tuple[float, float, float]:
+        return self.pose
+
+    # -- Probe ---------------------------------------------------------------------------
+    def read(self) -> Sample:
+        rng = np.random.default_rng([self.sim.seed, self.touches])
+        self.touches += 1
+        self.t_s += self.touch_time_s
+        x, y, z = self.pose
+        xr = x + self.sim.xy_repeatability_mm * rng.standard_normal()
+        yr = y + self.sim.xy_repeatability_mm * rng.standard_normal()
+        zr = z + self.sim.repeatability_mm * rng.standard_normal()
+        surface = float(self.surface_mm(xr, yr))
+        ideal = surface - zr + self.zero_mm
+        f = physics.Features(np.array([xr]), np.array([yr]), np.array([self.t_s]),
+                             np.array([self._last_dir]), np.array([ideal]))
+        others = {k: v for k, v in self.sim.effects.items() if k not in physics.SURFACE_EFFECTS}
+        value = ideal + float(physics.total_change(others, f, self.geometry)[0])
+        value += self.sim.noise_std_mm * rng.standard_normal()
+        value = float(np.clip(value, 0.0, self.stroke_mm))  # the probe bottoms out
+        value = round(value / self.resolution_mm) * self.resolution_mm
+        return Sample(value, self.t_s, f"{value:.6f}".encode())
+
+    def close(self) -> None:
+        pass
