@@ -13,6 +13,7 @@ import yaml
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from adaptive_cal.effects import library as physics
+from adaptive_cal.gaussian.belief import Z95
 from adaptive_cal.hardware.schema import (HsesConfig, ManualConfig, ModbusConfig, RobodkConfig, SerialConfig,
                               Strict)
 
@@ -168,7 +169,7 @@ class Probe(Strict):
         if self.noise_range_mm is None:
             return self.noise_std_mm, None
         lo, hi = self.noise_range_mm
-        return math.sqrt(lo * hi), math.log(hi / lo) / (2 * 1.959964)
+        return math.sqrt(lo * hi), math.log(hi / lo) / (2 * Z95)
 
 
 class Model(Strict):

@@ -30,6 +30,12 @@ REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
 NOT_FUSED = frozenset({"gated", "rejected"})
 
 
+def surface_height_mm(reading_mm, z_mm, probe_zero_mm):
+    """The surface height a reading implies (mm), inverting the nominal relation:
+    height = reading - probe zero + z. The one height conversion of the package."""
+    return reading_mm - probe_zero_mm + z_mm
+
+
 class RecordingError(ValueError):
     """A recording that cannot be read: the message names the file, line and column."""
 

@@ -17,6 +17,10 @@ from filterpy.kalman import KalmanFilter
 from scipy.linalg import cho_factor, cho_solve, cholesky
 
 
+#: two-sided 95 % quantile of the standard normal, Phi^-1(0.975): bands are mean +- Z95 std
+Z95 = 1.959963984540054
+
+
 class Belief(NamedTuple):
     """Gaussian belief over the coefficients (mm): mean (K,), cov (K, K)."""
 
@@ -77,6 +81,17 @@ def condition(belief: Belief, rows: np.ndarray, readings: np.ndarray, noise_var)
 def covariance_after(cov: np.ndarray, rows: np.ndarray, noise_var) -> np.ndarray:
     """C' after readings at ``rows`` -- it does not depend on the reading values (plans ahead)."""
     return condition(Belief(np.zeros(cov.shape[0]), cov), rows, np.zeros(len(rows)), noise_var).cov
+
+
+def integrated_variance(cov, gram, xp=np):
+    """J(C) = trace(Q C) (mm^2 mm^2), both symmetric: the sum of their elementwise product."""
+    return xp.sum(gram * cov)
+
+
+def rms_std(cov, gram, area_mm2: float, xp=np):
+    """RMS posterior std over the plate, sqrt(J(C) / area) (mm): what the variance bound reads.
+    ``xp`` is numpy or jax.numpy (the study's vmapped evaluator traces it)."""
+    return xp.sqrt(xp.maximum(integrated_variance(cov, gram, xp), 0.0) / area_mm2)
 
 
 def predict(belief: Belief, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import minimize
 
-from adaptive_cal.gaussian.belief import Belief
+from adaptive_cal.gaussian.belief import Belief, condition, mixture
 from adaptive_cal.gaussian.spline import Surface
 
 JITTER_MM2 = 1e-10
@@ -176,3 +176,18 @@ def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     wts = np.asarray(weights) * np.exp(np.clip(np.asarray(logc) - max(logc), -30, 0))
     wts = wts / wts.sum()
     return [(Hyper(*np.exp(x).tolist()), float(wi)) for x, wi in zip(nodes, wts)]
+
+
+def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
+                   start: Hyper | None = None) -> tuple[Belief, list[tuple[Hyper, float]]]:
+    """The belief with learned hyper-parameters: the posterior of the readings under each
+    weighted point of ``hyper_posterior``, moment-matched into one Gaussian,
+
+        m = sum_k a_k m_k,   C = sum_k a_k (C_k + (m_k - m)(m_k - m)^T),
+
+    so the belief carries the hyper-parameter uncertainty. Returns it and the points (the MAP
+    first: its noise serves the fusions until the next refit)."""
+    points = hyper_posterior(model, rows, readings, start=start)
+    belief = mixture([condition(model.belief(h), rows, readings, h.noise_std_mm**2)
+                      for h, _ in points], [w for _, w in points])
+    return belief, points

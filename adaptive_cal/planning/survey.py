@@ -23,7 +23,7 @@ from adaptive_cal.planning.scoring import (Candidates, candidate_grid, minimax_c
                                           stroke_ok, variance_drop)
 from adaptive_cal.planning.stopping import (AtLeast, MaxStdBelow, MeanStdBelow, Status, StopRule,
                                            TouchBudget)
-from adaptive_cal.gaussian.prior import Hyper, PriorModel, hyper_posterior
+from adaptive_cal.gaussian.prior import Hyper, PriorModel, learned_belief
 from adaptive_cal.gaussian.spline import Surface, default_knots
 
 
@@ -168,9 +168,8 @@ class Mapper:
     # -- status ------------------------------------------------------------------------------
     def status(self) -> Status:
         c = self.belief.cov
-        j = float(np.sum(self.gram * c))  # trace(Q C), both symmetric
         var = np.einsum("nk,nk->n", self.eval_rows @ c, self.eval_rows)
-        return Status(self.touches, float(np.sqrt(max(j, 0.0) / self.model.surface.area_mm2)),
+        return Status(self.touches, float(bl.rms_std(c, self.gram, self.model.surface.area_mm2)),
                       float(np.sqrt(max(var.max(), 0.0))))
 
     def stop_reason(self) -> str | None:
@@ -330,12 +329,9 @@ class Mapper:
         posterior under each weighted hyper-parameter point, moment-matched (so the belief
         carries the hyper-parameter uncertainty); the MAP's noise serves later fusions."""
         rows, heights = np.array(self._rows), np.array(self.heights)
-        points = hyper_posterior(self.model, rows, heights, start=self.hyper)
+        self.belief, points = learned_belief(self.model, rows, heights, start=self.hyper)
         self.hyper, self.hyper_points = points[0][0], points
         self._fitted_at = len(heights)
-        self.belief = bl.mixture(
-            [bl.condition(self.model.belief(h), rows, heights, h.noise_std_mm**2) for h, _ in points],
-            [w for _, w in points])
 
     # -- results -------------------------------------------------------------------------------
     def grid(self, n: int = 61):
@@ -354,4 +350,4 @@ class Mapper:
         err = mean - truth(self.eval_xy[:, 0], self.eval_xy[:, 1])
         return {"rms_error_mm": float(np.sqrt(np.mean(err**2))),
                 "max_error_mm": float(np.abs(err).max()),
-                "coverage95": float(np.mean(np.abs(err) <= 1.959964 * np.sqrt(var)))}
+                "coverage95": float(np.mean(np.abs(err) <= bl.Z95 * np.sqrt(var)))}

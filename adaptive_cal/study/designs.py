@@ -21,7 +21,8 @@ import numpy as np
 
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.gaussian.prior import Hyper, PriorModel, hyper_posterior
+from adaptive_cal.gaussian.prior import Hyper, PriorModel
+from adaptive_cal.gaussian.prior import learned_belief as posterior_with_learned_hyper
 from adaptive_cal.study.config import Paper
 
 
@@ -97,11 +98,8 @@ def level_tilt_mm(xy: np.ndarray, heights: np.ndarray, span_mm: tuple[float, flo
 
 # -- estimators -------------------------------------------------------------------------------
 def learned_belief(model: PriorModel, rows, heights, start: Hyper) -> tuple[bl.Belief, Hyper]:
-    """The adaptive planner's estimator: hyper-parameters fitted to the readings (MAP-II with
-    sigma points), posterior under each, moment-matched (as ``Mapper.refit``)."""
-    points = hyper_posterior(model, rows, heights, start=start)
-    belief = bl.mixture([bl.condition(model.belief(h), rows, heights, h.noise_std_mm**2)
-                         for h, _ in points], [w for _, w in points])
+    """The adaptive planner's estimator (``prior.learned_belief``) and its MAP point."""
+    belief, points = posterior_with_learned_hyper(model, rows, heights, start)
     return belief, points[0][0]
 
 
@@ -116,11 +114,10 @@ class Evaluator:
     def __call__(self, belief: bl.Belief, truth_eval: np.ndarray) -> dict:
         mean, var = bl.predict(belief, self.eval_rows)
         err = mean - truth_eval
-        j = float(np.sum(self.gram * belief.cov))
-        return {"mean_std_mm": float(np.sqrt(max(j, 0.0) / self.area_mm2)),
+        return {"mean_std_mm": float(bl.rms_std(belief.cov, self.gram, self.area_mm2)),
                 "true_rms_mm": float(np.sqrt(np.mean(err**2))),
                 "true_max_mm": float(np.abs(err).max()),
-                "coverage95": float(np.mean(np.abs(err) <= 1.959964 * np.sqrt(var)))}
+                "coverage95": float(np.mean(np.abs(err) <= bl.Z95 * np.sqrt(var)))}
 
 
 # -- fixed hyper-parameters: vmap over plates --------------------------------------------------
@@ -150,7 +147,7 @@ def _trajectory(rows, heights, truth_eval, touches, prior_mean, prior_cov, gram,
     (mean, cov), _ = jax.lax.scan(step, (prior_mean, prior_cov), (rows, heights, on))
     err = eval_rows @ mean - truth_eval
     var = jnp.einsum("ek,kl,el->e", eval_rows, cov, eval_rows)
-    cover = jnp.mean((jnp.abs(err) <= 1.959964 * jnp.sqrt(jnp.maximum(var, 0.0))).astype(err.dtype))
+    cover = jnp.mean((jnp.abs(err) <= bl.Z95 * jnp.sqrt(jnp.maximum(var, 0.0))).astype(err.dtype))
     final = (jnp.sqrt(jnp.maximum(jnp.sum(gram * cov), 0.0) / area), jnp.sqrt(jnp.mean(err**2)),
              jnp.max(jnp.abs(err)), cover)
     return per_touch, final
