@@ -10,6 +10,8 @@ import importlib
 import os
 import sys
 
+from adaptive_cal.cli.common import UserError
+
 # Our matrices are small (K <= ~500): one BLAS thread is fastest, and a threaded OpenBLAS that
 # spins against other processes on a shared 2-core machine is 100x slower. Set before numpy loads.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -23,10 +25,6 @@ SUBCOMMANDS = {
     "study": ("adaptive_cal.cli.study", "simulation studies: strategies on synthetic plates, lower bound, Dask"),
     "report": ("adaptive_cal.cli.report", "one self-contained HTML page of a run folder, for whoever adjusts the robot"),
 }
-
-
-class UserError(Exception):
-    """An error the user can fix; printed without a traceback."""
 
 
 def build_parser() -> argparse.ArgumentParser:

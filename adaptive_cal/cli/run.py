@@ -5,7 +5,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from adaptive_cal.cli import UserError
+from adaptive_cal.cli.common import UserError
 from adaptive_cal.cell.schema import load_cell
 
 
