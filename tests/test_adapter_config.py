@@ -4,7 +4,7 @@ import copy
 import pytest
 import yaml
 
-from adaptive_cal.hardware.modbus_map import resolve
+from adaptive_cal.hardware.modbus.registers import resolve
 from adaptive_cal.cell.schema import ConfigError, load_cell, parse_cell
 from tests.conftest import ROOT
 
