@@ -1,5 +1,5 @@
 """An emulated PLC: a real pymodbus ``ModbusTcpServer`` whose register map is the cell file's,
-with a scan loop (every ``scan_s``) that runs the handshake of ``adapters.modbus`` against an
+with a scan loop (every ``scan_s``) that runs the handshake of ``hardware.modbus.adapter`` against an
 EmulatedRobot: start -> move -> done, probe_trigger -> probe_value/probe_count, watchdog ->
 fault. Runs its asyncio loop in a background thread.
 """
