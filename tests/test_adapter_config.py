@@ -4,7 +4,7 @@ import copy
 import pytest
 import yaml
 
-from adaptive_cal.hardware.modbus_map import resolve
+from adaptive_cal.hardware.modbus.registers import resolve
 from adaptive_cal.cell.schema import ConfigError, load_cell, parse_cell
 from tests.conftest import ROOT
 
@@ -95,3 +95,33 @@ def test_sim_probe_with_a_real_robot_is_refused_at_load_time():
     data["probe"] = {**data["probe"], "adapter": "manual"}
     with pytest.raises(ConfigError, match="probe.adapter='manual'"):
         parse_cell(data)
+
+
+def test_a_simulated_cell_gets_the_default_simulation_and_a_real_one_none():
+    from adaptive_cal.cell.schema import Simulation
+
+    plate = {"x_mm": [0, 100], "y_mm": [0, 50]}
+    sim = parse_cell({"workplane": plate})
+    assert sim.simulation == Simulation()
+    assert parse_cell({"workplane": plate, "simulation": None}).simulation == Simulation()
+    given = parse_cell({"workplane": plate, "simulation": {"seed": 7}})
+    assert given.simulation.seed == 7
+    real = {k: v for k, v in HSES.items() if k != "simulation"}  # the emulator's truth removed
+    assert parse_cell(real).simulation is None  # a real robot gets no simulated truth
+    with pytest.raises(Exception):  # frozen: the filled value is the model's own, not patched in
+        sim.simulation = None
+
+
+def test_modbus_config_checks_its_register_map_without_the_adapter():
+    """The config block and the register map load without pymodbus (no import cycle either)."""
+    import subprocess
+    import sys
+
+    probe = ("import sys; from adaptive_cal.hardware.modbus.config import ModbusConfig; "
+             "ModbusConfig(host='127.0.0.1', port=502); print('pymodbus' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert out.stdout.strip() == "False", out.stderr
+    with pytest.raises(ValueError, match="registers.done"):
+        from adaptive_cal.hardware.modbus.config import ModbusConfig
+
+        ModbusConfig(host="127.0.0.1", port=502, registers={"done": "D5"})

@@ -4,10 +4,10 @@ import time
 
 import pytest
 
-from adaptive_cal.hardware import hses_protocol as P
+from adaptive_cal.hardware.hses import protocol as P
 from adaptive_cal.hardware.base import AdapterError
-from adaptive_cal.hardware.hses import HsesError, HsesMotion
-from adaptive_cal.hardware.schema import HsesConfig
+from adaptive_cal.hardware.hses.adapter import HsesError, HsesMotion
+from adaptive_cal.hardware.hses.config import HsesConfig
 from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.simulation.emulator.hses_server import HsesServer
 from adaptive_cal.simulation.emulator.robot import EmulatedRobot

@@ -4,7 +4,7 @@ import io
 import pytest
 
 from adaptive_cal.hardware.base import AdapterError, BadSample, ProbeCycle
-from adaptive_cal.hardware.manual import ManualCell
+from adaptive_cal.hardware.manual.adapter import ManualCell
 
 
 def manual(text, **kw):
@@ -39,4 +39,4 @@ def test_quit_or_end_of_input_stops_cleanly(text, match):
 def test_ask_callable_replaces_streams():
     answers = iter(["4.5"])
     cell = ManualCell(out=io.StringIO(), ask=lambda prompt: next(answers))
-    assert cell.read().value_mm == 4.5
+    assert cell.read().reading_mm == 4.5

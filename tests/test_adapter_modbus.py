@@ -5,7 +5,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from adaptive_cal.hardware.base import AdapterError, BadSample
-from adaptive_cal.hardware.modbus import ModbusLink, ModbusMotion, ModbusProbe
+from adaptive_cal.hardware.modbus.adapter import ModbusLink, ModbusMotion, ModbusProbe
 from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.simulation.emulator.plc import PlcServer
 from adaptive_cal.simulation.emulator.robot import EmulatedRobot
@@ -39,8 +39,8 @@ def test_move_handshake_and_probe_value_with_word_order_and_scale(plc):
     assert server.robot.pose() == pytest.approx((-12.5, 40.0, 0.25), abs=1e-4)
     assert motion.position() == (-12.5, 40.0, 0.25) and not server.bit("start")
     s = probe.read()
-    assert s.value_mm == pytest.approx(server.value_mm("probe_value"))
-    assert 0 < s.value_mm < 10 and len(s.raw) == 4
+    assert s.reading_mm == pytest.approx(server.read_mm("probe_value"))
+    assert 0 < s.reading_mm < 10 and len(s.raw) == 4
 
 
 def test_registers_are_where_the_delta_map_says(plc):
@@ -68,7 +68,7 @@ def test_stale_probe_value_rejected(plc):
     server.faults.probe_silent = 1
     with pytest.raises(BadSample, match="stale"):
         ModbusProbe(link).read()
-    assert ModbusProbe(link).read().value_mm > 0  # next trigger answered
+    assert ModbusProbe(link).read().reading_mm > 0  # next trigger answered
 
 
 def test_connection_closed_mid_run_reconnects_once(plc):

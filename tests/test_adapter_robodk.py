@@ -19,9 +19,9 @@ from adaptive_cal.hardware.base import (
     UnsafeTarget,
 )
 from adaptive_cal.run.devices import open_cell, safety_check
-from adaptive_cal.hardware.manual import ManualCell
-from adaptive_cal.hardware.robodk import RobodkMotion
-from adaptive_cal.hardware.schema import RobodkConfig
+from adaptive_cal.hardware.manual.adapter import ManualCell
+from adaptive_cal.hardware.robodk.adapter import RobodkMotion
+from adaptive_cal.hardware.robodk.config import RobodkConfig
 from tests.fake_robodk import ROBODK_VERSION, FakeRoboDK, _xyz
 from tests.helpers import sim_cell
 

@@ -2,8 +2,8 @@
 import pytest
 
 from adaptive_cal.hardware.base import AdapterError, BadSample
-from adaptive_cal.hardware.schema import SerialConfig
-from adaptive_cal.hardware.serial_probe import SerialProbe, parse
+from adaptive_cal.hardware.serial.config import SerialConfig
+from adaptive_cal.hardware.serial.adapter import SerialProbe, parse
 from adaptive_cal.simulation.emulator.gauge import PtyGauge, answer_line
 
 
@@ -28,14 +28,14 @@ def gauge(request):
 def test_presets_read_the_value_and_keep_raw_bytes(gauge, preset):
     g, probe = gauge(value=4.2371, preset=preset)
     s = probe.read()
-    assert s.value_mm == pytest.approx(4.2371, abs=1e-9)
+    assert s.reading_mm == pytest.approx(4.2371, abs=1e-9)
     assert s.raw == answer_line(preset, 4.2371) and s.t_s > 0
 
 
 def test_custom_pattern_and_scale(gauge):
     g, probe = gauge(value=1.25, preset="custom", request="R\\r",
                      pattern=r"^([-+]?\d+\.\d+)$", scale=0.001)  # gauge sends um
-    assert probe.read().value_mm == pytest.approx(1.25)
+    assert probe.read().reading_mm == pytest.approx(1.25)
 
 
 @pytest.mark.parametrize("fault, match", [("silent", "did not answer within 0.2 s"),
@@ -46,7 +46,7 @@ def test_faults_are_bad_samples_then_recovery(gauge, fault, match):
     setattr(g.faults, fault, 1)
     with pytest.raises(BadSample, match=match):
         probe.read()
-    assert probe.read().value_mm == pytest.approx(4.2)  # the late/garbage answer is not reused
+    assert probe.read().reading_mm == pytest.approx(4.2)  # the late/garbage answer is not reused
 
 
 def test_out_of_range_value_rejected(gauge):

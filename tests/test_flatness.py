@@ -210,3 +210,61 @@ def test_compare_rounds_normal_closed_form():
     out = fl.compare_rounds({"f": a}, {"f": b})["f"]
     assert out["p_b_greater"] == pytest.approx(norm.cdf(0.1 / np.sqrt(0.05)), abs=0.01)
     np.testing.assert_allclose(out["diff_ci95"], 0.1 + np.array([-1, 1]) * 1.96 * np.sqrt(0.05), atol=0.02)
+
+
+# -- flatness of a recording with intervals (analysis.flatness_intervals) ----------------------
+
+def _write(path, x, y, z_mm, reading_mm, meta):
+    from adaptive_cal.formats.recording import RecordingWriter
+
+    w = RecordingWriter(path, meta)
+    for i, (xi, yi, zi, ri) in enumerate(zip(x, y, z_mm, reading_mm)):
+        w.append(seq=i, t_s=None, x_mm=float(xi), y_mm=float(yi), z_mm=float(zi), reading_mm=float(ri))
+    w.close()
+    return path
+
+
+def test_heights_use_the_recordings_probe_zero(tmp_path):
+    from adaptive_cal.analysis.flatness_intervals import heights
+
+    x, y = _grid(5, 3)
+    surface = 0.01 * x - 0.002 * y + 0.3
+    z = np.full_like(x, 2.0)
+    reading = surface - z + 5.0  # the nominal relation with a probe zero of 5 mm
+    with_zero = read_recording(_write(tmp_path / "a.csv", x, y, z, reading, {"probe_zero_mm": "5.0"}))
+    hx, hy, h = heights(with_zero)
+    assert np.allclose(hx, x) and np.allclose(hy, y)
+    assert np.allclose(h, surface, atol=1e-9)  # reading - zero + z
+    no_zero = read_recording(_write(tmp_path / "b.csv", x, y, z, reading, {}))
+    assert np.allclose(heights(no_zero)[2], surface + 5.0, atol=1e-9)  # zero 0 when not recorded
+
+
+def test_touch_prior_is_the_cell_files_prior_in_numbers():
+    """The explicit prior equals what a cell around the touches gave before (oracle: the cell
+    path through cell.schema and planning.survey)."""
+    from adaptive_cal.analysis.flatness_intervals import TouchPrior, touch_prior
+    from adaptive_cal.cell.schema import parse_cell
+    from adaptive_cal.gaussian.prior import Hyper
+    from adaptive_cal.planning.survey import prior_model
+
+    x, y = _grid()
+    ours = touch_prior(x, y)
+    cell = parse_cell({"name": "recording", "workplane": {
+        "x_mm": [-202.5 - 22.5, 202.5 + 22.5], "y_mm": [-165.0 - 55.0, 165.0 + 55.0],
+        "edge_margin_mm": 0.0}, "probe": {"zero_mm": 0.0, "noise_std_mm": TouchPrior().noise_std_mm},
+        "model": {"tilt_std_deg": 5.0, "offset_std_mm": 10.0}})
+    theirs = prior_model(cell)
+    h = Hyper(0.03, 120.0, 0.01)
+    assert np.allclose(ours.surface.basis(x, y), theirs.surface.basis(x, y), rtol=0, atol=1e-12)
+    assert np.allclose(ours.belief(h).cov, theirs.belief(h).cov, rtol=1e-12, atol=1e-15)
+    assert ours.hyper0 == theirs.hyper0 and ours.centre_mm == theirs.centre_mm
+
+
+def test_recording_flatness_reproduces_the_papers_round0(cheng_round0):
+    from adaptive_cal.analysis.flatness_intervals import recording_flatness
+
+    out, sampled = recording_flatness(cheng_round0, np.random.default_rng(0), 100)
+    ls = out["flatness_mm"]["least_squares"]
+    assert ls["value"] == pytest.approx(0.5414, abs=1e-3)  # the paper's eq. 5 value
+    assert ls["ci95"][0] < ls["value"] < ls["ci95"][1]
+    assert sampled["least_squares"].shape == (100,)

@@ -4,6 +4,7 @@
 """
 from __future__ import annotations
 
+import re
 import typing
 
 from pydantic import BaseModel
@@ -13,8 +14,9 @@ from adaptive_cal.cell.schema import Cell
 
 def _type(annotation) -> str:
     text = str(annotation).replace("typing.", "").replace("NoneType", "None")
-    for prefix in ("adaptive_cal.cell.schema.", "adaptive_cal.hardware.schema.", "<class '", "'>"):
-        text = text.replace(prefix, "")
+    text = re.sub(r"adaptive_cal(\.\w+)*\.(?=[A-Z])", "", text)  # a class's module path
+    for wrapper in ("<class '", "'>"):
+        text = text.replace(wrapper, "")
     return text.replace("|", "&#124;")
 
 

@@ -9,19 +9,19 @@ import math
 from pathlib import Path
 from typing import Literal
 
-import yaml
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
+from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
 from adaptive_cal.effects import library as physics
 from adaptive_cal.gaussian.belief import Z95
-from adaptive_cal.hardware.schema import (HsesConfig, ManualConfig, ModbusConfig, RobodkConfig, SerialConfig,
-                              Strict)
+from adaptive_cal.hardware.config import Strict
+from adaptive_cal.hardware.hses.config import HsesConfig
+from adaptive_cal.hardware.manual.config import ManualConfig
+from adaptive_cal.hardware.modbus.config import ModbusConfig
+from adaptive_cal.hardware.robodk.config import RobodkConfig
+from adaptive_cal.hardware.serial.config import SerialConfig
 
 Interval = tuple[float, float]
-
-
-class ConfigError(ValueError):
-    """A cell or study file that cannot be used; the message names the key and the value."""
 
 
 def _interval(v: Interval, what: str) -> Interval:
@@ -272,10 +272,18 @@ class Cell(Strict):
     simulation: Simulation | None = Field(
         None, description="the simulated truth (robot.adapter sim, emulate, explain)")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _default_simulation(cls, data):
+        """A simulated robot gets the default simulated truth when the file gives none."""
+        if not isinstance(data, dict) or data.get("simulation") is not None:
+            return data
+        robot = data.get("robot")  # a mapping from the file, or a Robot given in code
+        adapter = robot.get("adapter", "sim") if isinstance(robot, dict) else getattr(robot, "adapter", "sim")
+        return {**data, "simulation": {}} if adapter == "sim" else data
+
     @model_validator(mode="after")
     def _consistent(self):
-        if self.robot.adapter == "sim" and self.simulation is None:
-            object.__setattr__(self, "simulation", Simulation())
         r, p = self.robot, self.probe
         if (r.adapter == "sim") != (p.adapter == "sim"):
             raise ValueError(f"robot.adapter={r.adapter!r} with probe.adapter={p.adapter!r}: the "
@@ -287,9 +295,6 @@ class Cell(Strict):
             if same and a != b:
                 raise ValueError("robot.modbus and probe.modbus name the same PLC with different "
                                  "settings; make the two blocks identical")
-        st = self.plan.stop
-        if st.mean_std_mm is None and st.max_std_mm is None and st.max_touches is None:
-            raise ValueError("plan.stop needs mean_std_mm, max_std_mm or max_touches")
         return self
 
     @property
@@ -297,44 +302,9 @@ class Cell(Strict):
         return physics.Geometry(self.workplane.x_mm, self.workplane.y_mm, self.robot.base_xy_mm)
 
 
-def _format(err: ValidationError, source: str) -> str:
-    lines = [f"{source}: {err.error_count()} problem(s):"]
-    for e in err.errors():
-        key = ".".join(str(p) for p in e["loc"]) or "(top level)"
-        msg = e["msg"].removeprefix("Value error, ")
-        if e["type"] == "extra_forbidden":
-            msg = "unknown key (check the spelling; unknown keys are refused)"
-        lines.append(f"  {key}: {msg} (got {e.get('input')!r})" if e["type"] != "missing"
-                     else f"  {key}: missing")
-    return "\n".join(lines)
-
-
-def validate(model: type[BaseModel], data: dict, source: str):
-    """Validate ``data`` against a schema; raise ConfigError naming each bad key and value."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"{source}: expected a mapping of keys, got {type(data).__name__}")
-    try:
-        return model.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(_format(e, source)) from None
-
-
 def parse_cell(data: dict, source: str = "cell") -> Cell:
     """Validate a cell given as a dict; raise ConfigError naming each bad key and value."""
     return validate(Cell, data, source)
-
-
-def load_yaml(path: str | Path) -> dict:
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not valid YAML: {e}") from None
-    return data if data is not None else {}
 
 
 def load_cell(path: str | Path) -> Cell:

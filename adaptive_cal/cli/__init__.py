@@ -1,7 +1,11 @@
 """``adaptive-cal``: the command line. Each subcommand lives in its own module that provides
 ``add_arguments(parser)`` and ``command(args) -> int``; this file only dispatches.
 
-Errors go to stderr with a non-zero exit and no traceback unless ``--debug``.
+Errors go to stderr with a non-zero exit and no traceback unless ``--debug``. Building the parser
+imports every command module, so those import only the standard library at their top level: the
+heavy engine loads inside ``command(args)``, and ``--help`` stays fast (tests/test_cli_help.py,
+benchmarks/bench_cli_help.py). ``main`` is the one place that sets process-wide switches (BLAS
+threads, JAX x64), and only once a command runs.
 """
 from __future__ import annotations
 
@@ -10,11 +14,7 @@ import importlib
 import os
 import sys
 
-from adaptive_cal.cli.common import UserError
-
-# Our matrices are small (K <= ~500): one BLAS thread is fastest, and a threaded OpenBLAS that
-# spins against other processes on a shared 2-core machine is 100x slower. Set before numpy loads.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from adaptive_cal.cli.common import DefaultsShown, UserError
 
 # name -> (module, one-line help)
 SUBCOMMANDS = {
@@ -27,7 +27,9 @@ SUBCOMMANDS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command (``only``: just that command's options are loaded, the others
+    are listed by name and help line -- what ``main`` uses, so one help imports one module)."""
     parser = argparse.ArgumentParser(
         prog="adaptive-cal",
         description="Plans and runs probe measurements on robot cells (mm, s, deg throughout).")
@@ -35,18 +37,30 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="subcommand", metavar="COMMAND")
     for name, (module, help_) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_,
-                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                           formatter_class=DefaultsShown)
         p.set_defaults(_module=module)
-        importlib.import_module(module).add_arguments(p)
+        if only is None or only == name:
+            importlib.import_module(module).add_arguments(p)
     return parser
 
 
+def _chosen(argv: list[str]) -> str:
+    """The command named on the line ('' for none): the first word that is not an option."""
+    words = [a for a in argv if not a.startswith("-")]
+    return words[0] if words else ""
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(only=_chosen(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "_module", None):
         parser.print_help()
         return 2
+    # Our matrices are small (K <= ~500): one BLAS thread is fastest, and a threaded OpenBLAS
+    # that spins against other processes on a shared 2-core machine is 100x slower. Set before
+    # numpy loads (the command modules import it inside command(), below).
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     import jax
 
     jax.config.update("jax_enable_x64", True)

@@ -2,9 +2,11 @@
 
 The cycle: check every target -> lift to the safe height -> travel -> approach -> settle -> read N
 samples -> median -> reject when the spread exceeds the tolerance (bounded retries) -> retract.
-Readings near the ends of the usable stroke are rejected; raw bytes and timestamps are kept.
-A sample the device could not give (timeout, garbage, stale, out of range) is logged and retried
-within the same bound; it is never fused.
+Readings near the ends of the usable stroke are rejected. Each ``Sample`` carries its timestamp
+and the raw bytes the device sent; they stay in memory on the ``Touch`` (and a bad sample's bytes
+go to the log) -- the recording keeps the reading and its time, not the bytes. A sample the device
+could not give (timeout, garbage, stale, out of range) is logged and retried within the same
+bound; it is never fused.
 """
 from __future__ import annotations
 
@@ -50,9 +52,10 @@ class TouchRejected(AdapterError):
 
 @dataclass(frozen=True)
 class Sample:
-    """One raw probe indication: value, the time it was taken (device clock, s), raw bytes."""
+    """One probe sample: the reading (mm), the time it was taken (device clock, s), the raw bytes
+    the device sent (for the log; not recorded)."""
 
-    value_mm: float
+    reading_mm: float
     t_s: float
     raw: bytes = b""
 
@@ -83,7 +86,7 @@ class Motion(Protocol):
 
 @runtime_checkable
 class ProbeDevice(Protocol):
-    """Reads the probe indication (mm) at the current pose."""
+    """Reads one probe sample (its ``reading_mm``) at the current pose."""
 
     def read(self) -> Sample: ...
 
@@ -162,7 +165,7 @@ class ProbeCycle:
                 self.sleep(self.settle_s)
                 continue
             kept.extend(got)
-            values = np.array([s.value_mm for s in got], float)
+            values = np.array([s.reading_mm for s in got], float)
             if not np.all(np.isfinite(values)):
                 problems.append("non-finite sample")
                 continue

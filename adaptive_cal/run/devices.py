@@ -38,7 +38,7 @@ def safety_check(cell: Cell) -> Callable[[float, float, float], bool]:
 
 def _modbus_links(cell: Cell, opened: list) -> dict:
     """One ModbusLink per endpoint; robot and probe share it when they name the same PLC."""
-    from adaptive_cal.hardware.modbus import ModbusLink
+    from adaptive_cal.hardware.modbus.adapter import ModbusLink
 
     links, by_end = {}, {}
     for role, block in (("robot", cell.robot), ("probe", cell.probe)):
@@ -64,15 +64,15 @@ def _motion(cell: Cell, links: dict, manual) -> Motion:
     if r.adapter == "manual":
         return manual
     if r.adapter == "hses":
-        from adaptive_cal.hardware.hses import HsesMotion
+        from adaptive_cal.hardware.hses.adapter import HsesMotion
 
         return HsesMotion(r.hses)
     if r.adapter == "modbus":
-        from adaptive_cal.hardware.modbus import ModbusMotion
+        from adaptive_cal.hardware.modbus.adapter import ModbusMotion
 
         return ModbusMotion(links["robot"])
     if r.adapter == "robodk":
-        from adaptive_cal.hardware.robodk import RobodkMotion
+        from adaptive_cal.hardware.robodk.adapter import RobodkMotion
 
         return RobodkMotion(r.robodk)
     raise AdapterError(f"robot.adapter={r.adapter!r} cannot be combined with "
@@ -84,11 +84,11 @@ def _probe(cell: Cell, links: dict, manual) -> ProbeDevice:
     if p.adapter == "manual":
         return manual
     if p.adapter == "serial":
-        from adaptive_cal.hardware.serial_probe import SerialProbe
+        from adaptive_cal.hardware.serial.adapter import SerialProbe
 
         return SerialProbe(p.serial)
     if p.adapter == "modbus":
-        from adaptive_cal.hardware.modbus import ModbusProbe
+        from adaptive_cal.hardware.modbus.adapter import ModbusProbe
 
         return ModbusProbe(links["probe"])
     raise AdapterError(f"probe.adapter={p.adapter!r} needs robot.adapter 'sim' (the simulated "
@@ -110,7 +110,7 @@ def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
                            sleep=lambda s: None)
         return OpenCell(cycle, lambda: sim.t_s, sim.close, sim)
     if "manual" in (cell.robot.adapter, p.adapter) and manual is None:
-        from adaptive_cal.hardware.manual import ManualCell
+        from adaptive_cal.hardware.manual.adapter import ManualCell
 
         m = cell.robot.manual
         manual = ManualCell(prompt=m.prompt if m else "", attempts=m.attempts if m else 3,

@@ -13,7 +13,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from adaptive_cal.hardware.schema import Strict
+from adaptive_cal.hardware.config import Strict
 from adaptive_cal.cell.schema import Cell, ConfigError, Rect, load_yaml, parse_cell, validate
 
 STRATEGIES = ("adaptive", "greedy_fixed", "paper", "grid", "random")

@@ -93,7 +93,7 @@ def start_emulator(cell: Cell, *, ephemeral: bool = False, move_s: float = 0.02)
                 raise AdapterError(f"probe.serial.port={p.serial.port!r}: the emulator serves "
                                    "a gauge on socket://127.0.0.1:PORT only")
             host = _loopback(url.hostname or "", "probe.serial.port")
-            emu.gauge = GaugeServer(p.serial, lambda: emu.robot.read().value_mm, host,
+            emu.gauge = GaugeServer(p.serial, lambda: emu.robot.read().reading_mm, host,
                                     0 if ephemeral else url.port).start()
     except BaseException:
         emu.close()

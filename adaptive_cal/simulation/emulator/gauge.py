@@ -11,19 +11,19 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from adaptive_cal.hardware.serial_probe import PRESETS, unescape
-from adaptive_cal.hardware.schema import SerialConfig
+from adaptive_cal.hardware.serial.adapter import PRESETS, unescape
+from adaptive_cal.hardware.serial.config import SerialConfig
 
 
-def answer_line(preset: str, value_mm: float, scale: float = 1.0) -> bytes:
-    """The line a gauge of ``preset`` sends for ``value_mm``."""
+def answer_line(preset: str, reading_mm: float, scale: float = 1.0) -> bytes:
+    """The line a gauge of ``preset`` sends for ``reading_mm``."""
     if preset == "mitutoyo":
-        return f"01A{value_mm:+010.4f}\r".encode()
+        return f"01A{reading_mm:+010.4f}\r".encode()
     if preset == "sylvac":
-        return f"{value_mm:+.4f}\r".encode()
+        return f"{reading_mm:+.4f}\r".encode()
     if preset == "keyence":
-        return f"M0,{value_mm:+08.4f},+000.0000\r\n".encode()
-    return f"{value_mm / scale:+.5f}\r\n".encode()
+        return f"M0,{reading_mm:+08.4f},+000.0000\r\n".encode()
+    return f"{reading_mm / scale:+.5f}\r\n".encode()
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """An emulated Yaskawa controller speaking HSES on UDP, backed by an EmulatedRobot.
 
 It answers status (0x72), position (0x75), servo (0x83), alarm reset (0x82) and linear moves
-(0x8A) with the packet layout of ``adapters.hses_protocol``; anything else gets status 0x08
+(0x8A) with the packet layout of ``hardware.hses.protocol``; anything else gets status 0x08
 (command not defined). Faults for tests are set on ``faults``.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ import struct
 import threading
 from dataclasses import dataclass
 
-from adaptive_cal.hardware import hses_protocol as P
+from adaptive_cal.hardware.hses import protocol as P
 from adaptive_cal.simulation.emulator.robot import EmulatedRobot
 
 log = logging.getLogger(__name__)

@@ -1,5 +1,5 @@
 """An emulated PLC: a real pymodbus ``ModbusTcpServer`` whose register map is the cell file's,
-with a scan loop (every ``scan_s``) that runs the handshake of ``adapters.modbus`` against an
+with a scan loop (every ``scan_s``) that runs the handshake of ``hardware.modbus.adapter`` against an
 EmulatedRobot: start -> move -> done, probe_trigger -> probe_value/probe_count, watchdog ->
 fault. Runs its asyncio loop in a background thread.
 """
@@ -14,8 +14,8 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from adaptive_cal.hardware.modbus_map import check_map
-from adaptive_cal.hardware.schema import ModbusConfig
+from adaptive_cal.hardware.modbus.registers import check_map
+from adaptive_cal.hardware.modbus.config import ModbusConfig
 from adaptive_cal.simulation.emulator.robot import EmulatedRobot
 
 log = logging.getLogger(__name__)
@@ -96,14 +96,14 @@ class PlcServer:
         a, start, regs = self._mem(role)
         regs[a.address - start:a.address - start + len(words)] = words
 
-    def value_mm(self, role: str) -> float:
+    def read_mm(self, role: str) -> float:
         c, w = self.cfg, self.words_of(role, self.words)
         if c.number == "int16":
             return (w[0] - 65536 if w[0] > 32767 else w[0]) / c.scale
         dt = DT.FLOAT32 if c.number == "float32" else DT.INT32
         return float(ModbusTcpClient.convert_from_registers(w, dt, word_order=c.word_order)) / c.scale
 
-    def set_value_mm(self, role: str, mm: float) -> None:
+    def write_mm(self, role: str, mm: float) -> None:
         c = self.cfg
         if c.number == "float32":
             w = ModbusTcpClient.convert_to_registers(mm * c.scale, DT.FLOAT32, word_order=c.word_order)
@@ -142,7 +142,7 @@ class PlcServer:
                 self.faults.fault_on_move -= 1
                 self.set_bit("fault", True)
                 return
-            xyz = [self.value_mm(r) for r in ("target_x", "target_y", "target_z")]
+            xyz = [self.read_mm(r) for r in ("target_x", "target_y", "target_z")]
             self.robot.command(*xyz)
             self.busy = True
         if self.bit("probe_trigger"):
@@ -150,7 +150,7 @@ class PlcServer:
             if self.faults.probe_silent > 0:
                 self.faults.probe_silent -= 1
                 return
-            self.set_value_mm("probe_value", self.robot.read().value_mm)
+            self.write_mm("probe_value", self.robot.read().reading_mm)
             count = self.words_of("probe_count", 1)[0]
             self.set_words("probe_count", [(count + 1) & 0xFFFF])
 

@@ -13,9 +13,9 @@ import socket
 import struct
 import time
 
-from adaptive_cal.hardware import hses_protocol as P
+from adaptive_cal.hardware.hses import protocol as P
 from adaptive_cal.hardware.base import AdapterError
-from adaptive_cal.hardware.schema import HsesConfig
+from adaptive_cal.hardware.hses.config import HsesConfig
 
 log = logging.getLogger(__name__)
 

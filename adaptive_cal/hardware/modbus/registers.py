@@ -12,6 +12,8 @@ from typing import NamedTuple
 
 TABLES = ("coil", "di", "hr", "ir")  # coils, discrete inputs, holding and input registers
 BIT_TABLES = ("coil", "di")
+FLAG_ROLES = ("start", "done", "fault", "probe_trigger")  # bits; the others are words
+WRITTEN_FLAGS = ("start", "probe_trigger")  # bits the PC writes
 
 
 class Address(NamedTuple):
@@ -66,8 +68,6 @@ def check_map(roles: dict[str, str], value_words: int) -> dict[str, Address]:
 
     Values (targets, probe value) span ``value_words`` registers; counters and the watchdog one.
     """
-    from adaptive_cal.hardware.schema import FLAG_ROLES, WRITTEN_FLAGS
-
     out: dict[str, Address] = {}
     spans: list[tuple[str, str, int, int]] = []
     for role, name in roles.items():

@@ -22,7 +22,7 @@ import struct
 import warnings
 
 from adaptive_cal.hardware.base import AdapterError
-from adaptive_cal.hardware.schema import RobodkConfig
+from adaptive_cal.hardware.robodk.config import RobodkConfig
 
 log = logging.getLogger(__name__)
 

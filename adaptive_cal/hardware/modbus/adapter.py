@@ -21,8 +21,8 @@ from pymodbus.exceptions import ModbusException
 from pymodbus.framer import FramerType
 
 from adaptive_cal.hardware.base import AdapterError, BadSample, Sample
-from adaptive_cal.hardware.modbus_map import check_map
-from adaptive_cal.hardware.schema import ModbusConfig
+from adaptive_cal.hardware.modbus.registers import check_map
+from adaptive_cal.hardware.modbus.config import ModbusConfig
 
 log = logging.getLogger(__name__)
 DT = ModbusTcpClient.DATATYPE

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import serial
 
 from adaptive_cal.hardware.base import AdapterError, BadSample, Sample
-from adaptive_cal.hardware.schema import SerialConfig
+from adaptive_cal.hardware.serial.config import SerialConfig
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,104 @@
+"""Flatness of a recording with 95 % intervals: the figures of the touched points, and their spread
+over predicted repeat measurements at the same touches.
+
+Values are the figures of the heights themselves (``analysis.flatness``: the paper's least-squares
+plane, eqs. 1-6 of Cheng et al., range, ISO 1101 minimum zone), so they compare with published
+numbers. The interval comes from the belief fitted to the recording,
+
+    z* = B m* + e*,   m* ~ N(mean, C | heights),   e* ~ N(0, sigma^2 I),
+
+with B the spline rows of the touches and sigma the learned reading noise: the figures of S such
+repeats give the 95 % interval, and two rounds whose intervals separate really differ.
+The prior is built here from explicit numbers (a plane with a wide tilt and offset plus a smooth
+form), not from a cell file: a recording carries no cell.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.formats.recording import Recording, read_recording, surface_height_mm
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.gaussian.prior import Hyper, PriorModel, fit_hyper
+from adaptive_cal.gaussian.spline import Surface, default_knots
+
+NAMES = ("least_squares", "range", "minimum_zone")  # the figures given with an interval
+
+
+class TouchPrior(NamedTuple):
+    """The prior of a recording's surface, in numbers (defaults: those the cell file uses, with a
+    wider tilt and offset because nothing is known about the plate's level)."""
+
+    tilt_std_deg: float = 5.0
+    offset_std_mm: float = 10.0
+    noise_std_mm: float = 0.01  # first guess; learned from the heights
+    form_std_mm: float = 0.05  # first guess; learned
+    form_tolerance_mm: float = 0.1  # knot spacing by Brunn eq. 15
+    max_curvature_per_mm: float = 5e-5
+
+
+def heights(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, height) of the fused touches, mm: height = reading - probe zero + z (the one
+    conversion, ``surface_height_mm``), with the recording's ``probe_zero_mm`` metadata, else 0."""
+    f = rec.fused
+    zero_mm = float(rec.meta.get("probe_zero_mm", 0.0))
+    return rec.x_mm[f], rec.y_mm[f], surface_height_mm(rec.reading_mm[f], rec.z_mm[f], zero_mm)
+
+
+def _padded(v: np.ndarray) -> tuple[float, float]:
+    """[min, max] of the positions widened by half the smallest step (10 mm for one position)."""
+    u = np.unique(v)
+    pad = 0.5 * float(np.min(np.diff(u))) if len(u) > 1 else 10.0
+    return float(u[0] - pad), float(u[-1] + pad)
+
+
+def touch_prior(x_mm, y_mm, prior: TouchPrior = TouchPrior()) -> PriorModel:
+    """The spline prior over the touches' bounding box (plus half a grid step on each side):
+    knots by Brunn eq. 15, not-a-knot ends, tilt + form covariance with ``prior``'s numbers."""
+    (x0, x1), (y0, y1) = _padded(np.asarray(x_mm, float)), _padded(np.asarray(y_mm, float))
+    knots = [default_knots(lo, hi, prior.form_tolerance_mm, prior.max_curvature_per_mm)
+             for lo, hi in ((x0, x1), (y0, y1))]
+    span = min(x1 - x0, y1 - y0)
+    hyper0 = Hyper(prior.form_std_mm, 0.5 * span, prior.noise_std_mm)
+    return PriorModel(Surface.create(*knots, ends="not_a_knot"),
+                      float(np.tan(np.radians(prior.tilt_std_deg))), prior.offset_std_mm,
+                      (0.5 * (x0 + x1), 0.5 * (y0 + y1)), hyper0)
+
+
+def repeat_samples(x, y, z, rng: np.random.Generator, n: int,
+                   prior: TouchPrior = TouchPrior()) -> tuple[dict, dict]:
+    """Figures of ``n`` predicted repeat measurements at the same touches (see module docstring),
+    and the learned hyper-parameters."""
+    model = touch_prior(x, y, prior)
+    rows = model.surface.basis(x, y)
+    hyper = fit_hyper(model, rows, z)
+    post = bl.condition(model.belief(hyper), rows, z, hyper.noise_std_mm**2)
+    draws = bl.sample(post, rng, n) @ rows.T
+    draws = draws + hyper.noise_std_mm * rng.standard_normal(draws.shape)
+    return fl.sampled_figures(x, y, draws), dict(hyper._asdict())
+
+
+def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, dict]:
+    """Tilt, flatness figures with 95 % intervals and average ranges of one recording (JSON-ready),
+    and the sampled figures (for ``compare``)."""
+    rec = read_recording(path)
+    x, y, z = heights(rec)
+    if len(z) < 4:
+        raise ValueError(f"{path}: {len(z)} usable touches; flatness needs at least 4")
+    values = fl.figures(x, y, z)
+    sampled, hyper = repeat_samples(x, y, z, rng, n)
+    rx, ry = fl.average_ranges_mm(x, y, z)
+    out = {"recording": str(path), "touches": int(len(z)),
+           "tilt": fl.plane_tilt(x, y, z),
+           "flatness_mm": fl.interval_figures({k: values[k] for k in NAMES},
+                                              {k: sampled[k] for k in NAMES}),
+           "average_range_mm": {"x": rx, "y": ry},
+           "noise_std_mm": hyper["noise_std_mm"], "hyper": hyper}
+    return out, sampled
+
+
+def compare(sampled_a: dict, sampled_b: dict) -> dict:
+    """P(later > earlier) and the 95 % interval of the change, per figure of NAMES."""
+    return fl.compare_rounds({k: sampled_a[k] for k in NAMES}, {k: sampled_b[k] for k in NAMES})

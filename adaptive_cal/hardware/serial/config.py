@@ -1,0 +1,55 @@
+"""The ``probe.serial`` block: a digital indicator on a serial port or a pyserial URL."""
+from __future__ import annotations
+
+import re
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from adaptive_cal.hardware.config import Strict, check_baud
+
+
+PRESETS = ("mitutoyo", "sylvac", "keyence", "custom")
+
+
+class SerialConfig(Strict):
+    """A digital indicator on a serial port (a device path or a pyserial URL like
+    ``socket://127.0.0.1:5020``). Preset values fill what is not given."""
+
+    port: str
+    preset: Literal["mitutoyo", "sylvac", "keyence", "custom"] = "mitutoyo"
+    baudrate: int | None = None
+    bytesize: Literal[7, 8] | None = None
+    parity: Literal["N", "E", "O"] | None = None
+    stopbits: Literal[1, 2] | None = None
+    request: str | None = Field(None, description="bytes sent per sample; \\r \\n escapes")
+    pattern: str | None = Field(None, description="regex; group 'value' or group 1 is the number")
+    scale: float = Field(1.0, description="mm per unit of the parsed number")
+    timeout_s: float = Field(1.0, gt=0)
+    dtr: bool | None = None
+    rts: bool | None = None
+    range_mm: tuple[float, float] | None = Field(None, description="values outside are rejected")
+
+    @field_validator("baudrate")
+    @classmethod
+    def _check_baud(cls, v):
+        return check_baud(v)
+
+    @field_validator("pattern")
+    @classmethod
+    def _pattern(cls, v):
+        if v is None:
+            return v
+        try:
+            rx = re.compile(v)
+        except re.error as e:
+            raise ValueError(f"pattern {v!r} is not a regular expression: {e}") from None
+        if rx.groups < 1:
+            raise ValueError(f"pattern {v!r} needs a group around the number, e.g. ([-+]?[0-9.]+)")
+        return v
+
+    @model_validator(mode="after")
+    def _custom(self):
+        if self.preset == "custom" and self.pattern is None:
+            raise ValueError("preset 'custom' needs a pattern (and usually request and scale)")
+        return self
