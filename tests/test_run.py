@@ -10,23 +10,27 @@ import time
 import numpy as np
 import pytest
 
+from adaptive_cal.cell.build import survey_plan
+from adaptive_cal.cell.schema import load_yaml
+from adaptive_cal.cli import main
+from adaptive_cal.formats.recording import RecordingError, read_recording
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.ask import ask
 from adaptive_cal.run import session
 from adaptive_cal.run.devices import open_cell
-from adaptive_cal.cli import main
-from adaptive_cal.cell.schema import load_yaml
-from adaptive_cal.planning.survey import Mapper
-from adaptive_cal.formats.recording import RecordingError, read_recording
 
 from helpers import SIM_CELL, drive, sim_cell
 
 
 def test_no_bound_stops_before_as_many_touches_as_coefficients_unless_told():
     cell = sim_cell()
-    m = drive(Mapper.create(cell), open_cell(cell))
-    assert m.stop_reason() == "mean_std_bound" and m.touches >= m.model.surface.size
+    plan = survey_plan(cell)
+    m = drive(plan, open_cell(cell))
+    assert sv.stop_reason(plan, m) == "mean_std_bound" and m.touches >= plan.model.surface.size
     early = sim_cell(plan={"stop": {"mean_std_mm": 0.004, "max_touches": 120, "min_touches": 0}})
-    m0 = drive(Mapper.create(early), open_cell(early))
-    assert m0.stop_reason() == "mean_std_bound" and m0.touches < m.model.surface.size
+    plan0 = survey_plan(early)
+    m0 = drive(plan0, open_cell(early))
+    assert sv.stop_reason(plan0, m0) == "mean_std_bound" and m0.touches < plan.model.surface.size
 
 
 def test_cli_run_stops_at_the_bound_and_writes_everything(tmp_path, capsys):
@@ -52,10 +56,11 @@ def test_cli_run_stops_at_the_bound_and_writes_everything(tmp_path, capsys):
 
 def test_no_reading_lands_outside_the_stroke_and_first_touches_wait_for_the_belief(tmp_path):
     cell = sim_cell()
-    m = Mapper.create(cell)
-    t0 = m.ask()[0]
+    plan = survey_plan(cell)
+    m = sv.start(plan)
+    t0 = ask(plan, m)[0]
     assert t0.predicted_std_mm * 4.89 <= 4.5  # the first touch is one the stroke can promise
-    drive(m, open_cell(cell))
+    drive(plan, open_cell(cell), state=m)
     rec_dir = tmp_path / "r"
     session.run(cell, rec_dir, progress=False)
     rec = read_recording(rec_dir / "recording.csv")
@@ -203,8 +208,9 @@ def test_worst_point_criterion_beats_integrated_variance_on_a_max_bound():
                         plan={"stop": {"mean_std_mm": None, "max_std_mm": 0.006, "max_touches": 300,
                                        "min_touches": 0},  # compare the criteria, not the guard
                               "criterion": crit, "candidates": 4000})
-        m = drive(Mapper.create(cell), open_cell(cell))
-        assert m.stop_reason() == "max_std_bound"
+        plan = survey_plan(cell)
+        m = drive(plan, open_cell(cell))
+        assert sv.stop_reason(plan, m) == "max_std_bound"
         touches[crit] = m.touches
     assert touches["max"] < 0.8 * touches["integrated"]
 
@@ -213,12 +219,14 @@ def test_batch_mode_plans_k_touches_ordered_for_travel():
     from adaptive_cal.planning.route import path_length_mm, travel_order
 
     cell = sim_cell(plan={"batch": 6})
-    m = Mapper.create(cell)
+    plan = survey_plan(cell)
+    m = sv.start(plan)
     drive_some = open_cell(cell)
-    while len(m.heights) < 4 or m.ask(1)[0].retake:  # learn the tilt: all points in the stroke
-        t = m.ask(1)[0]
-        m.tell(t.x_mm, t.y_mm, t.z_mm, drive_some.cycle.touch(t.x_mm, t.y_mm, t.z_mm).reading_mm)
-    batch = m.ask(from_xy=(0.0, 0.0))
+    while m.fused < 4 or ask(plan, m, 1)[0].retake:  # learn the tilt: all points in the stroke
+        t = ask(plan, m, 1)[0]
+        m, _ = sv.tell(plan, m, t.x_mm, t.y_mm, t.z_mm,
+                       drive_some.cycle.touch(t.x_mm, t.y_mm, t.z_mm).reading_mm)
+    batch = ask(plan, m, from_xy=(0.0, 0.0))
     assert len(batch) == 6
     pts = np.array([[t.x_mm, t.y_mm] for t in batch])
     assert path_length_mm((0, 0), pts) <= path_length_mm((0, 0), pts[::-1]) + 1e-9 or \

@@ -16,7 +16,7 @@ import numpy as np
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.analysis import flatness as fl
 from adaptive_cal.cell.schema import parse_cell
-from adaptive_cal.planning.survey import prior_model
+from adaptive_cal.cell.build import prior_model
 from adaptive_cal.gaussian.prior import fit_hyper
 from adaptive_cal.formats.recording import Recording, read_recording
 
