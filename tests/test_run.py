@@ -284,3 +284,101 @@ def test_flatness_command_reproduces_the_paper_with_intervals(cheng_round0, caps
     assert ls["ci95"][0] < ls["value"] < ls["ci95"][1]
     assert set(out["flatness_mm"]) == {"least_squares", "range", "minimum_zone"}
     assert out["tilt"]["ry_deg"] == pytest.approx(-0.80, abs=0.01)
+
+
+class _Rows:
+    """A recording stand-in for the loop: keeps each row and what the state held when it came."""
+
+    def __init__(self):
+        self.rows, self.loop = [], None
+
+    def __call__(self, row):
+        self.rows.append(row)
+        state = self.loop.state
+        assert state.touches == row.seq  # not yet counted: the row is written first
+        assert state.fused == len([r for r in self.rows[:-1] if "gated" not in r.flags
+                                   and "rejected" not in r.flags])
+
+
+def test_the_loop_writes_each_reading_before_it_is_fused_and_loses_none_at_a_refit(monkeypatch):
+    """Issue 16, defect 1: a kill during the fusion (here: the refit of the 9th reading raises)
+    leaves the reading in the recording; a failed write leaves it out of the belief."""
+    from adaptive_cal.run import loop as lp
+
+    cell = sim_cell()
+    plan = survey_plan(cell)
+    rows = _Rows()
+    real_fuse = sv.fuse
+
+    def dies_at_the_refit(plan_, state, told):
+        if state.fused + told.fused == plan.hyper_after + 1:
+            raise KeyboardInterrupt("killed during the refit")
+        return real_fuse(plan_, state, told)
+
+    monkeypatch.setattr(lp.sv, "fuse", dies_at_the_refit)
+    loop = lp.SurveyLoop(plan, sv.start(plan), open_cell(cell).cycle, record=rows)
+    rows.loop = loop
+    with pytest.raises(KeyboardInterrupt):
+        loop.run()
+    assert len(rows.rows) == loop.state.touches + 1  # the last reading is written, not fused
+    assert loop.state.fused == plan.hyper_after
+
+    monkeypatch.setattr(lp.sv, "fuse", real_fuse)
+
+    def write_fails(row):
+        raise OSError("disk full")
+
+    loop = lp.SurveyLoop(plan, sv.start(plan), open_cell(cell).cycle, record=write_fails)
+    with pytest.raises(OSError):
+        loop.run()
+    assert loop.state.touches == 0 and loop.state.fused == 0  # never fused what was not written
+
+
+def test_a_rejected_touch_keeps_its_real_position_and_is_never_fused():
+    from adaptive_cal.hardware.base import TouchRejected
+    from adaptive_cal.run.loop import SurveyLoop
+
+    class _RejectsThird:
+        def __init__(self, cycle):
+            self.cycle, self.motion, self.clock, self.count = cycle, cycle.motion, cycle.clock, 0
+
+        def touch(self, x, y, z):
+            self.count += 1
+            if self.count == 3:
+                raise TouchRejected("stroke end", 9.9, ("rejected", "stroke_end"))
+            return self.cycle.touch(x, y, z)
+
+    cell = sim_cell()
+    plan = survey_plan(cell)
+    rows, steps = [], []
+    loop = SurveyLoop(plan, sv.start(plan), _RejectsThird(open_cell(cell).cycle),
+                      record=rows.append, hooks=(steps.append,),
+                      stop=lambda state, status: "enough" if state.touches >= 5 else None)
+    assert loop.run() == "enough"
+    third = steps[2]
+    assert third.told is None and third.rejected is not None
+    assert loop.state.touched_xy_mm[2] == (third.target.x_mm, third.target.y_mm)
+    assert np.all(np.isfinite(loop.state.touched_xy_mm))
+    assert rows[2].flags == ("rejected", "stroke_end") and rows[2].reading_mm == 9.9
+    kept = [r for r in rows if "gated" not in r.flags and "rejected" not in r.flags]
+    assert loop.state.touches == 5 and loop.state.fused == len(kept) <= 4
+    assert [r.seq for r in rows] == list(range(5))
+
+
+def test_the_survey_shell_equals_the_pure_functions():
+    """Survey (the notebook shell) and sv.tell on the same readings give the same state."""
+    from adaptive_cal.planning.shell import Survey
+
+    cell = sim_cell()
+    plan = survey_plan(cell)
+    shell, state, cycle = Survey(plan), sv.start(plan), open_cell(cell).cycle
+    for _ in range(10):
+        t = shell.ask()[0]
+        assert ask(plan, state)[0] == t
+        reading = cycle.touch(t.x_mm, t.y_mm, t.z_mm).reading_mm
+        told = shell.tell(t.x_mm, t.y_mm, t.z_mm, reading)
+        state, told2 = sv.tell(plan, state, t.x_mm, t.y_mm, t.z_mm, reading)
+        assert told == told2
+    np.testing.assert_array_equal(shell.belief.mean, state.belief.mean)
+    assert shell.touches == state.touches == 10 and len(shell.history) == 11
+    assert shell.stop_reason() == sv.stop_reason(plan, state)
