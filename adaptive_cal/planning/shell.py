@@ -58,14 +58,17 @@ class Survey:
 
     @property
     def belief(self) -> bl.Belief:
+        """The current belief over the spline coefficients."""
         return self.state.belief
 
     @property
     def hyper(self) -> Hyper:
+        """The hyper-parameters the next fusion uses."""
         return self.state.hyper
 
     @property
     def touches(self) -> int:
+        """Touches made, fused or not."""
         return self.state.touches
 
     @property

@@ -38,6 +38,8 @@ class NoAdmissiblePoint(AdapterError):
 
 @dataclass(frozen=True)
 class RunPaths:
+    """The files of a run's output folder."""
+
     out: Path
 
     @property
