@@ -18,10 +18,15 @@ def sim_cell(**sections):
     return parse_cell(data, "test cell")
 
 
-def drive(mapper, opened, limit=500):
-    """Run the ask/tell loop on a simulated cell until a stopping rule fires."""
-    while not mapper.stop_reason() and mapper.touches < limit:
-        t = mapper.ask()[0]
-        touch = opened.cycle.touch(t.x_mm, t.y_mm, t.z_mm)
-        mapper.tell(t.x_mm, t.y_mm, t.z_mm, touch.reading_mm)
-    return mapper
+def drive(plan, opened, limit=500, state=None):
+    """The product's loop (``run.loop``) on a simulated cell until the survey's stopping rule
+    fires or ``limit`` touches were made; returns the final survey state."""
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.run.loop import run_loop
+
+    def stop(state, status):
+        return plan.stop(status) or ("limit" if state.touches >= limit else None)
+
+    state, _ = run_loop(plan, state if state is not None else sv.start(plan), opened.cycle,
+                        stop=stop)
+    return state

@@ -6,9 +6,11 @@ map errors are spatially correlated)."""
 import numpy as np
 import pytest
 
-from adaptive_cal.run.devices import open_cell
+from adaptive_cal.cell.build import survey_plan
 from adaptive_cal.cell.schema import load_yaml, parse_cell
-from adaptive_cal.planning.survey import Mapper
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.run.truth import truth_error
 
 from helpers import SIM_CELL, drive
 
@@ -34,10 +36,11 @@ def _run_to_bound(cells):
     coverage, touches = [], []
     for i, cell in enumerate(cells):
         opened = open_cell(cell)
-        m = drive(Mapper.create(cell), opened)
-        assert m.stop_reason() == "mean_std_bound", i
-        coverage.append(m.truth_error(opened.simulated.surface_mm)["coverage95"])
-        touches.append(m.touches)
+        plan = survey_plan(cell)
+        state = drive(plan, opened)
+        assert sv.stop_reason(plan, state) == "mean_std_bound", i
+        coverage.append(truth_error(plan, state.belief, opened.simulated.surface_mm)["coverage95"])
+        touches.append(state.touches)
     return coverage, touches
 
 
@@ -66,4 +69,4 @@ def test_bands_cover_with_the_datasheet_noise_range_and_no_touch_floor():
     print(f"coverage95 mean {np.mean(coverage):.3f} (min {np.min(coverage):.3f}); "
           f"touches mean {np.mean(touches):.1f}, fewest {min(touches)}")
     assert 0.90 <= np.mean(coverage) <= 0.99
-    assert min(touches) < Mapper.create(cells[0]).model.surface.size
+    assert min(touches) < survey_plan(cells[0]).model.surface.size

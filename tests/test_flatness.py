@@ -245,7 +245,7 @@ def test_touch_prior_is_the_cell_files_prior_in_numbers():
     from adaptive_cal.analysis.flatness_intervals import TouchPrior, touch_prior
     from adaptive_cal.cell.schema import parse_cell
     from adaptive_cal.gaussian.prior import Hyper
-    from adaptive_cal.planning.survey import prior_model
+    from adaptive_cal.cell.build import prior_model
 
     x, y = _grid()
     ours = touch_prior(x, y)

@@ -89,3 +89,15 @@ def test_stopping_rules_compose():
     assert (stopping.MeanStdBelow(0.004) & stopping.MaxStdBelow(0.01))(s) is None
     assert (stopping.MeanStdBelow(0.004) & stopping.MaxStdBelow(0.03))(s) == "mean_std_bound"
     assert stopping.MaxStdBelow(0.01)(s) is None
+
+
+def test_survey_module_example_runs_as_a_doctest(monkeypatch):
+    """The survey module's docstring example (start, ask, tell, stop_reason) runs as written."""
+    import doctest
+    from pathlib import Path
+
+    from adaptive_cal.planning import survey
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])  # the example reads configs/
+    result = doctest.testmod(survey, raise_on_error=False, verbose=False)
+    assert result.attempted >= 10 and result.failed == 0

@@ -94,7 +94,7 @@ def test_a_noise_range_keeps_the_learned_noise_from_collapsing_on_few_readings()
 
 def test_probe_noise_range_sets_the_noise_prior_and_lifts_the_touch_floor():
     from adaptive_cal.cell.schema import ConfigError, load_yaml, parse_cell
-    from adaptive_cal.planning.survey import prior_model, stop_rule
+    from adaptive_cal.cell.build import prior_model, stop_rule
     from adaptive_cal.planning.stopping import Status
 
     from conftest import ROOT

@@ -10,23 +10,27 @@ import time
 import numpy as np
 import pytest
 
+from adaptive_cal.cell.build import survey_plan
+from adaptive_cal.cell.schema import load_yaml
+from adaptive_cal.cli import main
+from adaptive_cal.formats.recording import RecordingError, read_recording
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.ask import ask
 from adaptive_cal.run import session
 from adaptive_cal.run.devices import open_cell
-from adaptive_cal.cli import main
-from adaptive_cal.cell.schema import load_yaml
-from adaptive_cal.planning.survey import Mapper
-from adaptive_cal.formats.recording import RecordingError, read_recording
 
 from helpers import SIM_CELL, drive, sim_cell
 
 
 def test_no_bound_stops_before_as_many_touches_as_coefficients_unless_told():
     cell = sim_cell()
-    m = drive(Mapper.create(cell), open_cell(cell))
-    assert m.stop_reason() == "mean_std_bound" and m.touches >= m.model.surface.size
+    plan = survey_plan(cell)
+    m = drive(plan, open_cell(cell))
+    assert sv.stop_reason(plan, m) == "mean_std_bound" and m.touches >= plan.model.surface.size
     early = sim_cell(plan={"stop": {"mean_std_mm": 0.004, "max_touches": 120, "min_touches": 0}})
-    m0 = drive(Mapper.create(early), open_cell(early))
-    assert m0.stop_reason() == "mean_std_bound" and m0.touches < m.model.surface.size
+    plan0 = survey_plan(early)
+    m0 = drive(plan0, open_cell(early))
+    assert sv.stop_reason(plan0, m0) == "mean_std_bound" and m0.touches < plan.model.surface.size
 
 
 def test_cli_run_stops_at_the_bound_and_writes_everything(tmp_path, capsys):
@@ -52,10 +56,11 @@ def test_cli_run_stops_at_the_bound_and_writes_everything(tmp_path, capsys):
 
 def test_no_reading_lands_outside_the_stroke_and_first_touches_wait_for_the_belief(tmp_path):
     cell = sim_cell()
-    m = Mapper.create(cell)
-    t0 = m.ask()[0]
+    plan = survey_plan(cell)
+    m = sv.start(plan)
+    t0 = ask(plan, m)[0]
     assert t0.predicted_std_mm * 4.89 <= 4.5  # the first touch is one the stroke can promise
-    drive(m, open_cell(cell))
+    drive(plan, open_cell(cell), state=m)
     rec_dir = tmp_path / "r"
     session.run(cell, rec_dir, progress=False)
     rec = read_recording(rec_dir / "recording.csv")
@@ -203,8 +208,9 @@ def test_worst_point_criterion_beats_integrated_variance_on_a_max_bound():
                         plan={"stop": {"mean_std_mm": None, "max_std_mm": 0.006, "max_touches": 300,
                                        "min_touches": 0},  # compare the criteria, not the guard
                               "criterion": crit, "candidates": 4000})
-        m = drive(Mapper.create(cell), open_cell(cell))
-        assert m.stop_reason() == "max_std_bound"
+        plan = survey_plan(cell)
+        m = drive(plan, open_cell(cell))
+        assert sv.stop_reason(plan, m) == "max_std_bound"
         touches[crit] = m.touches
     assert touches["max"] < 0.8 * touches["integrated"]
 
@@ -213,12 +219,14 @@ def test_batch_mode_plans_k_touches_ordered_for_travel():
     from adaptive_cal.planning.route import path_length_mm, travel_order
 
     cell = sim_cell(plan={"batch": 6})
-    m = Mapper.create(cell)
+    plan = survey_plan(cell)
+    m = sv.start(plan)
     drive_some = open_cell(cell)
-    while len(m.heights) < 4 or m.ask(1)[0].retake:  # learn the tilt: all points in the stroke
-        t = m.ask(1)[0]
-        m.tell(t.x_mm, t.y_mm, t.z_mm, drive_some.cycle.touch(t.x_mm, t.y_mm, t.z_mm).reading_mm)
-    batch = m.ask(from_xy=(0.0, 0.0))
+    while m.fused < 4 or ask(plan, m, 1)[0].retake:  # learn the tilt: all points in the stroke
+        t = ask(plan, m, 1)[0]
+        m, _ = sv.tell(plan, m, t.x_mm, t.y_mm, t.z_mm,
+                       drive_some.cycle.touch(t.x_mm, t.y_mm, t.z_mm).reading_mm)
+    batch = ask(plan, m, from_xy=(0.0, 0.0))
     assert len(batch) == 6
     pts = np.array([[t.x_mm, t.y_mm] for t in batch])
     assert path_length_mm((0, 0), pts) <= path_length_mm((0, 0), pts[::-1]) + 1e-9 or \
@@ -276,3 +284,101 @@ def test_flatness_command_reproduces_the_paper_with_intervals(cheng_round0, caps
     assert ls["ci95"][0] < ls["value"] < ls["ci95"][1]
     assert set(out["flatness_mm"]) == {"least_squares", "range", "minimum_zone"}
     assert out["tilt"]["ry_deg"] == pytest.approx(-0.80, abs=0.01)
+
+
+class _Rows:
+    """A recording stand-in for the loop: keeps each row and what the state held when it came."""
+
+    def __init__(self):
+        self.rows, self.loop = [], None
+
+    def __call__(self, row):
+        self.rows.append(row)
+        state = self.loop.state
+        assert state.touches == row.seq  # not yet counted: the row is written first
+        assert state.fused == len([r for r in self.rows[:-1] if "gated" not in r.flags
+                                   and "rejected" not in r.flags])
+
+
+def test_the_loop_writes_each_reading_before_it_is_fused_and_loses_none_at_a_refit(monkeypatch):
+    """Issue 16, defect 1: a kill during the fusion (here: the refit of the 9th reading raises)
+    leaves the reading in the recording; a failed write leaves it out of the belief."""
+    from adaptive_cal.run import loop as lp
+
+    cell = sim_cell()
+    plan = survey_plan(cell)
+    rows = _Rows()
+    real_fuse = sv.fuse
+
+    def dies_at_the_refit(plan_, state, told):
+        if state.fused + told.fused == plan.hyper_after + 1:
+            raise KeyboardInterrupt("killed during the refit")
+        return real_fuse(plan_, state, told)
+
+    monkeypatch.setattr(lp.sv, "fuse", dies_at_the_refit)
+    loop = lp.SurveyLoop(plan, sv.start(plan), open_cell(cell).cycle, record=rows)
+    rows.loop = loop
+    with pytest.raises(KeyboardInterrupt):
+        loop.run()
+    assert len(rows.rows) == loop.state.touches + 1  # the last reading is written, not fused
+    assert loop.state.fused == plan.hyper_after
+
+    monkeypatch.setattr(lp.sv, "fuse", real_fuse)
+
+    def write_fails(row):
+        raise OSError("disk full")
+
+    loop = lp.SurveyLoop(plan, sv.start(plan), open_cell(cell).cycle, record=write_fails)
+    with pytest.raises(OSError):
+        loop.run()
+    assert loop.state.touches == 0 and loop.state.fused == 0  # never fused what was not written
+
+
+def test_a_rejected_touch_keeps_its_real_position_and_is_never_fused():
+    from adaptive_cal.hardware.base import TouchRejected
+    from adaptive_cal.run.loop import SurveyLoop
+
+    class _RejectsThird:
+        def __init__(self, cycle):
+            self.cycle, self.motion, self.clock, self.count = cycle, cycle.motion, cycle.clock, 0
+
+        def touch(self, x, y, z):
+            self.count += 1
+            if self.count == 3:
+                raise TouchRejected("stroke end", 9.9, ("rejected", "stroke_end"))
+            return self.cycle.touch(x, y, z)
+
+    cell = sim_cell()
+    plan = survey_plan(cell)
+    rows, steps = [], []
+    loop = SurveyLoop(plan, sv.start(plan), _RejectsThird(open_cell(cell).cycle),
+                      record=rows.append, hooks=(steps.append,),
+                      stop=lambda state, status: "enough" if state.touches >= 5 else None)
+    assert loop.run() == "enough"
+    third = steps[2]
+    assert third.told is None and third.rejected is not None
+    assert loop.state.touched_xy_mm[2] == (third.target.x_mm, third.target.y_mm)
+    assert np.all(np.isfinite(loop.state.touched_xy_mm))
+    assert rows[2].flags == ("rejected", "stroke_end") and rows[2].reading_mm == 9.9
+    kept = [r for r in rows if "gated" not in r.flags and "rejected" not in r.flags]
+    assert loop.state.touches == 5 and loop.state.fused == len(kept) <= 4
+    assert [r.seq for r in rows] == list(range(5))
+
+
+def test_the_survey_shell_equals_the_pure_functions():
+    """Survey (the notebook shell) and sv.tell on the same readings give the same state."""
+    from adaptive_cal.planning.shell import Survey
+
+    cell = sim_cell()
+    plan = survey_plan(cell)
+    shell, state, cycle = Survey(plan), sv.start(plan), open_cell(cell).cycle
+    for _ in range(10):
+        t = shell.ask()[0]
+        assert ask(plan, state)[0] == t
+        reading = cycle.touch(t.x_mm, t.y_mm, t.z_mm).reading_mm
+        told = shell.tell(t.x_mm, t.y_mm, t.z_mm, reading)
+        state, told2 = sv.tell(plan, state, t.x_mm, t.y_mm, t.z_mm, reading)
+        assert told == told2
+    np.testing.assert_array_equal(shell.belief.mean, state.belief.mean)
+    assert shell.touches == state.touches == 10 and len(shell.history) == 11
+    assert shell.stop_reason() == sv.stop_reason(plan, state)

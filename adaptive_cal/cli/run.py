@@ -6,7 +6,6 @@ import sys
 from pathlib import Path
 
 from adaptive_cal.cli.common import UserError
-from adaptive_cal.cell.schema import load_cell
 
 
 def add_arguments(p) -> None:
@@ -23,6 +22,7 @@ def add_arguments(p) -> None:
 
 
 def command(args) -> int:
+    from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.run import session
 
     if args.dry_run:
@@ -83,11 +83,13 @@ def _summary(r: dict, out: Path) -> None:
 
 
 def _dry_run(cell) -> int:
-    from adaptive_cal.planning.survey import Mapper
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.planning.ask import ask
 
-    mapper = Mapper.create(cell)
+    plan = survey_plan(cell)
     n = min(cell.plan.stop.max_touches, 20)
-    targets = mapper.ask(n)
+    targets = ask(plan, sv.start(plan), n)
     print(f"dry run: the first {len(targets)} planned touches, in travel order; nothing moves.\n"
           "The plan adapts as readings arrive, and each approach height is set from the belief "
           "at that touch.")

@@ -1,6 +1,6 @@
 """What a run reports: tilt correction, posterior std, flatness with 95 % intervals, truth
 errors on a simulated cell, and the figures. Every figure with an interval is written as
-{"value": v, "ci95": [low, high]} in mm.
+{"value": v, "ci95": [low, high]} in mm. Randomness (the posterior samples) is passed in.
 """
 from __future__ import annotations
 
@@ -9,19 +9,23 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.analysis import flatness as fl
-from adaptive_cal.planning.survey import Mapper
+from adaptive_cal.cell.schema import Cell
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.run.truth import truth_error
 
 SAMPLES = 200
 
 
-def posterior_report(mapper: Mapper, rng: np.random.Generator, samples: int = SAMPLES) -> dict:
+def posterior_report(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generator,
+                     samples: int = SAMPLES) -> dict:
     """Tilt and flatness of the plate from the belief: value on the posterior mean surface,
     interval over surfaces sampled from the belief (evaluation grid over the whole plate)."""
-    xy, rows = mapper.eval_xy, mapper.eval_rows
-    mean, _ = bl.predict(mapper.belief, rows)
-    draws = bl.sample(mapper.belief, rng, samples) @ rows.T  # (S, N)
+    xy, rows = plan.eval_xy, plan.eval_rows
+    mean, _ = bl.predict(belief, rows)
+    draws = bl.sample(belief, rng, samples) @ rows.T  # (S, N)
     x, y = xy[:, 0], xy[:, 1]
     values = fl.figures(x, y, mean)
     names = ("least_squares", "range", "minimum_zone")
@@ -33,48 +37,52 @@ def posterior_report(mapper: Mapper, rng: np.random.Generator, samples: int = SA
     return {"tilt": tilt, "flatness_mm": flat}
 
 
-def write_results(mapper: Mapper, out: Path, stopped_because: str, truth=None,
+def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path,
+                  stopped_because: str, *, rng: np.random.Generator, history=None, truth=None,
                   true_rms_mm=None) -> dict:
-    """result.json, surface.png and convergence.png in ``out``; returns the result dict."""
+    """result.json, surface.png and convergence.png in ``out``; returns the result dict.
+    ``rng`` draws the posterior samples of the intervals; ``history``: the status before the
+    first touch and after each one (convergence figure)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    status = mapper.status()
+    status = sv.status(plan, state)
+    stop = cell.plan.stop
+    surface = plan.model.surface
     result = {
-        "touches": mapper.touches,
-        "fused": len(mapper.heights),
+        "touches": state.touches,
+        "fused": state.fused,
         "stopped_because": stopped_because,
-        "bound": {"mean_std_mm": mapper.cell.plan.stop.mean_std_mm,
-                  "max_std_mm": mapper.cell.plan.stop.max_std_mm,
-                  "max_touches": mapper.cell.plan.stop.max_touches},
+        "bound": {"mean_std_mm": stop.mean_std_mm, "max_std_mm": stop.max_std_mm,
+                  "max_touches": stop.max_touches},
         "posterior": {"mean_std_mm": status.mean_std_mm, "max_std_mm": status.max_std_mm,
                       "mean_std_is": "RMS posterior std over the whole plate"},
-        "hyper": dict(mapper.hyper._asdict()),
-        "knots_mm": {"x": mapper.model.surface.sx.knots.tolist(),
-                     "y": mapper.model.surface.sy.knots.tolist(),
-                     "ends": mapper.model.surface.sx.ends},
+        "hyper": dict(state.hyper._asdict()),
+        "knots_mm": {"x": surface.sx.knots.tolist(), "y": surface.sy.knots.tolist(),
+                     "ends": surface.sx.ends},
     }
-    result.update(posterior_report(mapper, np.random.default_rng(0)))
+    result.update(posterior_report(plan, state.belief, rng))
     if truth is not None:
-        result["truth"] = mapper.truth_error(truth)
+        result["truth"] = truth_error(plan, state.belief, truth)
     (out / "result.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
-    write_figures(mapper, out, true_rms_mm)
+    write_figures(cell, plan, state, out, history or [status], true_rms_mm)
     return result
 
 
-def write_figures(mapper: Mapper, out: Path, true_rms_mm=None) -> None:
+def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path, history,
+                  true_rms_mm=None) -> None:
     """surface.png (mean and std maps, touches numbered by seq) and convergence.png (std against
     touches; ``true_rms_mm`` per history entry when the truth is known)."""
     from adaptive_cal.report import figures as plots
 
-    wp = mapper.cell.workplane
-    gx, gy, mean, std = mapper.grid()
+    wp = cell.workplane
+    gx, gy, mean, std = sv.grid(plan, state.belief)
     keep = [(k.x_mm, k.y_mm) for k in wp.keep_outs]
-    touched = np.array(mapper.touched, float).reshape(-1, 2)  # numbered as in the recording
+    touched = np.array(state.touched_xy_mm, float).reshape(-1, 2)  # numbered as in the recording
     fig = plots.surface_figure(gx, gy, mean, std, touched, wp.x_mm, wp.y_mm,
-                               keep_outs=keep, title=mapper.cell.name)
+                               keep_outs=keep, title=cell.name)
     fig.savefig(out / "surface.png", dpi=110)
-    h = mapper.history
-    stop = mapper.cell.plan.stop
+    h = history
+    stop = cell.plan.stop
     fig = plots.convergence_figure(np.array([s.touches for s in h]),
                                    np.array([s.mean_std_mm for s in h]),
                                    np.array([s.max_std_mm for s in h]),
@@ -83,8 +91,8 @@ def write_figures(mapper: Mapper, out: Path, true_rms_mm=None) -> None:
     fig.savefig(out / "convergence.png", dpi=110)
 
 
-def save_belief(mapper: Mapper, path: Path) -> None:
+def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> None:
     """The belief and its spline, for ``--prior-from`` in a later run."""
-    s = mapper.model.surface
-    np.savez(path, mean=mapper.belief.mean, cov=mapper.belief.cov, knots_x=s.sx.knots,
-             knots_y=s.sy.knots, hyper=np.array(mapper.hyper))
+    s = plan.model.surface
+    np.savez(path, mean=state.belief.mean, cov=state.belief.cov, knots_x=s.sx.knots,
+             knots_y=s.sy.knots, hyper=np.array(state.hyper))

@@ -1,7 +1,8 @@
-"""The measurement loop: ask -> move/probe -> tell -> record -> stop. Resumable.
+"""A run on a cell: the loop (``run.loop``) with the recording, the progress bar, the truth
+and Ctrl-C as hooks, then results and figures. Resumable.
 
-Every reading that was taken is written (and fsynced) before anything else happens; a reading the
-probe cycle rejected is written too, flagged, and never fused. Ctrl-C stops after the current
+Every reading that was taken is written (and flushed) before it is fused; a reading the probe
+cycle rejected is written too, flagged, and never fused. Ctrl-C stops after the current
 touch (a second Ctrl-C stops at once; the probe cycle still retracts); the recording then holds
 every touch and ``--resume`` continues it: no touch repeated, none lost.
 """
@@ -15,14 +16,20 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.hardware.base import AdapterError, TouchRejected
-from adaptive_cal.run.devices import open_cell
+from adaptive_cal.cell.build import prior_model, survey_plan
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.planning.survey import Mapper
-from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.formats.recording import RecordingWriter, read_recording
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.gaussian.prior import Hyper
+from adaptive_cal.hardware.base import AdapterError
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, History, Row, SurveyLoop
 from adaptive_cal.run.results import save_belief, write_results
+from adaptive_cal.run.truth import TrueError
+
+RESULTS_SEED = 0  # the posterior samples behind result.json's intervals
 
 
 class NoAdmissiblePoint(AdapterError):
@@ -31,6 +38,8 @@ class NoAdmissiblePoint(AdapterError):
 
 @dataclass(frozen=True)
 class RunPaths:
+    """The files of a run's output folder."""
+
     out: Path
 
     @property
@@ -38,12 +47,11 @@ class RunPaths:
         return self.out / "recording.csv"
 
 
-def replay(mapper: Mapper, path: Path) -> tuple[int, float]:
-    """Rebuild the belief from a recording; returns the number of touches and the last time."""
+def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> tuple[sv.SurveyState, float]:
+    """The state after a recording's touches (from a fresh ``state``) and the last time (s)."""
     rec = read_recording(path)
-    mapper.replay(rec)
     t = rec.t_s[np.isfinite(rec.t_s)]
-    return len(rec), float(t[-1]) if len(t) else 0.0
+    return sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0
 
 
 def load_prior(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
@@ -56,8 +64,6 @@ def load_prior(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
         raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
     data = np.load(path)
     hyper = Hyper(*data["hyper"].tolist())
-    from adaptive_cal.planning.survey import prior_model
-
     model = prior_model(cell)
     if (len(data["knots_x"]) != len(model.surface.sx.knots)
             or not np.allclose(data["knots_x"], model.surface.sx.knots)
@@ -111,66 +117,65 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
     if resume and not paths.recording.exists():
         raise FileNotFoundError(f"{paths.recording}: nothing to resume")
     prior, hyper = load_prior(Path(prior_from), cell) if prior_from else (None, None)
-    mapper = Mapper.create(cell, prior=prior, hyper=hyper)
-    start_touch, start_t = replay(mapper, paths.recording) if resume else (0, 0.0)
-    extra = ("round",)
+    plan = survey_plan(cell, informed_prior=prior is not None)
+    state = sv.start(plan, prior=prior, hyper=hyper)
+    start_t = 0.0
+    if resume:
+        state, start_t = replay(plan, state, paths.recording)
+    start_touch = state.touches
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
-                                               "probe_zero_mm": str(cell.probe.zero_mm)}, extra)
+                                               "probe_zero_mm": str(cell.probe.zero_mm)}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
     truth = opened.simulated.surface_mm if opened.simulated is not None else None
-    stopped, seq, new = None, start_touch, 0
-    true_rms = [] if truth is None else [mapper.truth_error(truth)["rms_error_mm"]] * len(mapper.history)
+    history = History(sv.status(plan, state))
+    hooks = [history]
+    true_rms = TrueError(plan, state, truth) if truth is not None else None
+    if true_rms is not None:
+        hooks.append(true_rms)
     bar = _progress(progress, cell, start_touch)
-    error = None
-    try:
-        with _deferred_interrupt() as flag:
-            while True:
-                stopped = mapper.stop_reason()
-                if stopped:
-                    break
-                if flag["stop"] or (max_new_touches is not None and new >= max_new_touches):
-                    stopped = "interrupted"
-                    break
-                targets = mapper.ask(from_xy=opened.cycle.motion.position()[:2])
-                if not targets:
-                    raise NoAdmissiblePoint(
-                        "no allowed point can be promised to land inside the usable probe stroke "
-                        f"{list(cell.probe.usable_mm)} mm: the prior is too wide for the stroke. "
-                        "Level the plate first, or narrow model.offset_std_mm / tilt_std_deg")
-                for target in targets:
-                    try:
-                        touch = opened.cycle.touch(target.x_mm, target.y_mm, target.z_mm)
-                    except TouchRejected as e:
-                        writer.append(seq=seq, t_s=opened.clock(), x_mm=target.x_mm,
-                                      y_mm=target.y_mm, z_mm=target.z_mm,
-                                      reading_mm=e.reading_mm if math.isfinite(e.reading_mm) else 0.0,
-                                      flags=e.flags, round=0)
-                        mapper.skip(target.x_mm, target.y_mm)
-                    else:
-                        told = mapper.tell(touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
-                        writer.append(seq=seq, t_s=touch.t_s, x_mm=touch.x_mm, y_mm=touch.y_mm,
-                                      z_mm=touch.z_mm, reading_mm=touch.reading_mm,
-                                      flags=told.flags, round=0)
-                    seq += 1
-                    new += 1
-                    if truth is not None:
-                        true_rms.append(mapper.truth_error(truth)["rms_error_mm"])
-                    _update(bar, mapper)
-                    if mapper.retake_pending or flag["stop"]:
-                        break
-    except KeyboardInterrupt:
-        stopped = "interrupted"
-    except AdapterError as e:  # a device stopped the run: report what was measured, then raise
-        stopped, error = "interrupted", e
-    finally:
-        writer.close()
-        opened.close()
-        if bar is not None:
-            bar.close()
+    if bar is not None:
+        hooks.append(lambda step: _update(bar, cell, step.status))
+
+    def record(row: Row) -> None:
+        writer.append(seq=row.seq, t_s=row.t_s, x_mm=row.x_mm, y_mm=row.y_mm, z_mm=row.z_mm,
+                      reading_mm=row.reading_mm, flags=row.flags, round=0)
+
+    stopped, error = None, None
+    with _deferred_interrupt() as flag:
+        def stop(state, status):
+            why = plan.stop(status)
+            if why:
+                return why
+            new = state.touches - start_touch
+            if flag["stop"] or (max_new_touches is not None and new >= max_new_touches):
+                return "interrupted"
+            return None
+
+        loop = SurveyLoop(plan, state, opened.cycle, stop=stop, record=record, hooks=tuple(hooks),
+                          interrupt=lambda: flag["stop"])
+        try:
+            stopped = loop.run()
+            if stopped == NO_ADMISSIBLE_POINT:
+                stopped, error = "interrupted", NoAdmissiblePoint(
+                    "no allowed point can be promised to land inside the usable probe stroke "
+                    f"{list(cell.probe.usable_mm)} mm: the prior is too wide for the stroke. "
+                    "Level the plate first, or narrow model.offset_std_mm / tilt_std_deg")
+        except KeyboardInterrupt:
+            stopped = "interrupted"
+        except AdapterError as e:  # a device stopped the run: report what was measured, then raise
+            stopped, error = "interrupted", e
+        finally:
+            writer.close()
+            opened.close()
+            if bar is not None:
+                bar.close()
+    state = loop.state
     result = None
-    if error is None or mapper.touches:
-        result = write_results(mapper, paths.out, stopped or "interrupted", truth, true_rms or None)
-        save_belief(mapper, paths.out / "belief.npz")
+    if error is None or state.touches:
+        result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
+                               rng=np.random.default_rng(RESULTS_SEED), history=history.statuses,
+                               truth=truth, true_rms_mm=true_rms.rms_mm if true_rms else None)
+        save_belief(plan, state, paths.out / "belief.npz")
     if error is not None:
         raise error
     return result
@@ -185,10 +190,8 @@ def _progress(enabled: bool, cell: Cell, initial: int):
                 desc="touches", dynamic_ncols=True)
 
 
-def _update(bar, mapper: Mapper) -> None:
-    if bar is None:
-        return
-    s, stop = mapper.status(), mapper.cell.plan.stop
+def _update(bar, cell: Cell, s) -> None:
+    stop = cell.plan.stop
     post = {"mean_std": f"{s.mean_std_mm * 1e3:.1f}um"
             + (f"/{stop.mean_std_mm * 1e3:.1f}" if stop.mean_std_mm else ""),
             "max_std": f"{s.max_std_mm * 1e3:.1f}um"

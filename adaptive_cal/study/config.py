@@ -200,7 +200,7 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
 def noise_floor_mm(study: Study, cell: Cell) -> float:
     """Smallest RMS posterior std any design of bound.max_touches touches reaches at the largest
     noise of the distribution (relaxed optimal design, a lower bound)."""
-    from adaptive_cal.planning.survey import prior_model
+    from adaptive_cal.cell.build import prior_model
     from adaptive_cal.study.bound import design_problem, relaxed_integrated_variance
 
     model = prior_model(cell)

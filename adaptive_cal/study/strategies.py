@@ -17,13 +17,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.hardware.base import TouchRejected
-from adaptive_cal.run.devices import open_cell
+from adaptive_cal.cell.build import survey_plan
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.planning.survey import Mapper
-from adaptive_cal.planning.route import path_length_mm
+from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import PriorModel
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.planning.route import path_length_mm
+from adaptive_cal.planning.stopping import Status
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, run_loop
+from adaptive_cal.run.truth import truth_error
 from adaptive_cal.study.config import Study
 from adaptive_cal.study.designs import (Evaluator, grid_points, grid_sizes, learned_belief, level_tilt_mm,
                       paper_points, random_points)
@@ -44,10 +48,10 @@ class Context:
 
     @classmethod
     def create(cls, study: Study, plate: Plate, cell: Cell) -> "Context":
-        mapper = Mapper.create(cell)
-        ev = Evaluator(mapper.eval_rows, mapper.gram, mapper.model.surface.area_mm2)
-        t = truth(cell)(mapper.eval_xy[:, 0], mapper.eval_xy[:, 1])
-        return cls(study, plate, cell, mapper.model, ev, t, mapper.eval_xy)
+        plan = survey_plan(cell)
+        ev = Evaluator(plan.eval_rows, plan.gram, plan.model.surface.area_mm2)
+        t = truth(cell)(plan.eval_xy[:, 0], plan.eval_xy[:, 1])
+        return cls(study, plate, cell, plan.model, ev, t, plan.eval_xy)
 
     def robot_time_s(self, xy) -> float:
         wp, robot = self.cell.workplane, self.cell.robot
@@ -77,54 +81,60 @@ def record(ctx: Context, strategy: str, trajectory: list, stop: int, final: dict
 
 
 # -- the engine's loop --------------------------------------------------------------------------
+class _PastTheStop:
+    """The study's stop predicate for the loop: notes the survey's own stop (touches, reason,
+    figures, hyper-parameters) and keeps going until the true RMS error is at most
+    ``target_true`` too, or the touch budget is spent. Keeps the trajectory on the way."""
+
+    def __init__(self, plan: SurveyPlan, truth_mm, budget: int, target_true: float):
+        self.plan, self.truth, self.budget, self.target = plan, truth_mm, budget, target_true
+        self.trajectory, self.stop, self.reason, self.final = [], None, None, None
+        self.hyper, self.points = None, None
+
+    def note(self, state: sv.SurveyState, status: Status, reason: str, err: dict) -> None:
+        self.stop, self.reason = state.touches, reason
+        self.hyper, self.points = list(state.hyper), _points(state)
+        self.final = {"mean_std_mm": status.mean_std_mm, "true_rms_mm": err["rms_error_mm"],
+                      "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
+
+    def __call__(self, state: sv.SurveyState, status: Status) -> str | None:
+        err = truth_error(self.plan, state.belief, self.truth)
+        self.trajectory.append([state.touches, status.mean_std_mm, err["rms_error_mm"]])
+        why = self.plan.stop(status)
+        if self.stop is None and why:
+            self.note(state, status, why, err)
+        if self.stop is not None and err["rms_error_mm"] <= self.target:
+            return "true_target"
+        return "touch_budget" if state.touches >= self.budget else None
+
+
 def run_planner(ctx: Context, *, learn: bool, target_true: float) -> dict:
-    """Ask/tell on the simulated cell until the cell's stop rule fires and the true RMS error is
+    """The loop on the simulated cell until the cell's stop rule fires and the true RMS error is
     at most ``target_true`` (or the touch budget is spent)."""
     data = ctx.cell.model_copy(update={"model": ctx.cell.model.model_copy(
         update={"learn_hyper": learn})})
-    mapper = Mapper.create(data)
+    plan = survey_plan(data)
     opened = open_cell(data)
-    f = opened.simulated.surface_mm
-    budget = ctx.study.bound.max_touches
-    trajectory, xy, stop, reason, final = [], [], None, None, None
-    while True:
-        err = mapper.truth_error(f)
-        status = mapper.status()
-        trajectory.append([mapper.touches, status.mean_std_mm, err["rms_error_mm"]])
-        why = mapper.stop_reason()
-        if stop is None and why:
-            stop, reason, stop_hyper = mapper.touches, why, list(mapper.hyper)
-            stop_points = _points(mapper)
-            final = {"mean_std_mm": status.mean_std_mm, "true_rms_mm": err["rms_error_mm"],
-                     "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
-        if (stop is not None and err["rms_error_mm"] <= target_true) or mapper.touches >= budget:
-            break
-        targets = mapper.ask(from_xy=opened.cycle.motion.position()[:2])
-        if not targets:
-            break
-        for t in targets:
-            xy.append((t.x_mm, t.y_mm))
-            try:
-                touch = opened.cycle.touch(t.x_mm, t.y_mm, t.z_mm)
-            except TouchRejected:
-                mapper.skip()
-            else:
-                mapper.tell(touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
-    if stop is None:  # budget spent, or no admissible point: the last state is the stop
-        err = mapper.truth_error(f)
-        stop, reason = mapper.touches, mapper.stop_reason() or "no_admissible_point"
-        stop_hyper, stop_points = list(mapper.hyper), _points(mapper)
-        final = {"mean_std_mm": mapper.status().mean_std_mm, "true_rms_mm": err["rms_error_mm"],
-                 "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
-    return record(ctx, "adaptive" if learn else "greedy_fixed", trajectory, stop, final, xy,
-                  reason, target_true, hyper=list(mapper.hyper), hyper_at_stop=stop_hyper,
-                  hyper_points_at_stop=stop_points)
+    watch = _PastTheStop(plan, opened.simulated.surface_mm, ctx.study.bound.max_touches,
+                         target_true)
+    try:
+        state, _ = run_loop(plan, sv.start(plan), opened.cycle, stop=watch)
+    finally:
+        opened.close()
+    if watch.stop is None:  # budget spent, or no admissible point: the last state is the stop
+        status = sv.status(plan, state)
+        err = truth_error(plan, state.belief, watch.truth)
+        watch.note(state, status, plan.stop(status) or NO_ADMISSIBLE_POINT, err)
+    return record(ctx, "adaptive" if learn else "greedy_fixed", watch.trajectory, watch.stop,
+                  watch.final, state.touched_xy_mm, watch.reason, target_true,
+                  hyper=list(state.hyper), hyper_at_stop=watch.hyper,
+                  hyper_points_at_stop=watch.points)
 
 
-def _points(mapper: Mapper) -> list:
+def _points(state: sv.SurveyState) -> list:
     """[[form_std_mm, length_scale_mm, noise_std_mm, weight], ...]: the hyper-parameter posterior
     the belief mixes (the point the belief rests on, weight 1, before any refit)."""
-    points = mapper.hyper_points or [(mapper.hyper, 1.0)]
+    points = state.hyper_points or [(state.hyper, 1.0)]
     return [[*map(float, h), float(w)] for h, w in points]
 
 

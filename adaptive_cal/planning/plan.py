@@ -1,0 +1,67 @@
+"""The survey plan: everything the engine reads from a cell file, as plain values, read once.
+
+``adaptive_cal.cell.build.survey_plan(cell)`` makes it at the edge; the planning functions only
+read its fields. Following one config key (``probe.usable_mm``, ``plan.stop.mean_std_mm``) from
+the command line to the planner: cli -> cell.schema (validated) -> cell.build (into this value)
+-> planning (reads the field).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from adaptive_cal.gaussian.prior import PriorModel
+from adaptive_cal.planning.scoring import Candidates
+from adaptive_cal.planning.stopping import StopRule
+
+Interval = tuple[float, float]
+
+
+@dataclass(frozen=True, eq=False)
+class SurveyPlan:
+    """The settings of one survey (units in the names; mm unless said otherwise).
+
+    ``model``: spline and prior; ``candidates``: points a touch may go to and their rows;
+    ``gram``: Q of J(C) = trace(Q C); ``eval_xy``/``eval_rows``: the evaluation grid over the
+    whole plate (status, results); ``usable_mm``/``zero_mm``: the probe's usable stroke and the
+    indication at the commanded height; ``z_range_mm``: the workspace box's z range, or None;
+    ``allows(x, y)``: inside the edge margin and outside every keep-out; ``bounds_mm``: the
+    refinement box ((x0, x1), (y0, y1)) inside the edge margin; ``plate_mm``: the workplane's
+    extent ((x0, x1), (y0, y1)); ``gate_sigma``: the Mahalanobis gate; ``learn``: refit the
+    hyper-parameters (``hyper_after`` readings first, then every ``hyper_every``);
+    ``criterion``: ``integrated`` or ``max`` (resolved); ``refine``: best candidates refined
+    by gradient steps (0: none); ``batch``: touches planned per ask; ``stop``: the composed
+    stopping rule."""
+
+    model: PriorModel
+    candidates: Candidates
+    gram: np.ndarray
+    eval_xy: np.ndarray
+    eval_rows: np.ndarray
+    usable_mm: Interval
+    zero_mm: float
+    z_range_mm: Interval | None
+    allows: Callable[[float, float], bool]
+    bounds_mm: tuple[Interval, Interval]
+    plate_mm: tuple[Interval, Interval]
+    gate_sigma: float
+    learn: bool
+    hyper_after: int
+    hyper_every: int
+    criterion: str
+    refine: int
+    batch: int
+    stop: StopRule
+
+    @property
+    def coefficients(self) -> int:
+        """K, the number of spline coefficients."""
+        return self.model.surface.size
+
+    def approach_height(self, mean_mm):
+        """Reference height z putting the expected reading mid-way in the usable stroke:
+        z = mean - (lo + hi) / 2 + zero (mm)."""
+        lo, hi = self.usable_mm
+        return mean_mm + self.zero_mm - 0.5 * (lo + hi)

@@ -1,0 +1,82 @@
+"""A thin mutable shell over the pure survey functions, for notebooks and scripts.
+
+    survey = Survey(survey_plan(cell))
+    while not survey.stop_reason():
+        target = survey.ask()[0]
+        told = survey.tell(target.x_mm, target.y_mm, target.z_mm, reading_mm)
+
+Each call replaces ``survey.state`` with the new immutable state the pure function returns and
+appends the status to ``survey.history``; ``survey.state`` can be kept, compared or restored.
+"""
+from __future__ import annotations
+
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.gaussian.prior import Hyper
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.ask import Target, ask
+from adaptive_cal.planning.gate import Told
+from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.planning.stopping import Status
+
+
+class Survey:
+    """A survey in progress: ``plan`` (read-only settings), ``state`` (the latest immutable
+    state) and ``history`` (the status before the first touch and after each one)."""
+
+    def __init__(self, plan: SurveyPlan, state: sv.SurveyState | None = None, *,
+                 prior: bl.Belief | None = None, hyper: Hyper | None = None):
+        self.plan = plan
+        self.state = state if state is not None else sv.start(plan, prior=prior, hyper=hyper)
+        self.history: list[Status] = [self.status()]
+
+    def ask(self, n: int | None = None, *, from_xy=None) -> list[Target]:
+        """The next touch(es) (``planning.ask.ask``)."""
+        return ask(self.plan, self.state, n, from_xy=from_xy)
+
+    def tell(self, x_mm: float, y_mm: float, z_mm: float, reading_mm: float) -> Told:
+        """Judge and fuse one reading that was taken; returns the flags for the recording."""
+        self.state, told = sv.tell(self.plan, self.state, x_mm, y_mm, z_mm, reading_mm)
+        self.history.append(self.status())
+        return told
+
+    def skip(self, x_mm: float, y_mm: float) -> None:
+        """Count a touch whose reading the probe cycle rejected (not fused)."""
+        self.state = sv.skip(self.plan, self.state, x_mm, y_mm)
+        self.history.append(self.status())
+
+    def status(self) -> Status:
+        """Touches, RMS and largest posterior std (mm)."""
+        return sv.status(self.plan, self.state)
+
+    def stop_reason(self) -> str | None:
+        """Why the survey's stopping rule stops now, or None."""
+        return sv.stop_reason(self.plan, self.state)
+
+    def grid(self, n: int = 61):
+        """(gx, gy, mean, std) on an n x n grid over the whole plate (mm)."""
+        return sv.grid(self.plan, self.state.belief, n)
+
+    @property
+    def belief(self) -> bl.Belief:
+        """The current belief over the spline coefficients."""
+        return self.state.belief
+
+    @property
+    def hyper(self) -> Hyper:
+        """The hyper-parameters the next fusion uses."""
+        return self.state.hyper
+
+    @property
+    def touches(self) -> int:
+        """Touches made, fused or not."""
+        return self.state.touches
+
+    @property
+    def touched_xy_mm(self):
+        """(x, y) of every touch, fused or not, in touch order (mm)."""
+        return self.state.touched_xy_mm
+
+    @property
+    def retake_pending(self) -> bool:
+        """True after a gated reading: the next ask returns the same point again."""
+        return self.state.retake is not None

@@ -1,0 +1,138 @@
+"""The one ask -> touch -> judge -> record -> fuse loop, with hooks (emukit's shape: candidate
+selection is ``planning.ask``, the model update ``planning.survey.fuse``, the stopping condition
+a predicate, event hooks after each touch). The CLI run, the studies, the tests and the
+notebooks all drive a survey through ``run_loop``.
+
+Each touch:
+
+1. the probe cycle touches the target (a ``TouchRejected`` touch is recorded, flagged, counted
+   and never fused);
+2. the gate judges the reading (pure: flags for the recording);
+3. ``record(row)`` writes it -- before anything else happens with the reading, so a crash or a
+   kill during the fusion (and its refit) loses nothing that was taken;
+4. the reading is fused (and the hyper-parameters refitted on schedule);
+5. every hook sees the new ``Step``.
+
+A batch is cut short after a gated reading (the retake comes first) or when ``interrupt()``
+says so. The stop predicate is asked before each ask; ``loop.state`` is the latest state even
+when a device raises.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, NamedTuple
+
+from adaptive_cal.hardware.base import ProbeCycle, Touch, TouchRejected
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.ask import Target, ask
+from adaptive_cal.planning.gate import Told
+from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.planning.stopping import Status
+
+#: the reason a loop ends when no allowed point can be promised inside the probe stroke
+NO_ADMISSIBLE_POINT = "no_admissible_point"
+
+
+class Row(NamedTuple):
+    """One recording row, as the loop hands it to ``record`` (mm, s)."""
+
+    seq: int
+    t_s: float
+    x_mm: float
+    y_mm: float
+    z_mm: float
+    reading_mm: float
+    flags: tuple[str, ...]
+
+
+class Step(NamedTuple):
+    """What the hooks see after each touch: the new state and its status, the target, and
+    either the touch and its judgement or the probe cycle's rejection."""
+
+    state: sv.SurveyState
+    status: Status
+    target: Target
+    touch: Touch | None
+    told: Told | None
+    rejected: TouchRejected | None
+
+
+Hook = Callable[[Step], None]
+StopPredicate = Callable[[sv.SurveyState, Status], "str | None"]
+
+
+def survey_stop(plan: SurveyPlan) -> StopPredicate:
+    """The survey's own stopping rule as a loop predicate."""
+    return lambda state, status: plan.stop(status)
+
+
+class SurveyLoop:
+    """Drives one survey on a probe cycle (see module docstring). ``stop(state, status)``
+    returns the reason to end or None (default: the plan's rule); ``record(row)`` writes a row
+    (the recording); ``hooks`` see each step; ``interrupt()`` cuts a batch short."""
+
+    def __init__(self, plan: SurveyPlan, state: sv.SurveyState, cycle: ProbeCycle, *,
+                 stop: StopPredicate | None = None, record: Callable[[Row], None] | None = None,
+                 hooks: tuple[Hook, ...] = (), interrupt: Callable[[], bool] = lambda: False):
+        self.plan, self.state, self.cycle = plan, state, cycle
+        self.stop = stop or survey_stop(plan)
+        self.record, self.hooks, self.interrupt = record, tuple(hooks), interrupt
+
+    def run(self) -> str:
+        """Ask, touch, record and fuse until the stop predicate fires; returns its reason, or
+        ``NO_ADMISSIBLE_POINT`` when the planner has no point to offer."""
+        while True:
+            why = self.stop(self.state, sv.status(self.plan, self.state))
+            if why:
+                return why
+            targets = ask(self.plan, self.state, from_xy=self.cycle.motion.position()[:2])
+            if not targets:
+                return NO_ADMISSIBLE_POINT
+            for target in targets:
+                self.touch(target)
+                if self.state.retake is not None or self.interrupt():
+                    break
+
+    def touch(self, target: Target) -> Step:
+        """One touch at ``target``: taken, judged, recorded, then fused; hooks called."""
+        plan, state, seq = self.plan, self.state, self.state.touches
+        touch = told = rejected = None
+        try:
+            touch = self.cycle.touch(target.x_mm, target.y_mm, target.z_mm)
+        except TouchRejected as e:
+            rejected = e
+            reading = e.reading_mm if math.isfinite(e.reading_mm) else 0.0
+            self._record(Row(seq, self.cycle.clock(), target.x_mm, target.y_mm, target.z_mm,
+                             reading, tuple(e.flags)))
+            self.state = sv.skip(plan, state, target.x_mm, target.y_mm)
+        else:
+            told = sv.judge(plan, state, touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
+            self._record(Row(seq, touch.t_s, touch.x_mm, touch.y_mm, touch.z_mm,
+                             touch.reading_mm, told.flags))
+            self.state = sv.fuse(plan, state, told)
+        step = Step(self.state, sv.status(plan, self.state), target, touch, told, rejected)
+        for hook in self.hooks:
+            hook(step)
+        return step
+
+    def _record(self, row: Row) -> None:
+        if self.record is not None:
+            self.record(row)
+
+
+def run_loop(plan: SurveyPlan, state: sv.SurveyState, cycle: ProbeCycle, **options
+             ) -> tuple[sv.SurveyState, str]:
+    """``SurveyLoop(plan, state, cycle, **options).run()``: the final state and the reason."""
+    loop = SurveyLoop(plan, state, cycle, **options)
+    reason = loop.run()
+    return loop.state, reason
+
+
+class History:
+    """A hook keeping the status before the first touch and after each touch."""
+
+    def __init__(self, first: Status):
+        self.statuses: list[Status] = [first]
+
+    def __call__(self, step: Step) -> None:
+        self.statuses.append(step.status)
