@@ -2,9 +2,75 @@
 
 A Bayesian bicubic spline of the workplane height (Brunn & Hanebeck), Kalman fusion of each probe
 reading, the next touch chosen by the largest drop of integrated posterior variance, and a loop
-that drives a robot cell until a variance bound is met.
+that drives a robot cell until a variance bound is met. All lengths are mm, times s, angles deg.
+
+The ask / tell loop on the built-in simulated cell (run from the repository root):
+
+>>> import adaptive_cal as ac
+>>> ac.use_float64()                                  # once per notebook or script
+>>> cell = ac.load_cell("configs/sim-cell.yaml")      # validated; errors name the key
+>>> survey = ac.start_survey(cell)                    # the cell file is read once, here
+>>> sim = ac.open_cell(cell)                          # the simulated robot and probe
+>>> while not survey.stop_reason():
+...     target = survey.ask()[0]                      # where to touch, at which approach height
+...     touch = sim.cycle.touch(target.x_mm, target.y_mm, target.z_mm)
+...     told = survey.tell(touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
+>>> survey.stop_reason(), survey.status().mean_std_mm <= 0.004
+('mean_std_bound', True)
+>>> sim.close()
+
+The same loop with the recording written before each fusion, progress and truth hooks is
+``run_loop`` (the CLI's ``adaptive-cal run`` is ``run_session``). Names are imported on first use, so
+``import adaptive_cal`` stays light:
+
+=====================  ==========================================================================
+``load_cell``          read and validate a cell file (``parse_cell`` for a dict)
+``survey_plan``        the engine's settings made once from a cell (prior, candidates, stop rule)
+``start_survey``       a ``Survey`` (ask, tell, skip, status, stop_reason, grid, history)
+``open_cell``          the cell's robot and probe (the simulator for ``robot.adapter: sim``)
+``run_loop``           ask -> touch -> judge -> record -> fuse until a stop predicate fires
+``run_session``        a whole run into a folder: recording, result.json, figures, belief
+``read_recording``     a v1 recording (``RecordingWriter`` writes one)
+``flatness``           the paper's flatness figures of a recording with 95 % intervals
+``explain``            where a recording and the cell's simulation differ, and which physics
+=====================  ==========================================================================
 """
+from __future__ import annotations
+
+import importlib
+
 __version__ = "0.1.0"
+
+# public name -> module that defines it, ":name" where it is called otherwise there
+# (imported on first use)
+_LAZY = {
+    "load_cell": "adaptive_cal.cell.schema",
+    "parse_cell": "adaptive_cal.cell.schema",
+    "ConfigError": "adaptive_cal.cell.files",
+    "survey_plan": "adaptive_cal.cell.build",
+    "Survey": "adaptive_cal.planning.shell",
+    "open_cell": "adaptive_cal.run.devices",
+    "run_loop": "adaptive_cal.run.loop",
+    "run_session": "adaptive_cal.run.session:run",
+    "read_recording": "adaptive_cal.formats.recording",
+    "RecordingWriter": "adaptive_cal.formats.recording",
+    "explain": "adaptive_cal.analysis.explain",
+}
+
+__all__ = ["use_float64", "start_survey", "flatness", *_LAZY]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        module, _, attr = _LAZY[name].partition(":")
+        value = getattr(importlib.import_module(module), attr or name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'adaptive_cal' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
 
 
 def use_float64() -> None:
@@ -13,3 +79,23 @@ def use_float64() -> None:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+
+
+def start_survey(cell, *, prior=None, hyper=None):
+    """A ``Survey`` of the cell's workplane: ``survey_plan(cell)`` read once, the prior belief
+    (or ``prior``, e.g. an earlier run's widened belief, with its ``hyper``-parameters)."""
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.planning.shell import Survey
+
+    return Survey(survey_plan(cell, informed_prior=prior is not None), prior=prior, hyper=hyper)
+
+
+def flatness(recording, *, samples: int = 400, seed: int = 0) -> dict:
+    """Tilt, least-squares flatness (Cheng et al. eqs. 1-6), range and ISO 1101 minimum zone of a
+    recording (path), each with a 95 % interval from ``samples`` predicted repeat measurements
+    drawn with ``numpy.random.default_rng(seed)`` (mm, deg)."""
+    import numpy as np
+
+    from adaptive_cal.analysis.flatness_intervals import recording_flatness
+
+    return recording_flatness(recording, np.random.default_rng(seed), samples)[0]
