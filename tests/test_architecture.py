@@ -16,10 +16,8 @@ MAX_LINES = 350
 KNOWN = {
     "upward": {"adaptive_cal.planning.survey -> adaptive_cal.cell.schema"},
     "cycles": {("adaptive_cal.hardware.modbus_map", "adaptive_cal.hardware.schema")},
-    "large": {"adaptive_cal.planning.survey", "adaptive_cal.report.html", "adaptive_cal.study.report",
-              "adaptive_cal.study.runner"},
-    "flags": {"adaptive_cal.analysis.explain.report", "adaptive_cal.study.report",
-              "adaptive_cal.study.runner"},
+    "large": {"adaptive_cal.planning.survey", "adaptive_cal.report.html"},
+    "flags": {"adaptive_cal.analysis.explain.report"},
 }
 
 

@@ -8,7 +8,9 @@ import pytest
 from adaptive_cal.study.config import load_study, parse_study
 from adaptive_cal.study.designs import evaluate_loop, evaluate_vmap
 from adaptive_cal.study.plates import plate_cell, sample_plate
-from adaptive_cal.study.runner import SchedulerError, connect, run_study, summarise
+from adaptive_cal import use_float64
+from adaptive_cal.study.runner import SchedulerError, connect, run_study
+from adaptive_cal.study.summary import summarise
 from adaptive_cal.study.strategies import Context
 
 from conftest import ROOT
@@ -36,7 +38,8 @@ def test_dask_local_cluster_equals_in_process(tmp_path):
     client = connect(None, 2)
     try:
         assert len(client.scheduler_info()["workers"]) == 2
-        remote = run_study(study, base, tmp_path / "b.jsonl", client=client)
+        remote = run_study(study, base, tmp_path / "b.jsonl", client=client,
+                           worker_setup=use_float64)
     finally:
         client.close()
     a, b = _strip(local), _strip(remote)
