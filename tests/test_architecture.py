@@ -16,7 +16,7 @@ MAX_LINES = 350
 KNOWN = {
     "upward": {"adaptive_cal.planning.survey -> adaptive_cal.cell.schema"},
     "cycles": {("adaptive_cal.hardware.modbus_map", "adaptive_cal.hardware.schema")},
-    "large": {"adaptive_cal.planning.survey", "adaptive_cal.report.html"},
+    "large": {"adaptive_cal.planning.survey"},
     "flags": {"adaptive_cal.analysis.explain.report"},
 }
 
