@@ -142,13 +142,13 @@ def explain_section(run_dir: Path) -> str:
                 "recording with the cell's simulation: <code>adaptive-cal explain "
                 f"{escape(run_dir / 'recording.csv')} --sim CELL.yaml --json {escape(path)} --out "
                 f"{escape(run_dir)}</code>, then run the report again.</p>")
-    rep = json.loads(path.read_text(encoding="utf-8"))
-    fit = rep.get("fit", {})
+    findings = json.loads(path.read_text(encoding="utf-8"))
+    fit = findings.get("fit", {})
     parts = ["<h2>Explain: what the simulation left out</h2>",
-             f"<p class='verdict'>verdict: <b>{escape(rep.get('verdict', '-'))}</b>"
-             + (" (no left-out effect is supported by the data)" if rep.get("verdict") == "none" else "")
+             f"<p class='verdict'>verdict: <b>{escape(findings.get('verdict', '-'))}</b>"
+             + (" (no left-out effect is supported by the data)" if findings.get("verdict") == "none" else "")
              + "</p>"]
-    rows = [(escape(e["effect"]), escape(e["summary"])) for e in rep.get("left_out", [])]
+    rows = [(escape(e["effect"]), escape(e["summary"])) for e in findings.get("left_out", [])]
     if rows:
         parts.append(_table(rows, head=("effect", "fitted (log Bayes factor against none)")))
     if fit:
@@ -157,13 +157,13 @@ def explain_section(run_dir: Path) -> str:
             ("leave-one-out RMS", f"{_um(fit.get('cv_rms_before_mm'))} &rarr; "
                                   f"{_um(fit.get('cv_rms_after_mm'))}")],
             head=("fit", "nominal → with the effect"), cls="kv"))
-    by = rep.get("mismatch", {}).get("by", {})
+    by = findings.get("mismatch", {}).get("by", {})
     if by:
         parts.append(_table([(escape(k), f"{v['p_value']:.3g}" + (" <b>real</b>" if v.get("real") else "")
                               if v.get("p_value") is not None else escape(v.get("note", "-")))
                              for k, v in by.items()],
                             head=("residual against", "F-test p (small = a real trend)"), cls="kv"))
-    r = rep.get("rounds")
+    r = findings.get("rounds")
     if r and "p_value" in r:
         lo, hi = r["null_change_95_mm"]
         real = "larger than" if r.get("exceeds_noise") else "within"
@@ -171,7 +171,7 @@ def explain_section(run_dir: Path) -> str:
                      f"mm, change {r['change_mm']:+.4f} mm; noise alone gives 95 % within "
                      f"[{lo:+.4f}, {hi:+.4f}] mm (repeatability {_um(r['repeatability_mm'])}), "
                      f"p = {r['p_value']:.3f}: the change is <b>{real}</b> what noise gives.</p>")
-    ni = rep.get("not_identifiable", [])
+    ni = findings.get("not_identifiable", [])
     if ni:
         parts.append("<p>Not identifiable from this recording:</p><ul>" + "".join(
             f"<li><b>{escape(e['effect'])}</b>: {escape(e['why'])}</li>" for e in ni) + "</ul>")

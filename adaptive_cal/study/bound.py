@@ -32,7 +32,7 @@ the pseudo-Bayesian I-criterion (Chaloner & Verdinelli 1995): convex in w, gradi
 posterior over the hyper-parameters the planner held when it stopped" (at a refit the mixture's
 variance is at least J_marg; after it, new readings are fused under the MAP's noise); the
 single-hyper bound answers "how few touches could an oracle that knows the hyper-parameters
-need". Both are reported.
+need". Both go into the summary.
 """
 from __future__ import annotations
 

@@ -126,11 +126,11 @@ def targets_section(summary: dict, results: Path) -> str:
                          f"relaxed bound, and adaptive {lb['adaptive_over_greedy_known']:.2f} x "
                          "the greedy design (mean of per-plate ratios). The greedy design is not "
                          "a lower bound.")
-        for rep in sorted(results.glob("study-*-seed*.json")):  # replications on other seeds
-            rl = (json.loads(rep.read_text()).get("lower_bound") or {})
+        for replication in sorted(results.glob("study-*-seed*.json")):  # on other seeds
+            rl = (json.loads(replication.read_text()).get("lower_bound") or {})
             rr, rw = rl.get("adaptive_over_relaxed"), rl.get("adaptive_over_relaxed_whole")
             if rr:
-                lines.append(f"  Replication `{rep.name}` ({rl['plates']} plates): "
+                lines.append(f"  Replication `{replication.name}` ({rl['plates']} plates): "
                              + (f"{rw:.2f} x in whole touches, " if rw else "")
                              + f"{rr:.2f} x relaxed ({mark((rw or rr) <= 1.2)}); ratio of means "
                              f"{rl['adaptive_stop_touches_same_plates'] / rl['relaxed_touches']:.2f}"
