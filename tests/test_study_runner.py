@@ -152,3 +152,16 @@ def test_summary_lower_bound_ratios_are_means_of_per_plate_ratios():
     assert lb["adaptive_over_marginal_whole_at_stop"] == pytest.approx((12 / 10 + 30 / 31) / 2)
     assert lb["adaptive_below_marginal_plates"] == 1
     assert lb["best_integer_touches"] is None
+
+
+def test_a_task_refuses_float32_and_names_the_setup():
+    """The library sets no global flags: a worker without float64 must fail loudly, not run a
+    study in float32."""
+    import jax
+
+    from adaptive_cal.study.tasks import plate_task
+
+    study, base = _small(strategies=["adaptive"])
+    with jax.enable_x64(False), pytest.raises(RuntimeError, match="worker_setup=use_float64"):
+        plate_task(study.model_dump(mode="json"), base, 0, ("adaptive",))
+    assert jax.config.jax_enable_x64
