@@ -32,6 +32,7 @@ from adaptive_cal.study.designs import evaluate_loop, evaluate_vmap, random_poin
 from adaptive_cal.study.plates import heights_at  # noqa: E402
 from adaptive_cal.study.config import load_study, parse_study  # noqa: E402
 from adaptive_cal.study.plates import plate_cell, sample_plate  # noqa: E402
+from adaptive_cal.cli.study import worker_setup  # noqa: E402  (as adaptive-cal study --workers)
 from adaptive_cal.study.runner import connect, run_study  # noqa: E402
 from adaptive_cal.study.strategies import Context  # noqa: E402
 
@@ -91,9 +92,11 @@ def dask_workers(study, base, plates: int) -> dict:
             client = connect(None, workers)
             try:  # warm the workers (imports, JAX compilation) on other plates first
                 warm = s.model_copy(update={"seed": s.seed + 1, "plates": workers})
-                run_study(warm, base, Path(tmp) / f"warm{workers}.jsonl", client=client)
+                run_study(warm, base, Path(tmp) / f"warm{workers}.jsonl", client=client,
+                          worker_setup=worker_setup)
                 t0 = time.perf_counter()
-                run_study(s, base, Path(tmp) / f"w{workers}.jsonl", client=client)
+                run_study(s, base, Path(tmp) / f"w{workers}.jsonl", client=client,
+                          worker_setup=worker_setup)
                 out[f"workers_{workers}_s"] = time.perf_counter() - t0
             finally:
                 client.close()

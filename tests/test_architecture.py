@@ -16,10 +16,8 @@ MAX_LINES = 350
 KNOWN = {
     "upward": set(),
     "cycles": set(),
-    "large": {"adaptive_cal.report.html", "adaptive_cal.study.report",
-              "adaptive_cal.study.runner"},
-    "flags": {"adaptive_cal.analysis.explain.report", "adaptive_cal.study.report",
-              "adaptive_cal.study.runner"},
+    "large": set(),
+    "flags": {"adaptive_cal.analysis.explain.report"},
 }
 
 

@@ -85,3 +85,73 @@ def test_predict_equals_dense_variance():
     mean, var = bl.predict(prior, rows)
     np.testing.assert_allclose(mean, rows @ prior.mean)
     np.testing.assert_allclose(var, np.diag(rows @ prior.cov @ rows.T))
+
+
+def test_fuse_step_equals_fuse_and_condition_in_numpy_and_under_jit_scan_vmap():
+    """The one-reading step (the scan body of studies): numpy, eager JAX, jit(scan) and
+    vmap over beliefs all equal filterpy's Joseph update (``fuse``) and the batch posterior."""
+    import jax
+    import jax.numpy as jnp
+
+    prior, r = _prior(), 0.03**2
+    rows, y = RNG.normal(size=(15, K)), RNG.normal(size=15)
+    batch = bl.condition(prior, rows, y, r)
+    joseph, step = prior, prior
+    for i in range(15):
+        joseph, _ = bl.fuse(joseph, rows[i], y[i], r)
+        step = bl.fuse_step(step, rows[i], y[i], r)
+        np.testing.assert_allclose(step.mean, joseph.mean, atol=1e-10)
+        np.testing.assert_allclose(step.cov, joseph.cov, atol=1e-11)
+    np.testing.assert_allclose(step.mean, batch.mean, atol=1e-9)
+    np.testing.assert_allclose(step.cov, batch.cov, atol=1e-10)
+    assert np.array_equal(step.cov, step.cov.T)
+
+    def body(belief, inp):
+        row, reading, weight = inp
+        return bl.fuse_step(belief, row, reading, r, weight), None
+
+    start = bl.Belief(jnp.asarray(prior.mean), jnp.asarray(prior.cov))
+    ones = jnp.ones(15)
+    eager = start
+    for i in range(15):
+        eager = bl.fuse_step(eager, jnp.asarray(rows[i]), y[i], r)
+    scanned, _ = jax.jit(lambda b, i: jax.lax.scan(body, b, i))(start, (rows, y, ones))
+    for got in (eager, scanned):
+        np.testing.assert_allclose(np.asarray(got.mean), step.mean, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(got.cov), step.cov, rtol=1e-12, atol=1e-12)
+    # weight 0 skips the reading: masked steps leave the belief as it was
+    mask = (jnp.arange(15) < 6).astype(float)
+    masked, _ = jax.lax.scan(body, start, (rows, y, mask))
+    six = bl.condition(prior, rows[:6], y[:6], r)
+    np.testing.assert_allclose(np.asarray(masked.mean), six.mean, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(masked.cov), six.cov, atol=1e-10)
+    # vmap over plates (readings per plate) equals one plate at a time
+    ys = RNG.normal(size=(3, 15))
+    many = jax.vmap(lambda yy: jax.lax.scan(body, start, (rows, yy, ones))[0])(jnp.asarray(ys))
+    for p in range(3):
+        one = bl.condition(prior, rows, ys[p], r)
+        np.testing.assert_allclose(np.asarray(many.mean[p]), one.mean, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(many.cov[p]), one.cov, atol=1e-10)
+
+
+def test_predict_in_jax_equals_numpy():
+    import jax.numpy as jnp
+
+    prior, rows = _prior(), RNG.normal(size=(7, K))
+    mean, var = bl.predict(prior, rows)
+    jmean, jvar = bl.predict(bl.Belief(jnp.asarray(prior.mean), jnp.asarray(prior.cov)),
+                             jnp.asarray(rows), jnp)
+    np.testing.assert_allclose(np.asarray(jmean), mean, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(jvar), var, rtol=1e-12)
+
+
+def test_information_cov_equals_covariance_after_and_rms_std():
+    prior, rows, r = _prior(), RNG.normal(size=(9, K)), 0.02
+    cov = bl.information_cov(bl.precision(prior.cov), rows.T @ rows / r)
+    np.testing.assert_allclose(cov, bl.covariance_after(prior.cov, rows, r), atol=1e-10)
+    np.testing.assert_allclose(bl.precision(prior.cov) @ prior.cov, np.eye(K), atol=1e-9)
+    gram = np.diag(np.arange(1.0, K + 1))
+    j = float(np.trace(gram @ cov))
+    assert bl.integrated_variance(cov, gram) == pytest.approx(j, rel=1e-12)
+    assert bl.rms_std(cov, gram, 4.0) == pytest.approx(np.sqrt(j / 4.0), rel=1e-12)
+    assert bl.rms_std_from_integrated_variance(-1e-18, 4.0) == 0.0

@@ -15,7 +15,7 @@ import yaml
 
 from adaptive_cal.analysis import flatness as fl
 from adaptive_cal.cli import main
-from adaptive_cal.report.html import rotation
+from adaptive_cal.report.sections import rotation
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")

@@ -81,3 +81,26 @@ def test_study_tells_the_planner_the_noise_span_unless_switched_off():
     off = study.model_copy(update={"plate": study.plate.model_copy(
         update={"noise_range_known": False})})
     assert plate_cell(off, base, plate).probe.noise_range_mm is None
+
+
+def test_overrides_set_keys_strategies_and_plates_and_name_bad_keys():
+    from adaptive_cal.study.overrides import apply_overrides, set_key
+
+    study, base = load_study(SMOKE)
+    data = study.model_dump(mode="json")
+    changed = set_key(data, "bound.true_rms_mm=0.01")
+    assert changed["bound"]["true_rms_mm"] == 0.01 and data["bound"]["true_rms_mm"] is None
+    assert set_key(data, "plate.form_shapes=[bow_x, twist]")["plate"]["form_shapes"] == \
+        ["bow_x", "twist"]
+    out = apply_overrides(study, base, plates=2, strategies="paper, grid",
+                          settings=["bound.true_rms_mm=0.02", "lower_bound.plates=0"])
+    assert (out.plates, out.strategies, out.bound.true_rms_mm, out.lower_bound.plates) == \
+        (2, ["paper", "grid"], 0.02, 0)
+    assert apply_overrides(study, base) is study
+    assert apply_overrides(study, base, plates=5).plates == 5
+    for item, words in (("bound.true_rms_mm", "expected KEY=VALUE"),
+                        ("plates.x=1", "'plates' is not a block"),
+                        ("bound.mean_std_mm=-1", "bound.mean_std_mm"),
+                        ("bound.mean_std_mm=1e-9", "noise floor")):
+        with pytest.raises(ConfigError, match=words):
+            apply_overrides(study, base, settings=[item])

@@ -8,7 +8,9 @@ import pytest
 from adaptive_cal.study.config import load_study, parse_study
 from adaptive_cal.study.designs import evaluate_loop, evaluate_vmap
 from adaptive_cal.study.plates import plate_cell, sample_plate
-from adaptive_cal.study.runner import SchedulerError, connect, run_study, summarise
+from adaptive_cal import use_float64
+from adaptive_cal.study.runner import SchedulerError, connect, run_study
+from adaptive_cal.study.summary import summarise
 from adaptive_cal.study.strategies import Context
 
 from conftest import ROOT
@@ -36,7 +38,8 @@ def test_dask_local_cluster_equals_in_process(tmp_path):
     client = connect(None, 2)
     try:
         assert len(client.scheduler_info()["workers"]) == 2
-        remote = run_study(study, base, tmp_path / "b.jsonl", client=client)
+        remote = run_study(study, base, tmp_path / "b.jsonl", client=client,
+                           worker_setup=use_float64)
     finally:
         client.close()
     a, b = _strip(local), _strip(remote)
@@ -149,3 +152,16 @@ def test_summary_lower_bound_ratios_are_means_of_per_plate_ratios():
     assert lb["adaptive_over_marginal_whole_at_stop"] == pytest.approx((12 / 10 + 30 / 31) / 2)
     assert lb["adaptive_below_marginal_plates"] == 1
     assert lb["best_integer_touches"] is None
+
+
+def test_a_task_refuses_float32_and_names_the_setup():
+    """The library sets no global flags: a worker without float64 must fail loudly, not run a
+    study in float32."""
+    import jax
+
+    from adaptive_cal.study.tasks import plate_task
+
+    study, base = _small(strategies=["adaptive"])
+    with jax.enable_x64(False), pytest.raises(RuntimeError, match="worker_setup=use_float64"):
+        plate_task(study.model_dump(mode="json"), base, 0, ("adaptive",))
+    assert jax.config.jax_enable_x64

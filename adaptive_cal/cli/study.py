@@ -2,11 +2,13 @@
 synthetic plates under every strategy, a lower bound on touches, tables and plots.
 
 Plates finished are appended to DIR/plates.jsonl (or OUT.json's name + .plates.jsonl) as they
-finish; an interrupted study keeps them and a rerun skips them.
+finish; an interrupted study keeps them and a rerun skips them. The work is the library's
+(``adaptive_cal.study``); this module parses arguments and prepares Dask workers.
 """
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -28,36 +30,31 @@ def add_arguments(p) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
+def worker_setup() -> None:
+    """A Dask worker's start, like this command's own: float64 in JAX, one BLAS thread (numpy
+    may already be loaded with threads in a worker we did not start)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from adaptive_cal import use_float64
+
+    use_float64()
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)
+    except ImportError:
+        pass
+
+
 def command(args) -> int:
     from adaptive_cal.study.config import load_study
-    from adaptive_cal.study.runner import connect, run_study, summarise
+    from adaptive_cal.study.doc import write_doc
+    from adaptive_cal.study.overrides import apply_overrides
+    from adaptive_cal.study.runner import connect, run_study
+    from adaptive_cal.study.summary import summarise, table
 
     study, base = load_study(args.study)
-    if args.plates:
-        study = study.model_copy(update={"plates": args.plates})
-    if args.strategies or args.set:
-        import yaml
-
-        from adaptive_cal.cell.schema import ConfigError
-        from adaptive_cal.study.config import check_feasible, parse_study
-        from adaptive_cal.cell.schema import parse_cell
-
-        data = study.model_dump(mode="json")
-        if args.strategies:
-            data["strategies"] = [s.strip() for s in args.strategies.split(",") if s.strip()]
-        for item in args.set:
-            key, sep, value = item.partition("=")
-            if not sep:
-                raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
-            *path, leaf = key.split(".")
-            node = data
-            for part in path:
-                if not isinstance(node.get(part), dict):
-                    raise ConfigError(f"--set {key}: {part!r} is not a block of the study file")
-                node = node[part]
-            node[leaf] = yaml.safe_load(value)
-        study = parse_study(data, "overrides")
-        check_feasible(study, parse_cell(base), "overrides")
+    study = apply_overrides(study, base, plates=args.plates, strategies=args.strategies,
+                            settings=args.set)
     out_json = Path(args.json)
     out_dir = Path(args.out) if args.out else None
     checkpoint = (out_dir / "plates.jsonl" if out_dir
@@ -73,7 +70,8 @@ def command(args) -> int:
                   end="", file=sys.stderr, flush=True)
 
     try:
-        records = run_study(study, base, checkpoint, client=client, progress=progress)
+        records = run_study(study, base, checkpoint, client=client, worker_setup=worker_setup,
+                            progress=progress)
     finally:
         if client is not None:
             client.close()
@@ -84,11 +82,9 @@ def command(args) -> int:
     out_json.parent.mkdir(parents=True, exist_ok=True)
     out_json.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     if out_dir:
-        from adaptive_cal.study.report import write_report
+        from adaptive_cal.study.figures import write_summary
 
-        write_report(study, summary, records, base, out_dir)
-    from adaptive_cal.study.report import table, write_doc
-
+        write_summary(study, summary, records, base, out_dir)
     if args.doc:
         write_doc(Path(args.doc), study, summary, study_file=args.study, json_file=args.json,
                   out_dir=args.out or str(out_json.parent), base=base,

@@ -4,9 +4,15 @@ here. Static state, scalar measurements y = h^T a + v, v ~ N(0, r).
 * ``fuse``: one reading with filterpy's KalmanFilter update (Joseph form, symmetrised):
       K = C h / (h^T C h + r),  m' = m + K (y - h^T m),
       C' = (I - K h^T) C (I - K h^T)^T + K r K^T.
+* ``fuse_step``: the same update for one reading in plain array operations (numpy arrays, or
+  JAX arrays under jit, ``lax.scan`` and ``vmap``), in the gain form
+      k = w C h / (h^T C h + r),  m' = m + k (y - h^T m),  C' = C - k (C h)^T, symmetrised,
+  with a weight w in {0, 1} that masks padded readings (w = 0 leaves the belief as it is).
 * ``condition``: many readings at once (batch posterior by Cholesky solves, never inv):
       S = H C H^T + R,  m' = m + C H^T S^-1 (y - H m),  C' = C - C H^T S^-1 H C.
   Equal to fusing the rows one by one, in any order.
+* ``information_cov``: the same covariance in information form, (C^-1 + H^T R^-1 H)^-1, for
+  designs given as weights rather than rows.
 """
 from __future__ import annotations
 
@@ -64,6 +70,23 @@ def fuse(belief: Belief, row: np.ndarray, reading: float, noise_var: float) -> t
     return Belief(kf.x.ravel(), symmetrise(kf.P)), inn
 
 
+def fuse_step(belief: Belief, row, reading, noise_var, weight=1.0) -> Belief:
+    """Fuse one reading y at row h with noise variance r (the one-reading step of a scan):
+
+        k = w C h / (h^T C h + r),  m' = m + k (y - h^T m),  C' = C - k (C h)^T, symmetrised.
+
+    Written with operators only, so it runs on numpy arrays and traces under ``jax.jit``,
+    ``lax.scan`` (a ``Belief`` of JAX arrays is a valid carry) and ``jax.vmap``. ``weight`` w = 1
+    fuses, w = 0 skips (static shapes: a mask instead of a branch). The gain form costs one
+    K x K outer product; ``fuse`` (Joseph form) is the robust choice for a long-lived belief.
+    """
+    ch = belief.cov @ row
+    gain = weight * ch / (row @ ch + noise_var)
+    mean = belief.mean + gain * (reading - row @ belief.mean)
+    cov = belief.cov - gain[:, None] * ch[None, :]
+    return Belief(mean, 0.5 * (cov + cov.T))
+
+
 def condition(belief: Belief, rows: np.ndarray, readings: np.ndarray, noise_var) -> Belief:
     """Batch posterior given readings y = H a + v, v ~ N(0, diag(noise_var)) (Cholesky)."""
     rows = np.atleast_2d(np.asarray(rows, float))
@@ -83,6 +106,19 @@ def covariance_after(cov: np.ndarray, rows: np.ndarray, noise_var) -> np.ndarray
     return condition(Belief(np.zeros(cov.shape[0]), cov), rows, np.zeros(len(rows)), noise_var).cov
 
 
+def precision(cov: np.ndarray) -> np.ndarray:
+    """C^-1 by Cholesky solves (symmetrised): the information form's prior term."""
+    p = cho_solve(cho_factor(cov, lower=True), np.eye(cov.shape[0]))
+    return symmetrise(p)
+
+
+def information_cov(prior_precision: np.ndarray, information: np.ndarray) -> np.ndarray:
+    """C' = (C^-1 + H^T R^-1 H)^-1 by Cholesky solves, given C^-1 and the information
+    H^T R^-1 H of the readings (weighted designs in studies); equals ``covariance_after``."""
+    k = prior_precision.shape[0]
+    return cho_solve(cho_factor(prior_precision + information, lower=True), np.eye(k))
+
+
 def integrated_variance(cov, gram, xp=np):
     """J(C) = trace(Q C) (mm^2 mm^2), both symmetric: the sum of their elementwise product."""
     return xp.sum(gram * cov)
@@ -91,13 +127,19 @@ def integrated_variance(cov, gram, xp=np):
 def rms_std(cov, gram, area_mm2: float, xp=np):
     """RMS posterior std over the plate, sqrt(J(C) / area) (mm): what the variance bound reads.
     ``xp`` is numpy or jax.numpy (the study's vmapped evaluator traces it)."""
-    return xp.sqrt(xp.maximum(integrated_variance(cov, gram, xp), 0.0) / area_mm2)
+    return rms_std_from_integrated_variance(integrated_variance(cov, gram, xp), area_mm2, xp)
 
 
-def predict(belief: Belief, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Posterior mean and variance of the surface at the points of ``rows`` (N, K)."""
-    rows = np.asarray(rows, float)
-    return rows @ belief.mean, np.maximum(np.einsum("nk,nk->n", rows @ belief.cov, rows), 0.0)
+def rms_std_from_integrated_variance(j, area_mm2: float, xp=np):
+    """sqrt(max(J, 0) / area) (mm), for a J known without its covariance (a design bound)."""
+    return xp.sqrt(xp.maximum(j, 0.0) / area_mm2)
+
+
+def predict(belief: Belief, rows, xp=np) -> tuple[np.ndarray, np.ndarray]:
+    """Posterior mean and variance of the surface at the points of ``rows`` (N, K):
+    H m and diag(H C H^T), clipped at 0. ``xp`` is numpy or jax.numpy (traced in studies)."""
+    rows = xp.asarray(rows, float)
+    return rows @ belief.mean, xp.maximum(xp.einsum("nk,nk->n", rows @ belief.cov, rows), 0.0)
 
 
 def sample(belief: Belief, rng: np.random.Generator, n: int) -> np.ndarray:

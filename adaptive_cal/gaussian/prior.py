@@ -19,6 +19,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 
 from adaptive_cal.gaussian.belief import Belief, condition, mixture
@@ -58,9 +59,9 @@ class PriorModel:
         return (p * var) @ p.T
 
     def form_cov(self, form_std_mm, length_scale_mm, xp=np):
-        kx = _se(self.surface.sx.knots[: self.surface.sx.size], length_scale_mm, xp)
-        ky = _se(self.surface.sy.knots[: self.surface.sy.size], length_scale_mm, xp)
-        return form_std_mm**2 * xp.kron(kx, ky)
+        s = self.surface
+        return _form_cov(s.sx.knots[: s.sx.size], s.sy.knots[: s.sy.size], form_std_mm,
+                         length_scale_mm, xp)
 
     def belief(self, hyper: Hyper) -> Belief:
         """The prior belief N(0, C_tilt + C_form(theta))."""
@@ -69,33 +70,53 @@ class PriorModel:
         return Belief(np.zeros(k), cov + JITTER_MM2 * np.eye(k))
 
 
-def _se(knots: np.ndarray, length, xp):
-    d = np.subtract.outer(knots, knots)
+def _se(knots, length, xp):
+    d = knots[:, None] - knots[None, :]
     return xp.exp(-0.5 * (d / length) ** 2)
+
+
+def _form_cov(knots_x, knots_y, form_std_mm, length_scale_mm, xp):
+    """sigma_f^2 K_x kron K_y at the knots (numpy, or traced by JAX in the objective)."""
+    return form_std_mm**2 * xp.kron(_se(knots_x, length_scale_mm, xp),
+                                    _se(knots_y, length_scale_mm, xp))
+
+
+def _solve_lower(lower, b, xp):
+    if xp is np:
+        return solve_triangular(lower, b, lower=True)
+    return jax.scipy.linalg.solve_triangular(lower, b, lower=True)
+
+
+def log_evidence(rows, readings, cov, noise_var, mask=None, xp=np):
+    """log N(y; 0, H C0 H^T + r I): the log marginal likelihood of readings y at rows H under the
+    prior covariance C0, by Cholesky (L L^T = S, z = L^-1 y):
+
+        log p = -z^T z / 2 - sum_i log L_ii - n log(2 pi) / 2.
+
+    ``mask`` (n,) of 0/1 marks padded rows (static shapes under jit): a padded row gets unit
+    variance and zero data, so it adds nothing; n counts the unmasked rows. ``xp`` is numpy or
+    jax.numpy (the hyper-parameter objective traces it)."""
+    if mask is None:
+        mask = xp.ones(rows.shape[0])
+    s = rows @ cov @ rows.T
+    s = s + xp.diag(mask * noise_var + (1.0 - mask))
+    lower = xp.linalg.cholesky(s)
+    z = _solve_lower(lower, readings * mask, xp)
+    return -0.5 * z @ z - xp.sum(xp.log(xp.diag(lower))) - 0.5 * xp.sum(mask) * xp.log(2 * xp.pi)
 
 
 def log_marginal(model: PriorModel, hyper: Hyper, rows: np.ndarray, readings: np.ndarray) -> float:
     """log N(y; 0, H C0 H^T + sigma_n^2 I) -- the evidence of the readings under theta."""
-    rows = np.asarray(rows, float)
-    prior = model.belief(hyper)
-    s = rows @ prior.cov @ rows.T + hyper.noise_std_mm**2 * np.eye(len(rows))
-    lower = np.linalg.cholesky(s)
-    z = np.linalg.solve(lower, np.asarray(readings, float))
-    return float(-0.5 * z @ z - np.log(np.diag(lower)).sum() - 0.5 * len(z) * np.log(2 * np.pi))
+    return float(log_evidence(np.asarray(rows, float), np.asarray(readings, float),
+                              model.belief(hyper).cov, hyper.noise_std_mm**2))
 
 
 def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, mu, sd):
     """-(log N(y; 0, H C0(theta) H^T + sigma_n^2 I) + log hyper-prior); padded rows masked."""
     sf, ls, sn = jnp.exp(log_theta)
-    kx = jnp.exp(-0.5 * ((knots_x[:, None] - knots_x[None, :]) / ls) ** 2)
-    ky = jnp.exp(-0.5 * ((knots_y[:, None] - knots_y[None, :]) / ls) ** 2)
-    cov = tilt_cov + sf**2 * jnp.kron(kx, ky) + JITTER_MM2 * jnp.eye(tilt_cov.shape[0])
-    s = rows @ cov @ rows.T
-    s = s + jnp.diag(mask * sn**2 + (1.0 - mask))  # padded rows: unit variance, zero data
-    lower = jnp.linalg.cholesky(s)
-    z = jax.scipy.linalg.solve_triangular(lower, readings * mask, lower=True)
-    loglik = -0.5 * z @ z - jnp.sum(jnp.log(jnp.diag(lower))) \
-        - 0.5 * jnp.sum(mask) * jnp.log(2 * jnp.pi)
+    cov = tilt_cov + _form_cov(knots_x, knots_y, sf, ls, jnp) \
+        + JITTER_MM2 * jnp.eye(tilt_cov.shape[0])
+    loglik = log_evidence(rows, readings, cov, sn**2, mask, jnp)
     logprior = -0.5 * jnp.sum(((log_theta - mu) / sd) ** 2)
     return -(loglik + logprior)
 

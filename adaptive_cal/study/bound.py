@@ -32,7 +32,7 @@ the pseudo-Bayesian I-criterion (Chaloner & Verdinelli 1995): convex in w, gradi
 posterior over the hyper-parameters the planner held when it stopped" (at a refit the mixture's
 variance is at least J_marg; after it, new readings are fused under the MAP's noise); the
 single-hyper bound answers "how few touches could an oracle that knows the hyper-parameters
-need". Both are reported.
+need". Both go into the summary.
 """
 from __future__ import annotations
 
@@ -42,9 +42,9 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
-
 from adaptive_cal.cell.schema import Cell
+from adaptive_cal.gaussian.belief import Belief, fuse_step, information_cov, integrated_variance
+from adaptive_cal.gaussian.belief import precision
 from adaptive_cal.planning.scoring import candidate_grid
 from adaptive_cal.gaussian.prior import Hyper, PriorModel
 
@@ -61,14 +61,12 @@ class DesignProblem:
 
     @cached_property
     def prior_precision(self) -> np.ndarray:
-        k = self.prior_cov.shape[0]
-        p = cho_solve(cho_factor(self.prior_cov, lower=True), np.eye(k))
-        return 0.5 * (p + p.T)
+        return precision(self.prior_cov)
 
     @cached_property
     def prior_integrated_variance(self) -> float:
         """J with no touches: trace(Q C0)."""
-        return float(np.sum(self.gram * self.prior_cov))
+        return float(integrated_variance(self.prior_cov, self.gram))
 
     def integrated_variance(self, counts: np.ndarray) -> float:
         """J of an integer design given as touch counts per candidate."""
@@ -145,17 +143,15 @@ def _objective(prob: Problem, weights: np.ndarray, n: float, scores: bool = True
             if scores:
                 summed = summed + a * s
         return total, (summed if scores else None)
-    k = prob.prior_cov.shape[0]
     active = weights > 0
     rows = prob.rows[active]
     info = (rows * (weights[active] * n / prob.noise_var)[:, None]).T @ rows
-    post = cho_factor(prob.prior_precision + info, lower=True)
-    cov = cho_solve(post, np.eye(k))
+    cov = information_cov(prob.prior_precision, info)
     if not scores:
-        return float(np.sum(prob.gram * cov)), None
+        return float(integrated_variance(cov, prob.gram)), None
     w = cov @ prob.gram @ cov
     scores = np.einsum("nk,nk->n", prob.rows @ w, prob.rows) / prob.noise_var
-    return float(np.sum(prob.gram * cov)), scores
+    return float(integrated_variance(cov, prob.gram)), scores
 
 
 def relaxed_design(prob: Problem, n: float, *, iterations: int = 300, tol: float = 2e-3,
@@ -264,16 +260,15 @@ def greedy_touches(prob: DesignProblem, target_j: float, max_touches: int) -> in
     candidate with the largest drop of J, as the planner scores it, with nothing to learn): a
     feasible integer design, so relaxed <= best integer <= greedy brackets the best integer
     design where enumeration is out of reach. None if max_touches do not reach ``target_j``."""
-    cov = prob.prior_cov.copy()
+    belief = Belief(np.zeros(len(prob.prior_cov)), prob.prior_cov)
     for n in range(max_touches + 1):
-        if float(np.sum(prob.gram * cov)) <= target_j:
+        if float(integrated_variance(belief.cov, prob.gram)) <= target_j:
             return n
-        ch = prob.rows @ cov
+        ch = prob.rows @ belief.cov
         drop = np.einsum("nk,kl,nl->n", ch, prob.gram, ch) / (
             np.einsum("nk,nk->n", ch, prob.rows) + prob.noise_var)
         i = int(np.argmax(drop))
-        cov = cov - np.outer(ch[i], ch[i]) / (ch[i] @ prob.rows[i] + prob.noise_var)
-        cov = 0.5 * (cov + cov.T)
+        belief = fuse_step(belief, prob.rows[i], 0.0, prob.noise_var)  # C' is reading-free
     return None
 
 

@@ -10,9 +10,9 @@ import math
 from pathlib import Path
 from typing import Literal
 
-import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from adaptive_cal.gaussian.belief import rms_std_from_integrated_variance
 from adaptive_cal.hardware.config import Strict
 from adaptive_cal.cell.schema import Cell, ConfigError, Rect, load_yaml, parse_cell, validate
 
@@ -208,4 +208,4 @@ def noise_floor_mm(study: Study, cell: Cell) -> float:
     prob = design_problem(cell, model, model.hyper0._replace(noise_std_mm=max(noise, 1e-6)),
                           candidates=400)
     j = relaxed_integrated_variance(prob, study.bound.max_touches, iterations=60)
-    return float(np.sqrt(max(j, 0.0) / prob.area_mm2))
+    return float(rms_std_from_integrated_variance(j, prob.area_mm2))

@@ -3,7 +3,8 @@ estimators that turn a design's readings into a belief.
 
 Every strategy is judged by the same spline model, so the comparison is between designs, not
 estimators. With fixed hyper-parameters the covariance after a design does not depend on the
-readings: the sequential posterior along a design is a ``lax.scan`` of rank-one updates
+readings: the sequential posterior along a design is a ``lax.scan`` of the one-reading step
+``belief.fuse_step``
 
     k = C h / (h^T C h + r),  m' = m + k (y - h^T m),  C' = C - k h^T C,
 
@@ -121,18 +122,11 @@ class Evaluator:
 
 
 # -- fixed hyper-parameters: vmap over plates --------------------------------------------------
-def _step(carry, inp, noise_var, gram, eval_rows, truth_eval, area):
-    mean, cov = carry
-    h, y, on = inp
-    ch = cov @ h
-    k = on * ch / (h @ ch + noise_var)
-    mean = mean + k * (y - h @ mean)
-    cov = cov - jnp.outer(k, ch)
-    cov = 0.5 * (cov + cov.T)
-    err = eval_rows @ mean - truth_eval
-    j = jnp.sum(gram * cov)
-    return (mean, cov), (jnp.sqrt(jnp.maximum(j, 0.0) / area), jnp.sqrt(jnp.mean(err**2)),
-                         jnp.max(jnp.abs(err)))
+def _figures(belief: bl.Belief, gram, eval_rows, truth_eval, area):
+    """RMS posterior std, true RMS and true max error of a belief (traced by JAX)."""
+    err = eval_rows @ belief.mean - truth_eval
+    return (bl.rms_std(belief.cov, gram, area, jnp), jnp.sqrt(jnp.mean(err**2)),
+            jnp.max(jnp.abs(err)))
 
 
 def _trajectory(rows, heights, truth_eval, touches, prior_mean, prior_cov, gram, eval_rows,
@@ -140,17 +134,20 @@ def _trajectory(rows, heights, truth_eval, touches, prior_mean, prior_cov, gram,
     """One plate: RMS posterior std, true RMS and max error after each touch; and all four
     figures (with the 95 % coverage) after the first ``touches`` touches."""
     on = (jnp.arange(rows.shape[0]) < touches).astype(rows.dtype)
-    step = partial(_step, noise_var=noise_var, gram=gram, eval_rows=eval_rows,
-                   truth_eval=truth_eval, area=area)
-    _, per_touch = jax.lax.scan(step, (prior_mean, prior_cov),
-                                (rows, heights, jnp.ones(rows.shape[0], rows.dtype)))
-    (mean, cov), _ = jax.lax.scan(step, (prior_mean, prior_cov), (rows, heights, on))
-    err = eval_rows @ mean - truth_eval
-    var = jnp.einsum("ek,kl,el->e", eval_rows, cov, eval_rows)
-    cover = jnp.mean((jnp.abs(err) <= bl.Z95 * jnp.sqrt(jnp.maximum(var, 0.0))).astype(err.dtype))
-    final = (jnp.sqrt(jnp.maximum(jnp.sum(gram * cov), 0.0) / area), jnp.sqrt(jnp.mean(err**2)),
-             jnp.max(jnp.abs(err)), cover)
-    return per_touch, final
+
+    def step(belief, inp):
+        row, reading, weight = inp
+        belief = bl.fuse_step(belief, row, reading, noise_var, weight)
+        return belief, _figures(belief, gram, eval_rows, truth_eval, area)
+
+    prior = bl.Belief(prior_mean, prior_cov)
+    _, per_touch = jax.lax.scan(step, prior, (rows, heights, jnp.ones(rows.shape[0], rows.dtype)))
+    final, _ = jax.lax.scan(step, prior, (rows, heights, on))
+    mean_std, true_rms, true_max = _figures(final, gram, eval_rows, truth_eval, area)
+    mean, var = bl.predict(final, eval_rows, jnp)
+    err = mean - truth_eval
+    cover = jnp.mean((jnp.abs(err) <= bl.Z95 * jnp.sqrt(var)).astype(err.dtype))
+    return per_touch, (mean_std, true_rms, true_max, cover)
 
 
 @partial(jax.jit, static_argnames=("shared",))
@@ -191,8 +188,8 @@ def evaluate_loop(prior: bl.Belief, noise_var: float, ev: Evaluator, rows, heigh
         for t in range(n):
             belief = bl.condition(belief, r[t : t + 1], heights[p, t : t + 1], noise_var)
             err = ev.eval_rows @ belief.mean - truth_eval[p]
-            j = max(float(np.sum(ev.gram * belief.cov)), 0.0)
-            per[:, p, t] = (np.sqrt(j / ev.area_mm2), np.sqrt(np.mean(err**2)), np.abs(err).max())
+            per[:, p, t] = (bl.rms_std(belief.cov, ev.gram, ev.area_mm2),
+                            np.sqrt(np.mean(err**2)), np.abs(err).max())
             if t + 1 == touches[p]:
                 for k, v in ev(belief, truth_eval[p]).items():
                     fin[k][p] = v

@@ -1,132 +1,13 @@
-"""Tables and plots of a study: the headline table (markdown), touches against bound per
-strategy, coverage, and one example plate per strategy with its touches."""
+"""The study page (docs/study.md): how it was made, the headline table and figure, the issue's
+targets against what was measured, and the benchmark figures of benchmarks/results/*.json."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
-import numpy as np
-
 from adaptive_cal.study.config import Study
-
-
-def _f(v, scale=1.0, fmt="{:.1f}"):
-    return "-" if v is None else fmt.format(v * scale)
-
-
-def table(summary: dict) -> str:
-    """The headline table (markdown): touches and robot time to the bound on the true error;
-    true error and coverage at each strategy's own stop."""
-    b = summary["bound"]
-    lines = [f"bound: RMS posterior std {b['mean_std_mm'] * 1e3:.1f} um (own stop), true RMS "
-             f"error {(b['true_rms_mm'] or b['mean_std_mm']) * 1e3:.1f} um; "
-             f"{summary['plates']} plates", "",
-             "| strategy | touches to true bound (mean / p90) | robot time (s) | reached | "
-             "touches at own stop | true RMS (um) | true max (um) | coverage95 |",
-             "|---|---|---|---|---|---|---|---|"]
-    for name, s in summary["strategies"].items():
-        lines.append(
-            f"| {name} | {s['touches_mean']:.1f} / {s['touches_p90']:.0f} | "
-            f"{_f(s['robot_time_s_mean'], fmt='{:.0f}')} | {s['true_bound_reached']:.0%} | "
-            f"{_f(s['stop_touches_mean'])} | {_f(s['true_rms_mm_mean'], 1e3, '{:.2f}')} | "
-            f"{_f(s['true_max_mm_mean'], 1e3, '{:.1f}')} | {_f(s['coverage95_mean'], 1, '{:.3f}')} |")
-    lb = summary.get("lower_bound") or {}
-    if lb.get("plates"):
-        lines += ["", f"lower bound (relaxed optimal design, same hyper-parameters, first "
-                  f"{lb['plates']} plates): {_f(lb['relaxed_touches'])} touches; best integer "
-                  f"design: {_f(lb['best_integer_touches']) if lb['best_integer_touches'] else 'not computed (too many designs)'}; "
-                  f"adaptive at its own stop / relaxed: {_f(lb['adaptive_over_relaxed'], 1, '{:.2f}')}"]
-        if lb.get("relaxed_whole_touches"):
-            lines[-1] += (f"; the relaxed bound in whole touches: "
-                          f"{_f(lb['relaxed_whole_touches'])}, adaptive / that: "
-                          f"{_f(lb['adaptive_over_relaxed_whole'], 1, '{:.2f}')}")
-        if lb.get("marginal_whole_touches_at_stop"):
-            lines[-1] += (f"; for the planner's own stop (its belief mixes the posteriors under "
-                          f"the hyper-parameter points it held then): "
-                          f"{_f(lb['marginal_whole_touches_at_stop'])} whole touches, adaptive / "
-                          f"that: {_f(lb['adaptive_over_marginal_whole_at_stop'], 1, '{:.2f}')}")
-        if lb.get("greedy_known_touches"):
-            lines[-1] += (f". The best integer design lies between the relaxed bound and the greedy "
-                          f"design with the same hyper-parameters known from the start "
-                          f"({_f(lb['greedy_known_touches'])} touches, "
-                          f"{lb['greedy_known_over_relaxed']:.2f} x relaxed); adaptive / greedy "
-                          f"known: {lb['adaptive_over_greedy_known']:.2f} (mean of per-plate ratios)")
-    vp = summary.get("adaptive_vs_paper")
-    if vp:
-        lines += ["", f"paper's procedure: {vp['paper_touches_mean']:.1f} touches, true RMS "
-                  f"{vp['paper_true_rms_mm_mean'] * 1e3:.2f} um; adaptive reaches each plate's "
-                  f"paper accuracy with {_f(vp['adaptive_touches_to_paper_accuracy_mean'])} "
-                  f"touches ({vp['reached']:.0%} of plates), ratio of means "
-                  f"{_f(vp['touch_ratio_of_means'], 1, '{:.2f}')}; to the paper's mean accuracy "
-                  f"{_f(vp.get('adaptive_touches_to_paper_mean_accuracy'))} touches (ratio "
-                  f"{_f(vp.get('touch_ratio_mean_accuracy'), 1, '{:.2f}')})"
-                  + (f". The paper's own map (last round's readings interpolated) has true RMS "
-                     f"{vp['paper_native_true_rms_mm_mean'] * 1e3:.2f} um; adaptive reaches it "
-                     f"with {vp['adaptive_touches_to_paper_native_accuracy_mean']:.1f} touches "
-                     f"(ratio {vp['touch_ratio_native']:.2f})" if "touch_ratio_native" in vp
-                     else "")]
-    return "\n".join(lines)
-
-
-def write_report(study: Study, summary: dict, records: list[dict], base: dict, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "table.md").write_text(table(summary) + "\n", encoding="utf-8")
-    names = list(summary["strategies"])
-    by = {s: [r for r in records if r["strategy"] == s] for s in names}
-
-    # touches against bound (posterior and true), from the trajectories
-    bounds = np.geomspace(study.bound.mean_std_mm, 8 * study.bound.mean_std_mm, 12)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for s in names:
-        for ax, col in zip(axes, (1, 2)):
-            med = []
-            for b in bounds:
-                t = [next((p[0] for p in r["trajectory"] if p[col] <= b), np.nan) for r in by[s]]
-                med.append(np.nanmean(t) if np.isfinite(t).any() else np.nan)
-            ax.plot(bounds * 1e3, med, "o-", label=s, ms=3)
-    for ax, what in zip(axes, ("RMS posterior std", "true RMS error")):
-        ax.set_xscale("log")
-        ax.set_xlabel(f"bound on the {what} (um)")
-        ax.set_ylabel("touches (mean over plates)")
-        ax.grid(alpha=0.3)
-    axes[0].legend()
-    fig.tight_layout()
-    fig.savefig(out / "touches_vs_bound.png", dpi=110)
-    plt.close(fig)
-
-    # coverage at the own stop, per strategy
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.boxplot([[r["coverage95"] for r in by[s]] for s in names], tick_labels=names)
-    ax.axhline(0.95, color="k", ls="--", lw=1)
-    ax.set_ylabel("share of the plate inside the 95 % band")
-    fig.tight_layout()
-    fig.savefig(out / "coverage.png", dpi=110)
-    plt.close(fig)
-
-    # one example plate per strategy
-    wp = base["workplane"]
-    fig, axes = plt.subplots(1, len(names), figsize=(3.4 * len(names), 3.2), squeeze=False)
-    for ax, s in zip(axes[0], names):
-        rec = next((r for r in by[s] if r["plate"] == study.example_plate), None)
-        if rec is None:
-            continue
-        xy = np.asarray(rec["xy"][: rec["touches"]]).reshape(-1, 2)
-        ax.plot(xy[:, 0], xy[:, 1], "-", color="0.7", lw=0.6)
-        ax.scatter(xy[:, 0], xy[:, 1], c=np.arange(len(xy)), s=10, cmap="viridis")
-        ax.set_title(f"{s}: {rec['touches']} touches\ntrue RMS {rec['true_rms_mm'] * 1e3:.1f} um",
-                     fontsize=9)
-        ax.set_xlim(wp["x_mm"])
-        ax.set_ylim(wp["y_mm"])
-        ax.set_aspect("equal")
-        ax.tick_params(labelsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "example_plate.png", dpi=110)
-    plt.close(fig)
+from adaptive_cal.study.plates import plate_cell, sample_plate
+from adaptive_cal.study.summary import table
 
 
 DOC = """# Simulation studies
@@ -200,8 +81,6 @@ touches), `table.md`; per-plate records in `{out_dir}/plates.jsonl`.
 
 def targets_section(summary: dict, results: Path) -> str:
     """The issue's targets against what was measured."""
-    import json
-
     def mark(ok):
         return "met" if ok else "**missed**"
 
@@ -247,11 +126,11 @@ def targets_section(summary: dict, results: Path) -> str:
                          f"relaxed bound, and adaptive {lb['adaptive_over_greedy_known']:.2f} x "
                          "the greedy design (mean of per-plate ratios). The greedy design is not "
                          "a lower bound.")
-        for rep in sorted(results.glob("study-*-seed*.json")):  # replications on other seeds
-            rl = (json.loads(rep.read_text()).get("lower_bound") or {})
+        for replication in sorted(results.glob("study-*-seed*.json")):  # on other seeds
+            rl = (json.loads(replication.read_text()).get("lower_bound") or {})
             rr, rw = rl.get("adaptive_over_relaxed"), rl.get("adaptive_over_relaxed_whole")
             if rr:
-                lines.append(f"  Replication `{rep.name}` ({rl['plates']} plates): "
+                lines.append(f"  Replication `{replication.name}` ({rl['plates']} plates): "
                              + (f"{rw:.2f} x in whole touches, " if rw else "")
                              + f"{rr:.2f} x relaxed ({mark((rw or rr) <= 1.2)}); ratio of means "
                              f"{rl['adaptive_stop_touches_same_plates'] / rl['relaxed_touches']:.2f}"
@@ -286,8 +165,6 @@ def targets_section(summary: dict, results: Path) -> str:
 
 def benchmarks_section(results: Path) -> str:
     """Figures of benchmarks/results/*.json, where present."""
-    import json
-
     lines = ["## Benchmarks", "",
              "Measured on the development machine (2 cores shared with other jobs, "
              "`OPENBLAS_NUM_THREADS=1`); rerun the scripts named to refresh them.", ""]
@@ -350,8 +227,6 @@ def benchmarks_section(results: Path) -> str:
 
 def _planner_probe(study: Study, base: dict):
     """The probe block the planner sees on the study's plates (plate 0 stands for all)."""
-    from adaptive_cal.study.plates import plate_cell, sample_plate
-
     return plate_cell(study, base, sample_plate(study, 0)).probe
 
 

@@ -1,0 +1,195 @@
+"""The pieces of a run's HTML page: the cell, the run, the tilt correction for the controller,
+flatness with 95 % intervals, what ``explain`` found, and the headline cards. Each takes the run's
+saved data (result.json, explain.json) and returns an HTML string; numbers are formatted here,
+never computed."""
+from __future__ import annotations
+
+import base64
+import html
+import json
+from pathlib import Path
+
+import numpy as np
+
+from adaptive_cal.cell.schema import Cell
+
+UM = 1000.0
+FLATNESS = (("least_squares", "least squares (Cheng eq. 5)"), ("minimum_zone", "minimum zone (ISO 1101)"),
+            ("range", "range, max - min (tilt included)"))
+EXPLAIN_FIGURES = ("residual_map.png", "residual_vs_position.png", "residual_vs_time.png",
+                   "residual_vs_direction.png", "residual_vs_reach.png",
+                   "residual_vs_indication.png", "fitted_effect.png")
+
+
+def rotation(rx_deg: float, ry_deg: float) -> np.ndarray:
+    """rotx(rx) @ roty(ry): the rotation the nominal user frame is multiplied by on the right."""
+    a, b = np.radians(rx_deg), np.radians(ry_deg)
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    return rx @ ry
+
+
+def escape(v) -> str:
+    return html.escape(str(v))
+
+
+def image(b64: str | None, alt: str, caption: str) -> str:
+    if b64 is None:
+        return f"<p class='note'>{escape(alt)}: no figure in the run folder.</p>"
+    return (f"<figure><img alt='{escape(alt)}' src='data:image/png;base64,{b64}'>"
+            f"<figcaption>{escape(caption)}</figcaption></figure>")
+
+
+def _table(rows, head=None, cls="") -> str:
+    out = [f"<table class='{cls}'>"]
+    if head:
+        out.append("<tr>" + "".join(f"<th>{escape(h)}</th>" for h in head) + "</tr>")
+    for r in rows:
+        out.append("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>")
+    return "".join(out) + "</table>"
+
+
+def _um(mm) -> str:
+    return "-" if mm is None else f"{mm * UM:.1f} um"
+
+
+def _interval(f: dict) -> str:
+    lo, hi = f.get("ci95", [None, None])
+    if lo is None:
+        return "-"
+    return f"{lo:.4f} .. {hi:.4f} mm"
+
+
+def cell_section(cell: Cell, result: dict) -> str:
+    wp, pr, st = cell.workplane, cell.probe, cell.plan.stop
+    k = result.get("knots_mm", {})
+    rows = [
+        ("name", escape(cell.name)),
+        ("robot adapter / probe adapter", f"{escape(cell.robot.adapter)} / {escape(pr.adapter)}"),
+        ("workplane", f"x {wp.x_mm[0]:g} .. {wp.x_mm[1]:g} mm, y {wp.y_mm[0]:g} .. {wp.y_mm[1]:g} mm "
+                      f"({wp.x_mm[1] - wp.x_mm[0]:g} x {wp.y_mm[1] - wp.y_mm[0]:g} mm), edge margin "
+                      f"{wp.edge_margin_mm:g} mm, {len(wp.keep_outs)} keep-out(s)"),
+        ("probe", f"stroke {pr.stroke_mm:g} mm, usable {pr.usable_mm[0]:g} .. {pr.usable_mm[1]:g} mm, "
+                  f"zero {pr.zero_mm:g} mm, resolution {pr.resolution_mm * UM:g} um"),
+        ("stopping bound", ", ".join(filter(None, [
+            f"RMS posterior std {_um(st.mean_std_mm)}" if st.mean_std_mm else "",
+            f"max posterior std {_um(st.max_std_mm)}" if st.max_std_mm else "",
+            f"at most {st.max_touches} touches"]))),
+        ("spline knots", f"{len(k.get('x', []))} x {len(k.get('y', []))}, {escape(k.get('ends', '-'))} ends"
+                         if k else "-"),
+    ]
+    return "<h2>The cell</h2>" + _table(rows, cls="kv")
+
+
+def run_section(result: dict) -> str:
+    p, h = result["posterior"], result.get("hyper", {})
+    rows = [("touches", f"{result['touches']} ({result['fused']} fused)"),
+            ("stopped because", escape(result["stopped_because"].replace("_", " "))),
+            ("posterior std over the plate", f"RMS {_um(p['mean_std_mm'])}, max {_um(p['max_std_mm'])}"),
+            ("reading noise (learned)", _um(h.get("noise_std_mm"))),
+            ("form prior (learned)", f"amplitude {_um(h.get('form_std_mm'))}, length scale "
+                                     f"{h.get('length_scale_mm', float('nan')):.0f} mm")]
+    if "truth" in result:
+        t = result["truth"]
+        rows.append(("simulated cell: true error", f"RMS {_um(t['rms_error_mm'])}, max "
+                     f"{_um(t['max_error_mm'])}; the 95 % band covers {t['coverage95']:.0%} of the plate"))
+    return "<h2>The run</h2>" + _table(rows, cls="kv")
+
+
+def tilt_section(tilt: dict) -> str:
+    rx, ry = tilt["rx_deg"], tilt["ry_deg"]
+    R = rotation(rx, ry)
+    sx, sy = tilt.get("rx_std_deg"), tilt.get("ry_std_deg")
+    pm = lambda s: "" if s is None else f" &plusmn; {s:.4f}"
+    rows = [("rx (about the user frame's x axis)", f"<b>{rx:+.4f} deg</b>{pm(sx)} ({np.radians(rx):+.6f} rad)"),
+            ("ry (about the rotated y axis)", f"<b>{ry:+.4f} deg</b>{pm(sy)} ({np.radians(ry):+.6f} rad)"),
+            ("fitted plane z = a x + b y + c", f"a {tilt['a']:+.6f} mm/mm, b {tilt['b']:+.6f} mm/mm, "
+                                              f"c {tilt['c']:+.4f} mm"),
+            ("height change over 100 mm", f"along x {tilt['a'] * 100 * UM:+.1f} um, along y "
+                                          f"{tilt['b'] * 100 * UM:+.1f} um")]
+    matrix = "<br>".join("[" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in R)
+    return ("<h2>Tilt correction for the controller</h2>"
+            "<p>Rotate the user frame so its z axis is the plate normal:</p>"
+            f"<pre class='code'>frame_new = frame_nominal * rotx({rx:+.4f} deg) * roty({ry:+.4f} deg)\n"
+            f"# RoboDK (radians): frame_new = frame_nominal * rotx({np.radians(rx):+.6f}) * "
+            f"roty({np.radians(ry):+.6f})</pre>"
+            + _table(rows, cls="kv")
+            + f"<p>rotx(rx) roty(ry), the rotation to multiply on the right (no translation):</p>"
+              f"<pre class='code'>{matrix}</pre>"
+              "<p class='note'>± is one posterior standard deviation (surfaces sampled from the "
+              "belief). c is the plate height at the frame origin, measured from where the probe "
+              "reads its zero: moving the frame origin by +c along z puts it on the plate.</p>")
+
+
+def flatness_section(result: dict) -> str:
+    fl = result["flatness_mm"]
+    rows = []
+    for key, name in FLATNESS:
+        if key in fl:
+            f = fl[key]
+            rows.append((name, f"<b>{f['value']:.4f} mm</b>", _interval(f), _um(f["value"])))
+    return ("<h2>Flatness</h2>"
+            + _table(rows, head=("figure", "value", "95 % interval", "in um"))
+            + "<p class='note'>Value: the figure of the posterior mean surface over the whole plate. "
+              "Interval: the same figure over surfaces sampled from the belief. Least squares and "
+              "minimum zone are measured normal to the planes; range includes the tilt.</p>")
+
+
+def explain_section(run_dir: Path) -> str:
+    path = run_dir / "explain.json"
+    if not path.exists():
+        return ("<h2>Explain</h2><p class='note'>No explain findings in this folder. To compare the "
+                "recording with the cell's simulation: <code>adaptive-cal explain "
+                f"{escape(run_dir / 'recording.csv')} --sim CELL.yaml --json {escape(path)} --out "
+                f"{escape(run_dir)}</code>, then run the report again.</p>")
+    findings = json.loads(path.read_text(encoding="utf-8"))
+    fit = findings.get("fit", {})
+    parts = ["<h2>Explain: what the simulation left out</h2>",
+             f"<p class='verdict'>verdict: <b>{escape(findings.get('verdict', '-'))}</b>"
+             + (" (no left-out effect is supported by the data)" if findings.get("verdict") == "none" else "")
+             + "</p>"]
+    rows = [(escape(e["effect"]), escape(e["summary"])) for e in findings.get("left_out", [])]
+    if rows:
+        parts.append(_table(rows, head=("effect", "fitted (log Bayes factor against none)")))
+    if fit:
+        parts.append(_table([
+            ("RMS residual", f"{_um(fit.get('rms_before_mm'))} &rarr; {_um(fit.get('rms_after_mm'))}"),
+            ("leave-one-out RMS", f"{_um(fit.get('cv_rms_before_mm'))} &rarr; "
+                                  f"{_um(fit.get('cv_rms_after_mm'))}")],
+            head=("fit", "nominal → with the effect"), cls="kv"))
+    by = findings.get("mismatch", {}).get("by", {})
+    if by:
+        parts.append(_table([(escape(k), f"{v['p_value']:.3g}" + (" <b>real</b>" if v.get("real") else "")
+                              if v.get("p_value") is not None else escape(v.get("note", "-")))
+                             for k, v in by.items()],
+                            head=("residual against", "F-test p (small = a real trend)"), cls="kv"))
+    r = findings.get("rounds")
+    if r and "p_value" in r:
+        lo, hi = r["null_change_95_mm"]
+        real = "larger than" if r.get("exceeds_noise") else "within"
+        parts.append(f"<p>Rounds: flatness {r['flatness_mm'][0]:.4f} &rarr; {r['flatness_mm'][1]:.4f} "
+                     f"mm, change {r['change_mm']:+.4f} mm; noise alone gives 95 % within "
+                     f"[{lo:+.4f}, {hi:+.4f}] mm (repeatability {_um(r['repeatability_mm'])}), "
+                     f"p = {r['p_value']:.3f}: the change is <b>{real}</b> what noise gives.</p>")
+    ni = findings.get("not_identifiable", [])
+    if ni:
+        parts.append("<p>Not identifiable from this recording:</p><ul>" + "".join(
+            f"<li><b>{escape(e['effect'])}</b>: {escape(e['why'])}</li>" for e in ni) + "</ul>")
+    for name in EXPLAIN_FIGURES:
+        p = run_dir / name
+        if p.exists():
+            parts.append(image(base64.b64encode(p.read_bytes()).decode("ascii"), name, name))
+    return "".join(parts)
+
+
+def cards(result: dict, run_dir: Path) -> str:
+    t, ls, p = result["tilt"], result["flatness_mm"]["least_squares"], result["posterior"]
+    cards = [(f"rx {t['rx_deg']:+.4f} deg<br>ry {t['ry_deg']:+.4f} deg", "tilt correction"),
+             (f"{ls['value']:.4f} mm", f"flatness, least squares (95 % {_interval(ls)})"),
+             (f"{_um(p['mean_std_mm'])}", f"RMS posterior std after {result['touches']} touches")]
+    ex = run_dir / "explain.json"
+    if ex.exists():
+        cards.append((escape(json.loads(ex.read_text(encoding="utf-8")).get("verdict", "-")),
+                      "explain verdict (left-out physics)"))
+    return "<div class='cards'>" + "".join(
+        f"<div class='card'><div class='v'>{v}</div><div class='l'>{l}</div></div>" for v, l in cards) + "</div>"

@@ -1,0 +1,49 @@
+"""Changes to a loaded study from the command line: ``--plates N``, ``--strategies a,b`` and
+``--set KEY=VALUE`` (a dotted key of the study file, the value read as YAML). The changed study is
+validated like the file, and checked against the base cell; errors name the key."""
+from __future__ import annotations
+
+from typing import Sequence
+
+import yaml
+
+from adaptive_cal.cell.schema import ConfigError, parse_cell
+from adaptive_cal.study.config import Study, check_feasible, parse_study
+
+
+def set_key(data: dict, item: str) -> dict:
+    """``data`` (a study as a mapping) with one ``KEY=VALUE`` applied: a new mapping, blocks
+    copied on the way down, so ``data`` is left as it was."""
+    key, sep, value = item.partition("=")
+    if not sep:
+        raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
+    *path, leaf = key.split(".")
+    out = dict(data)
+    node = out
+    for part in path:
+        if not isinstance(node.get(part), dict):
+            raise ConfigError(f"--set {key}: {part!r} is not a block of the study file")
+        node[part] = dict(node[part])
+        node = node[part]
+    node[leaf] = yaml.safe_load(value)
+    return out
+
+
+def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
+                    strategies: str | None = None, settings: Sequence[str] = (),
+                    source: str = "overrides") -> Study:
+    """The study with the command line's changes: ``plates`` (0 or None: keep), ``strategies``
+    (comma separated), ``settings`` (KEY=VALUE items, in order). Re-validated and checked
+    against the base cell whenever strategies or settings change."""
+    if plates:
+        study = study.model_copy(update={"plates": plates})
+    if not (strategies or settings):
+        return study
+    data = study.model_dump(mode="json")
+    if strategies:
+        data["strategies"] = [s.strip() for s in strategies.split(",") if s.strip()]
+    for item in settings:
+        data = set_key(data, item)
+    study = parse_study(data, source)
+    check_feasible(study, parse_cell(base), source)
+    return study

@@ -1,0 +1,177 @@
+"""The summary of a study (OUT.json) and its headline table (markdown): per strategy the touches
+and robot time to the bound on the TRUE error, and at each strategy's own stop the posterior bound,
+true errors and 95 % coverage; the lower bound on touches; adaptive against the paper."""
+from __future__ import annotations
+
+import numpy as np
+
+from adaptive_cal.study.config import Study
+
+
+def _mean(values) -> float | None:
+    v = [x for x in values if x is not None]
+    return float(np.mean(v)) if v else None
+
+
+def summarise(study: Study, records: list[dict]) -> dict:
+    """OUT.json: per strategy the touches and robot time to reach the bound on the TRUE error
+    (the budget counted where it was never reached), and at the strategy's own stop the posterior
+    bound, true RMS and max error and 95 % coverage; the lower bound; adaptive against paper."""
+    budget = study.bound.max_touches
+    out = {"study": study.name, "plates": study.plates, "bound": study.bound.model_dump(),
+           "strategies": {}, "lower_bound": {}}
+    by = {s: [r for r in records if r["strategy"] == s] for s in study.strategies}
+    for s, recs in by.items():
+        if not recs:
+            continue
+        touches = [r["touches_true"] if r["touches_true"] is not None else budget for r in recs]
+        out["strategies"][s] = {
+            "plates": len(recs),
+            "touches_mean": float(np.mean(touches)),
+            "touches_p90": float(np.percentile(touches, 90)),
+            "robot_time_s_mean": _mean(r["robot_time_true_s"] for r in recs),
+            "true_bound_reached": float(np.mean([r["touches_true"] is not None for r in recs])),
+            "true_rms_mm_mean": _mean(r["true_rms_mm"] for r in recs),
+            "true_max_mm_mean": _mean(r["true_max_mm"] for r in recs),
+            "coverage95_mean": _mean(r["coverage95"] for r in recs),
+            "stop_touches_mean": _mean(r["touches"] for r in recs),
+            "stop_touches_p90": float(np.percentile([r["touches"] for r in recs], 90)),
+            "stop_robot_time_s_mean": _mean(r["robot_time_s"] for r in recs),
+            "stop_mean_std_mm_mean": _mean(r["mean_std_mm"] for r in recs),
+        }
+    adaptive = by.get("adaptive", [])
+    lb = [r for r in adaptive if r.get("relaxed_touches") is not None]
+    relaxed = _mean(r["relaxed_touches"] for r in lb)
+    best = [r.get("best_integer_touches") for r in lb]
+    out["lower_bound"] = {
+        "plates": len(lb),
+        "relaxed_touches": relaxed,
+        "best_integer_touches": _mean(best) if best and all(b is not None for b in best) else None,
+        "adaptive_stop_touches_same_plates": _mean(r["touches"] for r in lb),
+        "adaptive_over_relaxed": _mean(r["touches"] / r["relaxed_touches"] for r in lb
+                                       if r["relaxed_touches"] and np.isfinite(r["relaxed_touches"])),
+    }
+    whole = [r for r in lb if r.get("relaxed_whole_touches") is not None]
+    if whole:  # the relaxation rounded up to whole touches: the tightest bound computed
+        out["lower_bound"].update(
+            relaxed_whole_touches=_mean(r["relaxed_whole_touches"] for r in whole),
+            adaptive_over_relaxed_whole=_mean(
+                r["touches"] / r["relaxed_whole_touches"] for r in whole
+                if r["relaxed_whole_touches"] and np.isfinite(r["relaxed_whole_touches"])))
+    at_stop = [r for r in lb if r.get("relaxed_whole_touches_at_stop")]
+    if at_stop:
+        out["lower_bound"].update(adaptive_over_relaxed_whole_at_stop=_mean(
+            r["touches"] / r["relaxed_whole_touches_at_stop"] for r in at_stop
+            if np.isfinite(r["relaxed_whole_touches_at_stop"])))
+    marginal = [r for r in lb if r.get("marginal_whole_touches_at_stop")]
+    if marginal:  # the bound for the planner's own stop, under its hyper-parameter posterior
+        out["lower_bound"].update(
+            marginal_whole_touches_at_stop=_mean(r["marginal_whole_touches_at_stop"]
+                                                 for r in marginal),
+            adaptive_over_marginal_whole_at_stop=_mean(
+                r["touches"] / r["marginal_whole_touches_at_stop"] for r in marginal
+                if np.isfinite(r["marginal_whole_touches_at_stop"])),
+            adaptive_below_marginal_plates=sum(
+                r["touches"] < r["marginal_whole_touches_at_stop"] for r in marginal))
+    greedy = [r for r in lb if r.get("greedy_known_touches")]
+    if greedy:  # a feasible integer design under the same hyper-parameters: brackets the best one
+        out["lower_bound"].update(
+            greedy_known_touches=_mean(r["greedy_known_touches"] for r in greedy),
+            greedy_known_over_relaxed=_mean(r["greedy_known_touches"] / r["relaxed_touches"]
+                                            for r in greedy if r["relaxed_touches"]),
+            adaptive_over_greedy_known=_mean(r["touches"] / r["greedy_known_touches"]
+                                             for r in greedy))
+    papers = {r["plate"]: r for r in by.get("paper", [])}
+    pairs = [(a, papers[a["plate"]]) for a in adaptive if a["plate"] in papers]
+    if pairs:
+        reach = []
+        for a, p in pairs:
+            hit = [t for t, _, rms in a["trajectory"] if rms <= p["true_rms_mm"]]
+            reach.append(hit[0] if hit else None)
+        got = [(t, p["touches"]) for t, (_, p) in zip(reach, pairs) if t is not None]
+        level = float(np.mean([p["true_rms_mm"] for _, p in pairs]))
+        pop = [next((t for t, _, rms in a["trajectory"] if rms <= level), budget) for a, _ in pairs]
+        out["adaptive_vs_paper"] = {
+            "plates": len(pairs),
+            "paper_touches_mean": float(np.mean([p["touches"] for _, p in pairs])),
+            "paper_true_rms_mm_mean": float(np.mean([p["true_rms_mm"] for _, p in pairs])),
+            "adaptive_touches_to_paper_accuracy_mean": _mean(t for t, _ in got),
+            "reached": len(got) / len(pairs),
+            "touch_ratio_mean": _mean(t / n for t, n in got),
+            "touch_ratio_of_means": (float(np.mean([t for t, _ in got])
+                                           / np.mean([n for _, n in got])) if got else None),
+            # against the paper's mean accuracy (free of the paper's luck on single plates)
+            "adaptive_touches_to_paper_mean_accuracy": float(np.mean(pop)),
+            "touch_ratio_mean_accuracy": float(np.mean(pop) / np.mean([p["touches"]
+                                                                       for _, p in pairs])),
+        }
+        native = [(a, p) for a, p in pairs if p.get("native_true_rms_mm") is not None]
+        if native:
+            # the paper's procedure as published: its own map (last round, interpolated)
+            t_native = [next((t for t, _, rms in a["trajectory"]
+                              if rms <= p["native_true_rms_mm"]), budget) for a, p in native]
+            n_paper = float(np.mean([p["touches"] for _, p in native]))
+            out["adaptive_vs_paper"].update(
+                paper_native_true_rms_mm_mean=float(np.mean([p["native_true_rms_mm"]
+                                                             for _, p in native])),
+                adaptive_touches_to_paper_native_accuracy_mean=float(np.mean(t_native)),
+                touch_ratio_native=float(np.mean(t_native) / n_paper))
+    return out
+
+
+def _f(v, scale=1.0, fmt="{:.1f}"):
+    return "-" if v is None else fmt.format(v * scale)
+
+
+def table(summary: dict) -> str:
+    """The headline table (markdown): touches and robot time to the bound on the true error;
+    true error and coverage at each strategy's own stop."""
+    b = summary["bound"]
+    lines = [f"bound: RMS posterior std {b['mean_std_mm'] * 1e3:.1f} um (own stop), true RMS "
+             f"error {(b['true_rms_mm'] or b['mean_std_mm']) * 1e3:.1f} um; "
+             f"{summary['plates']} plates", "",
+             "| strategy | touches to true bound (mean / p90) | robot time (s) | reached | "
+             "touches at own stop | true RMS (um) | true max (um) | coverage95 |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, s in summary["strategies"].items():
+        lines.append(
+            f"| {name} | {s['touches_mean']:.1f} / {s['touches_p90']:.0f} | "
+            f"{_f(s['robot_time_s_mean'], fmt='{:.0f}')} | {s['true_bound_reached']:.0%} | "
+            f"{_f(s['stop_touches_mean'])} | {_f(s['true_rms_mm_mean'], 1e3, '{:.2f}')} | "
+            f"{_f(s['true_max_mm_mean'], 1e3, '{:.1f}')} | {_f(s['coverage95_mean'], 1, '{:.3f}')} |")
+    lb = summary.get("lower_bound") or {}
+    if lb.get("plates"):
+        lines += ["", f"lower bound (relaxed optimal design, same hyper-parameters, first "
+                  f"{lb['plates']} plates): {_f(lb['relaxed_touches'])} touches; best integer "
+                  f"design: {_f(lb['best_integer_touches']) if lb['best_integer_touches'] else 'not computed (too many designs)'}; "
+                  f"adaptive at its own stop / relaxed: {_f(lb['adaptive_over_relaxed'], 1, '{:.2f}')}"]
+        if lb.get("relaxed_whole_touches"):
+            lines[-1] += (f"; the relaxed bound in whole touches: "
+                          f"{_f(lb['relaxed_whole_touches'])}, adaptive / that: "
+                          f"{_f(lb['adaptive_over_relaxed_whole'], 1, '{:.2f}')}")
+        if lb.get("marginal_whole_touches_at_stop"):
+            lines[-1] += (f"; for the planner's own stop (its belief mixes the posteriors under "
+                          f"the hyper-parameter points it held then): "
+                          f"{_f(lb['marginal_whole_touches_at_stop'])} whole touches, adaptive / "
+                          f"that: {_f(lb['adaptive_over_marginal_whole_at_stop'], 1, '{:.2f}')}")
+        if lb.get("greedy_known_touches"):
+            lines[-1] += (f". The best integer design lies between the relaxed bound and the greedy "
+                          f"design with the same hyper-parameters known from the start "
+                          f"({_f(lb['greedy_known_touches'])} touches, "
+                          f"{lb['greedy_known_over_relaxed']:.2f} x relaxed); adaptive / greedy "
+                          f"known: {lb['adaptive_over_greedy_known']:.2f} (mean of per-plate ratios)")
+    vp = summary.get("adaptive_vs_paper")
+    if vp:
+        lines += ["", f"paper's procedure: {vp['paper_touches_mean']:.1f} touches, true RMS "
+                  f"{vp['paper_true_rms_mm_mean'] * 1e3:.2f} um; adaptive reaches each plate's "
+                  f"paper accuracy with {_f(vp['adaptive_touches_to_paper_accuracy_mean'])} "
+                  f"touches ({vp['reached']:.0%} of plates), ratio of means "
+                  f"{_f(vp['touch_ratio_of_means'], 1, '{:.2f}')}; to the paper's mean accuracy "
+                  f"{_f(vp.get('adaptive_touches_to_paper_mean_accuracy'))} touches (ratio "
+                  f"{_f(vp.get('touch_ratio_mean_accuracy'), 1, '{:.2f}')})"
+                  + (f". The paper's own map (last round's readings interpolated) has true RMS "
+                     f"{vp['paper_native_true_rms_mm_mean'] * 1e3:.2f} um; adaptive reaches it "
+                     f"with {vp['adaptive_touches_to_paper_native_accuracy_mean']:.1f} touches "
+                     f"(ratio {vp['touch_ratio_native']:.2f})" if "touch_ratio_native" in vp
+                     else "")]
+    return "\n".join(lines)
