@@ -18,7 +18,7 @@ KNOWN = {
     "cycles": {("adaptive_cal.hardware.modbus_map", "adaptive_cal.hardware.schema")},
     "large": {"adaptive_cal.planning.survey", "adaptive_cal.report.html", "adaptive_cal.study.report",
               "adaptive_cal.study.runner"},
-    "flags": {"adaptive_cal.analysis.explain.report", "adaptive_cal.study.report",
+    "flags": {"adaptive_cal.study.report",
               "adaptive_cal.study.runner"},
 }
 

@@ -92,7 +92,7 @@ def test_missing_and_unreadable_cell_files(tmp_path, capsys):
 
 def test_missing_recording(tmp_path, capsys):
     _fails(["flatness", str(tmp_path / "missing.csv")], capsys, "missing.csv: no such file")
-    _fails(["explain", str(tmp_path / "missing.csv"), "--sim", str(ROOT / "configs" / "cheng2025-cell.yaml")],
+    _fails(["explain", str(tmp_path / "missing.csv"), "--robot", str(ROOT / "configs" / "cheng2025-cell.yaml")],
            capsys, "missing.csv: no such file")
 
 

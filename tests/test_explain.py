@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from adaptive_cal.effects import library as physics
+from adaptive_cal import effects
 from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.analysis.explain import belief_rows, effect_params, explain, suggest_touches
 from adaptive_cal.analysis.explain.candidates import Context
@@ -113,7 +113,7 @@ def test_belief_rows_reproduce_the_fitted_effect():
     rows, names = belief_rows("arm_sag", params, d.features, d.geometry)
     assert names == ("sag_mm_at_1m",)
     np.testing.assert_allclose(rows @ [params["sag_mm_at_1m"]],
-                               physics.reading_change("arm_sag", params, d.features, d.geometry))
+                               effects.reading_change("arm_sag", params, d.features, d.geometry))
 
 
 def test_cheng_rounds_form_shared_and_flatness_change_within_noise(cheng_round0, cheng_round1):

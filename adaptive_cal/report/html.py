@@ -230,7 +230,7 @@ def _explain_section(run_dir: Path) -> str:
     if not path.exists():
         return ("<h2>Explain</h2><p class='note'>No explain findings in this folder. To compare the "
                 "recording with the cell's simulation: <code>adaptive-cal explain "
-                f"{_e(run_dir / 'recording.csv')} --sim CELL.yaml --json {_e(path)} --out "
+                f"{_e(run_dir / 'recording.csv')} --robot CELL.yaml --json {_e(path)} --out "
                 f"{_e(run_dir)}</code>, then run the report again.</p>")
     rep = json.loads(path.read_text(encoding="utf-8"))
     fit = rep.get("fit", {})
