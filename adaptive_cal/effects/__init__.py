@@ -64,15 +64,15 @@ def split(effects: Mapping[str, Mapping[str, float]]) -> tuple[dict, dict]:
 
 def markdown_table() -> str:
     """The effect table of docs/explain.md, from the library (tested to agree)."""
-    rows = ["| effect | shows along | linear parameters: prior sd range | searched |",
+    rows = ["| effect | shows along | linear parameters: prior sd range | nonlinear parameters: grid |",
             "|---|---|---|---|"]
     for e in LIBRARY:
         if not e.candidate:
             continue
-        lin = "; ".join(f"{p.name}: {p.prior[0]:g} .. {p.prior[1]:g} {p.unit}"
+        lin = "; ".join(f"{p.name}: {p.prior[0]:g} .. {p.prior[1]:g}"
+                        + (f" {p.unit}" if p.unit != "-" else "")
                         for p in e.params if p.prior is not None)
-        grid = ", ".join(p for p in e.nonlinear) or "--"
-        rows.append(f"| {e.name} | {e.axis} | {lin} | {grid} |")
+        rows.append(f"| {e.name} | {e.axis} | {lin} | {e.grid_text} |")
     return "\n".join(rows)
 
 

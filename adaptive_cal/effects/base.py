@@ -91,6 +91,7 @@ class Effect:
     axis: str
     main: str | None = None
     grid: Grid | None = None
+    grid_text: str = "--"  # the search grid in words (docs/explain.md's table)
     searched: tuple[str, ...] = ()
     surface: bool = False
     columns: Callable[[Features, Geometry], np.ndarray] | None = None

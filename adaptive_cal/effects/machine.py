@@ -40,7 +40,9 @@ thermal_drift = Effect(
     (Param("rate_mm_per_s", "mm/s", "reading gain per second", 0.0, prior=(1e-6, 1e-3)),
      Param("amplitude_mm", "mm", "reading gain the warm-up approaches", 0.0, prior=(1e-4, 1.0)),
      Param("tau_s", "s", "time constant of the warm-up", 300.0, linear=False)),
-    _drift, axis="time", main="rate_mm_per_s", grid=_tau_grid, searched=("amplitude_mm",))
+    _drift, axis="time", main="rate_mm_per_s", grid=_tau_grid, searched=("amplitude_mm",),
+    grid_text="tau_s on 15 values from 1/32 to 4 x the run's duration (with amplitude_mm; "
+    "rate_mm_per_s alone needs none)")
 
 
 def _reversal(f, p, g):
@@ -66,7 +68,7 @@ arm_sag = Effect(
      Param("p", "-", "exponent of the reach", 2.0, linear=False)),
     _sag, axis="reach", main="sag_mm_at_1m",
     grid=lambda features, geometry: {"p": np.asarray(SAG_EXPONENTS)},
-    searched=("sag_mm_at_1m",))
+    searched=("sag_mm_at_1m",), grid_text="p uniform on {1, 1.5, 2, 2.5, 3}")
 
 
 def _gain(f, p, g):

@@ -158,4 +158,6 @@ local_defect = Effect(
            prior=(1e-3, 1.0)),
      Param("radius_mm", "mm", "radius where the bump ends", 5.0, linear=False)),
     _defect, axis="position", main="height_mm", grid=_defect_grid,
-    searched=("height_mm",), surface=True)
+    searched=("height_mm",), surface=True,
+    grid_text="radius_mm uniform on {15, 30, 60}; centre uniform on a grid of spacing radius / 2, "
+    "conditioned on the bump reaching at least two touches")
