@@ -81,3 +81,11 @@ def test_known_arm_sag_without_base_is_a_config_error(tmp_path, capsys, cheng_ro
     cell.write_text(yaml.safe_dump(data))
     assert main(["explain", str(cheng_round0), "--robot", str(cell)]) == 2
     assert "robot.base_xy_mm" in capsys.readouterr().err
+
+
+def test_sim_is_a_hidden_alias_of_robot(tmp_path, cheng_round0, capsys):
+    assert main(["explain", str(cheng_round0), "--sim", str(CELL),
+                 "--json", str(tmp_path / "r.json")]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["verdict"] == "form"
+    assert main(["explain", str(cheng_round0)]) == 2
+    assert "--robot CELL.yaml" in capsys.readouterr().err
