@@ -12,13 +12,6 @@ PACKAGE = Path(__file__).resolve().parents[1] / "adaptive_cal"
 LAYERS = ("gaussian", "effects", "formats", "planning", "hardware", "cell", "simulation",
           "analysis", "report", "run", "study", "cli")
 MAX_LINES = 350
-# violations still being burned down by the redesign (issue 13); new ones fail at once
-KNOWN = {
-    "upward": set(),
-    "cycles": set(),
-    "large": set(),
-    "flags": {"adaptive_cal.analysis.explain.report"},
-}
 
 
 def _modules() -> dict[str, Path]:
@@ -77,7 +70,6 @@ def test_every_module_sits_in_a_layer():
 def test_nothing_imports_upward():
     upward = [f"{a} -> {b}" for a, deps in GRAPH.items() for b in deps
               if _layer(a) is not None and _layer(b) is not None and _layer(b) > _layer(a)]
-    upward = [u for u in upward if u not in KNOWN["upward"]]
     assert not upward, "imports that run upward:\n" + "\n".join(sorted(upward))
 
 
@@ -110,7 +102,6 @@ def test_no_import_cycle():
     for v in GRAPH:
         if v not in index:
             visit(v)
-    cycles = [c for c in cycles if tuple(c) not in KNOWN["cycles"]]
     assert not cycles, f"import cycles: {cycles}"
 
 
@@ -125,8 +116,6 @@ def test_the_checker_sees_function_level_and_relative_imports(tmp_path):
 @pytest.mark.parametrize("name", sorted(MODULES))
 def test_module_is_small(name):
     lines = len(MODULES[name].read_text(encoding="utf-8").splitlines())
-    if name in KNOWN["large"]:
-        pytest.skip("being split (issue 13)")
     assert lines <= MAX_LINES, f"{MODULES[name]} has {lines} lines (at most {MAX_LINES})"
 
 
@@ -142,7 +131,5 @@ def test_library_code_sets_no_global_flags(name):
     text = MODULES[name].read_text(encoding="utf-8")
     if name == "adaptive_cal":
         text = text.replace('jax.config.update("jax_enable_x64", True)', "")
-    if name in KNOWN["flags"]:
-        pytest.skip("being cleaned (issue 13)")
     hits = [flag for flag in GLOBAL_FLAGS if flag in text]
     assert not hits, f"{MODULES[name]} sets global state: {hits}"

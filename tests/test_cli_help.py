@@ -45,6 +45,8 @@ def test_top_level_help_lists_every_command_and_the_units(capsys):
 def test_each_command_lists_its_options_with_defaults(name, capsys):
     text = _help([name], capsys)
     for action in _actions(name):
+        if action.help == argparse.SUPPRESS:  # a hidden alias (explain --sim) is not listed
+            continue
         shown = action.option_strings[0] if action.option_strings else action.metavar or action.dest
         assert shown in text, f"{name}: {shown} missing from --help"
         assert action.help, f"{name}: {shown} has no help text"
@@ -93,7 +95,7 @@ def test_missing_and_unreadable_cell_files(tmp_path, capsys):
 
 def test_missing_recording(tmp_path, capsys):
     _fails(["flatness", str(tmp_path / "missing.csv")], capsys, "missing.csv: no such file")
-    _fails(["explain", str(tmp_path / "missing.csv"), "--sim", str(ROOT / "configs" / "cheng2025-cell.yaml")],
+    _fails(["explain", str(tmp_path / "missing.csv"), "--robot", str(ROOT / "configs" / "cheng2025-cell.yaml")],
            capsys, "missing.csv: no such file")
 
 

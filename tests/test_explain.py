@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from adaptive_cal.effects import library as physics
+from adaptive_cal import effects
 from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.analysis.explain import belief_rows, effect_params, explain, suggest_touches
 from adaptive_cal.analysis.explain.candidates import Context
@@ -76,6 +76,7 @@ def test_drift_on_a_raster_is_not_identifiable_and_the_suggestion_separates_it()
     e = explain([c.recording], c.cell)
     entry = next(x for x in e.report["not_identifiable"] if x["effect"] == "thermal_drift")
     assert entry["aliased_with"] == ["tilt"]
+    assert "warm-up" in entry["why"]  # any drift, not only a linear one, is confounded
     touches = entry["suggested_design"]["touches"]
     assert 1 <= len(touches) <= 12
     assert set(touches[0]) == {"x_mm", "y_mm", "z_mm", "order"}
@@ -113,7 +114,7 @@ def test_belief_rows_reproduce_the_fitted_effect():
     rows, names = belief_rows("arm_sag", params, d.features, d.geometry)
     assert names == ("sag_mm_at_1m",)
     np.testing.assert_allclose(rows @ [params["sag_mm_at_1m"]],
-                               physics.reading_change("arm_sag", params, d.features, d.geometry))
+                               effects.reading_change("arm_sag", params, d.features, d.geometry))
 
 
 def test_cheng_rounds_form_shared_and_flatness_change_within_noise(cheng_round0, cheng_round1):
@@ -132,3 +133,29 @@ def test_cheng_rounds_form_shared_and_flatness_change_within_noise(cheng_round0,
     assert 0.01 < r["repeatability_mm"] < 0.025
     assert r["p_value"] > 0.05 and not r["exceeds_noise"]
     assert rep["calibration"][0]["about_y_deg"] == pytest.approx(0.80, abs=0.02)
+
+
+@pytest.mark.parametrize("raster,magnitude,seeds", [(False, 6.0, (0, 1, 2)), (True, 10.0, (0, 1))])
+def test_warm_up_drift_is_named_thermal_drift_with_amplitude_and_tau(raster, magnitude, seeds):
+    """An exponential warm-up, tau a third of the run, on the reference S-path and on a raster:
+    named thermal_drift, amplitude and tau reported, the residual rms falls by a fifth or more."""
+    for seed in seeds:
+        c = concealed_recording("thermal_drift", np.random.default_rng([21, seed]),
+                                nonabsorbed_sigma=magnitude, raster=raster, warm_up=1 / 3)
+        e = explain([c.recording], c.cell, identifiability=False)
+        rep = e.report
+        assert rep["verdict"] == "thermal_drift", (seed, rep["candidates"])
+        entry = rep["left_out"][0]
+        assert set(entry["params"]) == {"amplitude_mm", "tau_s"}
+        assert np.sign(entry["params"]["amplitude_mm"]) == np.sign(c.params["amplitude_mm"])
+        assert c.params["tau_s"] / 3 < entry["params"]["tau_s"] < 3 * c.params["tau_s"]
+        assert "amplitude_mm" in entry["summary"] and "tau_s" in entry["summary"]
+        assert rep["fit"]["rms_after_mm"] < 0.8 * rep["fit"]["rms_before_mm"]
+        assert rep["fit"]["cv_rms_after_mm"] < rep["fit"]["cv_rms_before_mm"]
+
+
+def test_linear_drift_is_still_a_rate():
+    c = _case("thermal_drift", 0, 8.0)
+    e = explain([c.recording], c.cell, identifiability=False)
+    assert e.report["verdict"] == "thermal_drift"
+    assert set(e.report["left_out"][0]["params"]) == {"rate_mm_per_s"}

@@ -15,7 +15,7 @@ KEYS = {"verdict", "left_out", "not_identifiable", "mismatch", "fit", "model"}
 
 def test_cli_on_the_reference_rounds(tmp_path, cheng_round0, cheng_round1, capsys):
     out = tmp_path / "out"
-    rc = main(["explain", str(cheng_round0), str(cheng_round1), "--sim", str(CELL),
+    rc = main(["explain", str(cheng_round0), str(cheng_round1), "--robot", str(CELL),
                "--json", str(tmp_path / "r.json"), "--out", str(out)])
     assert rc == 0
     rep = json.loads((tmp_path / "r.json").read_text())
@@ -60,7 +60,7 @@ def test_bad_recordings_name_line_or_column(tmp_path, capsys, mutate, expect):
     rows = _grid_rows()
     mutate(rows)
     path = _write(tmp_path / "bad.csv", rows)
-    assert main(["explain", str(path), "--sim", str(CELL)]) == 2
+    assert main(["explain", str(path), "--robot", str(CELL)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err
     for word in expect:
@@ -70,7 +70,7 @@ def test_bad_recordings_name_line_or_column(tmp_path, capsys, mutate, expect):
 def test_missing_column_is_named(tmp_path, capsys):
     rows = [r[:5] for r in _grid_rows()]
     path = _write(tmp_path / "bad.csv", rows, header="seq,t_s,x_mm,y_mm,z_mm")
-    assert main(["explain", str(path), "--sim", str(CELL)]) == 2
+    assert main(["explain", str(path), "--robot", str(CELL)]) == 2
     assert "reading_mm" in capsys.readouterr().err
 
 
@@ -79,5 +79,13 @@ def test_known_arm_sag_without_base_is_a_config_error(tmp_path, capsys, cheng_ro
     data["simulation"]["effects"]["arm_sag"] = {"sag_mm_at_1m": 0.1, "p": 2}
     cell = tmp_path / "cell.yaml"
     cell.write_text(yaml.safe_dump(data))
-    assert main(["explain", str(cheng_round0), "--sim", str(cell)]) == 2
+    assert main(["explain", str(cheng_round0), "--robot", str(cell)]) == 2
     assert "robot.base_xy_mm" in capsys.readouterr().err
+
+
+def test_sim_is_a_hidden_alias_of_robot(tmp_path, cheng_round0, capsys):
+    assert main(["explain", str(cheng_round0), "--sim", str(CELL),
+                 "--json", str(tmp_path / "r.json")]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["verdict"] == "form"
+    assert main(["explain", str(cheng_round0)]) == 2
+    assert "--robot CELL.yaml" in capsys.readouterr().err

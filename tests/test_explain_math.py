@@ -4,19 +4,19 @@ import pytest
 from scipy import integrate, stats
 from scipy.special import logsumexp
 
-from adaptive_cal.effects import library as physics
+from adaptive_cal import effects
 from adaptive_cal.analysis.explain.evidence import (Projector, _spectral, log_evidence,
                                            log_evidence_columns_mixture, log_evidence_mixture,
                                            log_evidence_spectral, loo_residuals, spectrum)
 from adaptive_cal.analysis.explain.identify import canonical_correlations
 
-GEOM = physics.Geometry((-225.0, 225.0), (-185.0, 185.0), (0.0, -650.0))
+GEOM = effects.Geometry((-225.0, 225.0), (-185.0, 185.0), (0.0, -650.0))
 
 
 def _features(rng, n=30):
     x = rng.uniform(-200, 200, n)
     y = rng.uniform(-160, 160, n)
-    return physics.Features(x, y, np.arange(n) * 4.0, np.sign(rng.standard_normal(n)),
+    return effects.Features(x, y, np.arange(n) * 4.0, np.sign(rng.standard_normal(n)),
                             5.0 + rng.uniform(-2, 2, n))
 
 
@@ -87,7 +87,8 @@ def test_loo_shortcut_matches_explicit_refits():
 
 @pytest.mark.parametrize("name,params", [
     ("tilt", {"a": 0.01, "b": -0.002, "c": 0.3}),
-    ("thermal_drift", {"rate_mm_per_s": 2e-4}),
+    ("thermal_drift", {"rate_mm_per_s": 2e-4, "amplitude_mm": 0.0}),
+    ("thermal_drift", {"rate_mm_per_s": 2e-4, "amplitude_mm": 0.012, "tau_s": 50.0}),
     ("reversal", {"span_mm": 0.006}),
     ("arm_sag", {"sag_mm_at_1m": 0.05, "p": 2.3}),
     ("probe_gain", {"gain": 0.003}),
@@ -95,33 +96,33 @@ def test_loo_shortcut_matches_explicit_refits():
 ])
 def test_regressor_is_the_forward_model(name, params):
     f = _features(np.random.default_rng(4))
-    R = physics.effect_regressor(name, f, GEOM, params)
-    theta = [params[k] for k in physics.LINEAR_PARAMS[name]]
-    np.testing.assert_allclose(R @ theta, physics.reading_change(name, params, f, GEOM), atol=1e-13)
-    J = physics.effect_jacobian(name, params, f, GEOM)
-    for j, k in enumerate(physics.PARAMS[name]):
-        if k in physics.LINEAR_PARAMS[name]:
-            np.testing.assert_allclose(J[:, j], R[:, physics.LINEAR_PARAMS[name].index(k)],
+    R = effects.get(name).regressor(f, GEOM, params)
+    theta = [params[k] for k in effects.get(name).linear]
+    np.testing.assert_allclose(R @ theta, effects.reading_change(name, params, f, GEOM), atol=1e-13)
+    J = effects.get(name).jacobian(f, params, GEOM)
+    for j, k in enumerate(effects.get(name).param_names):
+        if k in effects.get(name).linear:
+            np.testing.assert_allclose(J[:, j], R[:, effects.get(name).linear.index(k)],
                                        atol=1e-6)
 
 
 def test_form_coefficients_round_trip():
     f = _features(np.random.default_rng(5))
     coef = np.array([0.01, 0.3, 0.17, -0.05])
-    R = physics.effect_regressor("form", f, GEOM)
-    p = physics.form_params(coef, GEOM)
-    np.testing.assert_allclose(R @ coef, physics.reading_change("form", p, f, GEOM), atol=1e-12)
-    g = physics.form_pv_gradient(coef, GEOM)
+    R = effects.form.regressor(f, GEOM)
+    p = effects.form_params(coef, GEOM)
+    np.testing.assert_allclose(R @ coef, effects.reading_change("form", p, f, GEOM), atol=1e-12)
+    g = effects.form_pv_gradient(coef, GEOM)
     h = 1e-7
-    num = (physics.form_params(coef + h * np.eye(4)[1], GEOM)["pv_mm"] - p["pv_mm"]) / h
+    num = (effects.form_params(coef + h * np.eye(4)[1], GEOM)["pv_mm"] - p["pv_mm"]) / h
     assert g[1] == pytest.approx(num, rel=1e-4)
 
 
 def test_defect_grid_regressor_matches_single():
     f = _features(np.random.default_rng(6))
-    G = physics.defect_regressor_grid(f, [0.0, 50.0], [10.0, -30.0], 40.0)
+    G = effects.defect_regressor_grid(f, [0.0, 50.0], [10.0, -30.0], 40.0)
     for j, (cx, cy) in enumerate([(0.0, 10.0), (50.0, -30.0)]):
-        one = physics.reading_change("local_defect", {"x_mm": cx, "y_mm": cy, "height_mm": 1.0,
+        one = effects.reading_change("local_defect", {"x_mm": cx, "y_mm": cy, "height_mm": 1.0,
                                                       "radius_mm": 40.0}, f, GEOM)
         np.testing.assert_allclose(G[:, j], one, atol=1e-14)
 

@@ -3,34 +3,34 @@ reading relation checked by Monte Carlo."""
 import numpy as np
 import pytest
 
-from adaptive_cal.effects import library as physics
+from adaptive_cal import effects
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.formats.recording import read_recording
 
 from helpers import sim_cell
 
-GEOM = physics.Geometry((-225.0, 225.0), (-185.0, 185.0), (0.0, -650.0))
+GEOM = effects.Geometry((-225.0, 225.0), (-185.0, 185.0), (0.0, -650.0))
 
 
-def _features(x, y, t=0.0, direction=0.0, displacement=5.0):
+def _features(x, y, t=0.0, direction=0.0, ideal_reading=5.0):
     n = np.broadcast(np.asarray(x), np.asarray(y)).shape
     full = lambda v: np.broadcast_to(np.asarray(v, float), n).copy()  # noqa: E731
-    return physics.Features(full(x), full(y), full(t), full(direction), full(displacement))
+    return effects.Features(full(x), full(y), full(t), full(direction), full(ideal_reading))
 
 
 def test_sign_conventions_of_the_effect_table():
     f = _features([0.0, 0.0], [0.0, 0.0], t=[10.0, 20.0], direction=[1.0, -1.0],
-                  displacement=[2.0, 4.0])
-    rev = physics.reading_change("reversal", {"span_mm": 0.01}, f, GEOM)
+                  ideal_reading=[2.0, 4.0])
+    rev = effects.reading_change("reversal", {"span_mm": 0.01}, f, GEOM)
     assert rev[0] - rev[1] == pytest.approx(0.01)  # arriving +x minus arriving -x
-    drift = physics.reading_change("thermal_drift", {"rate_mm_per_s": 1e-4}, f, GEOM)
+    drift = effects.reading_change("thermal_drift", {"rate_mm_per_s": 1e-4}, f, GEOM)
     assert drift[1] - drift[0] == pytest.approx(1e-3)
-    gain = physics.reading_change("probe_gain", {"gain": 0.01}, f, GEOM)
-    np.testing.assert_allclose(gain, [0.02, 0.04])  # reading = (1 + gain) displacement
-    sag = physics.reading_change("arm_sag", {"sag_mm_at_1m": 0.05, "p": 2.0},
+    gain = effects.reading_change("probe_gain", {"gain": 0.01}, f, GEOM)
+    np.testing.assert_allclose(gain, [0.02, 0.04])  # reading = (1 + gain) ideal reading
+    sag = effects.reading_change("arm_sag", {"sag_mm_at_1m": 0.05, "p": 2.0},
                                  _features([0.0], [350.0]), GEOM)
     assert sag[0] == pytest.approx(0.05)  # r = 1000 mm from the base at (0, -650)
-    tilt = physics.reading_change("tilt", {"a": 0.01, "b": -0.002, "c": 0.3},
+    tilt = effects.reading_change("tilt", {"a": 0.01, "b": -0.002, "c": 0.3},
                                   _features([100.0], [50.0]), GEOM)
     assert tilt[0] == pytest.approx(0.01 * 100 - 0.002 * 50 + 0.3)
 
@@ -38,23 +38,23 @@ def test_sign_conventions_of_the_effect_table():
 def test_form_has_the_stated_peak_to_valley_and_zero_mean():
     gx, gy = np.meshgrid(np.linspace(-225, 225, 201), np.linspace(-185, 185, 201), indexing="ij")
     for shape in ({"bow_y": 1.0}, {"twist": 1.0, "bow_x": -0.5}, {"warp": 1.0}):
-        h = physics.form_height(gx, gy, {"pv_mm": 0.28, **shape}, GEOM)
+        h = effects.form_height(gx, gy, {"pv_mm": 0.28, **shape}, GEOM)
         assert h.max() - h.min() == pytest.approx(0.28, rel=1e-3)
         assert abs(h.mean()) < 1e-3
 
 
 def test_local_defect_is_confined():
     f = _features(np.array([50.0, 54.0, 60.0, 0.0]), np.array([20.0, 20.0, 20.0, 0.0]))
-    d = physics.reading_change("local_defect", {"x_mm": 50, "y_mm": 20, "height_mm": 0.05,
+    d = effects.reading_change("local_defect", {"x_mm": 50, "y_mm": 20, "height_mm": 0.05,
                                                 "radius_mm": 8}, f, GEOM)
     assert d[0] == pytest.approx(0.05) and 0 < d[1] < 0.05 and d[2] == 0 and d[3] == 0
 
 
 def test_unknown_effect_or_parameter_is_named():
     with pytest.raises(KeyError, match="unknown effect 'wobble'"):
-        physics.complete_params("wobble", {})
+        effects.complete_params("wobble", {})
     with pytest.raises(KeyError, match="span"):
-        physics.complete_params("reversal", {"span": 1})
+        effects.complete_params("reversal", {"span": 1})
 
 
 def test_simulated_reading_relation_monte_carlo():

@@ -38,7 +38,7 @@ def run_dir(tmp_path_factory):
 def explained(run_dir, tmp_path_factory):
     d = tmp_path_factory.mktemp("explained") / "run"
     shutil.copytree(run_dir, d)
-    assert main(["explain", str(d / "recording.csv"), "--sim", str(d / "cell.yaml"),
+    assert main(["explain", str(d / "recording.csv"), "--robot", str(d / "cell.yaml"),
                  "--json", str(d / "explain.json"), "--out", str(d)]) == 0
     return d
 

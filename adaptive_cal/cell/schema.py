@@ -11,8 +11,8 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from adaptive_cal import effects as effect_library
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
-from adaptive_cal.effects import library as physics
 from adaptive_cal.gaussian.belief import Z95
 from adaptive_cal.hardware.config import Strict
 from adaptive_cal.hardware.hses.config import HsesConfig
@@ -244,7 +244,7 @@ class Simulation(Strict):
     def _effects(cls, v):
         for name, params in v.items():
             try:
-                physics.complete_params(name, params or {})
+                effect_library.complete_params(name, params or {})
             except KeyError as e:
                 raise ValueError(e.args[0]) from None
         return v
@@ -252,9 +252,10 @@ class Simulation(Strict):
     @field_validator("unknown")
     @classmethod
     def _unknown(cls, v):
-        bad = [n for n in v if n.split(".")[0] not in physics.EFFECT_NAMES]
+        names = effect_library.EFFECT_NAMES
+        bad = [n for n in v if n.split(".")[0] not in names]
         if bad:
-            raise ValueError(f"unknown effect(s) {bad}; known: {', '.join(physics.EFFECT_NAMES)}")
+            raise ValueError(f"unknown effect(s) {bad}; known: {', '.join(names)}")
         return v
 
 
@@ -298,8 +299,8 @@ class Cell(Strict):
         return self
 
     @property
-    def geometry(self) -> physics.Geometry:
-        return physics.Geometry(self.workplane.x_mm, self.workplane.y_mm, self.robot.base_xy_mm)
+    def geometry(self) -> effect_library.Geometry:
+        return effect_library.Geometry(self.workplane.x_mm, self.workplane.y_mm, self.robot.base_xy_mm)
 
 
 def parse_cell(data: dict, source: str = "cell") -> Cell:

@@ -1,21 +1,26 @@
 """``adaptive-cal explain``: where simulation and recordings differ, what physics was left out.
 
-    adaptive-cal explain ROUND0.csv [ROUND1.csv ...] --sim CELL.yaml [--json OUT.json] [--out DIR]
+    adaptive-cal explain ROUND0.csv [ROUND1.csv ...] --robot CELL.yaml [--json OUT.json] [--out DIR]
 
 Several recordings are rounds of the same cell: the tilt is calibrated per round, the plate's
 form and the cell's effects may be shared (decided by evidence). See docs/explain.md.
 """
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
+
+from adaptive_cal.cli.common import UserError
 
 
 def add_arguments(parser) -> None:
     parser.add_argument("recordings", nargs="+", metavar="RECORDING.csv",
                         help="recording(s) of the cell; several = rounds")
-    parser.add_argument("--sim", required=True, metavar="CELL.yaml",
-                        help="the cell's simulation: effects, parameters, which are unknown")
+    parser.add_argument("--robot", metavar="CELL.yaml", dest="robot",
+                        help="the cell file (required); its simulation block: effects, "
+                        "parameters, which are unknown")
+    parser.add_argument("--sim", dest="robot", help=argparse.SUPPRESS)  # the old name
     parser.add_argument("--json", metavar="OUT.json", help="write the report here")
     parser.add_argument("--out", metavar="DIR", help="write the updated cell file and figures here")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures in DIR")
@@ -53,18 +58,21 @@ def _print(report: dict) -> None:
 
 
 def command(args) -> int:
+    if not args.robot:
+        raise UserError("explain needs --robot CELL.yaml (the cell file with its simulation block)")
     import numpy as np
 
     from adaptive_cal.cell.schema import load_cell, load_yaml
     from adaptive_cal.analysis.explain import explain
-    from adaptive_cal.analysis.explain.report import figures, write_cell
+    from adaptive_cal.analysis.explain.summary import write_cell
     from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.report.explain_figures import figures
 
-    cell = load_cell(args.sim)
+    cell = load_cell(args.robot)
     recordings = [read_recording(p) for p in args.recordings]
     result = explain(recordings, cell, rng=np.random.default_rng(args.seed))
     if args.out:
-        path = write_cell(result, load_yaml(args.sim), args.sim, args.out)
+        path = write_cell(result, load_yaml(args.robot), args.robot, args.out)
         result.report["model"] = str(path) if path else None
         if not args.no_figures:
             result.report["figures"] = [str(p) for p in figures(result, args.out)]

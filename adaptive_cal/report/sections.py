@@ -140,7 +140,7 @@ def explain_section(run_dir: Path) -> str:
     if not path.exists():
         return ("<h2>Explain</h2><p class='note'>No explain findings in this folder. To compare the "
                 "recording with the cell's simulation: <code>adaptive-cal explain "
-                f"{escape(run_dir / 'recording.csv')} --sim CELL.yaml --json {escape(path)} --out "
+                f"{escape(run_dir / 'recording.csv')} --robot CELL.yaml --json {escape(path)} --out "
                 f"{escape(run_dir)}</code>, then run the report again.</p>")
     findings = json.loads(path.read_text(encoding="utf-8"))
     fit = findings.get("fit", {})

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from adaptive_cal.effects import library as physics
+from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, Simulation
 from adaptive_cal.hardware.base import Sample
 
@@ -22,7 +22,7 @@ class SimulatedCell:
     The clock advances with travel (at ``speed_mm_per_s``) and ``touch_time_s`` per reading.
     """
 
-    geometry: physics.Geometry
+    geometry: effects.Geometry
     sim: Simulation
     zero_mm: float
     stroke_mm: float
@@ -50,9 +50,9 @@ class SimulatedCell:
         """True plate height (tilt + form + local defects) in the workplane frame."""
         x = np.asarray(x_mm, float)
         y = np.broadcast_to(np.asarray(y_mm, float), x.shape)
-        f = physics.Features(x, y, np.zeros(x.shape), np.zeros(x.shape), np.zeros(x.shape))
-        return physics.total_change(self.sim.effects, f, self.geometry,
-                                    only=physics.SURFACE_EFFECTS)
+        f = effects.Features(x, y, np.zeros(x.shape), np.zeros(x.shape), np.zeros(x.shape))
+        surface, _ = effects.split(self.sim.effects)
+        return effects.total_change(surface, f, self.geometry)
 
     # -- Motion --------------------------------------------------------------------------
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
@@ -77,10 +77,10 @@ class SimulatedCell:
         zr = z + self.sim.repeatability_mm * rng.standard_normal()
         surface = float(self.surface_mm(xr, yr))
         ideal = surface - zr + self.zero_mm
-        f = physics.Features(np.array([xr]), np.array([yr]), np.array([self.t_s]),
+        f = effects.Features(np.array([xr]), np.array([yr]), np.array([self.t_s]),
                              np.array([self._last_dir]), np.array([ideal]))
-        others = {k: v for k, v in self.sim.effects.items() if k not in physics.SURFACE_EFFECTS}
-        value = ideal + float(physics.total_change(others, f, self.geometry)[0])
+        _, others = effects.split(self.sim.effects)
+        value = ideal + float(effects.total_change(others, f, self.geometry)[0])
         value += self.sim.noise_std_mm * rng.standard_normal()
         value = float(np.clip(value, 0.0, self.stroke_mm))  # the probe bottoms out
         value = round(value / self.resolution_mm) * self.resolution_mm

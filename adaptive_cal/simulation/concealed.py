@@ -1,7 +1,7 @@
 """Recordings where one effect hides: the proof set for ``explain`` (pure; randomness passed in).
 
 Each recording is a tilted plate (random tilt, offset and noise) on a design where the effect is
-hard to see -- drift on an S-path, reversal on a serpentine at noise level, gain with varied
+hard to see -- drift on an S-path, reversal on a serpentine at noise level, a warm-up (``warm_up``), gain with varied
 approach heights, a burr between grid lines, sag with reach, plate form -- or a null with no
 effect. The readings come from the effect library's forward models (the simulator's code):
 
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from adaptive_cal.effects import library as physics
+from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, parse_cell
 from adaptive_cal.formats.recording import Recording
 
@@ -76,8 +76,11 @@ def _tilt_projector(x, y):
     return lambda v: v - q @ (q.T @ v)
 
 
-def _shape(effect: str, rng, feats: physics.Features, geom: physics.Geometry, grid_xy):
+def _shape(effect: str, rng, feats: effects.Features, geom: effects.Geometry, grid_xy,
+           warm_up: float | None = None):
     """Unit-amplitude parameters of the effect (the amplitude parameter is scaled later)."""
+    if effect == "thermal_drift" and warm_up is not None:
+        return {"amplitude_mm": 1.0, "tau_s": float(warm_up * feats.t_s.max())}, "amplitude_mm"
     if effect == "form":
         w = rng.standard_normal(4)
         return {"pv_mm": 1.0, **dict(zip(("bow_x", "bow_y", "twist", "warp"), w))}, "pv_mm"
@@ -105,8 +108,12 @@ def _shape(effect: str, rng, feats: physics.Features, geom: physics.Geometry, gr
 def concealed_recording(effect: str, rng: np.random.Generator, *, nonabsorbed_sigma: float = 4.0,
                         nx: int = 10, ny: int | None = None, noise_std_mm: float | None = None,
                         raster: bool = False, varied_z: bool | None = None,
-                        seconds_per_touch: float = 4.0) -> Concealed:
-    """One recording with ``effect`` ('none' for a null) hidden at the given non-absorbed norm."""
+                        seconds_per_touch: float = 4.0, warm_up: float | None = None) -> Concealed:
+    """One recording with ``effect`` ('none' for a null) hidden at the given non-absorbed norm.
+
+    ``warm_up``: for thermal_drift, an exponential warm-up amplitude_mm (1 - exp(-t / tau_s))
+    with tau_s this share of the run's duration, instead of a linear rate.
+    """
     ny = ny if ny is not None else (6 if effect == "local_defect" else 4)
     varied_z = (effect == "probe_gain") if varied_z is None else varied_z
     sigma = float(rng.uniform(0.002, 0.008)) if noise_std_mm is None else float(noise_std_mm)
@@ -119,29 +126,29 @@ def concealed_recording(effect: str, rng: np.random.Generator, *, nonabsorbed_si
     tilt = {"a": float(rng.normal(0, 0.01)), "b": float(rng.normal(0, 0.01)),
             "c": float(rng.normal(0, 0.2))}
     d = _direction(x)
-    f0 = physics.Features(x, y, t, d, np.zeros(n))
+    f0 = effects.Features(x, y, t, d, np.zeros(n))
     surface = {"tilt": tilt}
     others: dict = {}
     params: dict = {}
     achieved = 0.0
     if effect != "none":
-        shape, amp = _shape(effect, rng, f0, geom, (np.unique(x), np.unique(y)))
-        if effect in physics.SURFACE_EFFECTS:
-            unit = physics.reading_change(effect, shape, f0, geom)
+        shape, amp = _shape(effect, rng, f0, geom, (np.unique(x), np.unique(y)), warm_up)
+        if effects.get(effect).surface:
+            unit = effects.reading_change(effect, shape, f0, geom)
         else:
-            disp = ZERO_MM - z + physics.total_change(surface, f0, geom)
-            f1 = physics.Features(x, y, t, d, disp)
-            unit = physics.reading_change(effect, shape, f1, geom)
+            ideal = ZERO_MM - z + effects.total_change(surface, f0, geom)
+            f1 = effects.Features(x, y, t, d, ideal)
+            unit = effects.reading_change(effect, shape, f1, geom)
         norm = float(np.linalg.norm(_tilt_projector(x, y)(unit)))
         scale = nonabsorbed_sigma * sigma / norm if norm > 0 else 0.0
         if effect != "form":
             scale *= float(rng.choice([-1.0, 1.0]))
         params = {**shape, amp: shape[amp] * scale}
-        (surface if effect in physics.SURFACE_EFFECTS else others)[effect] = params
+        (surface if effects.get(effect).surface else others)[effect] = params
         achieved = abs(scale) * norm / sigma
-    ideal = ZERO_MM - z + physics.total_change(surface, f0, geom)
-    f = physics.Features(x, y, t, d, ideal)
-    reading = ideal + physics.total_change(others, f, geom) + sigma * rng.standard_normal(n)
+    ideal = ZERO_MM - z + effects.total_change(surface, f0, geom)
+    f = effects.Features(x, y, t, d, ideal)
+    reading = ideal + effects.total_change(others, f, geom) + sigma * rng.standard_normal(n)
     reading = np.round(reading / 1e-4) * 1e-4
     rec = Recording(np.arange(n), t, x, y, z, reading, path=f"concealed-{effect}")
     return Concealed(rec, cell, effect, params, achieved, sigma)

@@ -3,11 +3,13 @@ model it and show the fit improve (issue 4; docs/explain.md).
 
 Modules: design (features, nominal, nuisance), evidence (marginal likelihood, LOO), candidates
 (effect library scored by evidence), locate (mismatch by axis), identify (aliasing and suggested
-touches), rounds (flatness change vs noise), core (the pipeline), report (files, figures),
-generator (concealed-effect recordings).
+touches), rounds (flatness change vs noise), core (the pipeline), summary (the explained cell
+file). The figures are in ``adaptive_cal.report.explain_figures``; the concealed-effect recordings
+in ``adaptive_cal.simulation.concealed``. The physics is ``adaptive_cal.effects``.
 """
-from adaptive_cal.analysis.explain.core import MARGIN, THRESHOLD, Explanation, belief_rows, effect_params, explain, explain_design
+from adaptive_cal.analysis.explain.core import (THRESHOLD, Explanation, belief_rows, effect_params,
+                                               explain, explain_design)
 from adaptive_cal.analysis.explain.identify import suggest_touches
 
 __all__ = ["explain", "explain_design", "Explanation", "belief_rows", "effect_params",
-           "suggest_touches", "THRESHOLD", "MARGIN"]
+           "suggest_touches", "THRESHOLD"]

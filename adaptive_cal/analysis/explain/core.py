@@ -6,9 +6,7 @@ recordings, benchmarks/bench_explain.py); otherwise ``none``. A tool that names 
 with confidence is worse than none, so the report says how sure it is: ``verdict_probability``
 (posterior probability of the verdict: none has prior 1/2, the candidates share the other half) and
 ``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
-plate design arm_sag and form are the usual pair). ``MARGIN`` > 0 restores a stricter rule that
-answers ``none`` when the runner-up is that close (measured in docs/explain.md: fewer wrong names,
-fewer right ones).
+plate design arm_sag and form are the usual pair).
 """
 from __future__ import annotations
 
@@ -16,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from adaptive_cal.effects import library as physics
+from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.recording import Recording
-from adaptive_cal.analysis.explain.candidates import PRIOR_RANGE, Candidate, Context, score_candidates
+from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
 from adaptive_cal.analysis.explain.design import Design, build_design
 from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
 from adaptive_cal.analysis.explain.identify import not_identifiable
@@ -27,7 +25,6 @@ from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
 
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
-MARGIN = 0.0  # log Bayes factor the verdict must hold over the runner-up (0: most probable wins)
 AMBIGUOUS = 1.0  # runner-ups within this many nats of the verdict are reported as ambiguous_with
 
 
@@ -48,18 +45,18 @@ def effect_params(cand: Candidate, design: Design) -> tuple[dict, dict]:
 
     Shared effects give numbers; effects fitted per round give one number per round.
     """
-    names = physics.LINEAR_PARAMS[cand.effect]
+    effect = effects.get(cand.effect)
+    names = cand.names
     k = len(names)
     blocks = 1 if cand.sharing == "shared" else design.rounds
     mean = cand.mean.reshape(blocks, k)
     std = np.sqrt(np.diag(cand.cov)).reshape(blocks, k)
     params, stds = [], []
     for b in range(blocks):
-        if cand.effect == "form":
-            p = physics.form_params(mean[b], design.geometry)
-            g = physics.form_pv_gradient(mean[b], design.geometry)
+        if effect.derive is not None:  # form: pv_mm from the shape coefficients
+            p, grads = effect.derive(mean[b], design.geometry)
             cov = cand.cov[b * k:(b + 1) * k, b * k:(b + 1) * k]
-            s = {"pv_mm": float(np.sqrt(g @ cov @ g))}
+            s = {n: float(np.sqrt(g @ cov @ g)) for n, g in grads.items()}
         else:
             p, s = {}, {}
         p.update({n: float(v) for n, v in zip(names, mean[b])})
@@ -74,11 +71,8 @@ def effect_params(cand: Candidate, design: Design) -> tuple[dict, dict]:
 
 
 def _summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
-    main = {"form": "pv_mm", "thermal_drift": "rate_mm_per_s", "reversal": "span_mm",
-            "arm_sag": "sag_mm_at_1m", "probe_gain": "gain", "local_defect": "height_mm"}[cand.effect]
-    val, sd = params[main], stds[main]
-    fmt = lambda v: ", ".join(f"{x:.4g}" for x in np.atleast_1d(v))
-    text = f"{cand.effect}: {main} = {fmt(val)} +- {fmt(sd)}"
+    effect = effects.get(cand.effect)
+    text = effect.summary(params, stds)
     if cand.fixed:
         text += " at " + ", ".join(f"{k} = {v:g} (+- {cand.nonlinear_std.get(k, 0):.2g})"
                                    for k, v in cand.fixed.items())
@@ -86,7 +80,7 @@ def _summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
     if design.rounds > 1 and cand.log_bf_shared_vs_per_round is not None:
         text += (f"; {cand.sharing.replace('_', ' ')} (log BF shared vs per round "
                  f"{cand.log_bf_shared_vs_per_round:.2f})")
-    if cand.effect == "thermal_drift" and not all(design.time_known):
+    if effect.axis == "time" and not all(design.time_known):
         text += "; t_s blank: time taken as seq x robot.touch_time_s"
     return text + f"; log BF vs none {cand.log_bf:.2f}"
 
@@ -105,19 +99,22 @@ def _calibration(ctx: Context, sigma: float) -> list[dict]:
     return out
 
 
-def explain_design(design: Design, *, threshold: float = THRESHOLD, margin: float = MARGIN,
-                   rng: np.random.Generator | None = None, identifiability: bool = True) -> Explanation:
-    """Run the whole analysis on a built design (see ``explain`` for recordings and a cell)."""
+def explain_design(design: Design, *, threshold: float = THRESHOLD,
+                   rng: np.random.Generator | int = 0, identifiability: bool = True) -> Explanation:
+    """Run the whole analysis on a built design (see ``explain`` for recordings and a cell).
+
+    ``rng``: a Generator, or the seed of one, for the bootstrap of the round-to-round flatness
+    change (the CLI's ``--seed``).
+    """
     ctx = Context.of(design)
-    calibrated = design.features.displacement_mm + (design.target - ctx.yt)
-    design = design.with_displacement(calibrated)  # probe_gain sees the calibrated indication
+    calibrated = design.features.ideal_reading_mm + (design.target - ctx.yt)
+    design = design.with_ideal_reading(calibrated)  # probe_gain sees the calibrated indication
     ctx = Context.of(design)
     sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
-    skip = frozenset({"arm_sag"}) if design.geometry.base_xy_mm is None else frozenset()
+    skip = design.untestable
     cands = score_candidates(ctx, skip)
     best = cands[0] if cands else None
-    runner = cands[1].log_bf if len(cands) > 1 else -np.inf
-    winner = best if best and best.log_bf > threshold and best.log_bf - runner >= margin else None
+    winner = best if best and best.log_bf > threshold else None
     left_out = []
     for c in cands:
         if c.log_bf <= threshold:
@@ -158,10 +155,10 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD, margin: floa
         "candidates": [{"effect": c.effect, "log_bayes_factor": float(c.log_bf),
                         "sharing": c.sharing} for c in cands],
         "calibration": _calibration(ctx, sigma),
-        "threshold": {"log_bayes_factor": threshold, "margin": margin},
+        "threshold": {"log_bayes_factor": threshold},
     }
     if design.rounds > 1:
-        report["rounds"] = flatness_change(design, rng or np.random.default_rng(0))
+        report["rounds"] = flatness_change(design, np.random.default_rng(rng))
     return Explanation(report, ctx, cands, winner, before, after)
 
 
@@ -170,17 +167,19 @@ def explain(recordings: list[Recording], cell: Cell, **kw) -> Explanation:
     return explain_design(build_design(list(recordings), cell), **kw)
 
 
-def belief_rows(effect: str, params: dict, features: physics.Features,
-                geometry: physics.Geometry) -> tuple[np.ndarray, tuple[str, ...]]:
+def belief_rows(effect: str, params: dict, features: effects.Features,
+                geometry: effects.Geometry) -> tuple[np.ndarray, tuple[str, ...]]:
     """Measurement rows of an effect's linear parameters, for a belief that keeps estimating them.
 
     reading_change(effect, params) = rows @ theta; theta named by the returned tuple (form: shape
-    coefficients in mm). Nonlinear parameters are held at ``params``.
+    coefficients in mm). Nonlinear parameters are held at ``params``; linear parameters that
+    ``params`` does not name and that need a search are left out (a linear drift: no warm-up row).
     """
-    fixed = {k: v for k, v in params.items() if k in physics.NONLINEAR_PARAMS[effect]}
-    return (physics.effect_regressor(effect, features, geometry, fixed),
-            physics.LINEAR_PARAMS[effect])
+    e = effects.get(effect)
+    fixed = {k: v for k, v in params.items() if k in e.nonlinear}
+    names = tuple(k for k in e.linear if k in e.plain or k in params)
+    return e.regressor(features, geometry, fixed, names), names
 
 
 __all__ = ["explain", "explain_design", "Explanation", "belief_rows", "effect_params",
-           "PRIOR_RANGE", "THRESHOLD", "MARGIN", "AMBIGUOUS"]
+           "THRESHOLD", "AMBIGUOUS"]

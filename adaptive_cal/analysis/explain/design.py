@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from adaptive_cal.effects import library as physics
+from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, ConfigError, Simulation
 from adaptive_cal.formats.recording import Recording, RecordingError
 
@@ -22,8 +22,8 @@ MIN_ROWS_PER_ROUND = 8  # tilt (3) + an effect with up to 4 parameters + a noise
 class Design:
     """All rounds stacked. ``time_s`` is t_s, or seq x robot.touch_time_s where t_s is blank."""
 
-    features: physics.Features  # displacement_mm filled after calibration (see calibrated)
-    geometry: physics.Geometry
+    features: effects.Features  # ideal_reading_mm: calibrated in explain_design
+    geometry: effects.Geometry
     round_index: np.ndarray
     seq: np.ndarray
     z_mm: np.ndarray
@@ -55,22 +55,25 @@ class Design:
 
     def nuisance(self) -> tuple[np.ndarray, list[str]]:
         """Columns calibrated before anything else: tilt per round, other unknown effects."""
-        cols = [self.per_round(physics.effect_regressor("tilt", self.features, self.geometry))]
-        names = [f"tilt.{p}[{r}]" for r in range(self.rounds) for p in ("a", "b", "c")]
+        cols = [self.per_round(effects.tilt.regressor(self.features, self.geometry))]
+        names = [f"tilt.{p}[{r}]" for r in range(self.rounds) for p in effects.tilt.linear]
         for name in self.unknown:
             if name == "tilt":
                 continue
-            X = physics.effect_regressor(name, self.features, self.geometry, self._fixed(name))
-            cols.append(X)
-            names += [f"{name}.{p}" for p in physics.LINEAR_PARAMS[name]]
+            effect = effects.get(name)
+            cols.append(effect.regressor(self.features, self.geometry, names=effect.plain))
+            names += [f"{name}.{p}" for p in effect.plain]
         return np.hstack(cols), names
 
-    def _fixed(self, name: str) -> dict:
-        return {}
+    @property
+    def untestable(self) -> frozenset[str]:
+        """Effects this cell cannot show: along reach without robot.base_xy_mm."""
+        if self.geometry.base_xy_mm is not None:
+            return frozenset()
+        return frozenset(e.name for e in effects.LIBRARY if e.axis == "reach")
 
-    def with_displacement(self, displacement_mm: np.ndarray) -> "Design":
-        f = self.features
-        feats = physics.Features(f.x_mm, f.y_mm, f.t_s, f.direction, np.asarray(displacement_mm))
+    def with_ideal_reading(self, ideal_reading_mm: np.ndarray) -> "Design":
+        feats = self.features.with_ideal_reading(ideal_reading_mm)
         return Design(feats, self.geometry, self.round_index, self.seq, self.z_mm,
                       self.reading_mm, self.nominal_mm, self.time_known, self.unknown, self.paths)
 
@@ -101,9 +104,10 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
                           f"(got {sim.unknown})")
     unknown = tuple(dict.fromkeys(n.split(".")[0] for n in sim.unknown))
     for name in unknown:
-        if physics.NONLINEAR_PARAMS[name]:
+        effect = effects.get(name)
+        if not effect.plain:
             raise ConfigError(f"simulation.unknown: {name!r} has nonlinear parameters "
-                              f"{physics.NONLINEAR_PARAMS[name]}; explain calibrates only effects "
+                              f"{effect.nonlinear}; explain calibrates only effects "
                               "linear in their parameters (give them in simulation.effects)")
     cols = {k: [] for k in ("x", "y", "t", "d", "z", "r", "seq", "read")}
     known = []
@@ -124,16 +128,15 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     geometry = cell.geometry
     zero = cell.probe.zero_mm
     base = zero - cat["z"]
-    feats = physics.Features(cat["x"], cat["y"], cat["t"], cat["d"], base)
-    known_effects = {k: v for k, v in sim.effects.items() if k not in unknown}
-    surface = {k: v for k, v in known_effects.items() if k in physics.SURFACE_EFFECTS}
-    others = {k: v for k, v in known_effects.items() if k not in physics.SURFACE_EFFECTS}
-    if "arm_sag" in others and geometry.base_xy_mm is None:
-        raise ConfigError("simulation.effects.arm_sag needs robot.base_xy_mm (the robot base "
-                          "position in the workplane frame)")
-    ideal = base + physics.total_change(surface, feats, geometry)
-    feats = physics.Features(cat["x"], cat["y"], cat["t"], cat["d"], ideal)
-    nominal = ideal + physics.total_change(others, feats, geometry)
+    feats = effects.Features(cat["x"], cat["y"], cat["t"], cat["d"], base)
+    surface, others = effects.split({k: v for k, v in sim.effects.items() if k not in unknown})
+    for name in others:
+        if effects.get(name).axis == "reach" and geometry.base_xy_mm is None:
+            raise ConfigError(f"simulation.effects.{name} needs robot.base_xy_mm (the robot base "
+                              "position in the workplane frame)")
+    ideal = base + effects.total_change(surface, feats, geometry)
+    feats = effects.Features(cat["x"], cat["y"], cat["t"], cat["d"], ideal)
+    nominal = ideal + effects.total_change(others, feats, geometry)
     return Design(feats, geometry, cat["r"].astype(int), cat["seq"].astype(int), cat["z"],
                   cat["read"], nominal, tuple(known), unknown,
                   tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)))

@@ -5,17 +5,17 @@ direction of span(E) lies nearly in span(F): the smallest canonical correlation 
 spans exceeds ``ALIAS_CC`` (0.99: the tilt absorbs more than 99 % of the regressor's norm, less
 than 14 % is left to see). For one-column effects the canonical correlation is |P_F x| / |x|.
 
-``suggest_touches`` adds touches from a menu that fits the effect (repeats of reference points
-at a later time for drift, a reversed pass for reversal, a second approach height for gain, touches
-in the largest gaps for a local defect) greedily, one at a time, until the canonical correlation
+``suggest_touches`` adds touches from a menu that fits the residual axis the effect shows on
+(time: repeats of reference points at a later time; direction: a reversed pass; indication: a
+second approach height; position, for a bump: touches in the largest gaps) greedily, one at a time, until the canonical correlation
 falls to ``TARGET_CC`` (0.9), and returns them as (x_mm, y_mm, z_mm, order) rows for the planner.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from adaptive_cal.effects import library as physics
-from adaptive_cal.analysis.explain.candidates import CANDIDATES, Context, defect_grid, prior_scale
+from adaptive_cal import effects
+from adaptive_cal.analysis.explain.candidates import CANDIDATES, Context, prior_scale
 from adaptive_cal.analysis.explain.evidence import Projector
 
 ALIAS_CC = 0.99
@@ -46,27 +46,39 @@ def _centred(off: Projector, E: np.ndarray) -> np.ndarray:
     return C
 
 
+def _shown(effect: effects.Effect) -> tuple[str, ...]:
+    """The linear parameters whose regressor stands for the effect (its plain part if any)."""
+    return effect.plain or effect.linear
+
+
+def _is_bump(effect: effects.Effect) -> bool:
+    """Confined to a searched place on the plate (local_defect): checked by coverage instead."""
+    return effect.axis == "position" and bool(effect.searched)
+
+
 def representative(ctx: Context, name: str, features=None, round_index=None) -> np.ndarray:
-    """The effect's regressor (shared parameters; arm_sag at p = 2)."""
+    """The effect's regressor (shared parameters, nonlinear ones at their defaults: sag p = 2;
+    thermal_drift: the linear rate)."""
     d = ctx.design
     f = features if features is not None else d.features
-    return physics.effect_regressor(name, f, d.geometry, {"p": 2.0} if name == "arm_sag" else None)
+    effect = effects.get(name)
+    return effect.regressor(f, d.geometry, names=_shown(effect))
 
 
 def _tilt(features, round_index, rounds, geometry) -> np.ndarray:
-    T = physics.effect_regressor("tilt", features, geometry)
+    T = effects.tilt.regressor(features, geometry)
     out = np.zeros((T.shape[0], 3 * rounds))
     for r in range(rounds):
         out[round_index == r, 3 * r:3 * r + 3] = T[round_index == r]
     return out
 
 
-def _augment(ctx: Context, extra: list[dict]) -> tuple[physics.Features, np.ndarray]:
-    """Features of the design plus extra touches (each a dict with x, y, z, t, dir, disp, round)."""
+def _augment(ctx: Context, extra: list[dict]) -> tuple[effects.Features, np.ndarray]:
+    """Features of the design plus extra touches (dicts with x, y, z, t, direction, ideal, round)."""
     f = ctx.design.features
     cat = lambda a, k: np.concatenate([a, np.array([e[k] for e in extra], float)])
-    feats = physics.Features(cat(f.x_mm, "x_mm"), cat(f.y_mm, "y_mm"), cat(f.t_s, "t_s"),
-                             cat(f.direction, "direction"), cat(f.displacement_mm, "disp"))
+    feats = effects.Features(cat(f.x_mm, "x_mm"), cat(f.y_mm, "y_mm"), cat(f.t_s, "t_s"),
+                             cat(f.direction, "direction"), cat(f.ideal_reading_mm, "ideal"))
     return feats, cat(ctx.design.round_index.astype(float), "round").astype(int)
 
 
@@ -84,7 +96,7 @@ def _last_round(ctx: Context) -> np.ndarray:
 
 
 def _menu(ctx: Context, name: str, dz_mm: float) -> list[list[dict]]:
-    """Candidate additions (each a short list of touches, in order) for this effect."""
+    """Candidate additions (each a short list of touches, in order) along the effect's axis."""
     d = ctx.design
     f = d.features
     idx = _last_round(ctx)
@@ -94,13 +106,14 @@ def _menu(ctx: Context, name: str, dz_mm: float) -> list[list[dict]]:
     r = d.rounds - 1
     touch = lambda i, **k: {"x_mm": f.x_mm[i], "y_mm": f.y_mm[i], "z_mm": d.z_mm[i],
                             "t_s": t_end + dt, "direction": f.direction[i],
-                            "disp": f.displacement_mm[i], "round": r, **k}
-    if name == "thermal_drift":
+                            "ideal": f.ideal_reading_mm[i], "round": r, **k}
+    axis = effects.get(name).axis
+    if axis == "time":
         return [[touch(i)] for i in pick]
-    if name == "probe_gain":
-        return [[touch(i, z_mm=d.z_mm[i] + dz_mm, disp=f.displacement_mm[i] - dz_mm)]
+    if axis == "indication":
+        return [[touch(i, z_mm=d.z_mm[i] + dz_mm, ideal=f.ideal_reading_mm[i] - dz_mm)]
                 for i in pick]
-    if name == "reversal":
+    if axis == "direction":
         rows = {}
         for i in idx:
             rows.setdefault(round(float(f.y_mm[i]), 3), []).append(i)
@@ -120,10 +133,13 @@ def _menu(ctx: Context, name: str, dz_mm: float) -> list[list[dict]]:
 def suggest_touches(ctx: Context, name: str, partners: list[str], dz_mm: float = 2.0) -> dict:
     """Smallest set of extra touches (greedy) that separates ``name`` from ``partners``."""
     d = ctx.design
-    if name == "local_defect":
+    effect = effects.get(name)
+    along_reach = [p for p in partners if p != "tilt" and effects.get(p).axis == "reach"]
+    if _is_bump(effect):  # touch where none reached
         return _gap_touches(ctx)
-    if name == "arm_sag" or ("arm_sag" in partners and name == "form"):
-        return {"description": "no touch on this plate separates sag with reach from the plate's "
+    if effect.axis == "reach" or (along_reach and effect.axis == "position"):
+        sag = name if effect.axis == "reach" else along_reach[0]
+        return {"description": f"no touch on this plate separates {sag} (reach) from the plate's "
                 "form (reach is a function of x, y): measure a reference flat of known form, or "
                 "the same plate with the robot base moved", "touches": [], "canonical_correlation_after": None}
     menu = _menu(ctx, name, dz_mm)
@@ -134,10 +150,10 @@ def suggest_touches(ctx: Context, name: str, partners: list[str], dz_mm: float =
         best = int(np.argmin(scores))
         chosen += menu.pop(best)
         cc = scores[best]
-    what = {"thermal_drift": "repeat reference point(s) at the end of the run",
-            "reversal": "a reversed pass (same points, arriving from the other side)",
-            "probe_gain": f"second approach height (z + {dz_mm:g} mm) at some points"}.get(
-        name, "extra touches")
+    what = {"time": "repeat reference point(s) at the end of the run",
+            "direction": "a reversed pass (same points, arriving from the other side)",
+            "indication": f"second approach height (z + {dz_mm:g} mm) at some points"}.get(
+        effect.axis, "extra touches")
     n0 = int((d.round_index == d.rounds - 1).sum())
     touches = [{"x_mm": float(e["x_mm"]), "y_mm": float(e["y_mm"]), "z_mm": float(e["z_mm"]),
                 "order": n0 + k} for k, e in enumerate(chosen)]
@@ -148,7 +164,7 @@ def suggest_touches(ctx: Context, name: str, partners: list[str], dz_mm: float =
 def _gap_touches(ctx: Context, count: int = 4) -> dict:
     """Touches at the centres of the largest empty circles of the design (greedy maximin)."""
     d = ctx.design
-    gx, gy = defect_grid(d.geometry, 10.0)
+    gx, gy = effects.defect_centres(d.geometry, 10.0)
     px, py = list(d.features.x_mm), list(d.features.y_mm)
     touches, fill0 = [], None
     for k in range(count):
@@ -168,22 +184,29 @@ def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0) -> list[
     d = ctx.design
     out = []
     names = [n for n in CANDIDATES if n not in d.unknown]
-    if d.geometry.base_xy_mm is None and "arm_sag" in names:
-        names.remove("arm_sag")
-        out.append({"effect": "arm_sag", "aliased_with": [], "why": "not testable: the cell file "
+    for name in [n for n in names if n in d.untestable]:
+        names.remove(name)
+        out.append({"effect": name, "aliased_with": [], "why": "not testable: the cell file "
                     "lacks robot.base_xy_mm, the robot base position the reach is measured from",
                     "suggested_design": {"description": "add robot.base_xy_mm: [x, y] (mm, "
                                          "workplane frame) to the cell file", "touches": []}})
     T = _tilt(d.features, d.round_index, d.rounds, d.geometry)
     offsets = Projector.of(T[:, 2::3])  # the variation about each round's mean
-    regs = {n: representative(ctx, n) for n in names if n != "local_defect"}
+    bumps = [n for n in names if _is_bump(effects.get(n))]
+    regs = {n: representative(ctx, n) for n in names if n not in bumps}
     for name, E in regs.items():
+        effect = effects.get(name)
+        left = (float(np.linalg.norm(ctx.project(E), axis=0).max())
+                * prior_scale(effect, _shown(effect)) / sigma_mm)
         cc_t = canonical_correlations(_centred(offsets, E), offsets(T))
-        left = float(np.linalg.norm(ctx.project(E), axis=0).max()) * prior_scale(name) / sigma_mm
         if cc_t.min() > ALIAS_CC:
             why = (f"the tilt absorbs {100 * cc_t.min() ** 2:.2f} % of the regressor's variation "
                    f"(canonical correlation {cc_t.min():.4f}); an effect of typical prior size "
                    f"leaves {left:.2f} sigma after the tilt")
+            if effect.axis == "time":
+                why += ("; time is then a linear function of position on this design, so any "
+                        "drift -- linear or a warm-up -- is a function of position too and "
+                        "cannot be told from the plate's tilt and form")
             out.append({"effect": name, "aliased_with": ["tilt"], "why": why,
                         "suggested_design": suggest_touches(ctx, name, ["tilt"], dz_mm)})
             continue
@@ -205,9 +228,11 @@ def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0) -> list[
                 f"correlation {cc_t.max():.4f}); the others are identifiable"),
                 "suggested_design": {"description": "touches at more distinct x and y values",
                                      "touches": []}})
-    gap = _gap_touches(ctx)
-    if gap["fill_distance_mm"] > min(40.0, 0.5 * max(np.ptp(d.geometry.x_range_mm), 1.0)):
-        out.append({"effect": "local_defect", "aliased_with": [],
-                    "why": f"coverage: a defect of radius below {gap['fill_distance_mm']:.0f} mm "
-                    "can sit between touches and reach none of them", "suggested_design": gap})
+    gap = _gap_touches(ctx) if bumps else None
+    for name in bumps:
+        if gap["fill_distance_mm"] > min(40.0, 0.5 * max(np.ptp(d.geometry.x_range_mm), 1.0)):
+            out.append({"effect": name, "aliased_with": [],
+                        "why": f"coverage: a defect of radius below {gap['fill_distance_mm']:.0f} "
+                        "mm can sit between touches and reach none of them",
+                        "suggested_design": gap})
     return out

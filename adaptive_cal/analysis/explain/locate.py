@@ -48,7 +48,7 @@ def axis_bases(ctx: Context) -> dict[str, np.ndarray | str]:
     else:
         rr = _normalised(f.reach_mm(d.geometry))
         out["reach"] = np.stack([rr, rr ** 2, rr ** 3], 1)
-    ind = _normalised(f.displacement_mm)  # the calibrated indication, not the noisy reading
+    ind = _normalised(f.ideal_reading_mm)  # the calibrated indication, not the noisy reading
     out["indication"] = np.stack([ind, ind ** 2], 1)
     return out
 

@@ -1,7 +1,8 @@
 """Round to round: is a change of flatness between rounds larger than the measurement noise?
 
-Flatness as the paper defines it: least-squares plane through the readings of one round, then
-max - min of the residuals. Under the hypothesis that the plate did not change between rounds
+Flatness as the paper defines it (Cheng et al. eq. 5, ``analysis.flatness.ls_flatness_mm``):
+least-squares plane through the readings of one round, then max - min of the residuals,
+measured normal to the plane. Under the hypothesis that the plate did not change between rounds
 (only its tilt did), the same touch points carry the same surface height h_i in every round:
 
     reading_ri = plane_r(x_i, y_i) + h_i + e_ri,   e_ri ~ N(0, sigma^2).
@@ -16,20 +17,21 @@ from __future__ import annotations
 import numpy as np
 
 from adaptive_cal.analysis.explain.design import Design
-
-
-def plane_flatness(x, y, z) -> float:
-    """max - min of the residuals of the least-squares plane (the paper's eqs. 1-6)."""
-    A = np.stack([x, y, np.ones_like(x)], 1)
-    coef, *_ = np.linalg.lstsq(A, z, rcond=None)
-    r = z - A @ coef
-    return float(r.max() - r.min())
+from adaptive_cal.analysis.flatness import ls_flatness_mm
 
 
 def _plane_residual(x, y, z) -> np.ndarray:
     A = np.stack([x, y, np.ones_like(x)], -1)
     P = A @ np.linalg.pinv(A)
     return z - z @ P.T if z.ndim > 1 else z - P @ z
+
+
+def _sampled_flatness(x, y, z) -> np.ndarray:
+    """Eq. 5 of each row of z (S, N): the residual range about its least-squares plane, measured
+    normal to that plane (as ``analysis.flatness.ls_flatness_mm``, batched)."""
+    A = np.stack([x, y, np.ones_like(x)], -1)
+    coef = z @ np.linalg.pinv(A).T  # (S, 3): a, b, c of each row
+    return np.ptp(z - coef @ A.T, axis=1) / np.sqrt(1.0 + coef[:, 0] ** 2 + coef[:, 1] ** 2)
 
 
 def _matched(design: Design, a: int, b: int):
@@ -49,7 +51,7 @@ def flatness_change(design: Design, rng: np.random.Generator, a: int = 0, b: int
     f, z = design.features, design.reading_mm
     ia, ib = _matched(design, a, b)
     out = {"rounds": [a, b]}
-    flat = [plane_flatness(f.x_mm[design.round_index == r], f.y_mm[design.round_index == r],
+    flat = [ls_flatness_mm(f.x_mm[design.round_index == r], f.y_mm[design.round_index == r],
                            z[design.round_index == r]) for r in (a, b)]
     out["flatness_mm"] = flat
     out["change_mm"] = flat[1] - flat[0]
@@ -63,8 +65,8 @@ def flatness_change(design: Design, rng: np.random.Generator, a: int = 0, b: int
     sigma = float(np.sqrt(diff @ diff / (n - 3) / 2.0))
     h = 0.5 * (ra + rb)
     sims = h + sigma * rng.standard_normal((draws, 2, n))
-    fa = np.ptp(_plane_residual(x, y, sims[:, 0]), axis=1)
-    fb = np.ptp(_plane_residual(x, y, sims[:, 1]), axis=1)
+    fa = _sampled_flatness(x, y, sims[:, 0])
+    fb = _sampled_flatness(x, y, sims[:, 1])
     null = fb - fa
     obs = flat[1] - flat[0]
     lo, hi = np.quantile(null, [0.025, 0.975])
