@@ -98,11 +98,11 @@ def _one(job):
     e = explain([c.recording], c.cell, identifiability=False)
     out = {"effect": effect, "magnitude": magnitude, "seed": seed, "design": design,
            "candidates": [(k.effect, k.log_bf) for k in e.candidates],
-           "verdict": e.report["verdict"], "noise_std_mm": c.noise_std_mm,
-           "rms_before_mm": e.report["fit"]["rms_before_mm"],
-           "rms_after_mm": e.report["fit"]["rms_after_mm"],
-           "cv_rms_before_mm": e.report["fit"]["cv_rms_before_mm"],
-           "cv_rms_after_mm": e.report["fit"]["cv_rms_after_mm"]}
+           "verdict": e.findings["verdict"], "noise_std_mm": c.noise_std_mm,
+           "rms_before_mm": e.findings["fit"]["rms_before_mm"],
+           "rms_after_mm": e.findings["fit"]["rms_after_mm"],
+           "cv_rms_before_mm": e.findings["fit"]["cv_rms_before_mm"],
+           "cv_rms_after_mm": e.findings["fit"]["cv_rms_after_mm"]}
     if effect != "none":
         cand = next(k for k in e.candidates if k.effect == effect)
         params, std = effect_params(cand, e.context.design)
@@ -172,7 +172,7 @@ def timing():
         t0 = time.perf_counter()
         e = explain([c.recording], c.cell)  # full analysis, identifiability included
         out[label] = {"rows": len(c.recording), "seconds": time.perf_counter() - t0,
-                      "verdict": e.report["verdict"]}
+                      "verdict": e.findings["verdict"]}
     return out
 
 

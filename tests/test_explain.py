@@ -36,13 +36,13 @@ def test_concealed_effect_is_named_and_its_parameter_recovered(effect):
     for seed in (0, 1):
         c = _case(effect, seed, 8.0)
         e = explain([c.recording], c.cell, identifiability=False)
-        assert e.report["verdict"] == effect, (seed, e.report["candidates"])
+        assert e.findings["verdict"] == effect, (seed, e.findings["candidates"])
         params, std = effect_params(e.winner, e.context.design)
         key = MAIN[effect]
         truth = c.params[key]
         assert abs(params[key] - truth) < 3 * std[key], (seed, params, c.params)
         assert abs(params[key] - truth) < 0.4 * abs(truth)
-        fit = e.report["fit"]
+        fit = e.findings["fit"]
         assert fit["rms_after_mm"] < fit["rms_before_mm"]
         assert fit["cv_rms_after_mm"] < fit["cv_rms_before_mm"]
         if effect == "local_defect":
@@ -54,27 +54,27 @@ def test_nulls_give_none():
         design = [{}, {"ny": 6}, {"raster": True}, {"varied_z": True}][seed % 4]
         c = concealed_recording("none", np.random.default_rng([12, seed]), **design)
         e = explain([c.recording], c.cell, identifiability=False)
-        assert e.report["verdict"] == "none", (seed, e.report["candidates"])
-        assert e.report["left_out"] == [] or all(x["log_bayes_factor"] > 1 for x in e.report["left_out"])
-        assert e.report["fit"]["rms_after_mm"] == e.report["fit"]["rms_before_mm"]
+        assert e.findings["verdict"] == "none", (seed, e.findings["candidates"])
+        assert e.findings["left_out"] == [] or all(x["log_bayes_factor"] > 1 for x in e.findings["left_out"])
+        assert e.findings["fit"]["rms_after_mm"] == e.findings["fit"]["rms_before_mm"]
 
 
 def test_mismatch_points_at_the_revealing_axis():
     c = _case("reversal", 2, 10.0)
     e = explain([c.recording], c.cell, identifiability=False)
-    by = e.report["mismatch"]["by"]
+    by = e.findings["mismatch"]["by"]
     assert by["direction"]["real"] and by["direction"]["p_value"] < 1e-3
     assert set(by) == {"position", "time", "direction", "reach", "indication"}
     c = _case("local_defect", 3, 10.0)
     e = explain([c.recording], c.cell, identifiability=False)
-    top = e.report["mismatch"]["where"][0]
+    top = e.findings["mismatch"]["where"][0]
     assert np.hypot(top["x_mm"] - c.params["x_mm"], top["y_mm"] - c.params["y_mm"]) < 80
 
 
 def test_drift_on_a_raster_is_not_identifiable_and_the_suggestion_separates_it():
     c = concealed_recording("thermal_drift", np.random.default_rng(5), raster=True)
     e = explain([c.recording], c.cell)
-    entry = next(x for x in e.report["not_identifiable"] if x["effect"] == "thermal_drift")
+    entry = next(x for x in e.findings["not_identifiable"] if x["effect"] == "thermal_drift")
     assert entry["aliased_with"] == ["tilt"]
     assert "warm-up" in entry["why"]  # any drift, not only a linear one, is confounded
     touches = entry["suggested_design"]["touches"]
@@ -83,7 +83,7 @@ def test_drift_on_a_raster_is_not_identifiable_and_the_suggestion_separates_it()
     assert entry["suggested_design"]["canonical_correlation_after"] <= 0.9
     # the touches are repeats of positions already measured, appended after the last one
     assert touches[0]["order"] == len(c.recording)
-    assert e.report["verdict"] != "thermal_drift"
+    assert e.findings["verdict"] != "thermal_drift"
 
 
 def test_gain_on_constant_heights_is_aliased_with_tilt():
@@ -94,16 +94,16 @@ def test_gain_on_constant_heights_is_aliased_with_tilt():
     assert s["touches"] and all(t["z_mm"] == 2.0 for t in s["touches"])
     e = explain([c.recording], c.cell)
     assert any(x["effect"] == "probe_gain" and x["aliased_with"] == ["tilt"]
-               for x in e.report["not_identifiable"])
+               for x in e.findings["not_identifiable"])
 
 
 def test_arm_sag_without_base_is_not_testable():
     cell = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
     rec = read_recording(ROOT / "adaptive_cal/data/cheng2025/round0_initial.csv")
     e = explain([rec], cell)
-    entry = next(x for x in e.report["not_identifiable"] if x["effect"] == "arm_sag")
+    entry = next(x for x in e.findings["not_identifiable"] if x["effect"] == "arm_sag")
     assert "robot.base_xy_mm" in entry["why"] and "base_xy_mm" in entry["suggested_design"]["description"]
-    assert e.report["mismatch"]["by"]["reach"]["p_value"] is None
+    assert e.findings["mismatch"]["by"]["reach"]["p_value"] is None
 
 
 def test_belief_rows_reproduce_the_fitted_effect():
@@ -120,7 +120,7 @@ def test_belief_rows_reproduce_the_fitted_effect():
 def test_cheng_rounds_form_shared_and_flatness_change_within_noise(cheng_round0, cheng_round1):
     cell = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
     e = explain([read_recording(cheng_round0), read_recording(cheng_round1)], cell)
-    rep = e.report
+    rep = e.findings
     assert rep["verdict"] == "form"
     form = rep["left_out"][0]
     assert form["sharing"] == "shared" and form["log_bayes_factor"] > 50
@@ -143,7 +143,7 @@ def test_warm_up_drift_is_named_thermal_drift_with_amplitude_and_tau(raster, mag
         c = concealed_recording("thermal_drift", np.random.default_rng([21, seed]),
                                 nonabsorbed_sigma=magnitude, raster=raster, warm_up=1 / 3)
         e = explain([c.recording], c.cell, identifiability=False)
-        rep = e.report
+        rep = e.findings
         assert rep["verdict"] == "thermal_drift", (seed, rep["candidates"])
         entry = rep["left_out"][0]
         assert set(entry["params"]) == {"amplitude_mm", "tau_s"}
@@ -157,5 +157,5 @@ def test_warm_up_drift_is_named_thermal_drift_with_amplitude_and_tau(raster, mag
 def test_linear_drift_is_still_a_rate():
     c = _case("thermal_drift", 0, 8.0)
     e = explain([c.recording], c.cell, identifiability=False)
-    assert e.report["verdict"] == "thermal_drift"
-    assert set(e.report["left_out"][0]["params"]) == {"rate_mm_per_s"}
+    assert e.findings["verdict"] == "thermal_drift"
+    assert set(e.findings["left_out"][0]["params"]) == {"rate_mm_per_s"}

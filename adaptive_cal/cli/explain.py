@@ -73,11 +73,11 @@ def command(args) -> int:
     result = explain(recordings, cell, rng=np.random.default_rng(args.seed))
     if args.out:
         path = write_cell(result, load_yaml(args.robot), args.robot, args.out)
-        result.report["model"] = str(path) if path else None
+        result.findings["model"] = str(path) if path else None
         if not args.no_figures:
-            result.report["figures"] = [str(p) for p in figures(result, args.out)]
-    _print(result.report)
+            result.findings["figures"] = [str(p) for p in figures(result, args.out)]
+    _print(result.findings)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result.report, indent=1), encoding="utf-8")
+        Path(args.json).write_text(json.dumps(result.findings, indent=1), encoding="utf-8")
     return 0

@@ -32,7 +32,7 @@ def residual_maps(explanation: Explanation) -> Figure:
     lim = float(np.abs(before).max()) or 1.0
     fig = Figure(figsize=(11, 3.8 * d.rounds))
     axes = fig.subplots(d.rounds, 2, squeeze=False)
-    verdict = explanation.report["verdict"]
+    verdict = explanation.findings["verdict"]
     for r in range(d.rounds):
         rows = d.round_index == r
         _map(axes[r, 0], fig, f.x_mm[rows], f.y_mm[rows], before[rows],
@@ -45,7 +45,7 @@ def residual_maps(explanation: Explanation) -> Figure:
 
 def revealing_axis(explanation: Explanation) -> str:
     """The verdict's axis, or (for none) the axis with the smallest F-test p-value."""
-    rep = explanation.report
+    rep = explanation.findings
     if rep["verdict"] in effects.EFFECTS:
         return effects.get(rep["verdict"]).axis
     tested = {k: v["p_value"] for k, v in rep["mismatch"]["by"].items()
@@ -67,7 +67,7 @@ def _axis_values(explanation: Explanation, axis: str) -> tuple[np.ndarray, str]:
 
 def residual_against(explanation: Explanation, axis: str) -> Figure:
     """Residual before and after against one axis, with that axis's F-test p-value."""
-    rep = explanation.report
+    rep = explanation.findings
     values, label = _axis_values(explanation, axis)
     before, after = 1e3 * explanation.residual_before, 1e3 * explanation.residual_after
     fig = Figure(figsize=(7, 4))

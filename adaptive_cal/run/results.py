@@ -19,7 +19,7 @@ from adaptive_cal.run.truth import truth_error
 SAMPLES = 200
 
 
-def posterior_report(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generator,
+def plate_estimates(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generator,
                      samples: int = SAMPLES) -> dict:
     """Tilt and flatness of the plate from the belief: value on the posterior mean surface,
     interval over surfaces sampled from the belief (evaluation grid over the whole plate)."""
@@ -60,7 +60,7 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
         "knots_mm": {"x": surface.sx.knots.tolist(), "y": surface.sy.knots.tolist(),
                      "ends": surface.sx.ends},
     }
-    result.update(posterior_report(plan, state.belief, rng))
+    result.update(plate_estimates(plan, state.belief, rng))
     if truth is not None:
         result["truth"] = truth_error(plan, state.belief, truth)
     (out / "result.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")

@@ -3,7 +3,7 @@
 The verdict is the candidate with the largest evidence (the most probable effect: the Bayes
 decision) when its log Bayes factor against ``none`` exceeds ``THRESHOLD`` (calibrated on null
 recordings, benchmarks/bench_explain.py); otherwise ``none``. A tool that names the wrong physics
-with confidence is worse than none, so the report says how sure it is: ``verdict_probability``
+with confidence is worse than none, so the findings say how sure they are: ``verdict_probability``
 (posterior probability of the verdict: none has prior 1/2, the candidates share the other half) and
 ``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
 plate design arm_sag and form are the usual pair).
@@ -30,9 +30,10 @@ AMBIGUOUS = 1.0  # runner-ups within this many nats of the verdict are reported 
 
 @dataclass
 class Explanation:
-    """Everything explain found: the JSON report and the arrays the figures need."""
+    """Everything explain found: ``findings`` (the JSON the command prints and writes) and the
+    arrays the figures need."""
 
-    report: dict
+    findings: dict
     context: Context
     candidates: list[Candidate]
     winner: Candidate | None
@@ -139,7 +140,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     # posterior over none and the candidates: none has prior 1/2, the candidates share the rest
     logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
     prob = np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
-    report = {
+    findings = {
         "verdict": winner.effect if winner else "none",
         "verdict_probability": float(prob[1 + cands.index(winner)] if winner else prob[0]),
         "ambiguous_with": [c.effect for c in cands if winner is not None and c is not winner
@@ -158,8 +159,8 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         "threshold": {"log_bayes_factor": threshold},
     }
     if design.rounds > 1:
-        report["rounds"] = flatness_change(design, np.random.default_rng(rng))
-    return Explanation(report, ctx, cands, winner, before, after)
+        findings["rounds"] = flatness_change(design, np.random.default_rng(rng))
+    return Explanation(findings, ctx, cands, winner, before, after)
 
 
 def explain(recordings: list[Recording], cell: Cell, **kw) -> Explanation:

@@ -16,7 +16,7 @@ from adaptive_cal.analysis.explain.core import Explanation
 def write_cell(explanation: Explanation, cell_data: dict, cell_path: str | Path,
                out_dir: str | Path) -> Path | None:
     """The cell file with the winning effect added to simulation.effects (std in comments)."""
-    rep = explanation.report
+    rep = explanation.findings
     if rep["verdict"] == "none":
         return None
     entry = next(e for e in rep["left_out"] if e["effect"] == rep["verdict"])
