@@ -23,6 +23,7 @@ def add_arguments(p) -> None:
 
 def command(args) -> int:
     from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.hardware.base import AdapterError
     from adaptive_cal.run import session
 
     if args.dry_run:
@@ -46,17 +47,61 @@ def command(args) -> int:
         if answer.strip().lower() not in ("y", "yes"):
             print("nothing moved", file=sys.stderr)
             return 1
+    created = None
     if not args.resume:
         if (out / "recording.csv").exists():
             raise UserError(f"{out}/recording.csv exists: continue it with --resume {out}, or "
                             "choose another --out")
-        out.mkdir(parents=True, exist_ok=True)
-        if cell_path.resolve() != (out / "cell.yaml").resolve():
-            shutil.copyfile(cell_path, out / "cell.yaml")
-    result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,
-                         progress=not args.no_progress)
+        created = _prepare(out, cell_path)
+    try:
+        result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,
+                             progress=not args.no_progress)
+    except BaseException as e:
+        undone = created is not None and _undo_if_empty(out, created)
+        if undone and isinstance(e, AdapterError):
+            raise UserError(f"{e}.\nNothing was recorded, and {out} is left as it was before: "
+                            "once the cause is fixed, run the same command again (not --resume)") from e
+        raise
     _summary(result, out)
     return 130 if result["stopped_because"] == "interrupted" else 0
+
+
+def _prepare(out: Path, cell_path: Path) -> tuple[list[Path], set[str]]:
+    """Create --out and copy the cell file into it. Returns the folders this created (deepest
+    last) and the names --out held before, so a failed start can be undone."""
+    folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
+    before = {p.name for p in out.iterdir()} if out.is_dir() else set()
+    out.mkdir(parents=True, exist_ok=True)
+    if cell_path.resolve() != (out / "cell.yaml").resolve():
+        shutil.copyfile(cell_path, out / "cell.yaml")
+    return folders, before
+
+
+def _undo_if_empty(out: Path, created: tuple[list[Path], set[str]]) -> bool:
+    """After a failed start (a device that does not answer, Ctrl-C before the first touch):
+    when no touch was recorded, remove what this run put in --out (and the folders it made),
+    so the same command can be retried (returns True). A recording with touches stays: --resume
+    continues it (returns False)."""
+    folders, before = created
+    if not out.is_dir() or _has_touches(out / "recording.csv"):
+        return False
+    for path in out.iterdir():
+        if path.name not in before:
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+    for folder in reversed(folders):
+        try:
+            folder.rmdir()  # only when empty
+        except OSError:
+            break
+    return True
+
+
+def _has_touches(rec: Path) -> bool:
+    if not rec.exists():
+        return False
+    with rec.open(encoding="utf-8", errors="replace") as f:
+        rows = [line for line in f if line.strip() and not line.startswith("#")]
+    return len(rows) > 1  # the header, then one row per touch
 
 
 def _ci(f: dict) -> str:

@@ -59,6 +59,16 @@ def _modbus_links(cell: Cell, opened: list) -> dict:
     return links
 
 
+def _require(module: str, what: str) -> None:
+    """An optional device library (only RoboDK's client is optional): a missing one is a
+    message naming the extra that installs it, not a ModuleNotFoundError."""
+    import importlib.util
+
+    if importlib.util.find_spec(module) is None:
+        raise AdapterError(f"{what} needs the '{module}' package, which is not installed: "
+                           'pip install "adaptive-cal[hw]"')
+
+
 def _motion(cell: Cell, links: dict, manual) -> Motion:
     r = cell.robot
     if r.adapter == "manual":
@@ -72,6 +82,7 @@ def _motion(cell: Cell, links: dict, manual) -> Motion:
 
         return ModbusMotion(links["robot"])
     if r.adapter == "robodk":
+        _require("robodk", "robot.adapter: robodk")
         from adaptive_cal.hardware.robodk.adapter import RobodkMotion
 
         return RobodkMotion(r.robodk)

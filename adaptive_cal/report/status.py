@@ -1,0 +1,45 @@
+"""Whether a run's result is a result: what is missing from an unfinished run, in one line.
+
+A run is finished when it stopped on its bound (or spent the touch budget of a cell file that
+sets no bound) and every bound it sets is met. An interrupted run, one whose planner found no
+admissible point, or one that spent its budget with a bound not met is not: the terminal summary
+and the HTML report open with ``missing(result)`` and call the tilt correction provisional.
+Reads result.json's dict only; standard library only (the CLI imports it).
+"""
+from __future__ import annotations
+
+WHY = {
+    "interrupted": "interrupted",
+    "touch_budget": "touch budget spent",
+    "no_admissible_point": "stopped: no admissible point",
+}
+# reasons after which a run may be complete (when no bound is left unmet)
+FINISHING = ("mean_std_bound", "max_std_bound", "touch_budget", "at_least")
+
+
+def unmet_bounds(result: dict) -> list[str]:
+    """Each bound of the cell file the posterior does not meet, as words with units."""
+    bound, post = result.get("bound", {}), result["posterior"]
+    out = []
+    for key, name in (("mean_std_mm", "posterior RMS std"), ("max_std_mm", "posterior max std")):
+        b = bound.get(key)
+        if b is not None and post[key] > b:
+            out.append(f"{name} {post[key] * 1e3:.1f} um against the {b * 1e3:g} um bound")
+    return out
+
+
+def missing(result: dict) -> str | None:
+    """None for a finished run; else one line saying what is missing, e.g. "interrupted after 9
+    touches; posterior RMS std 39.0 um against the 4 um bound"."""
+    why = result["stopped_because"]
+    unmet = unmet_bounds(result)
+    if why in FINISHING and not unmet:
+        return None
+    text = f"{WHY.get(why, why.replace('_', ' '))} after {result['touches']} touches"
+    return "; ".join([text] + unmet)
+
+
+def provisional_note(result: dict) -> str:
+    """What to do with the tilt correction of an unfinished run."""
+    return ("the tilt correction is provisional: do not correct the frame from it; continue the "
+            "run with --resume to meet the bound first")
