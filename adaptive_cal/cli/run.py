@@ -110,13 +110,18 @@ def _ci(f: dict) -> str:
 
 
 def _summary(r: dict, out: Path) -> None:
+    from adaptive_cal.report.status import missing
+
+    gap = missing(r)
     t, p, fl = r["tilt"], r["posterior"], r["flatness_mm"]
-    lines = [
+    lines = [f"INCOMPLETE: {gap}. Not a result: continue with --resume {out}"] if gap else []
+    lines += [
         f"stopped: {r['stopped_because']} after {r['touches']} touches ({r['fused']} fused)",
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
-        f"tilt correction: rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
-        f"(a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm, c {t['c']:+.4f} mm)",
-        f"flatness: least squares {_ci(fl['least_squares'])}; minimum zone {_ci(fl['minimum_zone'])}",
+        f"tilt correction{' (provisional)' if gap else ''}: rx {t['rx_deg']:+.4f} deg, "
+        f"ry {t['ry_deg']:+.4f} deg (a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm, c {t['c']:+.4f} mm)",
+        f"flatness{' (provisional)' if gap else ''}: least squares {_ci(fl['least_squares'])}; "
+        f"minimum zone {_ci(fl['minimum_zone'])}",
     ]
     if "truth" in r:
         tr = r["truth"]

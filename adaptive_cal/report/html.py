@@ -28,8 +28,10 @@ from adaptive_cal.formats.recording import read_recording
 from adaptive_cal.gaussian.belief import Belief, predict
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report import figures as plots
+from adaptive_cal.report.status import missing
 from adaptive_cal.report.sections import (cards, cell_section, escape, explain_section,
-                                          flatness_section, image, run_section, tilt_section)
+                                          flatness_section, image, incomplete_banner, run_section,
+                                          tilt_section)
 
 
 # -- figures ---------------------------------------------------------------------------------
@@ -117,7 +119,9 @@ border-radius:6px;padding:10px 14px;min-width:200px;background:#fafafa}.card .v{
 font-weight:bold}.card .l{color:#555;font-size:0.85em}
 figure{margin:12px 0}img{max-width:100%;border:1px solid #eee}figcaption{color:#555;
 font-size:0.85em}.note{color:#555;font-size:0.9em}pre.code{background:#f6f6f6;padding:8px 12px;
-border:1px solid #ddd;overflow-x:auto}.verdict{font-size:1.15em}footer{margin-top:2em;color:#777;
+border:1px solid #ddd;overflow-x:auto}.verdict{font-size:1.15em}
+.incomplete{border:2px solid #c0392b;background:#fdecea;padding:10px 14px;border-radius:6px;
+font-size:1.1em}footer{margin-top:2em;color:#777;
 font-size:0.8em;border-top:1px solid #ddd;padding-top:6px}
 """
 
@@ -140,8 +144,9 @@ def render(run_dir: str | Path) -> str:
         f"<h1>{escape(title)}</h1>",
         f"<p class='note'>Run folder <code>{escape(run_dir.resolve())}</code>. Lengths in mm (um where "
         "marked), angles in deg, heights in the workplane frame.</p>",
+        incomplete_banner(result, run_dir),
         cards(result, run_dir),
-        tilt_section(result["tilt"]),
+        tilt_section(result["tilt"], provisional=missing(result) is not None),
         flatness_section(result),
         "<h2>Touches on the plate</h2>",
         image(_png(touches_figure(cell, rec)), "touches", "The plate drawn to scale; numbers are the "

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptive_cal.cell.schema import Cell
+from adaptive_cal.report.status import missing
 
 UM = 1000.0
 FLATNESS = (("least_squares", "least squares (Cheng eq. 5)"), ("minimum_zone", "minimum zone (ISO 1101)"),
@@ -96,7 +97,19 @@ def run_section(result: dict) -> str:
     return "<h2>The run</h2>" + _table(rows, cls="kv")
 
 
-def tilt_section(tilt: dict) -> str:
+def incomplete_banner(result: dict, run_dir: Path) -> str:
+    """The page's opening line for an unfinished run (interrupted, budget spent, bound not met);
+    nothing for a finished one."""
+    gap = missing(result)
+    if gap is None:
+        return ""
+    return (f"<p class='incomplete'><b>INCOMPLETE: {escape(gap)}.</b> This map is not a result: "
+            "the tilt correction and the flatness below are provisional; do not correct the frame "
+            f"from them. Continue the run with <code>adaptive-cal run --resume "
+            f"{escape(run_dir)}</code>, then write this report again.</p>")
+
+
+def tilt_section(tilt: dict, provisional: bool = False) -> str:
     rx, ry = tilt["rx_deg"], tilt["ry_deg"]
     R = rotation(rx, ry)
     sx, sy = tilt.get("rx_std_deg"), tilt.get("ry_std_deg")
@@ -108,8 +121,10 @@ def tilt_section(tilt: dict) -> str:
             ("height change over 100 mm", f"along x {tilt['a'] * 100 * UM:+.1f} um, along y "
                                           f"{tilt['b'] * 100 * UM:+.1f} um")]
     matrix = "<br>".join("[" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in R)
-    return ("<h2>Tilt correction for the controller</h2>"
-            "<p>Rotate the user frame so its z axis is the plate normal:</p>"
+    head = ("<h2>Tilt correction for the controller (provisional)</h2><p><b>Provisional:</b> the "
+            "run did not finish (see the top of the page); apply it only after the run meets its "
+            "bound.</p>" if provisional else "<h2>Tilt correction for the controller</h2>")
+    return (head + "<p>Rotate the user frame so its z axis is the plate normal:</p>"
             f"<pre class='code'>frame_new = frame_nominal * rotx({rx:+.4f} deg) * roty({ry:+.4f} deg)\n"
             f"# RoboDK (radians): frame_new = frame_nominal * rotx({np.radians(rx):+.6f}) * "
             f"roty({np.radians(ry):+.6f})</pre>"
@@ -184,7 +199,8 @@ def explain_section(run_dir: Path) -> str:
 
 def cards(result: dict, run_dir: Path) -> str:
     t, ls, p = result["tilt"], result["flatness_mm"]["least_squares"], result["posterior"]
-    cards = [(f"rx {t['rx_deg']:+.4f} deg<br>ry {t['ry_deg']:+.4f} deg", "tilt correction"),
+    tilt_label = "tilt correction" + (" (provisional)" if missing(result) else "")
+    cards = [(f"rx {t['rx_deg']:+.4f} deg<br>ry {t['ry_deg']:+.4f} deg", tilt_label),
              (f"{ls['value']:.4f} mm", f"flatness, least squares (95 % {_interval(ls)})"),
              (f"{_um(p['mean_std_mm'])}", f"RMS posterior std after {result['touches']} touches")]
     ex = run_dir / "explain.json"
