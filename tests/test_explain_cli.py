@@ -89,3 +89,26 @@ def test_sim_is_a_hidden_alias_of_robot(tmp_path, cheng_round0, capsys):
     assert json.loads((tmp_path / "r.json").read_text())["verdict"] == "form"
     assert main(["explain", str(cheng_round0)]) == 2
     assert "--robot CELL.yaml" in capsys.readouterr().err
+
+
+def test_terminal_text_reads_in_um_one_line_per_finding(tmp_path, cheng_round0, cheng_round1, capsys):
+    assert main(["explain", str(cheng_round0), str(cheng_round1), "--robot", str(CELL),
+                 "--json", str(tmp_path / "r.json")]) == 0
+    text = capsys.readouterr().out
+    rep = json.loads((tmp_path / "r.json").read_text())
+    lines = text.splitlines()
+    form = [line for line in lines if line.startswith("  left out: form: ")]
+    assert len(form) == 1  # one line per finding
+    bow = rep["left_out"][0]["params"]["bow_y"]
+    assert f"bow in y {bow * 1e3:+.1f} +- " in form[0]  # heights in um (README: a 0.33 mm bow)
+    assert "against none" in form[0] and "log BF" not in text
+    assert "(z " not in text  # the standardized residual is not called z
+    w = rep["mismatch"]["where"][0]
+    assert (f"residual {w['residual_mm'] * 1e3:+.1f} um near x {w['x_mm']:g}, y {w['y_mm']:g} mm "
+            f"({abs(w['z']):.1f} sd") in text
+    gain = next(e for e in rep["not_identifiable"] if e["effect"] == "probe_gain")
+    touches = gain["suggested_design"]["touches"]
+    assert f"{len(touches)} touch(es) at x, y, z (mm): " in text  # the suggested touches printed
+    for t in touches:
+        assert f"({t['x_mm']:g}, {t['y_mm']:g}, {t['z_mm']:g})" in text
+    assert "docs/explain.md" in lines[-1]

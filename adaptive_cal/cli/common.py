@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 class UserError(Exception):
@@ -22,3 +23,53 @@ class DefaultsShown(argparse.HelpFormatter):
         if action.option_strings or action.nargs in (argparse.OPTIONAL, argparse.ZERO_OR_MORE):
             return text + " (default: %(default)s)"
         return text
+
+
+RECORDING_MAGIC = "# adaptive-cal recording v1"  # formats.recording.MAGIC (kept stdlib-only here)
+RECORDING_FORMAT = (
+    "A recording is a UTF-8 CSV: first line '# adaptive-cal recording v1', more '#' lines of "
+    "metadata, one header line with the columns seq, t_s, x_mm, y_mm, z_mm, reading_mm (more "
+    "may follow), then one row per touch. The format: docs/recording.md")
+
+
+def _first_line(path: Path) -> str:
+    try:
+        with path.open(encoding="utf-8", errors="replace") as f:
+            return f.readline().lstrip("\ufeff").strip()
+    except OSError:
+        return ""
+
+
+def check_recording(path: str) -> None:
+    """A recording argument that is a folder or another CSV: say what is wanted instead of the
+    reader's first-line error. A missing file is left to the reader ("no such file")."""
+    p = Path(path)
+    if p.is_dir():
+        hint = f": {p / 'recording.csv'}" if (p / "recording.csv").exists() else ""
+        raise UserError(f"{p} is a folder; give the recording file inside it{hint}")
+    if not p.is_file():
+        return
+    line = _first_line(p)
+    if line.startswith("# adaptive-cal recording") and line != RECORDING_MAGIC:
+        raise UserError(f"{p}: {line!r} is a recording version this adaptive-cal does not read. "
+                        + RECORDING_FORMAT)
+    if line != RECORDING_MAGIC:
+        raise UserError(f"{p} is not an adaptive-cal recording (its first line is {line[:60]!r}). "
+                        + RECORDING_FORMAT)
+
+
+def check_cell_file(path: str, option: str = "--robot") -> None:
+    """A recording (or another CSV) given where the cell file is expected."""
+    p = Path(path)
+    if p.is_dir():
+        hint = f" (this folder has one: {p / 'cell.yaml'})" if (p / "cell.yaml").exists() else ""
+        raise UserError(f"{option} {p}: a folder; {option} takes the cell file (YAML){hint}")
+    if not p.is_file():
+        return
+    if _first_line(p).startswith("# adaptive-cal recording"):
+        raise UserError(f"{option} {p}: this is a recording, not a cell file. {option} takes the "
+                        "cell's YAML file (e.g. configs/sim-cell.yaml, or the cell.yaml a run "
+                        "copies into its folder)")
+    if p.suffix.lower() == ".csv":
+        raise UserError(f"{option} {p}: a CSV file, not a cell file. {option} takes the cell's "
+                        "YAML file (e.g. configs/sim-cell.yaml)")

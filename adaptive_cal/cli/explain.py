@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from adaptive_cal.cli.common import UserError
+from adaptive_cal.cli.common import UserError, check_cell_file, check_recording
 
 
 def add_arguments(parser) -> None:
@@ -29,37 +29,19 @@ def add_arguments(parser) -> None:
 
 
 def _print(report: dict) -> None:
-    fit = report["fit"]
-    amb = report.get("ambiguous_with") or []
-    print(f"verdict: {report['verdict']} (probability {report['verdict_probability']:.2f}"
-          + (f"; cannot be told apart from {', '.join(amb)} on this design" if amb else "") + ")")
-    for e in report["left_out"]:
-        print(f"  left out: {e['summary']}")
-    for e in report["not_identifiable"]:
-        print(f"  not identifiable: {e['effect']} ({', '.join(e['aliased_with']) or '-'}): {e['why']}")
-    print(f"mismatch: rms {1e3 * report['mismatch']['rms_mm']:.1f} um")
-    for axis, v in report["mismatch"]["by"].items():
-        p = v.get("p_value")
-        print(f"  {axis:>10}: " + (f"F-test p = {p:.3g}{' (real)' if v['real'] else ''}"
-                                   if p is not None else v.get("note", "")))
-    for w in report["mismatch"]["where"]:
-        print(f"  concentrated near x {w['x_mm']:g}, y {w['y_mm']:g} mm: "
-              f"{1e3 * w['residual_mm']:+.1f} um (z {w['z']:.1f})")
-    print(f"fit: rms {1e3 * fit['rms_before_mm']:.1f} -> {1e3 * fit['rms_after_mm']:.1f} um, "
-          f"leave-one-out {1e3 * fit['cv_rms_before_mm']:.1f} -> {1e3 * fit['cv_rms_after_mm']:.1f} um")
-    if "rounds" in report and "p_value" in report["rounds"]:
-        r = report["rounds"]
-        print(f"rounds: flatness {r['flatness_mm'][0]:.4f} -> {r['flatness_mm'][1]:.4f} mm, change "
-              f"{r['change_mm']:+.4f} mm; noise alone gives 95 % within "
-              f"[{r['null_change_95_mm'][0]:+.4f}, {r['null_change_95_mm'][1]:+.4f}] mm "
-              f"(repeatability {1e3 * r['repeatability_mm']:.1f} um), p = {r['p_value']:.3f}")
-    if report["model"]:
-        print(f"model: {report['model']}")
+    from adaptive_cal.cli.explain_text import lines
+    from adaptive_cal.effects import EFFECTS
+
+    units = {name: {p.name: p.unit for p in e.params} for name, e in EFFECTS.items()}
+    print("\n".join(lines(report, units)))
 
 
 def command(args) -> int:
     if not args.robot:
         raise UserError("explain needs --robot CELL.yaml (the cell file with its simulation block)")
+    check_cell_file(args.robot)
+    for path in args.recordings:
+        check_recording(path)
     import numpy as np
 
     from adaptive_cal.cell.schema import load_cell, load_yaml

@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 import sys
 
+from adaptive_cal.cli.common import check_recording
+
 NAMES = ("least_squares", "range", "minimum_zone")
 
 
@@ -27,6 +29,9 @@ def command(args) -> int:
 
     from adaptive_cal.analysis.flatness_intervals import compare, recording_flatness
 
+    check_recording(args.recording)
+    if args.compare:
+        check_recording(args.compare)
     rng = np.random.default_rng(args.seed)
     out, sampled = recording_flatness(args.recording, rng, args.samples)
     if args.compare:
@@ -53,10 +58,41 @@ def _one(r: dict) -> list[str]:
     return lines
 
 
+LABELS = {"least_squares": "least squares", "minimum_zone": "minimum zone",
+          "range": "range (tilt incl.)"}
+
+
+def _verdict(c: dict) -> str:
+    lo, hi = c["diff_ci95"]
+    if lo > 0:
+        return "larger"
+    if hi < 0:
+        return "smaller"
+    return "within the noise"
+
+
+def compare_table(out: dict) -> list[str]:
+    """The change between two recordings as a table in mm, with P(worse) = P(later > earlier)."""
+    from pathlib import Path
+
+    a, b = out["first"], out["second"]
+    lines = [f"change from {Path(a['recording']).name} to {Path(b['recording']).name} "
+             "(later minus earlier; mm):",
+             f"  {'figure':<19}{'earlier':>9}{'later':>9}{'change':>9}   {'95 % interval of change':<26}"
+             f"{'P(worse)':>8}  verdict"]
+    for k in ("least_squares", "minimum_zone", "range"):
+        c = out["change"][k]
+        va, vb = a["flatness_mm"][k]["value"], b["flatness_mm"][k]["value"]
+        lo, hi = c["diff_ci95"]
+        lines.append(f"  {LABELS[k]:<19}{va:>9.4f}{vb:>9.4f}{vb - va:>+9.4f}   "
+                     f"{f'{lo:+.4f} .. {hi:+.4f}':<26}{c['p_b_greater']:>8.2f}  {_verdict(c)}")
+    lines += ["  P(worse): the probability that the later flatness is larger (over predicted repeat",
+              "  measurements). Range includes the tilt: a corrected tilt shows there, not flatness."]
+    return lines
+
+
 def _print(out: dict) -> None:
     if "change" not in out:
         print("\n".join(_one(out)))
         return
-    print("\n".join(_one(out["first"]) + _one(out["second"])))
-    for k, c in out["change"].items():
-        print(f"  change of {k}: {json.dumps(c)}")
+    print("\n".join(_one(out["first"]) + _one(out["second"]) + compare_table(out)))

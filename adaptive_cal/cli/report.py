@@ -12,6 +12,14 @@ def add_arguments(p) -> None:
 
 
 def command(args) -> int:
+    from pathlib import Path
+
+    from adaptive_cal.cli.common import UserError
+
+    given = Path(args.run_dir)
+    if given.is_file():
+        raise UserError(f"{given} is a file; report wants the run folder: adaptive-cal report "
+                        f"{given.parent}")
     from adaptive_cal.report.html import write
 
     path = write(args.run_dir, args.out)

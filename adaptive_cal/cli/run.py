@@ -5,7 +5,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from adaptive_cal.cli.common import UserError
+from adaptive_cal.cli.common import UserError, check_cell_file
 
 
 def add_arguments(p) -> None:
@@ -26,6 +26,8 @@ def command(args) -> int:
     from adaptive_cal.hardware.base import AdapterError
     from adaptive_cal.run import session
 
+    if args.robot:
+        check_cell_file(args.robot)
     if args.dry_run:
         if not args.robot:
             raise UserError("--dry-run needs --robot CELL.yaml")

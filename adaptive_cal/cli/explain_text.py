@@ -1,0 +1,95 @@
+"""explain's findings as terminal text for a process engineer: heights in um, one line per
+finding, the standardized residual as "sd" (z is a height in this tool), the suggested extra
+touches printed, and the statistical terms named in full (docs/explain.md explains them).
+Standard library only; ``units`` maps an effect's parameter names to their units (from the
+effect library) and is passed in by the command."""
+from __future__ import annotations
+
+import re
+import textwrap
+
+LATERAL = {"x_mm", "y_mm", "radius_mm"}  # positions and sizes on the plate stay in mm
+LABELS = {"pv_mm": "peak-to-valley", "bow_x": "bow in x", "bow_y": "bow in y"}
+
+
+def quantity(name: str, value: float, std: float | None, unit: str) -> str:
+    """One fitted parameter in the unit an engineer reads: heights in um, positions in mm."""
+    label = LABELS.get(name, re.sub(r"_(mm|s|deg|mm_per_s)$", "", name).replace("_", " "))
+    pm = lambda scale, fmt: "" if std is None else f" +- {std * scale:{fmt}}"  # noqa: E731
+    if unit == "mm" and name not in LATERAL:
+        sign = "" if name == "pv_mm" else "+"
+        return f"{label} {value * 1e3:{sign}.1f}{pm(1e3, '.1f')} um"
+    if unit == "mm":
+        return f"{label} {value:.0f}{pm(1, '.0f')} mm"
+    if unit == "mm/s" or name.endswith("_mm_per_s"):
+        return f"{label} {value * 1e3:+.3g}{pm(1e3, '.2g')} um/s"
+    if unit in ("s", "deg"):
+        return f"{label} {value:.3g}{pm(1, '.2g')} {unit}"
+    return f"{label} {value:+.4g}{pm(1, '.2g')}" + (f" {unit}" if unit and unit != "-" else "")
+
+
+def _notes(summary: str) -> list[str]:
+    """The notes of an effect's summary line (between its parameters and its evidence)."""
+    parts = [p.strip() for p in summary.split(";")][1:]
+    parts = [p for p in parts if not p.startswith("log BF vs none")]
+    parts = [re.sub(r"^shared \(log BF shared vs per round ([-+0-9.e]+)\)",
+                    lambda m: f"the same in every round (log Bayes factor {float(m[1]):.1f} over "
+                              "one per round)", p) for p in parts]
+    return [p.replace("log BF", "log Bayes factor") for p in parts]
+
+
+def left_out_line(e: dict, units: dict) -> str:
+    params, stds = e.get("params", {}), e.get("params_std", {})
+    values = ", ".join(quantity(k, v, stds.get(k), units.get(k, "")) for k, v in params.items())
+    notes = "; ".join(_notes(e.get("summary", "")))
+    return (f"  left out: {e['effect']}: {values}" + (f"; {notes}" if notes else "")
+            + f"; evidence: log Bayes factor {e['log_bayes_factor']:.1f} against none")
+
+
+def touches_lines(touches: list[dict]) -> list[str]:
+    # a no-break space inside each point, so no point is split across lines
+    text = " ".join(f"({t['x_mm']:g},\u00a0{t['y_mm']:g},\u00a0{t['z_mm']:g})" for t in touches)
+    wrapped = textwrap.wrap(f"{len(touches)} touch(es) at x, y, z (mm): {text}", width=96,
+                            initial_indent="      ", subsequent_indent="        ",
+                            break_on_hyphens=False)
+    return [w.replace("\u00a0", " ") for w in wrapped]
+
+
+def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
+    fit, amb = report["fit"], report.get("ambiguous_with") or []
+    out = [f"verdict: {report['verdict']} (probability {report['verdict_probability']:.2f}"
+           + (f"; cannot be told apart from {', '.join(amb)} on this design" if amb else "") + ")"]
+    for e in report["left_out"]:
+        out.append(left_out_line(e, units.get(e["effect"], {})))
+    for e in report["not_identifiable"]:
+        alias = f" (cannot be told from {', '.join(e['aliased_with'])})" if e["aliased_with"] else ""
+        out.append(f"  not identifiable: {e['effect']}{alias}: {e['why']}")
+        design = e.get("suggested_design") or {}
+        if design.get("description"):
+            out.append(f"    suggested: {design['description']}")
+        if design.get("touches"):
+            out.extend(touches_lines(design["touches"]))
+    m = report["mismatch"]
+    out.append(f"mismatch (recording minus simulation): RMS {1e3 * m['rms_mm']:.1f} um; trends "
+               "(p: chance that noise alone shows one this strong):")
+    for axis, v in m["by"].items():
+        p = v.get("p_value")
+        out.append(f"  {axis:>10}: " + (f"p = {p:.3g}{', real' if v['real'] else ''}"
+                                       if p is not None else v.get("note", "")))
+    for w in m["where"]:
+        out.append(f"  residual {1e3 * w['residual_mm']:+.1f} um near x {w['x_mm']:g}, "
+                   f"y {w['y_mm']:g} mm ({abs(w['z']):.1f} sd of the expected scatter)")
+    out.append(f"fit: RMS residual {1e3 * fit['rms_before_mm']:.1f} -> {1e3 * fit['rms_after_mm']:.1f}"
+               f" um, leave-one-out {1e3 * fit['cv_rms_before_mm']:.1f} -> "
+               f"{1e3 * fit['cv_rms_after_mm']:.1f} um")
+    r = report.get("rounds") or {}
+    if "p_value" in r:
+        lo, hi = r["null_change_95_mm"]
+        out.append(f"rounds: flatness {r['flatness_mm'][0]:.4f} -> {r['flatness_mm'][1]:.4f} mm, "
+                   f"change {1e3 * r['change_mm']:+.1f} um; noise alone gives 95 % within "
+                   f"{1e3 * lo:+.1f} .. {1e3 * hi:+.1f} um (repeatability "
+                   f"{1e3 * r['repeatability_mm']:.1f} um), p = {r['p_value']:.3f}")
+    if report.get("model"):
+        out.append(f"model: {report['model']}")
+    out.append("terms (log Bayes factor, canonical correlation, regressor, sd): docs/explain.md")
+    return out
