@@ -1,0 +1,70 @@
+"""Messages for common mistakes, through the installed command line (a subprocess: what a user
+sees, exit codes included), and flatness --compare as a readable table."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CHENG = ROOT / "adaptive_cal" / "data" / "cheng2025"
+CELL = ROOT / "configs" / "sim-cell.yaml"
+
+
+def _cli(*args, cwd=None):
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
+    return subprocess.run([sys.executable, "-m", "adaptive_cal.cli", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, env=env, timeout=300)
+
+
+def _fails(p, *words):
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert "Traceback" not in p.stderr and "internal error" not in p.stderr, p.stderr
+    for w in words:
+        assert w in p.stderr, p.stderr
+
+
+def test_report_on_a_recording_asks_for_its_run_folder(tmp_path):
+    run = tmp_path / "runs" / "first"
+    run.mkdir(parents=True)
+    (run / "recording.csv").write_text((CHENG / "round0_initial.csv").read_text())
+    _fails(_cli("report", run / "recording.csv"), "is a file; report wants the run folder",
+           f"adaptive-cal report {run}")
+
+
+def test_a_recording_given_as_the_cell_file(tmp_path):
+    rec = CHENG / "round0_initial.csv"
+    _fails(_cli("run", "--robot", rec, "--out", tmp_path / "o"),
+           "this is a recording, not a cell file", "--robot takes the cell's YAML file")
+    assert not (tmp_path / "o").exists()
+    _fails(_cli("run", "--robot", rec, "--dry-run"), "this is a recording, not a cell file")
+    _fails(_cli("explain", rec, "--robot", rec), "this is a recording, not a cell file")
+
+
+def test_flatness_on_another_csv_says_what_a_recording_is(tmp_path):
+    mine = tmp_path / "mine.csv"
+    mine.write_text("x,y,z\n0,0,0.01\n10,0,0.02\n")
+    p = _cli("flatness", mine)
+    _fails(p, "mine.csv is not an adaptive-cal recording (its first line is 'x,y,z')",
+           "'# adaptive-cal recording v1'", "seq, t_s, x_mm, y_mm, z_mm, reading_mm",
+           "docs/recording.md")
+    assert (ROOT / "docs" / "recording.md").exists()
+    _fails(_cli("flatness", tmp_path), "is a folder; give the recording file inside it")
+
+
+@pytest.mark.slow
+def test_compare_prints_a_table_with_units_and_p_worse():
+    p = _cli("flatness", CHENG / "round0_initial.csv", "--compare",
+             CHENG / "round1_first_correction.csv")
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    head = lines.index("change from round0_initial.csv to round1_first_correction.csv "
+                       "(later minus earlier; mm):")
+    assert "P(worse)" in lines[head + 1] and "95 % interval of change" in lines[head + 1]
+    ls = lines[head + 2].split()
+    assert ls[:2] == ["least", "squares"]
+    assert ls[2:5] == ["0.5417", "0.5960", "+0.0544"]
+    assert ls[-4:] == ["0.78", "within", "the", "noise"]
+    assert lines[head + 4].startswith("  range (tilt incl.)") and lines[head + 4].endswith("smaller")
+    assert "{" not in p.stdout  # no raw dicts
