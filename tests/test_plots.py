@@ -73,7 +73,9 @@ def test_surface_figure_saves_and_labels(tmp_path):
 def test_surface_touches_numbered_in_order():
     fig, _ = _surface(n_touches=40)
     texts = [t.get_text() for t in _panel(fig, "mean").texts]
-    assert texts == [str(i) for i in range(40)]
+    # touches close together share one label ("3,4"): every seq once, labels in order of first touch
+    assert sorted(int(s) for t in texts for s in t.split(",")) == list(range(40))
+    assert [int(t.split(",")[0]) for t in texts] == sorted(int(t.split(",")[0]) for t in texts)
     assert len(_panel(fig, "std").texts) == 0
 
 
@@ -149,3 +151,13 @@ def test_residual_figure(tmp_path):
     assert "(mm)" in ax.get_xlabel() and "(mm)" in ax.get_ylabel()
     assert ax.get_aspect() == 1.0
     assert ax.get_title() == "round 0 residuals"
+
+
+def test_touch_labels_are_readable_and_never_overprint():
+    from adaptive_cal.report.figures import touch_labels
+
+    xy = np.array([[0.0, 0.0], [100.0, 50.0], [100.2, 50.1], [300.0, 200.0], [0.5, 0.3]])
+    labels = touch_labels(xy)
+    assert [t for t, _ in labels] == ["0,4", "1,2", "3"]  # a retake joins its first touch's label
+    fig, _ = _surface(n_touches=40)
+    assert all(t.get_fontsize() >= 8 for t in _panel(fig, "mean").texts)

@@ -41,9 +41,27 @@ def _touches(ax, touches_xy_mm: np.ndarray, numbered: bool) -> None:
     ax.plot(touches_xy_mm[:, 0], touches_xy_mm[:, 1], "o", ms=3, mfc="white", mec="black",
             mew=0.6, label="touches", zorder=4)
     if numbered:
-        for seq, (x, y) in enumerate(touches_xy_mm):  # numbers are the recording's seq
-            ax.annotate(str(seq), (x, y), xytext=(2, 2), textcoords="offset points",
-                        fontsize=6, zorder=5)
+        for text, (x, y) in touch_labels(touches_xy_mm):  # numbers are the recording's seq
+            ax.annotate(text, (x, y), xytext=(3, 3), textcoords="offset points", fontsize=8,
+                        zorder=5, bbox=dict(boxstyle="square,pad=0.05", fc="white", ec="none",
+                                            alpha=0.7))
+
+
+def touch_labels(touches_xy_mm: np.ndarray, near_frac: float = 0.03) -> list[tuple[str, tuple]]:
+    """One label per place: touches closer than ``near_frac`` of the plate's span to an earlier
+    labelled one (a retake, a neighbour) join its label ("3,4") instead of overprinting it."""
+    xy = np.asarray(touches_xy_mm, float).reshape(-1, 2)
+    span = float(np.ptp(xy, axis=0).max()) if len(xy) > 1 else 1.0
+    near = near_frac * max(span, 1e-9)
+    places: list[list] = []  # [x, y, [seq, ...]]
+    for seq, (x, y) in enumerate(xy):
+        for p in places:
+            if abs(p[0] - x) < near and abs(p[1] - y) < near:
+                p[2].append(seq)
+                break
+        else:
+            places.append([x, y, [seq]])
+    return [(",".join(map(str, p[2])), (p[0], p[1])) for p in places]
 
 
 def _next_point(ax, next_xy_mm) -> None:

@@ -67,9 +67,10 @@ def touches_figure(cell: Cell, rec) -> Figure:
         ax.plot(rec.x_mm[~fused], rec.y_mm[~fused], "x", ms=8, color="red", mew=1.5,
                 label="touch not fused (gated / rejected)", zorder=4)
     if len(rec) <= 150:
-        for s, x, y in zip(rec.seq, rec.x_mm, rec.y_mm):
-            ax.annotate(str(int(s)), (x, y), xytext=(3, 3), textcoords="offset points", fontsize=7,
-                        zorder=5)
+        seqs = [str(int(s)) for s in rec.seq]
+        for text, xy in plots.touch_labels(np.c_[rec.x_mm, rec.y_mm], near_frac=0.02):
+            label = ",".join(seqs[int(i)] for i in text.split(","))
+            ax.annotate(label, xy, xytext=(3, 3), textcoords="offset points", fontsize=8, zorder=5)
     ax.set_xlim(x0 - 0.04 * (x1 - x0), x1 + 0.04 * (x1 - x0))
     ax.set_ylim(y0 - 0.04 * (y1 - y0), y1 + 0.04 * (y1 - y0))
     ax.set_aspect("equal")
