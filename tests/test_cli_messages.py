@@ -68,3 +68,15 @@ def test_compare_prints_a_table_with_units_and_p_worse():
     assert ls[-4:] == ["0.78", "within", "the", "noise"]
     assert lines[head + 4].startswith("  range (tilt incl.)") and lines[head + 4].endswith("smaller")
     assert "{" not in p.stdout  # no raw dicts
+
+
+def test_dry_run_prints_approach_heights_expected_touches_and_robot_time():
+    p = _cli("run", "--robot", CELL, "--dry-run")
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert lines[2].split() == ["#", "x_mm", "y_mm", "approach", "z_mm"]
+    assert len(lines[3].split()) == 4
+    last = lines[-1]
+    assert last.startswith("expected: about ") and "robot time about " in last and " min (" in last
+    touches = int(last.split()[2])
+    assert 16 <= touches <= 120  # at least the spline's coefficients, at most the budget

@@ -145,7 +145,40 @@ def _dry_run(cell) -> int:
     print(f"dry run: the first {len(targets)} planned touches, in travel order; nothing moves.\n"
           "The plan adapts as readings arrive, and each approach height is set from the belief "
           "at that touch.")
-    print("  #     x_mm     y_mm")
+    print("  #     x_mm     y_mm  approach z_mm")
     for i, t in enumerate(targets):
-        print(f"{i:3d} {t.x_mm:8.2f} {t.y_mm:8.2f}")
+        print(f"{i:3d} {t.x_mm:8.2f} {t.y_mm:8.2f} {t.z_mm:14.3f}")
+    touches, travel_mm, why = _forecast(plan, cell)
+    r = cell.robot
+    robot_s = touches * r.touch_time_s + travel_mm / r.speed_mm_per_s
+    print(f"expected: about {touches} touches ({why.replace('_', ' ')}; at most "
+          f"{cell.plan.stop.max_touches}), robot time about {robot_s / 60:.1f} min "
+          f"({r.touch_time_s:g} s per touch, {travel_mm / 1000:.1f} m of travel at "
+          f"{r.speed_mm_per_s:g} mm/s); with the prior's hyper-parameters and no gated reading")
     return 0
+
+
+def _forecast(plan, cell) -> tuple[int, float, str]:
+    """Touches until the stopping rule fires, and the travel between them (mm), when every
+    reading lands where the belief expects it: the covariance does not depend on the readings,
+    so this is the plan's own count while the hyper-parameters stay at the prior's."""
+    import math
+    from dataclasses import replace
+
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.planning.ask import ask
+
+    quick = replace(plan, refine=0, learn=False)
+    state, travel, last = sv.start(quick), 0.0, None
+    while True:
+        why = quick.stop(sv.status(quick, state))
+        if why:
+            return state.touches, travel, why
+        targets = ask(quick, state, 1)
+        if not targets:
+            return state.touches, travel, "no_admissible_point"
+        t = targets[0]
+        if last is not None:
+            travel += math.dist(last, (t.x_mm, t.y_mm))
+        last = (t.x_mm, t.y_mm)
+        state, _ = sv.tell(quick, state, t.x_mm, t.y_mm, t.z_mm, t.expected_reading_mm)
