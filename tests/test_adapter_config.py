@@ -74,7 +74,7 @@ def test_int16_values_may_sit_one_register_apart():
 @pytest.mark.parametrize("name, table, address", [
     ("D100", "hr", 0x1064), ("D0", "hr", 0x1000), ("M10", "coil", 0x080A),
     ("M1536", "coil", 0xB000), ("X17", "di", 0x040F), ("Y10", "coil", 0x0508),
-    ("$100", "hr", 100), ("$M5", "coil", 2005), ("hr:0x20", "hr", 32), ("coil:7", "coil", 7),
+    ("$100", "hr", 100), ("$M5", "hr", 2005), ("hr:0x20", "hr", 32), ("coil:7", "coil", 7),
 ])
 def test_delta_and_dop_names_translated(name, table, address):
     a = resolve(name)

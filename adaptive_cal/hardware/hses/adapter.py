@@ -1,7 +1,9 @@
 """The ``hses`` motion adapter: a Yaskawa controller over the High Speed Ethernet Server (UDP).
 
 Servo on at connect, linear absolute moves in the user (or base) frame, then status and position
-polling until the robot stands at the target. Every request carries a fresh request id; answers
+polling until the robot stands at the target. The position read (0x75) answers in the base frame
+(the manual), so the target is converted to the base frame with ``user_frame_in_base`` before
+the two are compared. Every request carries a fresh request id; answers
 with another id (late answers to earlier tries) are dropped. Unanswered requests are re-sent
 ``retries`` times, then the run stops with a message that says what to check.
 """
@@ -14,6 +16,7 @@ import struct
 import time
 
 from adaptive_cal.hardware.hses import protocol as P
+from adaptive_cal.hardware.hses.frames import base_to_user, user_to_base
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.hardware.hses.config import HsesConfig
 
@@ -70,7 +73,12 @@ class HsesMotion:
                     log.info("%s: dropped a late answer (id %d, waiting for %d)", self.where,
                              ans.req_id, self._id)
                     continue
-                return ans
+                try:
+                    return P.decode_answer(data, command, service)
+                except ValueError as e:
+                    raise AdapterError(f"{self.where}: the answer to command 0x{command:02X} "
+                                       f"is in no known layout ({e}); is this an HSES "
+                                       "server?") from None
             log.warning("%s: no answer to command 0x%02X (try %d of %d)", self.where, command,
                         attempt + 1, self.cfg.retries + 1)
         raise AdapterError(f"{self.where}: no answer to command 0x{command:02X} after "
@@ -92,21 +100,42 @@ class HsesMotion:
         return struct.unpack_from("<II", data)
 
     def servo(self, on: bool) -> None:
-        self.call(P.CMD_SERVO, 2, 1, P.SET_ONE, struct.pack("<I", 1 if on else 2))
+        self.call(P.CMD_SERVO, P.SERVO_POWER, 1, P.SET_ONE, struct.pack("<I", 1 if on else 2))
+
+    def alarm(self) -> tuple[int, str]:
+        """The latest alarm (0x70, instance 1): (code, name); code 0 when none stands."""
+        try:
+            return P.unpack_alarm(self.call(P.CMD_ALARM, 1, 0, P.GET_ALL))
+        except ValueError as e:
+            raise AdapterError(f"{self.where}: {e}") from None
 
     def reset_alarm(self) -> None:
         self.call(P.CMD_ALARM_RESET, 1, 1, P.SET_ONE, struct.pack("<I", 1))
 
     def robot_position(self) -> tuple[float, float, float]:
-        """Position the controller reports (robot frame of the move, mm)."""
-        return P.unpack_position(self.call(P.CMD_POSITION, 101, 0, P.GET_ALL))
+        """Position the controller reports: the base frame (data type 16), mm."""
+        try:
+            return P.unpack_position(self.call(P.CMD_POSITION, P.POSITION_INSTANCE, 0, P.GET_ALL))
+        except ValueError as e:
+            raise AdapterError(f"{self.where}: {e}") from None
+
+    def to_base(self, p):
+        """A point in the frame of the moves (user or base) -> the base frame."""
+        u = self.cfg.user_frame_in_base
+        return tuple(p) if self.cfg.frame == "base" else user_to_base(p, u.origin_mm,
+                                                                      u.rotation_deg)
+
+    def from_base(self, b):
+        u = self.cfg.user_frame_in_base
+        return tuple(b) if self.cfg.frame == "base" else base_to_user(b, u.origin_mm,
+                                                                      u.rotation_deg)
 
     # -- Motion -----------------------------------------------------------------------
     def position(self) -> tuple[float, float, float]:
         if self.pose is not None or not self.cfg.check_position:
             return self.pose or (math.nan, math.nan, math.nan)
         ox, oy, oz = self.cfg.offset_mm
-        x, y, z = self.robot_position()
+        x, y, z = self.from_base(self.robot_position())
         return x - ox, y - oy, z - oz
 
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
@@ -143,7 +172,9 @@ class HsesMotion:
         while self.clock() - start < c.move_timeout_s:
             d1, d2 = self.status()
             if d2 & (P.ALARM | P.ERROR):
-                raise HsesError(f"{self.where}: the controller raised an alarm during the move; "
+                code, name = self.alarm()
+                what = f"alarm {code} {name!r}" if code else "an alarm"
+                raise HsesError(f"{self.where}: the controller raised {what} during the move; "
                                 f"{P.ADDED_STATUS[0x2060]}", 0xFF, 0x2060)
             if d2 & P.HOLD_MASK:
                 raise HsesError(f"{self.where}: the robot is held; {P.ADDED_STATUS[0x2050]}",
@@ -156,16 +187,17 @@ class HsesMotion:
                     if self.clock() - start > 2 * c.poll_s:
                         return
                 else:
-                    got = self.robot_position()
-                    err = math.dist(got, target)
+                    got, want = self.robot_position(), self.to_base(target)
+                    err = math.dist(got, want)
                     if err <= c.position_tolerance_mm:
                         return
                     if self.clock() - start > max(0.5, 10 * c.poll_s):
                         raise AdapterError(
                             f"{self.where}: the robot stopped {err:.3f} mm from the target "
-                            f"{tuple(round(v, 3) for v in target)} (reported "
+                            f"{tuple(round(v, 3) for v in want)} (base frame; reported "
                             f"{tuple(round(v, 3) for v in got)}); check robot.hses.frame, "
-                            "user_frame and offset_mm, or set check_position: false")
+                            "user_frame, user_frame_in_base and offset_mm, or set "
+                            "check_position: false")
             self.sleep(c.poll_s)
         raise AdapterError(f"{self.where}: the move did not finish within "
                            f"robot.hses.move_timeout_s={c.move_timeout_s} s")

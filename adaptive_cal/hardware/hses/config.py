@@ -3,9 +3,31 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from adaptive_cal.hardware.config import Strict, check_host
+
+
+class UserFrameInBase(Strict):
+    """The user frame as the pendant shows it: origin in the base frame and Rx Ry Rz, composed
+    R = Rz Ry Rx (verify on the controller: docs/adapters/hses.md)."""
+
+    origin_mm: tuple[float, float, float]
+    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @field_validator("origin_mm")
+    @classmethod
+    def _origin(cls, v):
+        if not all(abs(c) <= 10000 for c in v):  # NaN fails too
+            raise ValueError(f"origin_mm {list(v)} is more than 10 m from the robot base")
+        return v
+
+    @field_validator("rotation_deg")
+    @classmethod
+    def _rotation(cls, v):
+        if not all(abs(c) <= 180 for c in v):  # NaN fails too
+            raise ValueError(f"rotation_deg {list(v)}: each angle must lie in [-180, 180]")
+        return v
 
 
 class HsesConfig(Strict):
@@ -24,8 +46,12 @@ class HsesConfig(Strict):
         (180.0, 0.0, 0.0), description="Rx Ry Rz of the tool held during every move")
     offset_mm: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="workplane origin in the robot frame")
-    check_position: bool = Field(True, description="compare the reported position to the target "
-                                 "(verify: the controller may report another frame)")
+    user_frame_in_base: UserFrameInBase | None = Field(
+        None, description="the user frame's origin_mm and rotation_deg in the base frame, as the "
+        "pendant shows them; needed by check_position with frame user, because the position "
+        "read (0x75) answers in the base frame only")
+    check_position: bool = Field(True, description="compare the position the controller reports "
+                                 "(base frame) with the target converted to the base frame")
     position_tolerance_mm: float = Field(0.1, gt=0)
     move_timeout_s: float = Field(60.0, gt=0)
     poll_s: float = Field(0.02, gt=0)
@@ -35,3 +61,12 @@ class HsesConfig(Strict):
     @classmethod
     def _check_host(cls, v):
         return check_host(v)
+
+    @model_validator(mode="after")
+    def _frame_for_the_check(self):
+        if self.frame == "user" and self.check_position and self.user_frame_in_base is None:
+            raise ValueError("check_position with frame 'user' needs user_frame_in_base "
+                             "(origin_mm, rotation_deg of user frame "
+                             f"{self.user_frame} from the pendant): the controller reports "
+                             "positions in the base frame only; or set check_position: false")
+        return self

@@ -4,7 +4,13 @@ adapter and the emulator. Layout from HARDWARE.md (the manual, not yrcom's offse
 Header (32 bytes): 'YERC', u16 header size 0x20, u16 payload size, u8 3, u8 division (1 robot),
 u8 ack (0 request, 1 answer), u8 request id, u32 block no, 8 bytes '99999999', then the
 sub-header: request u16 command, u16 instance, u8 attribute, u8 service, u16 0; answer u8
-service|0x80, u8 status, u8 added-status size, u8 0, u16 added status, u16 0.
+service|0x80, u8 status, u8 added-status size (in words: 1 for one added-status word), u8 0,
+u16 added status, u16 0.
+
+yrcom 0.3.1 reads answers another way (the command echoed at bytes 24-25, status at byte 26,
+added status at 30-31). ``decode_answer`` takes the manual's layout when byte 24 echoes the
+service, and that other layout when bytes 24-25 echo the command, so a refusal framed either way
+is a refusal, never a success; an answer in neither layout is refused.
 """
 from __future__ import annotations
 
@@ -19,7 +25,10 @@ HEADER_SIZE = 0x20
 
 GET_ALL, SET_ALL, GET_ONE, SET_ONE = 0x01, 0x02, 0x0E, 0x10
 CMD_ALARM_RESET, CMD_SERVO, CMD_STATUS, CMD_POSITION, CMD_MOVE = 0x82, 0x83, 0x72, 0x75, 0x8A
+CMD_ALARM = 0x70  # alarm data reading, instance 1-4 (latest first), 60 bytes
+HOLD, SERVO_POWER, HLOCK = 1, 2, 3  # instances of 0x83; data u32 1 on, 2 off
 COORD = {"base": 16, "robot": 17, "user": 18, "tool": 19}
+POSITION_INSTANCE = 101  # 0x75: robot 1, Cartesian; the manual: answers in the base frame (16)
 
 # status data 1 / data 2 bits
 RUNNING, TEACH, PLAY, REMOTE = 0x08, 0x20, 0x40, 0x80
@@ -78,7 +87,7 @@ def encode_answer(req_id: int, service: int, status: int = 0, added: int = 0,
                   payload: bytes = b"") -> bytes:
     head = HEAD.pack(MAGIC, HEADER_SIZE, len(payload), 3, 1, 1, req_id & 0xFF, 0x80000000,
                      RESERVED)
-    size = 2 if added else 0
+    size = 1 if added else 0  # the size counts 16-bit words: one added-status word
     return head + ANS_SUB.pack(service | 0x80, status, size, 0, added, 0) + payload
 
 
@@ -99,10 +108,19 @@ def decode_request(data: bytes) -> Request:
     return Request(req_id, command, instance, attribute, service, payload)
 
 
-def decode_answer(data: bytes) -> Answer:
+def decode_answer(data: bytes, command: int | None = None,
+                  service: int | None = None) -> Answer:
+    """The answer; with ``command`` and ``service`` (those of the request) the sub-header must
+    echo one of them (see the module docstring), else ValueError."""
     req_id, payload = _head(data, 1)
-    service, status, _, _, added, _ = ANS_SUB.unpack_from(data, 24)
-    return Answer(req_id, service & 0x7F, status, added, payload)
+    got_service, status, _, _, added, _ = ANS_SUB.unpack_from(data, 24)
+    if service is None or got_service == service | 0x80:
+        return Answer(req_id, got_service & 0x7F, status, added, payload)
+    if command is not None and struct.unpack_from("<H", data, 24)[0] == command:
+        status, size, added = data[26], data[28], struct.unpack_from("<H", data, 30)[0]
+        return Answer(req_id, service, status, added if size else 0, payload)
+    raise ValueError(f"answer sub-header {data[24:32].hex(' ')} echoes neither service "
+                     f"0x{service | 0x80:02X} nor command 0x{command or 0:02X}")
 
 
 def move_payload(xyz_mm, rxyz_deg, *, coord: int, speed_mm_per_s: float, tool: int,
@@ -122,9 +140,10 @@ def unpack_move(payload: bytes) -> dict:
             "rxyz_deg": tuple(v / 10000 for v in w[8:11]), "tool": w[15], "user_frame": w[16]}
 
 
-def position_payload(xyz_mm, rxyz_deg, coord: int, tool: int = 0, user_frame: int = 0) -> bytes:
-    """13 x i32: data type, form, tool, user frame, expanded form, X Y Z (um), Rx Ry Rz, 2 pad."""
-    return struct.pack("<13i", coord, 0, tool, user_frame, 0,
+def position_payload(xyz_mm, rxyz_deg, tool: int = 0) -> bytes:
+    """13 x i32: data type (16, base frame: the only one 0x75 answers in), form, tool, user
+    frame (0), expanded form, X Y Z (um), Rx Ry Rz (0.0001 deg), 7th and 8th axis."""
+    return struct.pack("<13i", COORD["base"], 0, tool, 0, 0,
                        *(round(v * 1000) for v in xyz_mm),
                        *(round(a * 10000) for a in rxyz_deg), 0, 0)
 
@@ -133,4 +152,24 @@ def unpack_position(payload: bytes) -> tuple[float, float, float]:
     if len(payload) < 52:
         raise ValueError(f"position answer of {len(payload)} bytes, expected 52")
     w = struct.unpack_from("<13i", payload)
+    if w[0] != COORD["base"]:
+        raise ValueError(f"position answer of data type {w[0]}, expected 16 (base frame)")
     return w[5] / 1000, w[6] / 1000, w[7] / 1000
+
+
+ALARM_DATA = struct.Struct("<III16s32s")  # code, data, type, time 'YYYY/MM/DD HH:MM', name
+
+
+def alarm_payload(code: int = 0, data: int = 0, kind: int = 0, time: str = "",
+                  name: str = "") -> bytes:
+    """60 bytes of 0x70: alarm code, alarm data, alarm type (0: no alarm), time, name."""
+    return ALARM_DATA.pack(code, data, kind, time.encode("latin-1")[:16],
+                      name.encode("latin-1")[:32])
+
+
+def unpack_alarm(payload: bytes) -> tuple[int, str]:
+    """(alarm code, alarm name); code 0 when no alarm stands."""
+    if len(payload) < ALARM_DATA.size:
+        raise ValueError(f"alarm answer of {len(payload)} bytes, expected {ALARM_DATA.size}")
+    code, _, _, _, name = ALARM_DATA.unpack_from(payload)
+    return code, name.rstrip(b"\0").decode("latin-1", "replace").strip()

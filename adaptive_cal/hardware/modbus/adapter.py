@@ -79,12 +79,16 @@ class ModbusLink:
 
     def read_bit(self, role: str) -> bool:
         a, dev = self.map[role], self.cfg.device_id
+        if a.word_flag:  # DOP $Mn: a holding register, set when non-zero
+            return bool(self.read_words(role, 1)[0])
         f = self.client.read_coils if a.table == "coil" else self.client.read_discrete_inputs
         return bool(self._op(f"read {role} ({a.name})",
                              lambda: f(a.address, count=1, device_id=dev)).bits[0])
 
     def write_bit(self, role: str, value: bool) -> None:
         a = self.map[role]
+        if a.word_flag:
+            return self.write_words(role, [1 if value else 0])
         self._op(f"write {role} ({a.name})", lambda: self.client.write_coil(
             a.address, value, device_id=self.cfg.device_id))
 

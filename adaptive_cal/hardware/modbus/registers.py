@@ -2,7 +2,10 @@
 
 Delta DVP (HARDWARE.md): M0-M1535 coils at 0x0800, M1536+ at 0xB000, D0-D4095 holding registers
 at 0x1000, X inputs at 0x0400 and Y outputs at 0x0500, X and Y numbered in octal.
-Delta DOP HMI as a slave: ``$n`` is holding register n (0-1023), ``$Mn`` is coil 2000+n.
+Delta DOP HMI as a slave (manual 2007PDD23000007): ``$n`` is holding register n (0-1023) and
+``$Mn`` is holding register 2000+n ($M0-$M1023 = W42001-W43024): a flag kept in a whole word,
+written 1 / 0 and read as set when non-zero. D4096 and up are refused: their Modbus address
+differs between DVP models (see docs/adapters/modbus.md); use ``hr:N`` from your PLC's table.
 Raw names: ``hr:N``, ``coil:N``, ``di:N``, ``ir:N`` (decimal or 0x hex).
 """
 from __future__ import annotations
@@ -22,6 +25,7 @@ class Address(NamedTuple):
     table: str
     address: int
     name: str
+    word_flag: bool = False  # a flag held in a holding register (DOP $Mn)
 
 
 def resolve(name: str) -> Address:
@@ -36,10 +40,10 @@ def resolve(name: str) -> Address:
     m = re.fullmatch(r"\$(M?)(\d+)", s, re.I)
     if m:
         n = int(m.group(2))
-        if m.group(1):
-            return Address("coil", 2000 + n, s)
         if n > 1023:
-            raise ValueError(f"DOP register {name!r} is beyond $1023")
+            raise ValueError(f"DOP address {name!r} is beyond ${m.group(1)}1023")
+        if m.group(1):
+            return Address("hr", 2000 + n, s, True)
         return Address("hr", n, s)
     m = re.fullmatch(r"([DMXY])(\d+)", s, re.I)
     if not m:
@@ -75,9 +79,9 @@ def check_map(roles: dict[str, str], value_words: int) -> dict[str, Address]:
             a = resolve(name)
         except ValueError as e:
             raise ValueError(f"registers.{role}: {e}") from None
-        if role in FLAG_ROLES and a.table not in BIT_TABLES:
+        if role in FLAG_ROLES and a.table not in BIT_TABLES and not a.word_flag:
             raise ValueError(f"registers.{role}={name!r} must be a bit (M, X, Y, $M, coil:, di:)")
-        if role not in FLAG_ROLES and a.table in BIT_TABLES:
+        if role not in FLAG_ROLES and (a.table in BIT_TABLES or a.word_flag):
             raise ValueError(f"registers.{role}={name!r} must be a register (D, $, hr:, ir:)")
         if role in WRITTEN_FLAGS and a.table == "di":
             raise ValueError(f"registers.{role}={name!r} is an input (read-only); the PC writes it")

@@ -5,8 +5,11 @@ Presets (HARDWARE.md; request strings marked verify were not confirmed on a devi
 | preset | line | request | answer |
 |---|---|---|---|
 | mitutoyo | 9600 8N1 | ``1\\r`` (verify) | ``01A+0000.123\\r`` |
-| sylvac | 4800 7E2, DTR/RTS on (cable power) | ``?\\r`` | ``+0.1234\\r``, errors ``ERR<n>\\r`` |
-| keyence | 9600 8N1 (verify) | ``M0\\r\\n`` | ``M0,+012.3456,...\\r\\n`` |
+| sylvac | 4800 7E2, two-way cable: DTR on, RTS off | ``?\\r`` | ``+0.1234\\r``; tolerance mode ``+0.1234=`` (``<`` below, ``>`` above the limits); errors ``ERR<n>\\r`` |
+| keyence | 9600 8N1 (verify) | ``M0\\r\\n`` | ``M0,+012.3456,...\\r\\n``; errors ``ER,M0,<code>\\r\\n`` |
+
+A gauge that echoes the request sends it back before the answer: the echo is skipped. The Sylvac
+one-way cable (a value requested by dropping DTR for >= 110 ms) is not supported.
 | custom | from the config | ``request`` | ``pattern`` with one group, times ``scale`` |
 """
 from __future__ import annotations
@@ -37,11 +40,13 @@ class Preset:
 
 PRESETS = {
     "mitutoyo": Preset(9600, 8, "N", 1, b"1\r", r"^\d{2}A([-+]\s*\d+(?:\.\d+)?)\s*$"),
-    "sylvac": Preset(4800, 7, "E", 2, b"?\r", r"^([-+]?\s*\d+(?:\.\d+)?)\s*$", True, True),
+    "sylvac": Preset(4800, 7, "E", 2, b"?\r", r"^([-+]?\s*\d+(?:\.\d+)?)\s*[<=>]?\s*$",
+                     True, False),
     "keyence": Preset(9600, 8, "N", 1, b"M0\r\n", r"^M0,([-+]?\d+(?:\.\d+)?)(?:,.*)?$"),
     "custom": Preset(9600, 8, "N", 1, b"", ""),
 }
 ERROR = re.compile(rb"^(ERR\s*\d*|E\d+)", re.I)
+KEYENCE_ERROR = re.compile(rb"^ER,(\w+),(\d+)")  # ER,<command>,<error code>
 
 
 def unescape(text: str) -> bytes:
@@ -52,6 +57,10 @@ def unescape(text: str) -> bytes:
 def parse(line: bytes, pattern: str, scale: float) -> float:
     """One answer line -> value in mm; BadSample (with the raw bytes) when it does not parse."""
     text = line.decode("ascii", "replace").strip()
+    if m := KEYENCE_ERROR.match(line.strip()):
+        cmd, code = (g.decode("ascii", "replace") for g in m.groups())
+        raise BadSample(f"gauge reported error code {code} to command {cmd} ({text!r}); see "
+                        "the gauge manual's error table", line)
     if ERROR.match(line.strip()):
         raise BadSample(f"gauge reported an error {text!r} (out of range or not zeroed?)", line)
     m = re.search(pattern, text)
@@ -99,7 +108,10 @@ class SerialProbe:
             self.port.reset_input_buffer()  # a late answer to an earlier request is stale
             if self.request:
                 self.port.write(self.request)
-            line = self.port.read_until(b"\n" if self.request.endswith(b"\n") else b"\r")
+            end = b"\n" if self.request.endswith(b"\n") else b"\r"
+            line = self.port.read_until(end)
+            if self.request and line.strip() == self.request.strip():
+                line = self.port.read_until(end)  # the gauge echoed the request: skip it
         except (serial.SerialException, OSError) as e:
             raise AdapterError(f"probe.serial.port={self.cfg.port!r}: link lost ({e}); "
                                "reconnect the gauge and continue with --resume") from e

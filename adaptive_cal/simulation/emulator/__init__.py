@@ -73,8 +73,10 @@ def start_emulator(cell: Cell, *, ephemeral: bool = False, move_s: float = 0.02)
         r, p = cell.robot, cell.probe
         if r.adapter == "hses":
             host = _loopback(r.hses.host, "robot.hses.host")
+            u = r.hses.user_frame_in_base
+            frame = (u.origin_mm, u.rotation_deg) if u else ((0.0,) * 3, (0.0,) * 3)
             emu.hses = HsesServer(emu.robot, host, 0 if ephemeral else r.hses.port,
-                                  r.hses.offset_mm).start()
+                                  r.hses.offset_mm, frame, r.hses.frame).start()
         ends = {}
         for role, block in (("robot", r), ("probe", p)):
             if block.adapter == "modbus":

@@ -30,7 +30,8 @@ def answer_line(preset: str, reading_mm: float, scale: float = 1.0) -> bytes:
 class GaugeFaults:
     silent: int = 0          # the next N requests get no answer (timeout)
     garbage: int = 0         # the next N requests get garbage
-    error: int = 0           # the next N requests get ERR3
+    error: int = 0           # the next N requests get ERR3 (Keyence: ER,M0,02)
+    echo: bool = False       # the request is echoed before each answer
 
 
 class GaugeResponder:
@@ -50,11 +51,12 @@ class GaugeResponder:
         if f.garbage > 0:
             f.garbage -= 1
             return b"\x7f#?!garbage\r\n"
+        echo = self.request if f.echo else b""
         if f.error > 0:
             f.error -= 1
-            return b"ERR3\r"
+            return echo + (b"ER,M0,02\r\n" if self.cfg.preset == "keyence" else b"ERR3\r")
         self.answered += 1
-        return answer_line(self.cfg.preset, self.reading(), self.cfg.scale)
+        return echo + answer_line(self.cfg.preset, self.reading(), self.cfg.scale)
 
     def serve(self, recv: Callable[[], bytes], send: Callable[[bytes], None],
               stop: threading.Event) -> None:

@@ -81,10 +81,15 @@ class PlcServer:
 
     def bit(self, role: str) -> bool:
         a, start, regs = self._mem(role)
+        if a.word_flag:  # DOP $Mn: a whole holding register
+            return bool(regs[a.address - start])
         return bool(regs[a.address // 16 - start] >> (a.address % 16) & 1)
 
     def set_bit(self, role: str, value: bool) -> None:
         a, start, regs = self._mem(role)
+        if a.word_flag:
+            regs[a.address - start] = 1 if value else 0
+            return
         i, m = a.address // 16 - start, 1 << (a.address % 16)
         regs[i] = regs[i] | m if value else regs[i] & ~m
 
