@@ -26,6 +26,9 @@ _echo.maxlevel, _echo.maxdict, _echo.maxlist, _echo.maxtuple = 2, 4, 4, 4
 _echo.maxstring, _echo.maxother, _echo.maxlong = ECHO_CHARS, ECHO_CHARS, ECHO_CHARS
 
 
+_Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's when built with it
+
+
 class ConfigError(ValueError):
     """A cell or study file that cannot be used; the message names the key and the value."""
 
@@ -154,6 +157,19 @@ def _flow_depth(text: str) -> int:
     return deepest
 
 
+def _refuse_deep_events(text: str, source: str) -> None:
+    """Refuse nesting deeper than MAX_DEPTH from the parser's event stream (a flat loop)."""
+    depth = 0
+    for event in yaml.parse(text, Loader=_Loader):
+        if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise ConfigError(f"{source}:{event.start_mark.line + 1}: nested deeper than "
+                                  f"{MAX_DEPTH} levels")
+        elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+            depth -= 1
+
+
 def parse_yaml(text: str, source: str = "config"):
     """The data a YAML text holds (None for an empty one), refusing duplicate keys and
     documents that aliases blow up (see module docstring)."""
@@ -162,7 +178,8 @@ def parse_yaml(text: str, source: str = "config"):
                           f"(at most {MAX_CHARS})")
     if _flow_depth(text) > MAX_DEPTH:
         raise ConfigError(f"{source}: nested deeper than {MAX_DEPTH} levels")
-    loader = yaml.SafeLoader(text)
+    _refuse_deep_events(text, source)  # before composing: libyaml's composer recurses in C
+    loader = _Loader(text)
     try:
         node = loader.get_single_node()
         if node is None:
@@ -187,8 +204,10 @@ def load_yaml(path: str | Path) -> dict:
     try:
         data = parse_yaml(text, str(path))
     except yaml.YAMLError as e:
-        message = str(e)
-        if len(message) > 6 * ECHO_CHARS:
-            message = message[: 6 * ECHO_CHARS - 3] + "..."
-        raise ConfigError(f"{path}: not valid YAML: {message}") from None
+        mark = getattr(e, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+        message = getattr(e, "problem", None) or str(e)
+        if len(message) > 2 * ECHO_CHARS:
+            message = message[: 2 * ECHO_CHARS - 3] + "..."
+        raise ConfigError(f"{where}: not valid YAML: {message}") from None
     return data if data is not None else {}
