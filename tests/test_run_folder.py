@@ -161,3 +161,28 @@ def test_a_batch_larger_than_the_budget_makes_no_more_touches_than_the_budget(tm
     r = session.run(cell, tmp_path / "run", progress=False)
     assert r["stopped_because"] == "touch_budget"
     assert r["touches"] == len(read_recording(tmp_path / "run" / "recording.csv")) == 10
+
+
+def test_resuming_a_finished_run_changes_nothing(tmp_path):
+    cell = sim_cell(plan={"candidates": 2000, "stop": {"mean_std_mm": 1e-6, "max_touches": 6}})
+    out = tmp_path / "run"
+    r = session.run(cell, out, progress=False)
+    assert r["stopped_because"] == "touch_budget"
+    files = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in out.iterdir()
+             if p.name != LOCK_NAME}
+    again = session.run(cell, out, resume=True, progress=False)
+    assert again["already_finished"] == "touch_budget" and again["touches"] == 6
+    assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in out.iterdir()
+            if p.name != LOCK_NAME} == files  # no rewrite of result.json, nor anything else
+
+
+def test_the_progress_bar_shows_each_bound_with_its_unit():
+    from types import SimpleNamespace
+
+    from adaptive_cal.planning.stopping import Status
+
+    shown = []
+    bar = SimpleNamespace(set_postfix_str=lambda text, refresh: shown.append(text),
+                          update=lambda n: None)
+    session._update(bar, sim_cell(), Status(touches=3, mean_std_mm=0.0039, max_std_mm=0.0102))
+    assert shown == ["mean std 3.9 um / bound 4.0 um, max std 10.2 um"]

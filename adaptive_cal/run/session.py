@@ -8,6 +8,7 @@ every touch and ``--resume`` continues it: no touch repeated, none lost.
 """
 from __future__ import annotations
 
+import json
 import math
 import signal
 import warnings
@@ -114,7 +115,9 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
     """Run the loop on the cell until a stopping rule fires; write recording, results, figures.
 
     The folder is locked for the whole run (``run.folder.run_lock``): a second run or resume on
-    it fails at once with ``RunFolderBusy``. ``max_new_touches`` stops (as ``interrupted``)
+    it fails at once with ``RunFolderBusy``. Resuming a finished run (its stopping rule already
+    holds) changes nothing and returns its result.json with ``already_finished`` (the reason).
+    ``max_new_touches`` stops (as ``interrupted``)
     after that many touches: used by tests to simulate an interruption at a chosen point."""
     with run_lock(out):
         return _run(cell, RunPaths(Path(out)), resume, prior_from, progress, max_new_touches)
@@ -137,6 +140,10 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, progress: bool,
             warnings.warn(f"{paths.recording}: its last row was cut by a crash mid-write and is "
                           f"dropped: {cut[:80]!r}", stacklevel=2)
         state, start_t, next_seq = replay(plan, state, paths.recording)
+        done = plan.stop(sv.status(plan, state))
+        if done and (paths.out / "result.json").exists():  # finished: nothing to do or rewrite
+            return {**json.loads((paths.out / "result.json").read_text(encoding="utf-8")),
+                    "already_finished": done}
     start_touch = state.touches
     seq_offset = next_seq - start_touch  # new rows continue from the last seq + 1
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
@@ -207,10 +214,11 @@ def _progress(enabled: bool, cell: Cell, initial: int):
 
 
 def _update(bar, cell: Cell, s) -> None:
-    stop = cell.plan.stop
-    post = {"mean_std": f"{s.mean_std_mm * 1e3:.1f}um"
-            + (f"/{stop.mean_std_mm * 1e3:.1f}" if stop.mean_std_mm else ""),
-            "max_std": f"{s.max_std_mm * 1e3:.1f}um"
-            + (f"/{stop.max_std_mm * 1e3:.1f}" if stop.max_std_mm else "")}
-    bar.set_postfix(post, refresh=False)
+    """The bar's text: each std with its bound and unit, e.g. ``mean std 3.9 um / bound 4.0 um``."""
+    stop, parts = cell.plan.stop, []
+    for what, value, bound in (("mean std", s.mean_std_mm, stop.mean_std_mm),
+                               ("max std", s.max_std_mm, stop.max_std_mm)):
+        parts.append(f"{what} {value * 1e3:.1f} um"
+                     + (f" / bound {bound * 1e3:.1f} um" if bound else ""))
+    bar.set_postfix_str(", ".join(parts), refresh=False)
     bar.update(1)
