@@ -186,3 +186,12 @@ def test_the_progress_bar_shows_each_bound_with_its_unit():
                           update=lambda n: None)
     session._update(bar, sim_cell(), Status(touches=3, mean_std_mm=0.0039, max_std_mm=0.0102))
     assert shown == ["mean std 3.9 um / bound 4.0 um, max std 10.2 um"]
+
+
+def test_replaced_files_keep_the_usual_permissions(tmp_path):
+    old = os.umask(0o022)
+    try:
+        replace_atomically(tmp_path / "a.json", lambda f: f.write("{}"))
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
