@@ -9,7 +9,7 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from adaptive_cal import effects as effect_library
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
@@ -22,16 +22,26 @@ from adaptive_cal.hardware.robodk.config import RobodkConfig
 from adaptive_cal.hardware.serial.config import SerialConfig
 
 Interval = tuple[float, float]
+REACH_MM = 1e5  # no coordinate of a cell lies farther than 100 m from the workplane origin
+MAX_KNOTS = 64  # control points per axis (K = knots_x * knots_y coefficients, C is K x K)
+
+
+class Block(Strict):
+    """A block of the cell file: strict, and every number finite (NaN and inf are refused)."""
+    model_config = ConfigDict(allow_inf_nan=False)
 
 
 def _interval(v: Interval, what: str) -> Interval:
     lo, hi = v
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
         raise ValueError(f"{what} must be [low, high] with low < high, got [{lo}, {hi}]")
+    if max(abs(lo), abs(hi)) > REACH_MM:
+        raise ValueError(f"{what}=[{lo}, {hi}] mm lies beyond +-{REACH_MM:.0f} mm (100 m): "
+                         "not a robot cell")
     return v
 
 
-class Rect(Strict):
+class Rect(Block):
     """An axis-aligned rectangle in the workplane (mm)."""
 
     x_mm: Interval
@@ -46,7 +56,7 @@ class Rect(Strict):
         return self.x_mm[0] <= x <= self.x_mm[1] and self.y_mm[0] <= y <= self.y_mm[1]
 
 
-class Workplane(Strict):
+class Workplane(Block):
     """The plate to map: its extent, an edge margin no touch goes inside, and keep-outs."""
 
     x_mm: Interval
@@ -86,7 +96,7 @@ class Workplane(Strict):
         return inside and not any(k.contains(x, y) for k in self.keep_outs)
 
 
-class Workspace(Strict):
+class Workspace(Block):
     """The box the probe tip may be sent to (workplane frame, mm). Nothing outside is sent."""
 
     x_mm: Interval
@@ -103,16 +113,17 @@ class Workspace(Strict):
                 and self.z_mm[0] <= z <= self.z_mm[1])
 
 
-class Robot(Strict):
+class Robot(Block):
     """Motion: which adapter moves the probe, where the robot stands, how fast it travels."""
 
     adapter: Literal["sim", "manual", "hses", "modbus", "robodk"] = Field(
         "sim", description="what moves the probe: see docs/adapters/")
     base_xy_mm: tuple[float, float] | None = Field(
         None, description="robot base in the workplane frame (arm_sag, reach)")
-    speed_mm_per_s: float = Field(100.0, gt=0, description="travel speed (robot time estimates)")
-    safe_height_mm: float = Field(15.0, description="travel height (workplane z) between touches")
-    touch_time_s: float = Field(3.0, ge=0, description="approach, settle, read and retract")
+    speed_mm_per_s: float = Field(100.0, gt=0, le=10000, description="travel speed (robot time estimates)")
+    safe_height_mm: float = Field(15.0, gt=0, le=1000, description="travel height (workplane "
+                                  "z) between touches; above probe.zero_mm, the tip's free reach")
+    touch_time_s: float = Field(3.0, ge=0, le=3600, description="approach, settle, read and retract")
     manual: ManualConfig | None = None
     hses: HsesConfig | None = None
     modbus: ModbusConfig | None = None
@@ -126,25 +137,26 @@ class Robot(Strict):
         return self
 
 
-class Probe(Strict):
+class Probe(Block):
     """The contact probe: stroke, the usable part of it, its zero, noise and the probe cycle."""
 
     adapter: Literal["sim", "manual", "serial", "modbus"] = Field(
         "sim", description="what reads the probe: see docs/adapters/")
-    stroke_mm: float = Field(10.0, gt=0, description="full probe stroke")
+    stroke_mm: float = Field(10.0, gt=0, le=1000, description="full probe stroke")
     usable_mm: Interval = Field((0.5, 9.5), description="indications accepted; others are rejected")
-    zero_mm: float = Field(5.0, description="indication with the tip at the commanded height")
-    resolution_mm: float = Field(1e-4, gt=0, description="readout step")
+    zero_mm: float = Field(5.0, ge=0, description="indication with the tip at the commanded "
+                           "height; inside the stroke")
+    resolution_mm: float = Field(1e-4, gt=0, description="readout step; below the stroke")
     noise_std_mm: float = Field(0.005, gt=0, description="first guess of the reading noise "
                                 "(a weak prior: the noise is learned from the readings)")
     noise_range_mm: Interval | None = Field(
         None, description="[low, high] the reading noise is known to lie in (datasheet, a gauge "
         "study): a log-normal prior with 95 % inside, centred at sqrt(low * high); it replaces "
         "noise_std_mm and keeps the learned noise from collapsing on few readings")
-    samples: int = Field(1, ge=1, description="samples per touch (median taken)")
+    samples: int = Field(1, ge=1, le=1000, description="samples per touch (median taken)")
     samples_tolerance_mm: float = Field(0.005, gt=0, description="largest spread of the samples")
-    retries: int = Field(2, ge=0, description="re-samplings when the spread is too large")
-    settle_s: float = Field(0.2, ge=0, description="wait after the approach before reading")
+    retries: int = Field(2, ge=0, le=100, description="re-samplings when the spread is too large")
+    settle_s: float = Field(0.2, ge=0, le=600, description="wait after the approach before reading")
     serial: SerialConfig | None = None
     modbus: ModbusConfig | None = None
 
@@ -153,6 +165,11 @@ class Probe(Strict):
         lo, hi = _interval(self.usable_mm, "usable_mm")
         if lo < 0 or hi > self.stroke_mm:
             raise ValueError(f"usable_mm={[lo, hi]} must lie inside the stroke [0, {self.stroke_mm}]")
+        if self.zero_mm > self.stroke_mm:
+            raise ValueError(f"zero_mm={self.zero_mm} must lie inside the stroke [0, {self.stroke_mm}] mm")
+        for key in ("resolution_mm", "noise_std_mm", "samples_tolerance_mm"):
+            if getattr(self, key) >= self.stroke_mm:
+                raise ValueError(f"{key}={getattr(self, key)} must be below the stroke {self.stroke_mm} mm")
         if self.noise_range_mm is not None:
             n_lo, n_hi = _interval(self.noise_range_mm, "noise_range_mm")
             if n_lo <= 0:
@@ -172,7 +189,7 @@ class Probe(Strict):
         return math.sqrt(lo * hi), math.log(hi / lo) / (2 * Z95)
 
 
-class Model(Strict):
+class Model(Block):
     """The stochastic spline and its prior."""
 
     knots_x: int | list[float] | None = Field(None, description="count or positions (mm); "
@@ -193,19 +210,21 @@ class Model(Strict):
     @field_validator("knots_x", "knots_y")
     @classmethod
     def _knots(cls, v, info):
-        if isinstance(v, int) and v < 2:
-            raise ValueError(f"{info.field_name} needs at least 2 knots, got {v}")
-        if isinstance(v, list) and (len(v) < 2 or any(b <= a for a, b in zip(v, v[1:]))):
-            raise ValueError(f"{info.field_name} must be at least 2 increasing positions, got {v}")
+        if isinstance(v, int) and not 2 <= v <= MAX_KNOTS:
+            raise ValueError(f"{info.field_name} needs 2 to {MAX_KNOTS} knots, got {v}")
+        if isinstance(v, list) and (not 2 <= len(v) <= MAX_KNOTS
+                                    or any(b <= a for a, b in zip(v, v[1:]))):
+            raise ValueError(f"{info.field_name} must be 2 to {MAX_KNOTS} increasing positions "
+                             f"(mm), got {len(v)}")
         return v
 
 
-class Stop(Strict):
+class Stop(Block):
     """When to stop: any bound met, or the touch budget spent."""
 
     mean_std_mm: float | None = Field(0.01, gt=0, description="RMS posterior std over the plate")
     max_std_mm: float | None = Field(None, gt=0, description="largest posterior std on the plate")
-    max_touches: int = Field(200, ge=1, description="touch budget")
+    max_touches: int = Field(200, ge=1, le=100_000, description="touch budget")
     min_touches: int | None = Field(
         None, ge=0, description="no variance bound stops the run before this many touches; "
         "default: the number of spline coefficients while hyper-parameters are learned from "
@@ -213,13 +232,13 @@ class Stop(Strict):
         "learn_hyper: false")
 
 
-class Plan(Strict):
+class Plan(Block):
     """The planner: candidates, refinement, batches, hyper-parameter learning."""
 
     stop: Stop = Field(Stop(), description="stopping rules (any one stops)")
-    candidates: int = Field(10000, ge=16, description="grid points scored per decision")
+    candidates: int = Field(10000, ge=16, le=1_000_000, description="grid points scored per decision")
     refine: int = Field(3, ge=0, description="best candidates refined by gradient steps")
-    batch: int = Field(1, ge=1, description="touches planned ahead and ordered for travel")
+    batch: int = Field(1, ge=1, le=1000, description="touches planned ahead and ordered for travel")
     criterion: Literal["auto", "integrated", "max"] = Field(
         "auto", description="auto: the worst-point criterion when only max_std_mm bounds the "
         "run, else the integrated variance")
@@ -228,7 +247,7 @@ class Plan(Strict):
     drift_std_mm: float = Field(0.01, ge=0, description="widening for --prior-from")
 
 
-class Simulation(Strict):
+class Simulation(Block):
     """The simulated cell's truth: effects from the effect table and the noise it adds."""
 
     seed: int = Field(0, description="seed of the simulated noise")
@@ -259,10 +278,11 @@ class Simulation(Strict):
         return v
 
 
-class Cell(Strict):
+class Cell(Block):
     """A whole cell file."""
 
-    name: str = Field("cell", description="shown in reports and figures")
+    name: str = Field("cell", min_length=1, max_length=200,
+                      description="shown in reports and figures; one line of printable text")
     workplane: Workplane
     workspace: Workspace | None = Field(
         None, description="box the probe tip may be sent to; none: the workplane only")
@@ -272,6 +292,14 @@ class Cell(Strict):
     plan: Plan = Plan()
     simulation: Simulation | None = Field(
         None, description="the simulated truth (robot.adapter sim, emulate, explain)")
+
+    @field_validator("name")
+    @classmethod
+    def _printable(cls, v):
+        if not v.isprintable():
+            raise ValueError("must be one line of printable text (no newline, tab or control "
+                             "character: the name goes into the recording's header)")
+        return v
 
     @model_validator(mode="before")
     @classmethod
@@ -286,6 +314,14 @@ class Cell(Strict):
     @model_validator(mode="after")
     def _consistent(self):
         r, p = self.robot, self.probe
+        if r.adapter != "sim" and r.safe_height_mm <= p.zero_mm:
+            raise ValueError(f"robot.safe_height_mm={r.safe_height_mm} must be above "
+                             f"probe.zero_mm={p.zero_mm}: the free probe tip reaches zero_mm "
+                             "below the commanded height and would drag over the plate")
+        ws = self.workspace
+        if ws is not None and not ws.z_mm[0] <= r.safe_height_mm <= ws.z_mm[1]:
+            raise ValueError(f"robot.safe_height_mm={r.safe_height_mm} lies outside "
+                             f"workspace.z_mm={list(ws.z_mm)}: travel would leave the workspace")
         if (r.adapter == "sim") != (p.adapter == "sim"):
             raise ValueError(f"robot.adapter={r.adapter!r} with probe.adapter={p.adapter!r}: the "
                              "simulated robot and probe only exist together; set both to 'sim'")

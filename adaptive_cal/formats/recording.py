@@ -177,10 +177,51 @@ def read_recording(path: str | os.PathLike) -> Recording:
                      {c: np.asarray(v, float) for c, v in extra.items()}, meta, str(path))
 
 
+def repair_cut_row(path: str | os.PathLike) -> str | None:
+    """Repair a recording whose last line lacks its newline (a crash mid-write): a complete
+    row (every field, the required ones numbers) gets its newline; anything else is cut off.
+    Returns the text of the row cut off, None when none was. Earlier rows are never touched."""
+    path = Path(path)
+    data = path.read_bytes() if path.exists() else b""
+    if not data or data.endswith(b"\n"):
+        return None
+    start = data.rfind(b"\n") + 1
+    tail = data[start:].decode("utf-8", "replace")
+    if _complete_row(data[:start].decode("utf-8", "replace"), tail):
+        with open(path, "ab") as f:
+            f.write(b"\n")
+            f.flush()
+            os.fsync(f.fileno())
+        return None
+    with open(path, "r+b") as f:
+        f.truncate(start)
+        f.flush()
+        os.fsync(f.fileno())
+    return tail
+
+
+def _complete_row(before: str, line: str) -> bool:
+    """Whether ``line`` is a whole data row under the header found in ``before``."""
+    header = next((l for l in before.splitlines() if l.strip() and not l.startswith("#")), None)
+    if header is None or line.startswith("#"):
+        return False
+    names = [h.strip() for h in header.split(",")]
+    cells = [c.strip() for c in line.split(",")]
+    if len(cells) != len(names) or not all(c in names for c in REQUIRED):
+        return False
+    try:
+        for c in REQUIRED:
+            _number(cells[names.index(c)], where=c, blank_ok=(c == "t_s"))
+    except RecordingError:
+        return False
+    return True
+
+
 class RecordingWriter:
     """Append-only v1 writer: every row is flushed and fsynced as it is written.
 
-    Opening an existing recording appends to it (``--resume``); its header must match.
+    Opening an existing recording appends to it (``--resume``); its header must match, and a
+    row cut by a crash is repaired first (``repair_cut_row``).
     """
 
     COLUMNS = REQUIRED + ("flags",)
@@ -196,10 +237,8 @@ class RecordingWriter:
             if tuple(h.strip() for h in header.split(",")) != self.columns:
                 raise RecordingError(f"{self.path}: cannot append, its header {header!r} differs "
                                      f"from {','.join(self.columns)!r}")
-            text = self.path.read_text(encoding="utf-8")
+            repair_cut_row(self.path)  # a row cut by a crash mid-write
             self._file = open(self.path, "a", encoding="utf-8", newline="")
-            if not text.endswith("\n"):  # a row cut by a crash mid-write: close the line
-                self._file.write("\n")
         else:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file = open(self.path, "w", encoding="utf-8", newline="")

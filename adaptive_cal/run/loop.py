@@ -13,9 +13,10 @@ Each touch:
 4. the reading is fused (and the hyper-parameters refitted on schedule);
 5. every hook sees the new ``Step``.
 
-A batch is cut short after a gated reading (the retake comes first) or when ``interrupt()``
-says so. The stop predicate is asked before each ask; ``loop.state`` is the latest state even
-when a device raises.
+A batch is cut short after a gated reading (the retake comes first), when ``interrupt()`` says
+so, or when the stop predicate fires: it is asked before each ask and after each touch, so a
+batch larger than the touch budget left never makes more touches than the budget.
+``loop.state`` is the latest state even when a device raises.
 """
 from __future__ import annotations
 
@@ -89,9 +90,10 @@ class SurveyLoop:
             if not targets:
                 return NO_ADMISSIBLE_POINT
             for target in targets:
-                self.touch(target)
-                if self.state.retake is not None or self.interrupt():
-                    break
+                step = self.touch(target)
+                if (self.state.retake is not None or self.interrupt()
+                        or self.stop(self.state, step.status)):
+                    break  # a batch never runs past the stop rule (the touch budget included)
 
     def touch(self, target: Target) -> Step:
         """One touch at ``target``: taken, judged, recorded, then fused; hooks called."""

@@ -4,7 +4,6 @@ errors on a simulated cell, and the figures. Every figure with an interval is wr
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ from adaptive_cal.cell.schema import Cell
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.run.folder import finite_json, replace_atomically, write_json
 from adaptive_cal.run.truth import truth_error
 
 SAMPLES = 200
@@ -40,7 +40,8 @@ def plate_estimates(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generato
 def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path,
                   stopped_because: str, *, rng: np.random.Generator, history=None, truth=None,
                   true_rms_mm=None) -> dict:
-    """result.json, surface.png and convergence.png in ``out``; returns the result dict.
+    """result.json, surface.png and convergence.png in ``out``, each replaced whole (a temporary
+    file moved over the old one); returns the result dict (non-finite numbers as None).
     ``rng`` draws the posterior samples of the intervals; ``history``: the status before the
     first touch and after each one (convergence figure)."""
     out = Path(out)
@@ -63,9 +64,9 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     result.update(plate_estimates(plan, state.belief, rng))
     if truth is not None:
         result["truth"] = truth_error(plan, state.belief, truth)
-    (out / "result.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    write_json(out / "result.json", result)  # atomic; NaN / inf as null
     write_figures(cell, plan, state, out, history or [status], true_rms_mm)
-    return result
+    return finite_json(result)
 
 
 def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path, history,
@@ -80,7 +81,7 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     touched = np.array(state.touched_xy_mm, float).reshape(-1, 2)  # numbered as in the recording
     fig = plots.surface_figure(gx, gy, mean, std, touched, wp.x_mm, wp.y_mm,
                                keep_outs=keep, title=cell.name)
-    fig.savefig(out / "surface.png", dpi=110)
+    _save(fig, out / "surface.png")
     h = history
     stop = cell.plan.stop
     fig = plots.convergence_figure(np.array([s.touches for s in h]),
@@ -88,11 +89,16 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
                                    np.array([s.max_std_mm for s in h]),
                                    bound_mean_mm=stop.mean_std_mm, bound_max_mm=stop.max_std_mm,
                                    true_rms_mm=true_rms_mm)
-    fig.savefig(out / "convergence.png", dpi=110)
+    _save(fig, out / "convergence.png")
+
+
+def _save(fig, path: Path) -> None:
+    replace_atomically(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
 
 
 def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> None:
-    """The belief and its spline, for ``--prior-from`` in a later run."""
+    """The belief and its spline, for ``--prior-from`` in a later run (replaced whole)."""
     s = plan.model.surface
-    np.savez(path, mean=state.belief.mean, cov=state.belief.cov, knots_x=s.sx.knots,
-             knots_y=s.sy.knots, hyper=np.array(state.hyper))
+    arrays = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
+              "knots_y": s.sy.knots, "hyper": np.array(state.hyper)}
+    replace_atomically(path, lambda f: np.savez(f, **arrays), binary=True)

@@ -8,8 +8,10 @@ every touch and ``--resume`` continues it: no touch repeated, none lost.
 """
 from __future__ import annotations
 
+import json
 import math
 import signal
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,13 +20,14 @@ import numpy as np
 
 from adaptive_cal.cell.build import prior_model, survey_plan
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.formats.recording import RecordingWriter, read_recording
+from adaptive_cal.formats.recording import RecordingWriter, read_recording, repair_cut_row
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.run.devices import open_cell
+from adaptive_cal.run.folder import run_lock
 from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, History, Row, SurveyLoop
 from adaptive_cal.run.results import save_belief, write_results
 from adaptive_cal.run.truth import TrueError
@@ -38,7 +41,7 @@ class NoAdmissiblePoint(AdapterError):
 
 @dataclass(frozen=True)
 class RunPaths:
-    """The files of a run's output folder."""
+    """The files of a run's output folder (and its lock, ``run.folder.LOCK_NAME``)."""
 
     out: Path
 
@@ -47,11 +50,14 @@ class RunPaths:
         return self.out / "recording.csv"
 
 
-def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> tuple[sv.SurveyState, float]:
-    """The state after a recording's touches (from a fresh ``state``) and the last time (s)."""
+def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path
+           ) -> tuple[sv.SurveyState, float, int]:
+    """The state after a recording's touches (from a fresh ``state``), the last time (s) and
+    the seq the next row takes (the last seq + 1: a recording may start above 0 or have gaps)."""
     rec = read_recording(path)
     t = rec.t_s[np.isfinite(rec.t_s)]
-    return sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0
+    next_seq = int(rec.seq[-1]) + 1 if len(rec) else 0
+    return sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0, next_seq
 
 
 def load_prior(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
@@ -108,9 +114,17 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
         progress: bool = True, max_new_touches: int | None = None) -> dict:
     """Run the loop on the cell until a stopping rule fires; write recording, results, figures.
 
-    ``max_new_touches`` stops (as ``interrupted``) after that many touches: used by tests to
-    simulate an interruption at a chosen point."""
-    paths = RunPaths(Path(out))
+    The folder is locked for the whole run (``run.folder.run_lock``): a second run or resume on
+    it fails at once with ``RunFolderBusy``. Resuming a finished run (its stopping rule already
+    holds) changes nothing and returns its result.json with ``already_finished`` (the reason).
+    ``max_new_touches`` stops (as ``interrupted``)
+    after that many touches: used by tests to simulate an interruption at a chosen point."""
+    with run_lock(out):
+        return _run(cell, RunPaths(Path(out)), resume, prior_from, progress, max_new_touches)
+
+
+def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, progress: bool,
+         max_new_touches: int | None) -> dict:
     if paths.recording.exists() and not resume:
         raise FileExistsError(f"{paths.recording} exists: continue it with --resume, or choose "
                               "another --out")
@@ -119,10 +133,19 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
     prior, hyper = load_prior(Path(prior_from), cell) if prior_from else (None, None)
     plan = survey_plan(cell, informed_prior=prior is not None)
     state = sv.start(plan, prior=prior, hyper=hyper)
-    start_t = 0.0
+    start_t, next_seq = 0.0, 0
     if resume:
-        state, start_t = replay(plan, state, paths.recording)
+        cut = repair_cut_row(paths.recording)
+        if cut is not None:
+            warnings.warn(f"{paths.recording}: its last row was cut by a crash mid-write and is "
+                          f"dropped: {cut[:80]!r}", stacklevel=2)
+        state, start_t, next_seq = replay(plan, state, paths.recording)
+        done = plan.stop(sv.status(plan, state))
+        if done and (paths.out / "result.json").exists():  # finished: nothing to do or rewrite
+            return {**json.loads((paths.out / "result.json").read_text(encoding="utf-8")),
+                    "already_finished": done}
     start_touch = state.touches
+    seq_offset = next_seq - start_touch  # new rows continue from the last seq + 1
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
                                                "probe_zero_mm": str(cell.probe.zero_mm)}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
@@ -137,7 +160,7 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
         hooks.append(lambda step: _update(bar, cell, step.status))
 
     def record(row: Row) -> None:
-        writer.append(seq=row.seq, t_s=row.t_s, x_mm=row.x_mm, y_mm=row.y_mm, z_mm=row.z_mm,
+        writer.append(seq=row.seq + seq_offset, t_s=row.t_s, x_mm=row.x_mm, y_mm=row.y_mm, z_mm=row.z_mm,
                       reading_mm=row.reading_mm, flags=row.flags, round=0)
 
     stopped, error = None, None
@@ -191,10 +214,11 @@ def _progress(enabled: bool, cell: Cell, initial: int):
 
 
 def _update(bar, cell: Cell, s) -> None:
-    stop = cell.plan.stop
-    post = {"mean_std": f"{s.mean_std_mm * 1e3:.1f}um"
-            + (f"/{stop.mean_std_mm * 1e3:.1f}" if stop.mean_std_mm else ""),
-            "max_std": f"{s.max_std_mm * 1e3:.1f}um"
-            + (f"/{stop.max_std_mm * 1e3:.1f}" if stop.max_std_mm else "")}
-    bar.set_postfix(post, refresh=False)
+    """The bar's text: each std with its bound and unit, e.g. ``mean std 3.9 um / bound 4.0 um``."""
+    stop, parts = cell.plan.stop, []
+    for what, value, bound in (("mean std", s.mean_std_mm, stop.mean_std_mm),
+                               ("max std", s.max_std_mm, stop.max_std_mm)):
+        parts.append(f"{what} {value * 1e3:.1f} um"
+                     + (f" / bound {bound * 1e3:.1f} um" if bound else ""))
+    bar.set_postfix_str(", ".join(parts), refresh=False)
     bar.update(1)
