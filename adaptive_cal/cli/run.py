@@ -49,34 +49,41 @@ def command(args) -> int:
         if answer.strip().lower() not in ("y", "yes"):
             print("nothing moved", file=sys.stderr)
             return 1
-    created = None
+    created: list = []
     if not args.resume:
         if (out / "recording.csv").exists():
             raise UserError(f"{out}/recording.csv exists: continue it with --resume {out}, or "
                             "choose another --out")
-        created = _prepare(out, cell_path)
+        folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
+        before = {p.name for p in out.iterdir()} if out.is_dir() else set()
+        created = [(folders, before)]
     try:
+        # the cell file is copied only once the session holds the folder's lock
         result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,
-                             progress=not args.no_progress)
+                             progress=not args.no_progress,
+                             before_start=None if args.resume else lambda: _copy_cell(out, cell_path))
     except BaseException as e:
-        undone = created is not None and _undo_if_empty(out, created)
+        from adaptive_cal.run.folder import RunFolderBusy
+
+        # a folder another run holds is that run's: leave everything in it as it is
+        undone = (bool(created) and not isinstance(e, RunFolderBusy)
+                  and _undo_if_empty(out, created[0]))
         if undone and isinstance(e, AdapterError):
             raise UserError(f"{e}.\nNothing was recorded, and {out} is left as it was before: "
                             "once the cause is fixed, run the same command again (not --resume)") from e
         raise
+    if result.get("already_finished"):
+        print(f"{out} is already finished ({result['already_finished']} after "
+              f"{result['touches']} touches): nothing to do, nothing changed")
+        return 0
     _summary(result, out)
     return 130 if result["stopped_because"] == "interrupted" else 0
 
 
-def _prepare(out: Path, cell_path: Path) -> tuple[list[Path], set[str]]:
-    """Create --out and copy the cell file into it. Returns the folders this created (deepest
-    last) and the names --out held before, so a failed start can be undone."""
-    folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
-    before = {p.name for p in out.iterdir()} if out.is_dir() else set()
-    out.mkdir(parents=True, exist_ok=True)
+def _copy_cell(out: Path, cell_path: Path) -> None:
+    """Copy the cell file into --out (the run folder keeps the cell it was run with)."""
     if cell_path.resolve() != (out / "cell.yaml").resolve():
         shutil.copyfile(cell_path, out / "cell.yaml")
-    return folders, before
 
 
 def _undo_if_empty(out: Path, created: tuple[list[Path], set[str]]) -> bool:

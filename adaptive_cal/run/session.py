@@ -15,6 +15,7 @@ import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -111,15 +112,20 @@ def _main_thread() -> bool:
 
 
 def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | Path | None = None,
-        progress: bool = True, max_new_touches: int | None = None) -> dict:
+        progress: bool = True, max_new_touches: int | None = None,
+        before_start: Callable[[], None] | None = None) -> dict:
     """Run the loop on the cell until a stopping rule fires; write recording, results, figures.
 
     The folder is locked for the whole run (``run.folder.run_lock``): a second run or resume on
     it fails at once with ``RunFolderBusy``. Resuming a finished run (its stopping rule already
     holds) changes nothing and returns its result.json with ``already_finished`` (the reason).
     ``max_new_touches`` stops (as ``interrupted``)
-    after that many touches: used by tests to simulate an interruption at a chosen point."""
+    after that many touches: used by tests to simulate an interruption at a chosen point.
+    ``before_start()`` runs once the lock is held (the CLI copies the cell file into the folder
+    there, so it never writes into a folder another run holds)."""
     with run_lock(out):
+        if before_start is not None:
+            before_start()
         return _run(cell, RunPaths(Path(out)), resume, prior_from, progress, max_new_touches)
 
 
