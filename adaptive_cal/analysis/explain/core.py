@@ -7,6 +7,9 @@ with confidence is worse than none, so the findings say how sure they are: ``ver
 (posterior probability of the verdict: none has prior 1/2, the candidates share the other half) and
 ``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
 plate design arm_sag and form are the usual pair).
+
+Readings that disagree with every probable model are suspect readings (``suspects``): listed in
+``suspect_readings``, counted in ``readings`` and kept out of everything else (``_screened``).
 """
 from __future__ import annotations
 
