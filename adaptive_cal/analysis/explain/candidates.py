@@ -13,8 +13,9 @@ docs/explain.md is ``effects.markdown_table()``). How an effect is scored follow
 - one linear parameter whose column needs a nonlinear one (arm_sag's p, the warm-up's tau_s):
   the mixture for each value of the effect's search grid, averaged over the grid (uniform);
 - a centre and a radius (local_defect): radius uniform on its grid, centre uniform over a grid
-  of spacing radius / 2, conditioned on the bump reaching at least two touches (one touch: an
-  outlier);
+  of spacing radius / 2, conditioned on the bump reaching at least two touches with at least a
+  quarter of its height each, none of them carrying more than 3/4 of the bump's information
+  (one touch, or a second touch at the bump's edge: an outlier);
 - both a plain linear part and a searched one (thermal_drift: rate, or a warm-up amplitude with
   its tau_s): the plain form, replaced by the searched form when that one's evidence is larger
   by more than ``EXTENSION_NATS`` (a warm-up must earn its place against the straight line the
@@ -43,6 +44,8 @@ from adaptive_cal.analysis.explain.evidence import (Projector, log_evidence, log
 
 TAU_PER_DECADE = 4
 DEFECT_MIN_TOUCHES = 2  # a bump that reaches one touch is an outlier, not a nameable defect
+DEFECT_MIN_WEIGHT = 0.25  # ... each carrying this share of the bump's height, and
+DEFECT_MAX_SHARE = 0.75  # no touch carrying more of its information (sum of squared weights)
 EXTENSION_NATS = 1.0  # the searched form of an effect replaces its plain form above this log BF
 CANDIDATES = tuple(e.name for e in effects.LIBRARY if e.candidate)
 
@@ -183,6 +186,16 @@ def _searched(ctx: Context, effect: Effect, names: tuple[str, ...]) -> Candidate
     return cand.fit_posterior(ctx)
 
 
+def nameable_reach(X: np.ndarray) -> np.ndarray:
+    """Touches that carry a bump (column of X: the bell's weight at each touch), or 0 where one
+    touch carries more than DEFECT_MAX_SHARE of the bump's information: a hypothesis that rests
+    on one reading is an outlier, not a defect (a spike, with a second touch at the bump's edge)."""
+    w2 = X * X
+    total = w2.sum(axis=0)
+    lone = w2.max(axis=0, initial=0.0) > DEFECT_MAX_SHARE * np.maximum(total, 1e-300)
+    return np.where(lone, 0, np.count_nonzero(X >= DEFECT_MIN_WEIGHT, axis=0))
+
+
 def _centres(ctx: Context, effect: Effect) -> Candidate | None:
     """A bump: radius on the effect's grid, centre uniform over ``effects.defect_centres``."""
     d = ctx.design
@@ -195,42 +208,44 @@ def _centres(ctx: Context, effect: Effect) -> Candidate | None:
         gx, gy = effects.defect_centres(d.geometry, radius)
         lz = np.empty(gx.size)
         bt = np.empty(gx.size, int)
-        counts = []
+        counts, named = [], []
         for s in range(0, gx.size, chunk):
             X = effects.defect_regressor_grid(d.features, gx[s:s + chunk], gy[s:s + chunk], radius)
-            reach = np.count_nonzero(X, axis=0)
-            seen = np.flatnonzero(reach >= DEFECT_MIN_TOUCHES)
+            seen = np.flatnonzero(nameable_reach(X) >= DEFECT_MIN_TOUCHES)
             lz[s:s + chunk], bt[s:s + chunk] = ctx.log_z0, 0
-            counts.append(reach)
+            counts.append(np.count_nonzero(X, axis=0))
+            named.append(np.isin(np.arange(X.shape[1]), seen))
             if seen.size:
                 lz[s + seen], bt[s + seen] = log_evidence_columns_mixture(
                     ctx.project(X[:, seen]), ctx.yt, taus, ctx.m)
-        # a bump that reaches fewer than DEFECT_MIN_TOUCHES touches is an outlier, not a nameable
-        # defect: the prior (uniform over the grid of centres) is conditioned on it being nameable
+        # the prior: uniform over the grid of centres, conditioned on the bump reaching at least
+        # DEFECT_MIN_TOUCHES touches (a bump no two touches see is not a hypothesis about these
+        # data). Where one touch would carry it (``nameable_reach``) it cannot be told from an
+        # outlier: such a bump explains nothing (the likelihood of none) and is never named.
         ok = np.concatenate(counts) >= DEFECT_MIN_TOUCHES
         logp = np.full(gx.size, -np.log(gx.size))
-        classes += int(ok.sum())
+        classes += int(np.count_nonzero(np.concatenate(named)))
         logp = np.where(ok, logp - np.log(len(effect.grid(d.features, d.geometry)["radius_mm"])),
                         -np.inf)
-        records.append((radius, gx, gy, lz, bt, logp))
-    prior_mass = float(logsumexp(np.concatenate([logp for *_, logp in records])))
-    if not np.isfinite(prior_mass):
-        return None  # no bump of the searched radii reaches two touches of this design
-    logw = np.concatenate([lz + logp for _, _, _, lz, _, logp in records])
-    total = float(logsumexp(logw) - prior_mass)
+        records.append((radius, gx, gy, lz, bt, logp, np.concatenate(named)))
+    prior_mass = float(logsumexp(np.concatenate([r[5] for r in records])))
+    if not np.isfinite(prior_mass) or not classes:
+        return None  # no bump of the searched radii is nameable on this design
+    total = float(logsumexp(np.concatenate([r[3] + r[5] for r in records])) - prior_mass)
+    logw = np.concatenate([np.where(r[6], r[3] + r[5], -np.inf) for r in records])
     # posterior over (radius, centre): the same prior, restricted to the nameable centres
     wts = np.exp(logw - logsumexp(logw))
-    allx = np.concatenate([gx for _, gx, _, _, _, _ in records])
-    ally = np.concatenate([gy for _, _, gy, _, _, _ in records])
-    allr = np.concatenate([np.full(gx.size, r) for r, gx, _, _, _, _ in records])
+    allx = np.concatenate([r[1] for r in records])
+    ally = np.concatenate([r[2] for r in records])
+    allr = np.concatenate([np.full(r[1].size, r[0]) for r in records])
     best = int(np.argmax(logw))
     mean = {k: float(wts @ v) for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
     std = {k: float(np.sqrt(wts @ (v - mean[k]) ** 2))
            for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
     fixed = {"x_mm": float(allx[best]), "y_mm": float(ally[best]), "radius_mm": float(allr[best])}
     X = effect.regressor(d.features, d.geometry, fixed, names)
-    lz_best = max(float(lz.max()) for _, _, _, lz, _, _ in records)
-    all_tau = np.concatenate([taus[bt] for _, _, _, _, bt, _ in records])
+    lz_best = max(float(r[3].max()) for r in records)
+    all_tau = np.concatenate([taus[r[4]] for r in records])
     cand = Candidate(effect.name, total - ctx.log_z0, X, np.array([all_tau[best] ** 2]), names,
                      fixed=fixed, nonlinear_mean=mean, nonlinear_std=std,
                      look_elsewhere=lz_best - total, searched=int(classes))

@@ -7,6 +7,9 @@ with confidence is worse than none, so the findings say how sure they are: ``ver
 (posterior probability of the verdict: none has prior 1/2, the candidates share the other half) and
 ``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
 plate design arm_sag and form are the usual pair).
+
+Readings that disagree with every probable model are suspect readings (``suspects``): listed in
+``suspect_readings``, counted in ``readings`` and kept out of everything else (``_screened``).
 """
 from __future__ import annotations
 
@@ -16,13 +19,14 @@ import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.formats.recording import Recording
+from adaptive_cal.formats.recording import Recording, RecordingError
 from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
-from adaptive_cal.analysis.explain.design import Design, build_design
+from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design, build_design
 from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
 from adaptive_cal.analysis.explain.identify import not_identifiable
 from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
+from adaptive_cal.analysis.explain.suspects import SUSPECT, model_terms, suspect_probability
 
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
 AMBIGUOUS = 1.0  # runner-ups within this many nats of the verdict are reported as ambiguous_with
@@ -100,6 +104,56 @@ def _calibration(ctx: Context, sigma: float) -> list[dict]:
     return out
 
 
+def model_probabilities(cands: list[Candidate]) -> np.ndarray:
+    """Posterior over none and the candidates: none has prior 1/2, the candidates share the rest."""
+    logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
+    return np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
+
+
+def _scored(design: Design) -> tuple[Design, Context, list[Candidate]]:
+    """Calibrate (tilt, offsets, unknowns), then score every testable candidate."""
+    ctx = Context.of(design)
+    calibrated = design.features.ideal_reading_mm + (design.target - ctx.yt)
+    design = design.with_ideal_reading(calibrated)  # probe_gain sees the calibrated indication
+    ctx = Context.of(design)
+    return design, ctx, score_candidates(ctx, design.untestable)
+
+
+MAX_SUSPECT_SHARE = 0.2  # isolated bad readings, not a bad recording: at most this share is set aside
+
+
+def _screened(design: Design):
+    """Score, judge every reading against every model (``suspects``), set the most probable
+    suspect aside and score again, until no reading is a suspect: the suspects are kept out of
+    the evidence, the verdict and the refit. One at a time, so a spike does not make its
+    neighbour look bad through a bump fitted to the spike."""
+    keep = np.ones(design.n, bool)
+    found: list[tuple[int, float, float]] = []
+    while True:
+        scored, ctx, cands = _scored(design.select(keep))
+        p, loo = suspect_probability(model_terms(ctx.nuisance, cands), scored.target,
+                                     model_probabilities(cands), design.noise_floor_mm)
+        j = int(np.argmax(p)) if p.size else 0
+        if not p.size or p[j] < SUSPECT or len(found) >= MAX_SUSPECT_SHARE * design.n:
+            break
+        i = int(np.flatnonzero(keep)[j])
+        found.append((i, float(p[j]), float(loo[j])))
+        keep[i] = False
+        for r, path in enumerate(design.paths):
+            left = int(np.count_nonzero(keep & (design.round_index == r)))
+            if left < MIN_ROWS_PER_ROUND:
+                raise RecordingError(
+                    f"{path}: {len(found)} readings disagree with every model (suspect); "
+                    f"{left} are left in this recording and explain needs at least "
+                    f"{MIN_ROWS_PER_ROUND}: check the probe and the recording")
+    f = design.features
+    suspects = [{"seq": int(design.seq[i]), "x_mm": float(f.x_mm[i]), "y_mm": float(f.y_mm[i]),
+                 "residual_mm": res, "probability": prob,
+                 **({"round": int(design.round_index[i])} if design.rounds > 1 else {})}
+                for i, prob, res in sorted(found)]
+    return scored, ctx, cands, suspects
+
+
 def explain_design(design: Design, *, threshold: float = THRESHOLD,
                    rng: np.random.Generator | int = 0, identifiability: bool = True) -> Explanation:
     """Run the whole analysis on a built design (see ``explain`` for recordings and a cell).
@@ -107,13 +161,8 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     ``rng``: a Generator, or the seed of one, for the bootstrap of the round-to-round flatness
     change (the CLI's ``--seed``).
     """
-    ctx = Context.of(design)
-    calibrated = design.features.ideal_reading_mm + (design.target - ctx.yt)
-    design = design.with_ideal_reading(calibrated)  # probe_gain sees the calibrated indication
-    ctx = Context.of(design)
+    design, ctx, cands, suspects = _screened(design)
     sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
-    skip = design.untestable
-    cands = score_candidates(ctx, skip)
     best = cands[0] if cands else None
     winner = best if best and best.log_bf > threshold else None
     left_out = []
@@ -137,15 +186,16 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     else:
         after, loo1 = before, loo0
     rms = lambda r: float(np.sqrt(np.mean(r ** 2)))
-    # posterior over none and the candidates: none has prior 1/2, the candidates share the rest
-    logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
-    prob = np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
+    prob = model_probabilities(cands)
     findings = {
         "verdict": winner.effect if winner else "none",
         "verdict_probability": float(prob[1 + cands.index(winner)] if winner else prob[0]),
         "ambiguous_with": [c.effect for c in cands if winner is not None and c is not winner
                            and c.log_bf > threshold and winner.log_bf - c.log_bf < AMBIGUOUS],
         "left_out": left_out,
+        "suspect_readings": suspects,
+        "readings": {"total": design.n + len(suspects), "used": design.n,
+                     "suspect": len(suspects)},
         "not_identifiable": not_identifiable(ctx, sigma) if identifiability else [],
         "mismatch": locate(ctx),
         "fit": {"rms_before_mm": rms(before), "rms_after_mm": rms(after),

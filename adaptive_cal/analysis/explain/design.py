@@ -7,7 +7,7 @@ marked unknown); the target of every fit is reading - nominal. Tilt is always ca
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -32,6 +32,7 @@ class Design:
     time_known: tuple[bool, ...]
     unknown: tuple[str, ...]
     paths: tuple[str, ...]
+    noise_floor_mm: float = 0.0  # the probe's stated noise (cell file), 0 where not stated
 
     @property
     def n(self) -> int:
@@ -74,8 +75,18 @@ class Design:
 
     def with_ideal_reading(self, ideal_reading_mm: np.ndarray) -> "Design":
         feats = self.features.with_ideal_reading(ideal_reading_mm)
-        return Design(feats, self.geometry, self.round_index, self.seq, self.z_mm,
-                      self.reading_mm, self.nominal_mm, self.time_known, self.unknown, self.paths)
+        return replace(self, features=feats)
+
+    def select(self, keep: np.ndarray) -> "Design":
+        """The rows where ``keep`` holds (directions of arrival as taken: the robot did travel
+        through the rows left out)."""
+        keep = np.asarray(keep, bool)
+        f = self.features
+        feats = effects.Features(f.x_mm[keep], f.y_mm[keep], f.t_s[keep], f.direction[keep],
+                                 f.ideal_reading_mm[keep])
+        return replace(self, features=feats, round_index=self.round_index[keep],
+                       seq=self.seq[keep], z_mm=self.z_mm[keep],
+                       reading_mm=self.reading_mm[keep], nominal_mm=self.nominal_mm[keep])
 
 
 def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
@@ -139,4 +150,17 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     nominal = ideal + effects.total_change(others, feats, geometry)
     return Design(feats, geometry, cat["r"].astype(int), cat["seq"].astype(int), cat["z"],
                   cat["read"], nominal, tuple(known), unknown,
-                  tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)))
+                  tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)),
+                  stated_noise_mm(cell))
+
+
+def stated_noise_mm(cell: Cell) -> float:
+    """The reading noise the cell file states: the lower end of probe.noise_range_mm, else
+    probe.noise_std_mm where the file gives it; 0 where it states neither (the default first
+    guess is not a statement)."""
+    probe = cell.probe
+    if probe.noise_range_mm is not None:
+        return float(min(probe.noise_range_mm))
+    if "noise_std_mm" in probe.model_fields_set:
+        return float(probe.noise_std_mm)
+    return 0.0

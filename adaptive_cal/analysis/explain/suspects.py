@@ -1,0 +1,114 @@
+"""Suspect readings: readings that disagree with every model explain fits (a chip under the tip,
+a misread) are not physics; they are listed and kept out of the evidence for an effect.
+
+Each reading is either a good one (its error is the reading noise) or, with prior rate
+``RATE``, a gross error (the noise plus an error of standard deviation ``SCALE`` noise sds). For
+a model M (``none`` or a candidate at its best nonlinear parameters) the odds follow from the
+leave-one-out predictive of reading i given the others (a linear smoother: exact shortcut):
+
+    e_i = (y_i - yhat_i) / (1 - h_ii),   var(e_i | good) = v_i / (1 - h_ii),
+    B_iM = N(e_i; 0, v_i / (1 - h_ii) + SCALE^2 v_i) / t_nu(e_i; 0, v_i / (1 - h_ii)),
+
+with v_i the noise variance of the other readings (RSS without i and without the readings
+already judged suspect, over its degrees of freedom; those are refitted without), never below the probe's stated noise
+squared. The models are averaged with their posterior weights w_M (none 1/2, the candidates
+sharing the rest, as the verdict):
+
+    P(i gross) = sum_M w_M RATE B_iM / sum_M w_M (RATE B_iM + 1 - RATE),
+
+the exact posterior of the joint (model, reading i good or gross) with the nonlinear parameters
+at their best values and the noise plugged in. A reading is a suspect at P >= ``SUSPECT``:
+it disagrees with every probable model. A burr that several touches see is explained by the
+local_defect model (its predictive from the neighbours carries the bump), so it stays
+evidence; a lone spike disagrees with every model, since a bump that one touch carries is not
+a local_defect hypothesis (``candidates.nameable_reach``). The judgement is iterated a few times so one suspect neither
+inflates the noise nor tilts the fit another is judged against.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from adaptive_cal.analysis.explain.evidence import prior_precision
+
+RATE = 0.005  # prior share of gross errors among the fused readings (the loop's gate and retake
+#               already set most aside: rows flagged gated or rejected never reach explain)
+SCALE = 20.0  # a gross error's standard deviation in noise sds
+SUSPECT = 0.5  # listed (and kept out of the evidence) at this posterior probability or above
+ITERATIONS = 4
+
+
+def predictive(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, keep: np.ndarray):
+    """Leave-one-out predictive of every reading from the readings kept (the others out).
+
+    The penalised least squares fit y ~ D coef on the kept rows (penalty: a k x k matrix, zero
+    rows for the flat-prior nuisance), q_i = d_i^T A^-1 d_i. A kept reading: e_i / (1 - q_i)
+    with variance factor 1 / (1 - q_i) (the exact shortcut); a reading left out: e_i with factor
+    1 + q_i. Returns (residual, variance factor, noise variance of the other kept readings,
+    their degrees of freedom).
+    """
+    Dk = D[keep]
+    A = Dk.T @ Dk + penalty
+    A = 0.5 * (A + A.T) + 1e-12 * np.trace(A) / A.shape[0] * np.eye(A.shape[0])
+    L = np.linalg.cholesky(A)
+    W = np.linalg.solve(L, D.T)
+    q = np.einsum("ij,ij->j", W, W)
+    e = y - D @ np.linalg.solve(L.T, np.linalg.solve(L, Dk.T @ y[keep]))
+    q_in = np.clip(q, 0.0, 1.0 - 1e-9)
+    loo = np.where(keep, e / (1.0 - q_in), e)
+    factor = np.where(keep, 1.0 / (1.0 - q_in), 1.0 + q)
+    rss = float(np.sum(e[keep] ** 2))
+    dof = int(np.count_nonzero(keep)) - float(np.sum(q[keep]))
+    rss_i = np.where(keep, rss - e ** 2 / (1.0 - q_in), rss)  # least squares: exact
+    dof_i = np.maximum(dof - keep.astype(float), 1.0)
+    return loo, factor, np.maximum(rss_i, 0.0) / dof_i, dof_i
+
+
+def gross_error_log_odds(loo, factor, noise_var, dof, floor_var: float = 0.0):
+    """log B_i (module docstring): gross error against a good reading, for one model."""
+    v = np.maximum(np.maximum(noise_var, floor_var), 1e-30)
+    good = v * factor
+    log_good = stats.t.logpdf(loo / np.sqrt(good), dof) - 0.5 * np.log(good)
+    log_gross = stats.norm.logpdf(loo, scale=np.sqrt(good + SCALE ** 2 * v))
+    return log_gross - log_good
+
+
+def suspect_probability(models, y, weights, floor_mm: float):
+    """P(gross error) per reading (module docstring) and the leave-one-out residual under the
+    most probable model.
+
+    ``models``: (D, penalty) per model; ``weights``: their posterior probabilities. Each pass
+    refits every model without the readings the last pass judged suspect, so a gross error
+    neither inflates the noise nor tilts the fit the others are judged against.
+    """
+    w = np.asarray(weights, float)
+    logw = np.log(np.maximum(w / w.sum(), 1e-300))[:, None]
+    suspect = np.zeros(y.size, bool)
+    for _ in range(ITERATIONS):
+        logb, loos = [], []
+        for D, pen in models:
+            loo, factor, v, dof = predictive(D, y, pen, ~suspect)
+            logb.append(gross_error_log_odds(loo, factor, v, dof, floor_mm ** 2))
+            loos.append(loo)
+        logb = np.array(logb)
+        # sum_M w_M RATE B_iM / sum_M w_M (RATE B_iM + 1 - RATE), in logs
+        gross = np.logaddexp.reduce(logw + np.log(RATE) + logb, axis=0)
+        good = np.logaddexp.reduce(logw + np.log1p(-RATE) + np.zeros_like(logb), axis=0)
+        p = np.exp(gross - np.logaddexp(gross, good))
+        new = p >= SUSPECT
+        if np.array_equal(new, suspect) or np.count_nonzero(~new) <= models[0][0].shape[1] + 1:
+            break
+        suspect = new
+    return p, loos[int(np.argmax(w))]
+
+
+def model_terms(nuisance: np.ndarray, candidates) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(D, penalty) of ``none`` and of each candidate at its best nonlinear parameters."""
+    k0 = nuisance.shape[1]
+    out = [(nuisance, np.zeros((k0, k0)))]
+    for c in candidates:
+        k1 = c.columns.shape[1]
+        pen = np.zeros((k0 + k1, k0 + k1))
+        pen[k0:, k0:] = c.noise_var * prior_precision(c.prior_var)
+        out.append((np.hstack([nuisance, c.columns]), pen))
+    return out
