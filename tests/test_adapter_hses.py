@@ -6,31 +6,10 @@ import pytest
 
 from adaptive_cal.hardware.hses import protocol as P
 from adaptive_cal.hardware.base import AdapterError
-from adaptive_cal.hardware.hses.adapter import HsesError, HsesMotion
-from adaptive_cal.hardware.hses.config import HsesConfig
-from adaptive_cal.cell.schema import load_cell
-from adaptive_cal.simulation.emulator.hses_server import HsesServer
-from adaptive_cal.simulation.emulator.robot import EmulatedRobot
-from tests.conftest import ROOT
+from adaptive_cal.hardware.hses.adapter import HsesError
+from tests.devices import connect, controller  # noqa: F401 (controller: a fixture)
 
 
-UFRAME = ((650.0, -20.0, 300.0), (0.0, 0.0, 90.0))  # user frame 1 in the base frame
-
-
-@pytest.fixture
-def controller():
-    cell = load_cell(ROOT / "configs" / "cell-hses-emulated.yaml")
-    server = HsesServer(EmulatedRobot.from_cell(cell, move_s=0.01), offset_mm=(100, 0, 300),
-                        user_frame=UFRAME).start()
-    yield server
-    server.close()
-
-
-def connect(server, **kw):
-    kw = {"timeout_s": 0.1, "retries": 0, "poll_s": 0.002, "move_timeout_s": 2.0,
-          "offset_mm": (100, 0, 300),
-          "user_frame_in_base": {"origin_mm": UFRAME[0], "rotation_deg": UFRAME[1]}, **kw}
-    return HsesMotion(HsesConfig(host="127.0.0.1", port=server.port, **kw))
 
 
 def test_header_layout_matches_the_manual():

@@ -4,24 +4,10 @@ import pytest
 from adaptive_cal.hardware.base import AdapterError, BadSample
 from adaptive_cal.hardware.serial.config import SerialConfig
 from adaptive_cal.hardware.serial.adapter import SerialProbe, parse
-from adaptive_cal.simulation.emulator.gauge import PtyGauge, answer_line
+from adaptive_cal.simulation.emulator.gauge import answer_line
+from tests.devices import gauge  # noqa: F401 (fixture)
 
 
-@pytest.fixture
-def gauge(request):
-    made = []
-
-    def make(value=4.2, **cfg):
-        cfg = SerialConfig(port="/dev/null", timeout_s=0.2, **cfg)
-        g = PtyGauge(cfg, lambda: value).start()
-        probe = SerialProbe(cfg.model_copy(update={"port": g.path}))
-        made.append((g, probe))
-        return g, probe
-
-    yield make
-    for g, probe in made:
-        probe.close()
-        g.close()
 
 
 @pytest.mark.parametrize("preset", ["mitutoyo", "sylvac", "keyence"])

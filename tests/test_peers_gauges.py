@@ -5,7 +5,7 @@ import pytest
 from adaptive_cal.hardware.base import BadSample
 from adaptive_cal.hardware.serial.adapter import PRESETS, SerialProbe, parse
 from adaptive_cal.hardware.serial.config import SerialConfig
-from adaptive_cal.simulation.emulator.gauge import PtyGauge
+from tests.devices import gauge  # noqa: F401 (fixture)
 
 
 @pytest.mark.parametrize("preset, line, mm", [
@@ -36,23 +36,6 @@ def test_sylvac_two_way_cable_dtr_on_rts_off():
         assert (p.port.baudrate, p.port.bytesize, p.port.parity, p.port.stopbits) == (4800, 7, "E", 2)
     finally:
         p.close()
-
-
-@pytest.fixture
-def gauge():
-    made = []
-
-    def make(value=4.2, **cfg):
-        cfg = SerialConfig(port="/dev/null", timeout_s=0.2, **cfg)
-        g = PtyGauge(cfg, lambda: value).start()
-        probe = SerialProbe(cfg.model_copy(update={"port": g.path}))
-        made.append((g, probe))
-        return g, probe
-
-    yield make
-    for g, probe in made:
-        probe.close()
-        g.close()
 
 
 @pytest.mark.parametrize("preset", ["sylvac", "keyence"])

@@ -7,39 +7,23 @@ import pytest
 
 from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.hardware.hses import protocol as P
-from adaptive_cal.hardware.hses.adapter import HsesError, HsesMotion
+from adaptive_cal.hardware.hses.adapter import HsesError
 from adaptive_cal.hardware.hses.config import HsesConfig
 from adaptive_cal.hardware.hses.frames import base_to_user, user_to_base
 from adaptive_cal.simulation.emulator.hses_server import HsesServer
 from adaptive_cal.simulation.emulator.robot import EmulatedRobot
 from tests.conftest import ROOT
+from tests.devices import UFRAME, connect, controller  # noqa: F401 (fixtures)
 
 yrcom = pytest.importorskip("yrcom")
 from yrcom.hses_client import CartesianMove, HsesClient, _decode_position  # noqa: E402
 from yrcom.hses_server_codec import encode_error, encode_response  # noqa: E402
 
-UFRAME = ((650.0, -20.0, 300.0), (0.0, 0.0, 90.0))
 HEAD = "59455243 2000 {size:02x}00 03 01 {ack:02x} {rid:02x} {block} 3939393939393939"
 
 
 def golden(hexstr: str) -> bytes:
     return bytes.fromhex(hexstr.replace(" ", ""))
-
-
-@pytest.fixture
-def controller():
-    cell = load_cell(ROOT / "configs" / "cell-hses-emulated.yaml")
-    server = HsesServer(EmulatedRobot.from_cell(cell, move_s=0.01), offset_mm=(100, 0, 300),
-                        user_frame=UFRAME).start()
-    yield server
-    server.close()
-
-
-def connect(server, **kw):
-    kw = {"timeout_s": 0.1, "retries": 0, "poll_s": 0.002, "move_timeout_s": 2.0,
-          "offset_mm": (100, 0, 300),
-          "user_frame_in_base": {"origin_mm": UFRAME[0], "rotation_deg": UFRAME[1]}, **kw}
-    return HsesMotion(HsesConfig(host="127.0.0.1", port=server.port, **kw))
 
 
 # -- golden frames from the manual's layout ------------------------------------------------
