@@ -3,8 +3,8 @@ bad samples retried within the bound, retract always."""
 import numpy as np
 import pytest
 
-from adaptive_cal.hardware.base import (AdapterError, BadSample, ProbeCycle, Sample,
-                                        TouchRejected, UnsafeTarget)
+from adaptive_cal.hardware.base import (AdapterError, BadSample, ProbeCycle, ProbeLeftDown,
+                                        Sample, TouchRejected, UnsafeTarget)
 
 
 class RecordingMotion:
@@ -129,9 +129,22 @@ def test_retract_after_interrupt_and_error_kept_when_retract_fails():
         cycle(m, Interrupting([])).touch(50, 50, 1.0)
     assert m.sent[-1] == (50, 50, 15.0)
     m = RecordingMotion(fail_on=3)  # the retract after a stroke-end reading fails
-    with pytest.raises(TouchRejected) as e:
+    with pytest.raises(ProbeLeftDown) as e:
         cycle(m, ScriptedProbe([9.9] * 3)).touch(50, 50, 1.0)
-    assert "retract" in " ".join(e.value.__notes__)
+    # the danger is the first thing said, then the retract, then what stopped the touch
+    assert str(e.value).startswith("THE PROBE MAY BE DOWN at x=50.000 y=50.000 mm")
+    assert "retract" in str(e.value) and isinstance(e.value.__cause__, TouchRejected)
+
+
+def test_interrupt_whose_retract_fails_says_the_probe_may_be_down():
+    class Interrupting(ScriptedProbe):
+        def read(self):
+            raise KeyboardInterrupt
+
+    m = RecordingMotion(fail_on=3)  # lift, travel ok; approach ok; retract fails
+    with pytest.raises(ProbeLeftDown, match="^THE PROBE MAY BE DOWN") as e:
+        cycle(m, Interrupting([])).touch(50, 50, 1.0)
+    assert isinstance(e.value.__cause__, KeyboardInterrupt)
 
 
 def test_failed_travel_sends_no_approach():

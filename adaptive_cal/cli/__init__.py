@@ -74,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
             FileExistsError, PermissionError, ValueError) as e:
         if args.debug:
             raise
-        print(f"adaptive-cal {args.subcommand}: error: {e}", file=sys.stderr)
+        notes = "".join(f"\n  {n}" for n in getattr(e, "__notes__", ()))
+        print(f"adaptive-cal {args.subcommand}: error: {e}{notes}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"adaptive-cal {args.subcommand}: interrupted", file=sys.stderr)

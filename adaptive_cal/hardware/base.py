@@ -29,6 +29,24 @@ class UnsafeTarget(AdapterError):
     """A target outside the workplane, a keep-out or the workspace box; it was not sent."""
 
 
+class ProbeLeftDown(AdapterError):
+    """The retract after a touch failed: the tip may still be down. The message says so first,
+    then what to do, then what went wrong (``__cause__``). ``touch`` is the reading taken before
+    the retract failed, if one was (the loop records it before it stops)."""
+
+    def __init__(self, message: str, touch: "Touch | None" = None):
+        super().__init__(message)
+        self.touch = touch
+
+
+def _left_down(x_mm, y_mm, z_mm, safe_mm, lift: Exception, then: str,
+               touch: "Touch | None" = None) -> ProbeLeftDown:
+    return ProbeLeftDown(
+        f"THE PROBE MAY BE DOWN at x={x_mm:.3f} y={y_mm:.3f} mm (approach z={z_mm:.3f} mm): the "
+        f"retract to z={safe_mm:.3f} mm failed ({lift}). Jog the probe clear by hand before "
+        f"anything moves again. {then}", touch)
+
+
 class BadSample(AdapterError):
     """One probe sample that cannot be used: timeout, garbage, stale or out of range.
 
@@ -138,11 +156,15 @@ class ProbeCycle:
             if approached:
                 try:
                     self.motion.move_to(x_mm, y_mm, safe)
-                except Exception as lift:  # keep the first error; say the retract failed too
-                    err.add_note(f"the retract to z={safe} mm failed too: {lift}; "
-                                 "jog the probe clear before the next run")
+                except Exception as lift:  # the danger first, then what stopped the touch
+                    raise _left_down(x_mm, y_mm, z_mm, safe, lift, "What stopped the touch: "
+                                     f"{type(err).__name__}: {err}") from err
             raise
-        self.motion.move_to(x_mm, y_mm, safe)  # retract
+        try:
+            self.motion.move_to(x_mm, y_mm, safe)  # retract
+        except Exception as lift:
+            raise _left_down(x_mm, y_mm, z_mm, safe, lift, f"The reading {touch.reading_mm:.4f} "
+                             "mm was taken and is kept", touch) from lift
         return touch
 
     def _read(self, x_mm: float, y_mm: float, z_mm: float) -> Touch:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import Callable, NamedTuple
 
-from adaptive_cal.hardware.base import ProbeCycle, Touch, TouchRejected
+from adaptive_cal.hardware.base import ProbeCycle, ProbeLeftDown, Touch, TouchRejected
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.ask import Target, ask
 from adaptive_cal.planning.gate import Told
@@ -97,25 +97,41 @@ class SurveyLoop:
 
     def touch(self, target: Target) -> Step:
         """One touch at ``target``: taken, judged, recorded, then fused; hooks called."""
-        plan, state, seq = self.plan, self.state, self.state.touches
+        plan = self.plan
         touch = told = rejected = None
         try:
             touch = self.cycle.touch(target.x_mm, target.y_mm, target.z_mm)
         except TouchRejected as e:
             rejected = e
-            reading = e.reading_mm if math.isfinite(e.reading_mm) else 0.0
-            self._record(Row(seq, self.cycle.clock(), target.x_mm, target.y_mm, target.z_mm,
-                             reading, tuple(e.flags)))
-            self.state = sv.skip(plan, state, target.x_mm, target.y_mm)
+            self._reject(target, e)
+        except ProbeLeftDown as e:  # the tip may be down: keep what was read, then stop
+            if e.touch is not None:
+                self._take(e.touch)
+            elif isinstance(e.__cause__, TouchRejected):
+                self._reject(target, e.__cause__)
+            raise
         else:
-            told = sv.judge(plan, state, touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
-            self._record(Row(seq, touch.t_s, touch.x_mm, touch.y_mm, touch.z_mm,
-                             touch.reading_mm, told.flags))
-            self.state = sv.fuse(plan, state, told)
+            told = self._take(touch)
         step = Step(self.state, sv.status(plan, self.state), target, touch, told, rejected)
         for hook in self.hooks:
             hook(step)
         return step
+
+    def _take(self, touch: Touch) -> Told:
+        """Judge a reading that was taken, record it, then fuse it."""
+        told = sv.judge(self.plan, self.state, touch.x_mm, touch.y_mm, touch.z_mm,
+                        touch.reading_mm)
+        self._record(Row(self.state.touches, touch.t_s, touch.x_mm, touch.y_mm, touch.z_mm,
+                         touch.reading_mm, told.flags))
+        self.state = sv.fuse(self.plan, self.state, told)
+        return told
+
+    def _reject(self, target: Target, e: TouchRejected) -> None:
+        """Record a touch the probe cycle rejected (flagged, never fused) and count it."""
+        reading = e.reading_mm if math.isfinite(e.reading_mm) else 0.0
+        self._record(Row(self.state.touches, self.cycle.clock(), target.x_mm, target.y_mm,
+                         target.z_mm, reading, tuple(e.flags)))
+        self.state = sv.skip(self.plan, self.state, target.x_mm, target.y_mm)
 
     def _record(self, row: Row) -> None:
         if self.record is not None:

@@ -1,0 +1,71 @@
+"""A stop that leaves the probe down says so first, and keeps what was read (issue 16, item 5)."""
+import pytest
+
+from adaptive_cal.cell.build import survey_plan
+from adaptive_cal.hardware.base import AdapterError, ProbeLeftDown
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.run.devices import open_cell
+from adaptive_cal.run.loop import SurveyLoop
+from tests.helpers import SIM_CELL, sim_cell
+
+
+class RetractFailsOnce:
+    """The simulated cell's motion, whose n-th move fails (a PLC that stalls)."""
+
+    def __init__(self, motion, fail_on):
+        self.motion, self.fail_on, self.moves = motion, fail_on, 0
+
+    def move_to(self, x, y, z):
+        self.moves += 1
+        if self.moves == self.fail_on:
+            raise AdapterError("PLC did not answer")
+        self.motion.move_to(x, y, z)
+
+    def position(self):
+        return self.motion.position()
+
+    def close(self):
+        self.motion.close()
+
+
+def test_a_failed_retract_after_a_good_reading_stops_with_the_warning_first_and_keeps_the_row():
+    cell = sim_cell()
+    plan = survey_plan(cell)
+    opened = open_cell(cell)
+    opened.cycle.motion = RetractFailsOnce(opened.cycle.motion, fail_on=3)  # travel, approach, retract
+    rows = []
+    loop = SurveyLoop(plan, sv.start(plan), opened.cycle, record=rows.append)
+    with pytest.raises(ProbeLeftDown) as e:
+        loop.run()
+    message = str(e.value)
+    assert message.startswith("THE PROBE MAY BE DOWN at x=")
+    assert "Jog the probe clear" in message and "was taken and is kept" in message
+    # the reading taken before the retract failed is in the recording and in the state
+    assert len(rows) == 1 and rows[0].reading_mm == pytest.approx(e.value.touch.reading_mm)
+    assert loop.state.touches == 1 and len(loop.state.heights_mm) == 1
+    opened.close()
+
+
+def test_the_cli_prints_the_warning_first(tmp_path, monkeypatch, capsys):
+    from adaptive_cal.cli import main
+    from adaptive_cal.hardware import base
+
+    real = base.ProbeCycle.touch
+
+    calls = []
+
+    def touch(self, x, y, z):  # the second touch's retract fails
+        calls.append((x, y, z))
+        if len(calls) == 2:
+            self.motion = RetractFailsOnce(self.motion, fail_on=3)
+        return real(self, x, y, z)
+
+    monkeypatch.setattr(base.ProbeCycle, "touch", touch)
+    code = main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "run"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.startswith("adaptive-cal run: error: THE PROBE MAY BE DOWN")
+    # nothing taken is lost: both readings are in the recording
+    rows = [line for line in (tmp_path / "run" / "recording.csv").read_text().splitlines()
+            if line and not line.startswith("#")]
+    assert len(rows) == 1 + 2
