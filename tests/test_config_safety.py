@@ -131,3 +131,25 @@ def test_parse_yaml_keeps_ordinary_documents():
     assert parse_yaml("") is None
     assert parse_yaml("a: &x {b: 1}\nc: *x\nd: {<<: *x, e: 2}\n") == {
         "a": {"b": 1}, "c": {"b": 1}, "d": {"b": 1, "e": 2}}
+
+
+@pytest.mark.parametrize("box,key", [
+    ({"x_mm": [0, 230], "y_mm": [-190, 190], "z_mm": [-20, 60]}, "workspace.x_mm"),
+    ({"x_mm": [-230, 230], "y_mm": [-150, 190], "z_mm": [-20, 60]}, "workspace.y_mm"),
+])
+def test_a_workspace_that_does_not_hold_the_touchable_plate_is_refused(box, key):
+    """The planner would choose touches inside the plate that the probe cycle then refuses."""
+    data = load_yaml(SIM_CELL)
+    data["workspace"] = box
+    with pytest.raises(ConfigError, match=rf"\n  {key}: {key}=.*does not hold the touchable plate"):
+        parse_cell(data)
+
+
+@pytest.mark.parametrize("config", ["cell-manual.yaml", "cell-hses-emulated.yaml",
+                                    "cell-modbus-emulated.yaml"])
+def test_a_cell_that_moves_a_real_probe_must_give_its_workspace(config):
+    data = yaml.safe_load((ROOT / "configs" / config).read_text())
+    parse_cell(data)  # as shipped: fine
+    del data["workspace"]
+    with pytest.raises(ConfigError, match=r"\n  robot.adapter: .*give a workspace block"):
+        parse_cell(data)

@@ -10,6 +10,7 @@ must be finite (NaN and infinity are refused naming the key); echoed values are 
 from __future__ import annotations
 
 import math
+import re
 import reprlib
 from pathlib import Path
 
@@ -46,6 +47,10 @@ def _format(err: ValidationError, source: str) -> str:
         msg = e["msg"].removeprefix("Value error, ")
         if len(msg) > 4 * ECHO_CHARS:
             msg = msg[: 4 * ECHO_CHARS - 3] + "..."
+        named = re.match(r"([a-z_]\w*(?:\.\w+)+)\b", msg) if not e["loc"] else None
+        if named:  # a check across blocks names its key first; the whole file is no echo
+            lines.append(f"  {named.group(1)}: {msg}")
+            continue
         if e["type"] == "extra_forbidden":
             msg = "unknown key (check the spelling; unknown keys are refused)"
         lines.append(f"  {key}: {msg} (got {echo(e.get('input'))})" if e["type"] != "missing"

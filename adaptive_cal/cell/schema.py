@@ -12,6 +12,7 @@ from typing import Literal
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from adaptive_cal import effects as effect_library
+from adaptive_cal.cell.consistency import check_cell
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
 from adaptive_cal.gaussian.belief import Z95
 from adaptive_cal.hardware.config import Strict
@@ -285,7 +286,8 @@ class Cell(Block):
                       description="shown in reports and figures; one line of printable text")
     workplane: Workplane
     workspace: Workspace | None = Field(
-        None, description="box the probe tip may be sent to; none: the workplane only")
+        None, description="box the probe tip may be sent to (nothing outside is sent); required "
+        "for every adapter but sim; must hold the touchable plate and the travel height")
     robot: Robot = Robot()
     probe: Probe = Probe()
     model: Model = Model()
@@ -313,25 +315,7 @@ class Cell(Block):
 
     @model_validator(mode="after")
     def _consistent(self):
-        r, p = self.robot, self.probe
-        if r.adapter != "sim" and r.safe_height_mm <= p.zero_mm:
-            raise ValueError(f"robot.safe_height_mm={r.safe_height_mm} must be above "
-                             f"probe.zero_mm={p.zero_mm}: the free probe tip reaches zero_mm "
-                             "below the commanded height and would drag over the plate")
-        ws = self.workspace
-        if ws is not None and not ws.z_mm[0] <= r.safe_height_mm <= ws.z_mm[1]:
-            raise ValueError(f"robot.safe_height_mm={r.safe_height_mm} lies outside "
-                             f"workspace.z_mm={list(ws.z_mm)}: travel would leave the workspace")
-        if (r.adapter == "sim") != (p.adapter == "sim"):
-            raise ValueError(f"robot.adapter={r.adapter!r} with probe.adapter={p.adapter!r}: the "
-                             "simulated robot and probe only exist together; set both to 'sim'")
-        if r.adapter == "modbus" and p.adapter == "modbus":
-            a, b = r.modbus, p.modbus
-            same = all(getattr(a, k, None) == getattr(b, k, None)
-                       for k in ("transport", "host", "port", "serial_port", "device_id"))
-            if same and a != b:
-                raise ValueError("robot.modbus and probe.modbus name the same PLC with different "
-                                 "settings; make the two blocks identical")
+        check_cell(self)
         return self
 
     @property

@@ -1,0 +1,44 @@
+"""Checks across the blocks of a cell file, run once it has validated block by block.
+
+Safety first: nothing outside the workspace box is ever sent, so a cell that drives a robot must
+say where that box is, and the box must hold the whole touchable plate (inside the edge margin)
+and the travel height -- otherwise the planner would choose touches the probe cycle then refuses.
+Each error names the keys and their values.
+"""
+from __future__ import annotations
+
+
+def check_cell(cell) -> None:
+    """Raise ValueError naming the keys when the blocks of ``cell`` contradict each other."""
+    r, p, ws, wp = cell.robot, cell.probe, cell.workspace, cell.workplane
+    if r.adapter != "sim" and ws is None:
+        raise ValueError(f"robot.adapter={r.adapter!r} moves a real probe: give a workspace block "
+                         "(x_mm, y_mm, z_mm: the box the probe tip may be sent to; nothing outside "
+                         "it is ever sent)")
+    if r.adapter != "sim" and r.safe_height_mm <= p.zero_mm:
+        raise ValueError(f"robot.safe_height_mm={r.safe_height_mm} must be above "
+                         f"probe.zero_mm={p.zero_mm}: the free probe tip reaches zero_mm "
+                         "below the commanded height and would drag over the plate")
+    if ws is not None:
+        if not ws.z_mm[0] <= r.safe_height_mm <= ws.z_mm[1]:
+            raise ValueError(f"robot.safe_height_mm={r.safe_height_mm} lies outside "
+                             f"workspace.z_mm={list(ws.z_mm)}: travel would leave the workspace")
+        m = wp.edge_margin_mm
+        for axis in ("x_mm", "y_mm"):
+            lo, hi = getattr(wp, axis)
+            box = getattr(ws, axis)
+            if box[0] > lo + m or box[1] < hi - m:
+                raise ValueError(
+                    f"workspace.{axis}={list(box)} does not hold the touchable plate "
+                    f"[{lo + m:g}, {hi - m:g}] (workplane.{axis}={[lo, hi]} inside "
+                    f"edge_margin_mm={m:g}): widen the workspace, or narrow the workplane")
+    if (r.adapter == "sim") != (p.adapter == "sim"):
+        raise ValueError(f"robot.adapter={r.adapter!r} with probe.adapter={p.adapter!r}: the "
+                         "simulated robot and probe only exist together; set both to 'sim'")
+    if r.adapter == "modbus" and p.adapter == "modbus":
+        a, b = r.modbus, p.modbus
+        same = all(getattr(a, k, None) == getattr(b, k, None)
+                   for k in ("transport", "host", "port", "serial_port", "device_id"))
+        if same and a != b:
+            raise ValueError("robot.modbus and probe.modbus name the same PLC with different "
+                             "settings; make the two blocks identical")
