@@ -1,7 +1,7 @@
 """Decision latency: which touch next, on the same problem, by three implementations.
 
 * ours: ``planner.variance_drop`` (one jit-compiled (N x K)(K x 2K) product) + argmax, and the
-  whole ``Mapper.ask()`` (stroke check and gradient refinement included);
+  whole ``ask()`` (planning.ask) (stroke check and gradient refinement included);
 * numpy: the same closed form in plain numpy (``planner.variance_drop_numpy``);
 * BoTorch: ``qNegIntegratedPosteriorVariance`` (256 integration points) maximised by
   ``optimize_acqf`` (5 restarts, raw samples = the candidate count) on a GPyTorch exact GP whose
@@ -41,7 +41,7 @@ from adaptive_cal.planning.scoring import variance_drop, variance_drop_numpy  # 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-class Mapper(Survey):
+class BenchSurvey(Survey):
     """The survey shell with the names this benchmark reads (cell, candidates, gram, ...)."""
 
     candidates = property(lambda self: self.plan.candidates)
@@ -53,7 +53,7 @@ class Mapper(Survey):
     ys = property(lambda self: [p[1] for p in self.touched_xy_mm])
 
 
-def make_mapper(kx: int, ky: int, candidates: int, readings: int = 20, seed: int = 0) -> Mapper:
+def make_mapper(kx: int, ky: int, candidates: int, readings: int = 20, seed: int = 0) -> BenchSurvey:
     """The simulated reference cell with kx x ky knots, ``readings`` touches fused (fixed
     hyper-parameters, so every implementation sees the same Gaussian posterior)."""
     data = load_yaml(ROOT / "configs" / "sim-cell.yaml")
@@ -61,7 +61,7 @@ def make_mapper(kx: int, ky: int, candidates: int, readings: int = 20, seed: int
     data["model"].update(knots_x=kx, knots_y=ky, learn_hyper=False)
     data["plan"]["candidates"] = candidates
     cell = parse_cell(data)
-    mapper = Mapper(survey_plan(cell))
+    mapper = BenchSurvey(survey_plan(cell))
     mapper.cell = cell
     rng = np.random.default_rng(seed)
     for _ in range(readings):
@@ -81,13 +81,13 @@ def timeit(fn, repeat: int = 7, warm: bool = True) -> tuple[float, object]:
     return float(np.median(times)), out
 
 
-def j_after(mapper: Mapper, xy) -> float:
+def j_after(mapper: BenchSurvey, xy) -> float:
     h = mapper.model.surface.basis(np.array([xy[0]]), np.array([xy[1]]))
     return float(integrated_variance(covariance_after(mapper.belief.cov, h, mapper.noise_var),
                                      mapper.gram))
 
 
-def ours(mapper: Mapper, repeat: int) -> dict:
+def ours(mapper: BenchSurvey, repeat: int) -> dict:
     rows, cov, gram, r = mapper.candidates.rows, mapper.belief.cov, mapper.gram, mapper.noise_var
 
     def score():
@@ -108,7 +108,7 @@ def ours(mapper: Mapper, repeat: int) -> dict:
             "numpy_J": j_after(mapper, xy[i_np])}
 
 
-def botorch_choice(mapper: Mapper, repeat: int, mc_points: int = 256, restarts: int = 5,
+def botorch_choice(mapper: BenchSurvey, repeat: int, mc_points: int = 256, restarts: int = 5,
                    seed: int = 0) -> dict:
     import gpytorch
     import torch
@@ -208,7 +208,7 @@ def main() -> None:
     print(f"problem: {res['problem']}, J now {j0:.6g} mm^4")
     print("| method | decision time (ms) | J after the touch (mm^4) |\n|---|---|---|")
     rows = [("ours: variance_drop + argmax (jit)", "ours_score_s", "ours_J"),
-            ("ours: Mapper.ask (incl. refinement)", "ours_ask_s", "ours_ask_J"),
+            ("ours: ask (planning.ask, incl. refinement)", "ours_ask_s", "ours_ask_J"),
             ("plain numpy closed form", "numpy_score_s", "numpy_J"),
             ("BoTorch qNIPV, optimize_acqf (5 restarts)", "botorch_s", "botorch_J"),
             ("BoTorch qNIPV, optimize_acqf_discrete", "botorch_discrete_s", "botorch_discrete_J")]

@@ -106,7 +106,7 @@ def learned_belief(model: PriorModel, rows, heights, start: Hyper) -> tuple[bl.B
 
 @dataclass(frozen=True)
 class Evaluator:
-    """The plate-wide figures of a belief on the mapper's evaluation grid."""
+    """The plate-wide figures of a belief on the survey plan's evaluation grid."""
 
     eval_rows: np.ndarray  # (E, K)
     gram: np.ndarray

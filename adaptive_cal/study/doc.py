@@ -189,7 +189,7 @@ def benchmarks_section(results: Path) -> str:
                   f"{p['readings']} readings fused.", "",
                   "| method | decision (ms) | J after the touch (mm^4) |", "|---|---|---|"]
         for name, t, j in (("ours: variance_drop + argmax (jit)", "ours_score_s", "ours_J"),
-                           ("ours: Mapper.ask (with refinement)", "ours_ask_s", "ours_ask_J"),
+                           ("ours: ask (planning.ask, with refinement)", "ours_ask_s", "ours_ask_J"),
                            ("plain numpy, same closed form", "numpy_score_s", "numpy_J"),
                            ("BoTorch qNIPV, optimize_acqf, 5 restarts, 256 points", "botorch_s",
                             "botorch_J"),
