@@ -8,7 +8,7 @@ import pytest
 from adaptive_cal import effects
 from adaptive_cal.analysis.explain.candidates import Context, score_effect
 from adaptive_cal.analysis.explain.design import build_design
-from adaptive_cal.formats.recording import Recording, read_recording
+from adaptive_cal.formats.recording import Recording
 from adaptive_cal.simulation.concealed import generator_cell, serpentine
 from conftest import ROOT
 from helpers import sim_cell
