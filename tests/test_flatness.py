@@ -268,3 +268,24 @@ def test_recording_flatness_reproduces_the_papers_round0(cheng_round0):
     assert ls["value"] == pytest.approx(0.5414, abs=1e-3)  # the paper's eq. 5 value
     assert ls["ci95"][0] < ls["value"] < ls["ci95"][1]
     assert sampled["least_squares"].shape == (100,)
+
+
+def test_flatness_json_is_valid_json_off_grid(tmp_path, capsys):
+    """Touches not on a grid have no average range: null in the JSON (NaN is not JSON), and the
+    text says why instead of printing nan."""
+    import json
+
+    from adaptive_cal.cli import main
+    from adaptive_cal.formats.recording import RecordingWriter
+
+    rng = np.random.default_rng(4)
+    path = tmp_path / "recording.csv"
+    with RecordingWriter(path, {"cell": "off-grid"}) as w:
+        for i, (x, y) in enumerate(rng.uniform([-150, -100], [150, 100], (12, 2))):
+            w.append(seq=i, t_s=float(i), x_mm=x, y_mm=y, z_mm=0.0,
+                     reading_mm=5.0 + 1e-3 * x + rng.normal(0, 0.005), flags=())
+    assert main(["flatness", str(path), "--json", "--samples", "50"]) == 0
+    out = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(c))
+    assert out["average_range_mm"] == {"x": None, "y": None}
+    assert main(["flatness", str(path), "--samples", "50"]) == 0
+    assert "x n/a (touches not on a grid along x)" in capsys.readouterr().out

@@ -161,3 +161,12 @@ def test_touch_labels_are_readable_and_never_overprint():
     assert [t for t, _ in labels] == ["0,4", "1,2", "3"]  # a retake joins its first touch's label
     fig, _ = _surface(n_touches=40)
     assert all(t.get_fontsize() >= 8 for t in _panel(fig, "mean").texts)
+
+
+def test_a_cell_name_with_dollar_signs_is_drawn_as_typed(tmp_path):
+    """An odd number of "$" used to reach matplotlib's mathtext and fail after all touches."""
+    x, y = np.linspace(-200, 200, 4), np.linspace(-150, 150, 5)
+    fig = plots.surface_figure(x, y, np.zeros((4, 5)), np.ones((4, 5)) * 1e-3, np.zeros((0, 2)),
+                               (-200, 200), (-150, 150), title="plate $3 of 5 ($ price")
+    fig.savefig(tmp_path / "s.png")  # renders the title: raises on unbalanced mathtext
+    assert fig._suptitle.get_text() == r"plate \$3 of 5 (\$ price (tilt removed)"

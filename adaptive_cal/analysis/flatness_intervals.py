@@ -94,9 +94,14 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
            "tilt": fl.plane_tilt(x, y, z),
            "flatness_mm": fl.interval_figures({k: values[k] for k in NAMES},
                                               {k: sampled[k] for k in NAMES}),
-           "average_range_mm": {"x": rx, "y": ry},
+           # None where the touches are not a grid along that axis (the paper's method needs one)
+           "average_range_mm": {"x": _finite_or_none(rx), "y": _finite_or_none(ry)},
            "noise_std_mm": hyper["noise_std_mm"], "hyper": hyper}
     return out, sampled
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
 
 
 def compare(sampled_a: dict, sampled_b: dict) -> dict:

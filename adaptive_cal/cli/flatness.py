@@ -38,7 +38,7 @@ def command(args) -> int:
         other, sampled_b = recording_flatness(args.compare, rng, args.samples)
         out = {"first": out, "second": other, "change": compare(sampled, sampled_b)}
     if args.json:
-        json.dump(out, sys.stdout, indent=2)
+        json.dump(out, sys.stdout, indent=2, allow_nan=False)
         print()
     else:
         _print(out)
@@ -54,7 +54,9 @@ def _one(r: dict) -> list[str]:
         lo, hi = f[k]["ci95"]
         lines.append(f"  flatness {k:14s} {f[k]['value']:.4f} mm  (95 % of repeats {lo:.4f} .. {hi:.4f})")
     a = r["average_range_mm"]
-    lines.append(f"  average range x {a['x']:.4f} mm, y {a['y']:.4f} mm")
+    lines.append("  average range " + ", ".join(
+        f"{k} {a[k]:.4f} mm" if a[k] is not None else f"{k} n/a (touches not on a grid along {k})"
+        for k in ("x", "y")))
     return lines
 
 

@@ -20,6 +20,11 @@ MAX_NUMBERED_TOUCHES = 80
 Range = tuple[float, float]
 
 
+def plain_text(text: str) -> str:
+    """``text`` shown as typed: a "$" would start matplotlib mathtext (an odd count fails)."""
+    return text.replace("$", r"\$")
+
+
 def _plate_axes(ax, workplane_x_mm: Range, workplane_y_mm: Range) -> None:
     ax.set_xlim(*workplane_x_mm)
     ax.set_ylim(*workplane_y_mm)
@@ -125,7 +130,7 @@ def surface_figure(x_grid_mm, y_grid_mm, mean_mm, std_mm, touches_xy_mm,
         unique = dict(zip(labels, handles))
         ax_std.legend(unique.values(), unique.keys(), loc="upper right", fontsize=7, framealpha=0.8)
     suffix = " (tilt removed)" if remove_tilt else ""
-    fig.suptitle(f"{title}{suffix}" if title else f"workplane{suffix}")
+    fig.suptitle(f"{plain_text(title)}{suffix}" if title else f"workplane{suffix}")
     return fig
 
 
