@@ -201,6 +201,16 @@ def figures(x_mm, y_mm, z_mm) -> dict[str, float]:
     }
 
 
+def ls_flatness_samples_mm(x_mm, y_mm, surfaces_mm) -> np.ndarray:
+    """Eq. 5 of each row of ``surfaces_mm`` (S, N): one multi-right-hand-side solve of eq. 4,
+    then the residual range measured normal to each row's plane. Returns (S,)."""
+    surfaces_mm = np.atleast_2d(np.asarray(surfaces_mm, dtype=np.float64))
+    x_mm, y_mm, _ = _as_arrays(x_mm, y_mm, surfaces_mm[0])
+    a, b, c = _plane_coefficients(x_mm, y_mm, surfaces_mm.T)  # each (S,)
+    residuals = surfaces_mm - (np.outer(a, x_mm) + np.outer(b, y_mm) + c[:, None])
+    return np.ptp(residuals, axis=1) / np.sqrt(1.0 + a**2 + b**2)
+
+
 def sampled_figures(x_mm, y_mm, surfaces_mm) -> dict[str, np.ndarray]:
     """The figures of each posterior sample surface; surfaces_mm is (S, N) heights at the N points.
 
@@ -209,10 +219,8 @@ def sampled_figures(x_mm, y_mm, surfaces_mm) -> dict[str, np.ndarray]:
     """
     surfaces_mm = np.atleast_2d(np.asarray(surfaces_mm, dtype=np.float64))
     x_mm, y_mm, _ = _as_arrays(x_mm, y_mm, surfaces_mm[0])
-    a, b, c = _plane_coefficients(x_mm, y_mm, surfaces_mm.T)  # each (S,)
-    residuals = surfaces_mm - (np.outer(a, x_mm) + np.outer(b, y_mm) + c[:, None])
     return {
-        "least_squares": np.ptp(residuals, axis=1) / np.sqrt(1.0 + a**2 + b**2),
+        "least_squares": ls_flatness_samples_mm(x_mm, y_mm, surfaces_mm),
         "range": np.ptp(surfaces_mm, axis=1),
         "minimum_zone": np.array([minimum_zone_mm(x_mm, y_mm, z).value_mm for z in surfaces_mm]),
         "range_x_avg": _average_range(y_mm, surfaces_mm),
@@ -220,7 +228,8 @@ def sampled_figures(x_mm, y_mm, surfaces_mm) -> dict[str, np.ndarray]:
     }
 
 
-def _finite_or_none(value: float) -> float | None:
+def finite_or_none(value: float) -> float | None:
+    """``value`` as a float, or None where it is NaN or infinite (JSON has no NaN)."""
     return float(value) if np.isfinite(value) else None
 
 
@@ -244,7 +253,7 @@ def interval_figures(value_by_name: Mapping[str, float],
     Plain floats (JSON-ready); NaN becomes None.
     """
     _require_same_names(value_by_name, samples_by_name, "interval_figures")
-    return {name: {"value": _finite_or_none(value), "ci95": _ci95(samples_by_name[name])}
+    return {name: {"value": finite_or_none(value), "ci95": _ci95(samples_by_name[name])}
             for name, value in value_by_name.items()}
 
 

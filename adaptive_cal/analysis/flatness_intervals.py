@@ -95,13 +95,9 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
            "flatness_mm": fl.interval_figures({k: values[k] for k in NAMES},
                                               {k: sampled[k] for k in NAMES}),
            # None where the touches are not a grid along that axis (the paper's method needs one)
-           "average_range_mm": {"x": _finite_or_none(rx), "y": _finite_or_none(ry)},
+           "average_range_mm": {"x": fl.finite_or_none(rx), "y": fl.finite_or_none(ry)},
            "noise_std_mm": hyper["noise_std_mm"], "hyper": hyper}
     return out, sampled
-
-
-def _finite_or_none(value: float) -> float | None:
-    return float(value) if np.isfinite(value) else None
 
 
 def compare(sampled_a: dict, sampled_b: dict) -> dict:

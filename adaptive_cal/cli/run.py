@@ -49,14 +49,14 @@ def command(args) -> int:
         if answer.strip().lower() not in ("y", "yes"):
             print("nothing moved", file=sys.stderr)
             return 1
-    created: list = []
+    created = None  # (folders this run made, names --out held before)
     if not args.resume:
         if (out / "recording.csv").exists():
             raise UserError(f"{out}/recording.csv exists: continue it with --resume {out}, or "
                             "choose another --out")
         folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
-        created = [(folders, before)]
+        created = (folders, before)
     try:
         # the cell file is copied only once the session holds the folder's lock
         result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,
@@ -66,8 +66,8 @@ def command(args) -> int:
         from adaptive_cal.run.folder import RunFolderBusy
 
         # a folder another run holds is that run's: leave everything in it as it is
-        undone = (bool(created) and not isinstance(e, RunFolderBusy)
-                  and _undo_if_empty(out, created[0]))
+        undone = (created is not None and not isinstance(e, RunFolderBusy)
+                  and _undo_if_empty(out, created))
         if undone and isinstance(e, AdapterError):
             raise UserError(f"{e}.\nNothing was recorded, and {out} is left as it was before: "
                             "once the cause is fixed, run the same command again (not --resume)") from e

@@ -17,21 +17,13 @@ from __future__ import annotations
 import numpy as np
 
 from adaptive_cal.analysis.explain.design import Design
-from adaptive_cal.analysis.flatness import ls_flatness_mm
+from adaptive_cal.analysis.flatness import ls_flatness_mm, ls_flatness_samples_mm
 
 
 def _plane_residual(x, y, z) -> np.ndarray:
     A = np.stack([x, y, np.ones_like(x)], -1)
     P = A @ np.linalg.pinv(A)
     return z - z @ P.T if z.ndim > 1 else z - P @ z
-
-
-def _sampled_flatness(x, y, z) -> np.ndarray:
-    """Eq. 5 of each row of z (S, N): the residual range about its least-squares plane, measured
-    normal to that plane (as ``analysis.flatness.ls_flatness_mm``, batched)."""
-    A = np.stack([x, y, np.ones_like(x)], -1)
-    coef = z @ np.linalg.pinv(A).T  # (S, 3): a, b, c of each row
-    return np.ptp(z - coef @ A.T, axis=1) / np.sqrt(1.0 + coef[:, 0] ** 2 + coef[:, 1] ** 2)
 
 
 def _matched(design: Design, a: int, b: int):
@@ -65,8 +57,8 @@ def flatness_change(design: Design, rng: np.random.Generator, a: int = 0, b: int
     sigma = float(np.sqrt(diff @ diff / (n - 3) / 2.0))
     h = 0.5 * (ra + rb)
     sims = h + sigma * rng.standard_normal((draws, 2, n))
-    fa = _sampled_flatness(x, y, sims[:, 0])
-    fb = _sampled_flatness(x, y, sims[:, 1])
+    fa = ls_flatness_samples_mm(x, y, sims[:, 0])
+    fb = ls_flatness_samples_mm(x, y, sims[:, 1])
     null = fb - fa
     obs = flat[1] - flat[0]
     lo, hi = np.quantile(null, [0.025, 0.975])
