@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.cell.build import prior_model
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.run.folder import finite_json, replace_atomically, write_json
@@ -102,3 +104,20 @@ def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> None:
     arrays = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
               "knots_y": s.sy.knots, "hyper": np.array(state.hyper)}
     replace_atomically(path, lambda f: np.savez(f, **arrays), binary=True)
+
+
+def read_belief(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
+    """The belief ``save_belief`` wrote into RUN_DIR/belief.npz, as saved (not widened), and its
+    hyper-parameters; its knots must be the ones ``cell`` gives (``prior_model(cell).surface``
+    then evaluates it)."""
+    path = Path(run_dir) / "belief.npz"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
+    data = np.load(path)
+    surface = prior_model(cell).surface
+    if (len(data["knots_x"]) != len(surface.sx.knots) or len(data["knots_y"]) != len(surface.sy.knots)
+            or not np.allclose(data["knots_x"], surface.sx.knots)
+            or not np.allclose(data["knots_y"], surface.sy.knots)):
+        raise ValueError(f"{path}: the earlier run used other knots; give the cell file the same "
+                         "model.knots_x / knots_y")
+    return bl.Belief(data["mean"], data["cov"]), Hyper(*data["hyper"].tolist())

@@ -30,7 +30,7 @@ from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock
 from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, History, Row, SurveyLoop
-from adaptive_cal.run.results import save_belief, write_results
+from adaptive_cal.run.results import read_belief, save_belief, write_results
 from adaptive_cal.run.truth import TrueError
 
 RESULTS_SEED = 0  # the posterior samples behind result.json's intervals
@@ -66,23 +66,14 @@ def load_prior(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
     may have moved rigidly since (offset std d, slopes std d over half the plate diagonal) and
     its form may have changed by a quarter of that (form std d / 4, same length scale). A
     routine re-check then needs a handful of touches."""
-    path = Path(run_dir) / "belief.npz"
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
-    data = np.load(path)
-    hyper = Hyper(*data["hyper"].tolist())
+    belief, hyper = read_belief(run_dir, cell)
     model = prior_model(cell)
-    if (len(data["knots_x"]) != len(model.surface.sx.knots)
-            or not np.allclose(data["knots_x"], model.surface.sx.knots)
-            or not np.allclose(data["knots_y"], model.surface.sy.knots)):
-        raise ValueError(f"{path}: the earlier run used other knots; give the cell file the same "
-                         "model.knots_x / knots_y")
     d = cell.plan.drift_std_mm
     wp = cell.workplane
     half = 0.5 * math.hypot(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
     drift = type(model)(model.surface, d / half, d, model.centre_mm, hyper)
     extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
-    return bl.widen(bl.Belief(data["mean"], data["cov"]), extra), hyper
+    return bl.widen(belief, extra), hyper
 
 
 @contextmanager
