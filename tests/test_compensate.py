@@ -310,3 +310,8 @@ def test_result_json_tilt_is_what_the_map_uses(mapped):
     run_dir, _ = mapped
     tilt = json.loads((run_dir / "result.json").read_text())["tilt"]
     assert load_map(run_dir).plane_abc == (tilt["a"], tilt["b"], tilt["c"])
+
+
+def test_a_gcode_comment_naming_columns_is_still_gcode():
+    path = read_toolpath("; columns x_mm, y_mm, z_mm\nG0 X1 Y2 Z3\n", "p")
+    assert path.kind == "gcode" and path.moves[0].end == (1.0, 2.0, 3.0)

@@ -70,18 +70,14 @@ def fmt(value: float) -> str:
 def read_toolpath(text: str, name: str = "program") -> Toolpath:
     """G-code unless the first line is a CSV header naming x_mm, y_mm and z_mm."""
     text = text.lstrip("\ufeff")
-    first = text.split("\n", 1)[0].strip().lower()
-    if "x_mm" in first and "," in first:
+    first = [f.strip().lower() for f in text.split("\n", 1)[0].split(",")]
+    if "x_mm" in first:
         return _read_csv(text, name)
     return _read_gcode(text, name)
 
 
 def _newline(text: str) -> tuple[str, bool]:
     return ("\r\n" if "\r\n" in text else "\n"), text.endswith(("\n", "\r"))
-
-
-def _code_part(line: str) -> str:
-    return _COMMENT.sub(" ", line)
 
 
 def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
