@@ -30,8 +30,8 @@ def _learned_state(plan, n=24, seed=0, noise_mm=0.005):
     rng = np.random.default_rng(seed)
     truth = bl.sample(plan.model.belief(plan.model.hyper0), rng, 1)[0]
     state = sv.start(plan)
-    idx = rng.choice(len(plan.candidates.xy), n, replace=False)
-    xy = plan.candidates.xy[idx]
+    idx = rng.choice(len(plan.candidates.xy_mm), n, replace=False)
+    xy = plan.candidates.xy_mm[idx]
     rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])
     heights = rows @ truth + noise_mm * rng.standard_normal(n)
     from dataclasses import replace
@@ -43,7 +43,7 @@ def _learned_state(plan, n=24, seed=0, noise_mm=0.005):
 
 def test_invalid_readings_are_refused_naming_the_value_and_change_nothing(plan):
     state, _, _ = _learned_state(plan)
-    x, y = plan.candidates.xy[0]
+    x, y = plan.candidates.xy_mm[0]
     cases = [((x, y, 0.0, math.nan), "reading_mm = nan"),
              ((x, y, 0.0, math.inf), "reading_mm = inf"),
              ((math.nan, y, 0.0, 5.0), "x_mm = nan"),
@@ -70,7 +70,7 @@ def test_nan_reading_leaves_the_belief_bit_identical(plan):
 def test_a_20_sigma_spike_does_not_drag_the_map(plan):
     state, truth, rng = _learned_state(plan)
     noise = 0.005
-    x, y = plan.candidates.xy[rng.integers(len(plan.candidates.xy))]
+    x, y = plan.candidates.xy_mm[rng.integers(len(plan.candidates.xy_mm))]
     h = plan.model.surface.basis(np.array([x]), np.array([y]))[0]
     reading = float(h @ truth) + 20 * noise - 0.0 + plan.zero_mm  # z = 0
     new, told = sv.tell(plan, state, x, y, 0.0, reading)
@@ -123,7 +123,7 @@ def test_flags_round_trip_and_replay_reproduces_the_weights(plan, tmp_path):
     state, truth, rng = _learned_state(plan, n=6)
     path = tmp_path / "rec.csv"
     with RecordingWriter(path) as w:
-        for i, (row_xy, flags) in enumerate(zip(plan.candidates.xy[:3],
+        for i, (row_xy, flags) in enumerate(zip(plan.candidates.xy_mm[:3],
                                                 [(), ("outlier=0.20",), ("gated", "outlier=1.00")])):
             h = plan.model.surface.basis(row_xy[:1], row_xy[1:])[0]
             w.append(seq=i, t_s=0.0, x_mm=row_xy[0], y_mm=row_xy[1], z_mm=0.0,
