@@ -177,6 +177,16 @@ def test_recheck_assuming_no_correction_on_a_corrected_plate_stops_and_says_why(
     assert r["prior_from"]["assumed"] == "none"
 
 
+def test_recheck_assuming_the_proposed_correction_on_an_uncorrected_plate_stops(first_map,
+                                                                              tmp_path):
+    """The other mistake: the frame was not corrected, the default assumes it was."""
+    out, _ = first_map
+    r = session.run(sim_cell(simulation={"seed": RECHECK_SEED}), tmp_path / "p", prior_from=out,
+                    progress=False)
+    assert r["stopped_because"] == session.PRIOR_DISAGREES and r["touches"] <= 10
+    assert "(proposed: rx +0.1" in r["prior_from"]["disagreement"]
+
+
 def test_cli_measured_correction_printed_first_and_recorded(first_map, tmp_path, capsys):
     """--correction-applied RX,RY: a measured correction (here 0.11, -0.80 applied, not the
     proposed one); the first line says what was assumed; the re-check finds the remaining
