@@ -88,6 +88,8 @@ def applied_correction(run_dir: Path, correction: str | tuple[float, float] = "p
                              f"assume applied ({type(e).__name__}: {e}); pass the applied one "
                              "as --correction-applied RX,RY (deg), or none") from None
         assumed = "proposed"
+    elif isinstance(correction, str) or len(correction) != 2:
+        raise ValueError(f"correction {correction!r}: expected 'proposed', 'none' or (rx, ry) in deg")
     else:
         rx, ry = (float(v) for v in correction)
         assumed = "measured"
