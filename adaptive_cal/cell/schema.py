@@ -248,6 +248,13 @@ class Plan(Block):
     drift_std_mm: float = Field(0.01, ge=0, description="widening for --prior-from")
 
 
+class FrameCorrection(Block):
+    """A user-frame correction applied to the simulated robot (deg): frame * rotx(rx) * roty(ry)."""
+
+    rx_deg: float = Field(0.0, ge=-10, le=10, description="rotation about the user frame's x axis")
+    ry_deg: float = Field(0.0, ge=-10, le=10, description="then about its y axis (RoboDK order)")
+
+
 class Simulation(Block):
     """The simulated cell's truth: effects from the effect table and the noise it adds."""
 
@@ -258,6 +265,10 @@ class Simulation(Block):
     noise_std_mm: float = Field(0.002, ge=0, description="probe noise")
     repeatability_mm: float = Field(0.005, ge=0, description="robot z repeatability (1 sigma)")
     xy_repeatability_mm: float = Field(0.01, ge=0, description="robot x/y repeatability (1 sigma)")
+    frame_correction_deg: FrameCorrection | None = Field(
+        None, description="the tilt correction applied to the robot's user frame (e.g. the one a "
+        "run proposed, result.json tilt): the robot then moves and probes in the rotated frame, "
+        "about the frame's origin; see run --correction-applied")
 
     @field_validator("effects")
     @classmethod

@@ -14,8 +14,13 @@ def add_arguments(p) -> None:
     p.add_argument("--out", metavar="DIR", help="output folder: recording.csv, result.json, "
                    "surface.png, convergence.png, belief.npz, cell.yaml")
     p.add_argument("--resume", metavar="DIR", help="continue an interrupted run from DIR/recording.csv")
-    p.add_argument("--prior-from", metavar="RUN_DIR", help="start from an earlier run's belief, "
+    p.add_argument("--prior-from", metavar="RUN_DIR", help="re-check: start from an earlier run's "
+                   "belief, moved into the user frame corrected since (--correction-applied) and "
                    "widened by plan.drift_std_mm (mm)")
+    p.add_argument("--correction-applied", metavar="proposed|none|RX,RY", help="with --prior-from: "
+                   "the user-frame correction applied since RUN_DIR, rotx(RX) roty(RY) about the "
+                   "frame origin: 'proposed' (the default: RUN_DIR's result.json tilt, deg), "
+                   "'none' (not applied), or the measured angles RX,RY in deg, e.g. 0.11,-0.80")
     p.add_argument("--dry-run", action="store_true", help="plan and print the first touches, move nothing")
     p.add_argument("--yes", action="store_true", help="do not ask before moving a real robot")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -57,9 +62,18 @@ def command(args) -> int:
         folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
         created = (folders, before)
+    correction = _correction(args)
+    if args.prior_from:
+        try:
+            c = session.applied_correction(Path(args.prior_from), correction)
+        except ValueError as e:
+            raise UserError(str(e)) from None
+        print(f"re-check from {args.prior_from}: correction assumed applied ({c['assumed']}): "
+              f"rx {c['correction_deg']['rx']:+.4f} deg, ry {c['correction_deg']['ry']:+.4f} deg")
     try:
         # the cell file is copied only once the session holds the folder's lock
         result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,
+                             correction_applied=correction,
                              progress=not args.no_progress,
                              before_start=None if args.resume else lambda: _copy_cell(out, cell_path))
     except BaseException as e:
@@ -77,7 +91,30 @@ def command(args) -> int:
               f"{result['touches']} touches): nothing to do, nothing changed")
         return 0
     _summary(result, out)
+    if result.get("prior_from", {}).get("disagreement"):
+        print(f"re-check stopped: {result['prior_from']['disagreement']}")
+        return 1
     return 130 if result["stopped_because"] == "interrupted" else 0
+
+
+def _correction(args):
+    """--correction-applied as session.run takes it: 'proposed', 'none' or (rx, ry) in deg."""
+    text = args.correction_applied
+    if text is None:
+        return "proposed"
+    if not args.prior_from:
+        raise UserError("--correction-applied needs --prior-from RUN_DIR")
+    if text.strip() in ("proposed", "none"):
+        return text.strip()
+    try:
+        rx, ry = (float(v) for v in text.split(","))
+    except ValueError:
+        raise UserError(f"--correction-applied {text!r}: expected proposed, none or RX,RY in deg "
+                        "(two numbers, e.g. 0.11,-0.80)") from None
+    if not all(abs(v) <= 10 for v in (rx, ry)):  # also refuses nan and inf
+        raise UserError(f"--correction-applied {text!r}: each angle must be finite and within "
+                        "+-10 deg")
+    return rx, ry
 
 
 def _copy_cell(out: Path, cell_path: Path) -> None:

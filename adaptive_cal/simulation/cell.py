@@ -12,6 +12,7 @@ import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, Simulation
+from adaptive_cal.effects.frame import height_in_corrected_frame
 from adaptive_cal.hardware.base import Sample
 
 
@@ -47,7 +48,16 @@ class SimulatedCell:
 
     # -- truth -------------------------------------------------------------------------
     def surface_mm(self, x_mm, y_mm) -> np.ndarray:
-        """True plate height (tilt + form + local defects) in the workplane frame."""
+        """True plate height (tilt + form + local defects) in the workplane frame the robot
+        moves in: with ``simulation.frame_correction_deg`` the corrected one (the height along
+        its z axis at its x, y: ``effects.frame``), else the nominal one."""
+        fc = self.sim.frame_correction_deg
+        if fc is None:
+            return self.nominal_surface_mm(x_mm, y_mm)
+        return height_in_corrected_frame(self.nominal_surface_mm, x_mm, y_mm, fc.rx_deg, fc.ry_deg)
+
+    def nominal_surface_mm(self, x_mm, y_mm) -> np.ndarray:
+        """True plate height in the nominal workplane frame (the effects as configured)."""
         x = np.asarray(x_mm, float)
         y = np.broadcast_to(np.asarray(y_mm, float), x.shape)
         f = effects.Features(x, y, np.zeros(x.shape), np.zeros(x.shape), np.zeros(x.shape))
