@@ -10,33 +10,44 @@ from __future__ import annotations
 import json
 import sys
 
-from adaptive_cal.cli.common import check_recording
-
-NAMES = ("least_squares", "range", "minimum_zone")
+from adaptive_cal.cli.common import UserError, check_recording
 
 
 def add_arguments(p) -> None:
-    p.add_argument("recording", metavar="RECORDING.csv", help="a v1 recording")
+    p.add_argument("recording", metavar="RECORDING.csv", help="a v1 recording; in a run folder "
+                   "(beside cell.yaml and belief.npz) the whole plate's flatness is given too")
+    p.add_argument("--robot", metavar="CELL.yaml", help="the cell file the recording was taken "
+                   "with: replay it to a map and give the whole plate's flatness too")
     p.add_argument("--compare", metavar="OTHER.csv", help="a later round: probability that its "
-                   "flatness is larger, and the interval of the difference")
+                   "flatness (of the touched points) is larger, and the interval of the difference")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
-    p.add_argument("--samples", type=int, default=400, help="posterior samples for the intervals")
+    p.add_argument("--samples", type=int, default=200, help="posterior samples for the intervals "
+                   "(200 and seed 0, as in run: the same numbers as the run's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the posterior samples")
+
+
+NO_PLATE = ("needs a map: give the cell file (--robot CELL.yaml), or the recording of a run "
+            "folder (beside its cell.yaml and belief.npz)")
 
 
 def command(args) -> int:
     import numpy as np
 
     from adaptive_cal.analysis.flatness_intervals import compare, recording_flatness
+    from adaptive_cal.cli.common import check_cell_file
 
     check_recording(args.recording)
+    if args.robot:
+        check_cell_file(args.robot)
     if args.compare:
         check_recording(args.compare)
-    rng = np.random.default_rng(args.seed)
-    out, sampled = recording_flatness(args.recording, rng, args.samples)
-    if args.compare:
+        rng = np.random.default_rng(args.seed)
+        out, sampled = recording_flatness(args.recording, rng, args.samples)
         other, sampled_b = recording_flatness(args.compare, rng, args.samples)
         out = {"first": out, "second": other, "change": compare(sampled, sampled_b)}
+    else:
+        out = map_flatness(args) or recording_flatness(args.recording, np.random.default_rng(
+            args.seed), args.samples)[0]
     if args.json:
         json.dump(out, sys.stdout, indent=2, allow_nan=False)
         print()
@@ -45,16 +56,66 @@ def command(args) -> int:
     return 0
 
 
+def map_flatness(args) -> dict | None:
+    """Both answers (touched points and whole plate) from the run folder's saved belief, or from
+    the recording replayed with --robot; None for a bare recording without a cell."""
+    from pathlib import Path
+
+    import numpy as np
+
+    rec_path = Path(args.recording)
+    folder = rec_path.parent
+    saved = folder / "belief.npz"
+    if not args.robot and not ((folder / "cell.yaml").exists() and saved.exists()):
+        return None
+    from adaptive_cal.analysis.flatness_answer import flatness_answer
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.gaussian.belief import Belief
+    from adaptive_cal.gaussian.prior import Hyper
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.run.results import touched_heights
+
+    cell = load_cell(args.robot or folder / "cell.yaml")
+    plan = survey_plan(cell)
+    rec = read_recording(rec_path)
+    if args.robot:
+        state = sv.replay(plan, sv.start(plan), rec)
+        belief, noise_mm, source = state.belief, state.hyper.noise_std_mm, f"replayed with {args.robot}"
+    else:
+        data = np.load(saved)
+        belief = Belief(data["mean"], data["cov"])
+        noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm
+        source = f"the map saved in {saved}"
+    xyz = touched_heights(plan, rec)
+    if len(xyz[2]) < 4:
+        raise UserError(f"{rec_path}: {len(xyz[2])} usable touches; flatness needs at least 4")
+    out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
+                          args.samples)
+    return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
+            "noise_std_mm": noise_mm, **out}
+
+
 def _one(r: dict) -> list[str]:
-    t, f = r["tilt"], r["flatness_mm"]
+    from adaptive_cal.analysis.flatness_answer import answer_lines
+
+    t = r["tilt"]
+    if "map" in r:  # both answers, the tilt of the whole plate's map
+        return ([f"{r['recording']}: {r['touches']} touches, reading noise "
+                 f"{r['noise_std_mm'] * 1e3:.1f} um; map: {r['map']}",
+                 f"  tilt correction (whole plate): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} "
+                 f"deg (a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm)"]
+                + ["  " + line for line in answer_lines(r)])
+    touched = {**r["flatness_mm"], "points": r["touches"]}
     lines = [f"{r['recording']}: {r['touches']} touches, reading noise {r['noise_std_mm'] * 1e3:.1f} um",
-             f"  tilt correction: rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
+             f"  tilt correction (touched points): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
              f"(a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm)"]
-    for k in NAMES:
-        lo, hi = f[k]["ci95"]
-        lines.append(f"  flatness {k:14s} {f[k]['value']:.4f} mm  (95 % of repeats {lo:.4f} .. {hi:.4f})")
+    lines += ["  " + line for line in answer_lines({"touched_flatness_mm": touched}, no_plate=NO_PLATE)]
+    lines.append(f"  height spread of the touched points, max - min with the tilt included (not "
+                 f"flatness): {r['flatness_mm']['range']['value']:.4f} mm")
     a = r["average_range_mm"]
-    lines.append("  average range " + ", ".join(
+    lines.append("  average range (Cheng Table 8, tilt included) " + ", ".join(
         f"{k} {a[k]:.4f} mm" if a[k] is not None else f"{k} n/a (touches not on a grid along {k})"
         for k in ("x", "y")))
     return lines
