@@ -115,7 +115,7 @@ def answer_line(what: str, figures: dict) -> str:
 def answer_lines(result: dict, provisional: bool = False, no_plate: str | None = None) -> list[str]:
     """The flatness lines of a result (touched points first, then the whole plate, then the raw
     spread and a note for any posterior median); ``no_plate``: what to say when there is no map."""
-    mark = " (provisional)" if provisional else ""
+    mark = ", provisional" if provisional else ""
     lines, used = [], []
     touched = result.get("touched_flatness_mm")
     if touched:

@@ -21,8 +21,9 @@ def add_arguments(p) -> None:
     p.add_argument("--compare", metavar="OTHER.csv", help="a later round: probability that its "
                    "flatness (of the touched points) is larger, and the interval of the difference")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
-    p.add_argument("--samples", type=int, default=200, help="posterior samples for the intervals "
-                   "(200 and seed 0, as in run: the same numbers as the run's)")
+    p.add_argument("--samples", type=int, default=None, help="posterior samples for the "
+                   "intervals (default: 200 with a map, as in run, so the digits are the run's; 400 "
+                   "for a bare recording)%(default).0s")
     p.add_argument("--seed", type=int, default=0, help="seed of the posterior samples")
 
 
@@ -37,17 +38,18 @@ def command(args) -> int:
     from adaptive_cal.cli.common import check_cell_file
 
     check_recording(args.recording)
+    bare_samples = args.samples or 400
     if args.robot:
         check_cell_file(args.robot)
     if args.compare:
         check_recording(args.compare)
         rng = np.random.default_rng(args.seed)
-        out, sampled = recording_flatness(args.recording, rng, args.samples)
-        other, sampled_b = recording_flatness(args.compare, rng, args.samples)
+        out, sampled = recording_flatness(args.recording, rng, bare_samples)
+        other, sampled_b = recording_flatness(args.compare, rng, bare_samples)
         out = {"first": out, "second": other, "change": compare(sampled, sampled_b)}
     else:
         out = map_flatness(args) or recording_flatness(args.recording, np.random.default_rng(
-            args.seed), args.samples)[0]
+            args.seed), bare_samples)[0]
     if args.json:
         json.dump(out, sys.stdout, indent=2, allow_nan=False)
         print()
@@ -68,7 +70,7 @@ def map_flatness(args) -> dict | None:
     saved = folder / "belief.npz"
     if not args.robot and not ((folder / "cell.yaml").exists() and saved.exists()):
         return None
-    from adaptive_cal.analysis.flatness_answer import flatness_answer
+    from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer
     from adaptive_cal.cell.build import survey_plan
     from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.formats.recording import read_recording
@@ -92,12 +94,12 @@ def map_flatness(args) -> dict | None:
     if len(xyz[2]) < 4:
         raise UserError(f"{rec_path}: {len(xyz[2])} usable touches; flatness needs at least 4")
     out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
-                          args.samples)
+                          args.samples or SAMPLES)
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
             "noise_std_mm": noise_mm, **out}
 
 
-def _one(r: dict) -> list[str]:
+def _one(r: dict, say_no_plate: bool = True) -> list[str]:
     from adaptive_cal.analysis.flatness_answer import answer_lines
 
     t = r["tilt"]
@@ -111,7 +113,8 @@ def _one(r: dict) -> list[str]:
     lines = [f"{r['recording']}: {r['touches']} touches, reading noise {r['noise_std_mm'] * 1e3:.1f} um",
              f"  tilt correction (touched points): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
              f"(a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm)"]
-    lines += ["  " + line for line in answer_lines({"touched_flatness_mm": touched}, no_plate=NO_PLATE)]
+    lines += ["  " + line for line in answer_lines({"touched_flatness_mm": touched},
+                                                      no_plate=NO_PLATE if say_no_plate else None)]
     lines.append(f"  height spread of the touched points, max - min with the tilt included (not "
                  f"flatness): {r['flatness_mm']['range']['value']:.4f} mm")
     a = r["average_range_mm"]
@@ -150,7 +153,8 @@ def compare_table(out: dict) -> list[str]:
         lines.append(f"  {LABELS[k]:<19}{va:>9.4f}{vb:>9.4f}{vb - va:>+9.4f}   "
                      f"{f'{lo:+.4f} .. {hi:+.4f}':<26}{c['p_b_greater']:>8.2f}  {_verdict(c)}")
     lines += ["  P(worse): the probability that the later flatness is larger (over predicted repeat",
-              "  measurements). Range includes the tilt: a corrected tilt shows there, not flatness."]
+              "  measurements). Range: max - min of the heights, the tilt included (not flatness):",
+              "  a corrected tilt shows there."]
     return lines
 
 
@@ -158,4 +162,4 @@ def _print(out: dict) -> None:
     if "change" not in out:
         print("\n".join(_one(out)))
         return
-    print("\n".join(_one(out["first"]) + _one(out["second"]) + compare_table(out)))
+    print("\n".join(_one(out["first"], False) + _one(out["second"], False) + compare_table(out)))

@@ -25,9 +25,9 @@ def command(args) -> int:
     given = Path(args.run_dir)
     if given.is_file():
         if not args.robot:
-            raise UserError(f"{given} is a file: give the cell file it was taken with, "
-                            f"adaptive-cal report {given} --robot CELL.yaml, or the run folder, "
-                            f"adaptive-cal report {given.parent}")
+            raise UserError(f"{given} is a file; report wants the run folder, adaptive-cal "
+                            f"report {given.parent}, or, for a bare recording, the cell file it "
+                            f"was taken with: adaptive-cal report {given} --robot CELL.yaml")
         check_recording(str(given))
         check_cell_file(args.robot)
         path = _from_recording(given, Path(args.robot), args.out)
