@@ -48,6 +48,7 @@ def _from_recording(recording, cell_file, out) -> "Path":
 
     import numpy as np
 
+    from adaptive_cal.analysis.flatness_answer import SEED
     from adaptive_cal.cell.build import survey_plan
     from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.cli.common import UserError
@@ -65,7 +66,7 @@ def _from_recording(recording, cell_file, out) -> "Path":
                         "least 4")
     state, _, _ = replay(plan, sv.start(plan), recording)
     stopped = plan.stop(sv.status(plan, state)) or "recording_ended"
-    result = result_of(cell, plan, state, rec, stopped, rng=np.random.default_rng(0))
+    result = result_of(cell, plan, state, rec, stopped, rng=np.random.default_rng(SEED))
     s = plan.model.surface
     belief = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
               "knots_y": s.sy.knots}

@@ -52,9 +52,11 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
         "knots_mm": {"x": surface.sx.knots.tolist(), "y": surface.sy.knots.tolist(),
                      "ends": surface.sx.ends},
     }
-    xyz = touched_heights(plan, recording)
+    xyz = (touched_heights(plan, recording)
+           if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
-                                  xyz if len(xyz[2]) >= 4 else None, rng, SAMPLES))
+                                  xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
+                                  SAMPLES))
     if truth is not None:
         result["truth"] = truth_error(plan, state.belief, truth)
     return finite_json(result)
