@@ -1,9 +1,11 @@
-"""``adaptive-cal flatness``: the paper's figures of a recording with 95 % intervals.
+"""``adaptive-cal flatness``: the flatness of a recording with 95 % intervals.
 
-Values are the figures of the touched points (least-squares plane, eqs. 1-6 of Cheng et al.,
-range, ISO 1101 minimum zone), so they compare with published numbers; the 95 % interval is the
-spread over predicted repeat measurements at the same touches (``analysis.flatness_intervals``).
-``--compare`` gives the probability that a later round's flatness is larger.
+Of the touched points (least-squares plane, eqs. 1-6 of Cheng et al., and the ISO 1101 minimum
+zone), so they compare with published numbers. In a run folder (beside cell.yaml and belief.npz)
+or with ``--robot CELL.yaml`` (the recording replayed to a map) also of the whole plate, from the
+map: ``analysis.flatness_answer``, the same lines and digits as ``run`` and the report. A bare
+recording's interval comes from its own prior (``analysis.flatness_intervals``). ``--compare``
+gives the probability that a later round's flatness is larger.
 """
 from __future__ import annotations
 

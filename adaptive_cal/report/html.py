@@ -2,10 +2,12 @@
 
     html = render(run_dir)        # reads DIR/result.json, recording.csv, cell.yaml, belief.npz
     write(run_dir)                # DIR/report.html
+    render_recording(result, cell, rec, belief, recording, cell_file)   # a replayed recording
 
 The page holds the cell, the touches on the plate, the surface and its uncertainty, the tilt
 correction as a controller takes it (rx, ry in deg; frame_new = frame_nominal * rotx(rx) *
-roty(ry)), the flatness figures with 95 % intervals, and what ``explain`` found when
+roty(ry)), the flatness of the touched points and of the whole plate with 95 % intervals
+(``analysis.flatness_answer``'s words), and what ``explain`` found when
 DIR/explain.json exists (the pieces: ``sections.py``). Figures are embedded as base64 PNG: the
 file can be mailed on its own. Reads files, writes one; no numerical work beyond evaluating the
 saved belief on a grid.

@@ -1,6 +1,8 @@
 """What a run reports: tilt correction, posterior std, flatness with 95 % intervals, truth
 errors on a simulated cell, and the figures. Every figure with an interval is written as
-{"value": v, "ci95": [low, high]} in mm. Randomness (the posterior samples) is passed in.
+{"value": v, "ci95": [low, high], "value_is": ...} in mm; flatness comes from
+``analysis.flatness_answer`` (of the touched points and of the whole plate). Randomness (the
+posterior samples) is passed in.
 """
 from __future__ import annotations
 
