@@ -150,25 +150,20 @@ def _has_touches(rec: Path) -> bool:
     return len(rows) > 1  # the header, then one row per touch
 
 
-def _ci(f: dict) -> str:
-    lo, hi = f["ci95"]
-    return f"{f['value'] * 1e3:.1f} um (95 % {lo * 1e3:.1f} .. {hi * 1e3:.1f})"
-
-
 def _summary(r: dict, out: Path) -> None:
+    from adaptive_cal.analysis.flatness_answer import answer_lines
     from adaptive_cal.report.status import missing
 
     gap = missing(r)
-    t, p, fl = r["tilt"], r["posterior"], r["flatness_mm"]
+    t, p = r["tilt"], r["posterior"]
     lines = [f"INCOMPLETE: {gap}. Not a result: continue with --resume {out}"] if gap else []
     lines += [
         f"stopped: {r['stopped_because']} after {r['touches']} touches ({r['fused']} fused)",
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
         f"tilt correction{' (provisional)' if gap else ''}: rx {t['rx_deg']:+.4f} deg, "
         f"ry {t['ry_deg']:+.4f} deg (a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm, c {t['c']:+.4f} mm)",
-        f"flatness{' (provisional)' if gap else ''}: least squares {_ci(fl['least_squares'])}; "
-        f"minimum zone {_ci(fl['minimum_zone'])}",
     ]
+    lines += answer_lines(r, provisional=bool(gap))
     if "truth" in r:
         tr = r["truth"]
         lines.append(f"true error: RMS {tr['rms_error_mm'] * 1e3:.2f} um, max "
