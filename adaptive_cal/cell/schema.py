@@ -14,6 +14,7 @@ from pydantic import ConfigDict, Field, field_validator, model_validator
 from adaptive_cal import effects as effect_library
 from adaptive_cal.cell.consistency import check_cell
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
+from adaptive_cal.formats.heightmap import beside, check_map
 from adaptive_cal.gaussian.belief import Z95
 from adaptive_cal.hardware.config import Strict
 from adaptive_cal.hardware.hses.config import HsesConfig
@@ -258,6 +259,10 @@ class Simulation(Block):
     noise_std_mm: float = Field(0.002, ge=0, description="probe noise")
     repeatability_mm: float = Field(0.005, ge=0, description="robot z repeatability (1 sigma)")
     xy_repeatability_mm: float = Field(0.01, ge=0, description="robot x/y repeatability (1 sigma)")
+    surface_file: str | None = Field(None, description="true plate from a height map (DESIGN.md; "
+                                     "relative to the cell file); effects add on top")
+    outlier_rate: float = Field(0.0, ge=0, lt=0.5, description="share of readings replaced by a gross error")
+    outlier_mm: float = Field(0.1, ge=0, description="standard deviation of that gross error")
 
     @field_validator("effects")
     @classmethod
@@ -316,6 +321,8 @@ class Cell(Block):
     @model_validator(mode="after")
     def _consistent(self):
         check_cell(self)
+        if self.simulation is not None and self.simulation.surface_file is not None:
+            check_map(self.simulation.surface_file, self.workplane, "simulation.surface_file")
         return self
 
     @property
@@ -328,6 +335,14 @@ def parse_cell(data: dict, source: str = "cell") -> Cell:
     return validate(Cell, data, source)
 
 
+def resolve_files(data: dict, path: str | Path) -> dict:
+    """``data`` read from ``path`` with simulation.surface_file relative to the file's folder."""
+    sim = data.get("simulation") if isinstance(data, dict) else None
+    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str):
+        data = {**data, "simulation": {**sim, "surface_file": beside(sim["surface_file"], path)}}
+    return data
+
+
 def load_cell(path: str | Path) -> Cell:
     """Read and validate a cell file."""
-    return parse_cell(load_yaml(path), str(path))
+    return parse_cell(resolve_files(load_yaml(path), path), str(path))
