@@ -261,7 +261,8 @@ class Simulation(Block):
     xy_repeatability_mm: float = Field(0.01, ge=0, description="robot x/y repeatability (1 sigma)")
     surface_file: str | None = Field(None, description="true plate from a height map (DESIGN.md; "
                                      "relative to the cell file); effects add on top")
-    outlier_rate: float = Field(0.0, ge=0, lt=0.5, description="share of readings replaced by a gross error")
+    outlier_rate: float = Field(0.0, ge=0, lt=0.5, description="share of readings replaced by a "
+                                "gross error, 0 to below 0.5")
     outlier_mm: float = Field(0.1, ge=0, description="standard deviation of that gross error")
 
     @field_validator("effects")
