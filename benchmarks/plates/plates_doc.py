@@ -18,11 +18,13 @@ that imports numpy, scipy and yaml only, nothing from `adaptive_cal`; a study
 (`configs/study-plates.yaml`, `plate.surface_files`) runs the product's own loop on them.
 
 Regenerate this page, its table and figures with one command (about 3 min with `--quick`;
-drop `--quick` for 20 plates per family):
+without it, 20 plates per family: 17 min on the 2-core development machine under load):
 
 ```text
-nice -n 10 python benchmarks/bench_plates.py --quick --doc
+nice -n 10 python benchmarks/bench_plates.py --doc
 ```
+
+(`--from-json benchmarks/results/plates-DATE.json` redraws the page from an earlier run.)
 
 Setup: the simulated reference cell's workplane (450 x 370 mm), no keep-out; 5 um Gaussian
 reading noise, the probe's noise span stated as 3-8 um (`probe.noise_range_mm`); stop at 4 um
@@ -33,7 +35,9 @@ budget 200. Strategies: `adaptive` (the loop on the simulated cell, through the 
 plate centre at `robot.speed_mm_per_s` (150 mm/s) plus `touch_time_s` (3 s) per touch.
 coverage95: share of the evaluation grid where |true - posterior mean| <= 1.96 posterior std.
 "Touches to target": the first point of the trajectory with true RMS error <= 5 um; a plate that
-never gets there within the budget counts 200 (reached: how many got there).
+never gets there within the budget counts 200 (reached: how many got there). "mix": the ratio
+of the means over the families, so the families with the most touches (rough) weigh most; the
+grid's robot time is that of the serpentine grid it stopped at (each grid size is its own run).
 
 ## The families and their physics
 
