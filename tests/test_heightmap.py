@@ -6,7 +6,8 @@ import pytest
 import yaml
 
 from adaptive_cal.cell.schema import ConfigError, load_cell, load_yaml
-from adaptive_cal.formats.heightmap import HEADER, HeightMapError, load_heightmap, parse_heightmap, write_heightmap
+from adaptive_cal.formats.heightmap import (HEADER, HeightMapError, load_heightmap, parse_heightmap,
+                                            write_heightmap)
 from adaptive_cal.simulation.cell import SimulatedCell
 from adaptive_cal.study.config import load_study
 from adaptive_cal.study.plates import heights_at, plate_cell, sample_plate, truth
@@ -154,7 +155,8 @@ def _study(tmp_path, files):
 
 def test_study_plates_are_the_maps_in_turn_with_noise_drawn_as_before(tmp_path):
     study, base = load_study(_study(tmp_path, 2))
-    plain = study.model_copy(update={"plate": study.plate.model_copy(update={"surface_files": None})})
+    no_maps = study.plate.model_copy(update={"surface_files": None})
+    plain = study.model_copy(update={"plate": no_maps})
     for i in range(3):
         p, q = sample_plate(study, i), sample_plate(plain, i)
         assert p.surface_file.endswith(f"p{i % 2}.csv") and p.effects == {}
