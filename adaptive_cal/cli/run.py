@@ -118,9 +118,26 @@ def _correction(args):
 
 
 def _copy_cell(out: Path, cell_path: Path) -> None:
-    """Copy the cell file into --out (the run folder keeps the cell it was run with)."""
-    if cell_path.resolve() != (out / "cell.yaml").resolve():
-        shutil.copyfile(cell_path, out / "cell.yaml")
+    """Copy the cell file into --out (the run folder keeps the cell it was run with). A height
+    map named relative to the cell file (simulation.surface_file) is written as an absolute path
+    in the copy, so --resume and report find it from the run folder."""
+    if cell_path.resolve() == (out / "cell.yaml").resolve():
+        return
+    import yaml
+
+    from adaptive_cal.cell.files import load_yaml
+    from adaptive_cal.formats.heightmap import beside
+
+    data = load_yaml(cell_path)
+    sim = data.get("simulation") if isinstance(data, dict) else None
+    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str):
+        data["simulation"] = {**sim, "surface_file": str(Path(beside(sim["surface_file"],
+                                                                      cell_path)).resolve())}
+        text = (f"# copied from {cell_path} by adaptive-cal run; simulation.surface_file made "
+                "absolute\n" + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
+        (out / "cell.yaml").write_text(text, encoding="utf-8")
+        return
+    shutil.copyfile(cell_path, out / "cell.yaml")
 
 
 def _undo_if_empty(out: Path, created: tuple[list[Path], set[str]]) -> bool:
