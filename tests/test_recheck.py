@@ -232,3 +232,16 @@ def test_cli_correction_needs_prior_from_and_proposed_needs_a_result(tmp_path, c
     err = capsys.readouterr().err
     assert rc != 0 and "result.json" in err and "--correction-applied" in err
     assert not (tmp_path / "x").exists()
+
+
+def test_a_contradicted_recheck_does_not_advise_resume():
+    """--resume would repeat the same contradiction: the summary and the page say what to do."""
+    from adaptive_cal.report.status import missing, next_step
+
+    r = {"stopped_because": "prior_disagrees_with_readings", "touches": 7, "bound": {},
+         "posterior": {"mean_std_mm": 0.003, "max_std_mm": 0.009}}
+    assert "contradict" in missing(r)
+    advice = next_step(r, "adaptive-cal run --resume runs/x")
+    assert "--resume" not in advice and "--correction-applied" in advice
+    r["stopped_because"] = "interrupted"
+    assert next_step(r, "adaptive-cal run --resume runs/x") == "Continue with adaptive-cal run --resume runs/x"

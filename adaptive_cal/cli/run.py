@@ -169,11 +169,12 @@ def _has_touches(rec: Path) -> bool:
 
 def _summary(r: dict, out: Path) -> None:
     from adaptive_cal.analysis.flatness_answer import answer_lines
-    from adaptive_cal.report.status import missing
+    from adaptive_cal.report.status import missing, next_step
 
     gap = missing(r)
     t, p = r["tilt"], r["posterior"]
-    lines = [f"INCOMPLETE: {gap}. Not a result: continue with --resume {out}"] if gap else []
+    then = next_step(r, f"adaptive-cal run --resume {out}")
+    lines = [f"INCOMPLETE: {gap}. Not a result. {then}"] if gap else []
     lines += [
         f"stopped: {r['stopped_because']} after {r['touches']} touches ({r['fused']} fused)",
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",

@@ -14,7 +14,7 @@ import numpy as np
 from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, PLATE, SPREAD,
                                                    touched_what, value_text)
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.report.status import missing
+from adaptive_cal.report.status import missing, next_step
 
 UM = 1000.0
 EXPLAIN_FIGURES = ("residual_map.png", "residual_vs_position.png", "residual_vs_time.png",
@@ -96,8 +96,7 @@ def incomplete_banner(result: dict, resume: str | None) -> str:
     gap = missing(result)
     if gap is None:
         return ""
-    then = (f"Continue the run with <code>{escape(resume)}</code>, then write this report again."
-            if resume else "Take more touches until the bound is met, then write this report again.")
+    then = f"{escape(next_step(result, resume))}, then write this report again."
     return (f"<p class='incomplete'><b>INCOMPLETE: {escape(gap)}.</b> This map is not a result: "
             "the tilt correction and the flatness below are provisional; do not correct the frame "
             f"from them. {then}</p>")
