@@ -102,4 +102,6 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
         gate_sigma=cell.model.gate_sigma, learn=cell.model.learn_hyper,
         hyper_after=plan.hyper_after, hyper_every=plan.hyper_every, criterion=criterion(cell),
         refine=plan.refine, batch=plan.batch,
-        stop=stop_rule(cell, model.surface.size, informed_prior=informed_prior))
+        stop=stop_rule(cell, model.surface.size, informed_prior=informed_prior),
+        noise_range_mm=(tuple(cell.probe.noise_range_mm)
+                        if cell.probe.noise_range_mm is not None else None))

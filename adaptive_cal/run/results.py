@@ -61,12 +61,24 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
         "knots_mm": {"x": surface.sx.knots.tolist(), "y": surface.sy.knots.tolist(),
                      "ends": surface.sx.ends},
     }
+    result["model"] = model_block(state, status)
     result.update(plate_estimates(plan, state.belief, rng))
     if truth is not None:
         result["truth"] = truth_error(plan, state.belief, truth)
     write_json(out / "result.json", result)  # atomic; NaN / inf as null
     write_figures(cell, plan, state, out, history or [status], true_rms_mm)
     return finite_json(result)
+
+
+def model_block(state: sv.SurveyState, status) -> dict:
+    """result.json's "model": whether the spline's self-checks pass, each check, the RMS of the
+    structure finer than the spline (mm, included in the posterior stds) and where the map
+    should not be trusted (``planning.adequacy``)."""
+    if state.adequacy is None:
+        return {"adequate": status.adequate, "checks": {}, "unresolved_rms_mm": 0.0,
+                "where": [], "summary": "not checked (too few fused readings, or nothing "
+                "learned)" if not status.adequate else "not checked (nothing learned)"}
+    return state.adequacy.as_dict()
 
 
 def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path, history,
@@ -76,7 +88,7 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     from adaptive_cal.report import figures as plots
 
     wp = cell.workplane
-    gx, gy, mean, std = sv.grid(plan, state.belief)
+    gx, gy, mean, std = sv.grid(plan, state.belief, state=state)
     keep = [(k.x_mm, k.y_mm) for k in wp.keep_outs]
     touched = np.array(state.touched_xy_mm, float).reshape(-1, 2)  # numbered as in the recording
     fig = plots.surface_figure(gx, gy, mean, std, touched, wp.x_mm, wp.y_mm,
