@@ -67,7 +67,7 @@ def plate(family: str, seed: int, x_mm=(-225, 225), y_mm=(-185, 185)):
     return height
 
 
-def run_plate(family, seed, *, max_touches=150, noise_mm=0.005):
+def run_plate(family, seed, *, max_touches=150, noise_mm=0.005, grow=False):
     """The library's ask/tell (planning.shell.Survey) on one plate to its own stop: touches,
     claimed RMS std, true RMS error, coverage95 of the true plate, adequacy summary."""
     from adaptive_cal.cell.build import survey_plan
@@ -77,7 +77,7 @@ def run_plate(family, seed, *, max_touches=150, noise_mm=0.005):
 
     cell = sim_cell(probe={"noise_range_mm": [0.003, 0.008]},
                     plan={"stop": {"mean_std_mm": 0.004, "max_touches": max_touches}})
-    plan = survey_plan(cell)
+    plan = survey_plan(cell, grow=True) if grow else survey_plan(cell)
     truth = plate(family, seed)
     rng = np.random.default_rng(seed)
     survey = Survey(plan)
@@ -211,7 +211,7 @@ def test_checks_flag_a_rough_plate_and_say_where():
     rule = MeanStdBelow(1.0) | TouchBudget(500)
     assert rule(st) is None
     assert rule(Status(st.touches, st.mean_std_mm, st.max_std_mm, True)) == "mean_std_bound"
-    assert (MeanStdBelow(1.0) | TouchBudget(1))(st) == "touch_budget"
+    assert (MeanStdBelow(1.0) | TouchBudget(st.touches))(st) == "touch_budget"
 
 
 def test_status_of_an_adequate_model_is_the_spline_variance():
@@ -225,6 +225,69 @@ def test_status_of_an_adequate_model_is_the_spline_variance():
     assert not st.adequate  # a survey that learns is not adequate before its first check
 
 
+# ---------------------------------------------------------------- the model grows
+def _grown_plan():
+    from adaptive_cal.cell.build import survey_plan
+    from helpers import sim_cell
+
+    return survey_plan(sim_cell(probe={"noise_range_mm": [0.003, 0.008]}), grow=True)
+
+
+def test_a_grown_model_before_it_grows_is_the_coarse_model():
+    """Refined knots with the form on the coarse knots: rows map exactly (h_fine E = h_coarse)
+    and the posterior mean and variance at any point equal the coarse model's."""
+    plan, coarse = _grown_plan(), _plan()
+    m = plan.model
+    assert m.surface.size > coarse.coefficients == m.coarse.size
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(-180, 180, (30, 2))
+    hf = m.surface.basis(xy[:, 0], xy[:, 1])
+    hc = coarse.model.surface.basis(xy[:, 0], xy[:, 1])
+    assert np.allclose(hf @ m.embed, hc, atol=1e-12)
+    hyper = m.hyper0
+    y = rng.normal(0, 0.01, 30)
+    pf = bl.condition(m.belief(hyper), hf, y, 0.005**2)
+    pc = bl.condition(coarse.model.belief(hyper), hc, y, 0.005**2)
+    q = rng.uniform(-200, 200, (50, 2))
+    mf, vf = bl.predict(pf, m.surface.basis(q[:, 0], q[:, 1]))
+    mc, vc = bl.predict(pc, coarse.model.surface.basis(q[:, 0], q[:, 1]))
+    # equal up to the prior's jitter (1e-10 mm^2 on each of K coefficients): 0.1 nm
+    assert np.allclose(mf, mc, atol=2e-7) and np.allclose(vf, vc, rtol=1e-3, atol=2e-10)
+
+
+def test_growth_rebuilds_the_batch_posterior_on_the_grown_basis_where_the_plate_is_rough():
+    """A plate rough on its right third: the coarse check fails there, the prior grows there
+    (and only a little elsewhere), the belief equals the batch posterior of every fused reading
+    under the grown prior (per hyper-parameter point, mixed), the regions' std rises where it
+    is rough, and the next touch goes there."""
+    from dataclasses import replace
+
+    from adaptive_cal.gaussian.prior import learned_belief
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.planning.ask import ask
+
+    plan = _grown_plan()
+    rough = matern32_grid(np.random.default_rng(5), (-225, 225), (-185, 185), 0.02, 60.0)
+    rng = np.random.default_rng(6)
+
+    def heights(rows, xy):
+        return 0.001 * xy[:, 0] + np.where(xy[:, 0] > 75, rough(xy[:, 0], xy[:, 1]), 0.0)
+    rows, y = _readings(plan, heights, 90, rng)
+    state = sv.refit(plan, replace(sv.start(plan), rows=rows, heights_mm=y))
+    assert state.grown_mm2 is not None
+    assert state.grown_mm2[2].mean() > 4 * state.grown_mm2[0].mean()
+    extra = sv.extra_cov(plan, state)
+    belief, points = learned_belief(plan.model, rows, y, start=state.hyper, extra=extra)
+    assert [h for h, _ in points][0] == pytest.approx(state.hyper, rel=1e-3)
+    # batch posterior under the grown prior at the state's hyper-parameter points
+    batch = bl.mixture([bl.condition(plan.model.belief(h, extra), rows, y, h.noise_std_mm**2)
+                        for h, _ in state.hyper_points], [w for _, w in state.hyper_points])
+    assert np.allclose(state.belief.mean, batch.mean, atol=1e-9)
+    assert np.allclose(state.belief.cov, batch.cov, atol=1e-12)
+    t = ask(plan, state, 1)[0]
+    assert t.x_mm > 75 - 1e-9
+
+
 # ---------------------------------------------------------------- the quick check
 def main(argv):
     plates = int(argv[argv.index("--plates") + 1]) if "--plates" in argv else 8
@@ -232,7 +295,7 @@ def main(argv):
         ["smooth", "rough", "ripple", "edge"]
     print("family   touches  claimed_um  true_um  coverage95 (mean, min)")
     for family in families:
-        runs = [run_plate(family, s) for s in range(plates)]
+        runs = [run_plate(family, s, grow="--grow" in argv) for s in range(plates)]
         cov = [r["coverage95"] for r in runs]
         print(f"{family:8s} {np.mean([r['touches'] for r in runs]):7.1f} "
               f"{np.mean([r['claimed_mm'] for r in runs]) * 1e3:11.2f} "

@@ -111,17 +111,20 @@ def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
 
 
 def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
-           regions: tuple[int, int] = (3, 3)) -> Adequacy:
-    """Checks of the readings (heights y at basis ``rows``) against the Gaussian ``prior``
-    belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the probe's stated
-    span [lo, hi] or None; ``regions``: the grid the plate is split into."""
+           regions: tuple[int, int] = (3, 3), form_surface=None) -> Adequacy:
+    """Checks of the readings (heights y at basis ``rows`` of ``surface``) against the Gaussian
+    ``prior`` belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the
+    probe's stated span [lo, hi] or None; ``regions``: the grid the plate is split into;
+    ``form_surface``: the spline the form can follow (default ``surface``)."""
+    form_surface = form_surface or surface
     n = len(readings)
     noise_std_mm = hyper.noise_std_mm
     r = noise_std_mm**2
     r_p = min(noise_std_mm, noise_range_mm[1]) ** 2 if noise_range_mm is not None else r
     ex = np.linspace(*plate_mm[0], regions[0] + 1)
     ey = np.linspace(*plate_mm[1], regions[1] + 1)
-    spacing = float(max(np.diff(surface.sx.knots).max(), np.diff(surface.sy.knots).max()))
+    spacing = float(max(np.diff(form_surface.sx.knots).max(),
+                        np.diff(form_surface.sy.knots).max()))
     nreg = regions[0] * regions[1]
     a_glob, a_reg = ALPHA / 6, ALPHA / 2 / nreg  # innovations, noise, loo: ALPHA/6 each
     z = checks.standardized_innovations(rows, readings, prior.mean, prior.cov, r)
@@ -130,7 +133,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     e2 = loo.residual_mm**2
     xy = positions_mm(surface, rows)
     form = (hyper.form_std_mm, hyper.length_scale_mm)
-    form_pts, form_var = checks.unresolved_form_var(surface, *form, xy[:, 0], xy[:, 1])
+    form_pts, form_var = checks.unresolved_form_var(form_surface, *form, xy[:, 0], xy[:, 1])
     excess = e2 - q - r_p - form_pts  # beyond the probe noise and the form's finer part
     stdz = e2 / (q + r_p)
     ms_z = float(np.mean(z**2))
@@ -175,4 +178,4 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
         var[thin] = max(0.0, float(excess.mean()))  # too few readings: the plate's mean
         if not global_fail:
             var[~flagged & ~thin] = 0.0
-    return Adequacy(adequate, result, var, ex, ey, spacing, counts, surface, form, form_var)
+    return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var)

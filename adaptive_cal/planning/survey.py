@@ -59,6 +59,7 @@ class SurveyState:
     fitted_at: int = 0
     prior: bl.Belief | None = None
     adequacy: Adequacy | None = None
+    grown_mm2: np.ndarray | None = None
 
     @property
     def fused(self) -> int:
@@ -108,14 +109,17 @@ def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:
     return state.adequacy.unresolved_var_mm2(xy[:, 0], xy[:, 1])
 
 
-def check(plan: SurveyPlan, state: SurveyState) -> Adequacy | None:
+def check(plan: SurveyPlan, state: SurveyState, *, coarse: bool = False) -> Adequacy | None:
     """The model's self-checks on every fused reading (``planning.adequacy.assess``) under the
-    current hyper-parameters, or None with fewer than 3 readings."""
+    current hyper-parameters (``coarse``: against the model before it grew), or None with
+    fewer than 3 readings."""
     if state.fused < 3:
         return None
-    prior = state.prior if state.prior is not None else plan.model.belief(state.hyper)
+    extra = None if coarse else extra_cov(plan, state)
+    prior = state.prior if state.prior is not None else plan.model.belief(state.hyper, extra)
+    form = plan.model.form_surface if extra is None else plan.model.surface
     return assess(plan.model.surface, plan.plate_mm, state.rows, state.heights_mm, prior,
-                  state.hyper, plan.noise_range_mm, plan.adequacy_regions)
+                  state.hyper, plan.noise_range_mm, plan.adequacy_regions, form_surface=form)
 
 
 def stop_reason(plan: SurveyPlan, state: SurveyState) -> str | None:
@@ -171,14 +175,43 @@ def learns(plan: SurveyPlan, state: SurveyState) -> bool:
     return plan.learn and state.prior is None
 
 
+def extra_cov(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
+    """D U D: the grown model's prior covariance of structure finer than the coarse knots,
+    U = ``plan.growth`` (unit amplitude on the fine knots), D = diag(amplitude of the region
+    of each coefficient); None before the model grew."""
+    if plan.growth is None or state.grown_mm2 is None or not state.grown_mm2.any():
+        return None
+    gx, gy = plan.model.surface.knot_grid()
+    (x0, x1), (y0, y1) = plan.plate_mm
+    rx, ry = plan.adequacy_regions
+    i = np.clip(((gx - x0) / (x1 - x0) * rx).astype(int), 0, rx - 1)
+    j = np.clip(((gy - y0) / (y1 - y0) * ry).astype(int), 0, ry - 1)
+    d = np.sqrt(state.grown_mm2[i, j])
+    return d[:, None] * plan.growth * d[None, :]
+
+
 def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     """Re-fit the hyper-parameters to every fused reading and rebuild the belief: the
     posterior under each weighted hyper-parameter point, moment-matched (so the belief
-    carries the hyper-parameter uncertainty); the MAP's noise serves later fusions. The
-    self-checks run on the refitted model (``check``)."""
-    belief, points = learned_belief(plan.model, state.rows, state.heights_mm, start=state.hyper)
-    state = replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
-                    fitted_at=state.fused)
+    carries the hyper-parameter uncertainty); the MAP's noise serves later fusions. Then the
+    self-checks (``check``). A plan that can grow (``plan.growth``) checks the coarse model
+    first: where it is inadequate, the prior takes the unresolved variance found there as
+    finer structure on the refined knots, and the belief is rebuilt from the fused readings
+    (exact: the batch posterior under the grown prior); where it is adequate, that is 0."""
+    def fitted(state):
+        belief, points = learned_belief(plan.model, state.rows, state.heights_mm,
+                                        start=state.hyper, extra=extra_cov(plan, state))
+        return replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
+                       fitted_at=state.fused)
+
+    state = fitted(state)
+    if plan.growth is not None and state.prior is None and state.fused >= 3:
+        coarse = check(plan, state, coarse=True)
+        grown = np.zeros(plan.adequacy_regions) if coarse.adequate else \
+            coarse.region_var_mm2 + coarse.form_var_mm2
+        old = state.grown_mm2 if state.grown_mm2 is not None else np.zeros_like(grown)
+        if not np.allclose(grown, old):
+            state = fitted(replace(state, grown_mm2=grown))
     return replace(state, adequacy=check(plan, state))
 
 
