@@ -14,7 +14,11 @@ import pytest
 
 import adaptive_cal
 from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.gaussian import checks
+
+try:
+    from adaptive_cal.gaussian import checks
+except ImportError:  # the quick check, run against main (before the checks existed)
+    checks = None
 
 adaptive_cal.use_float64()
 

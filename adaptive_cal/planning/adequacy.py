@@ -84,10 +84,12 @@ class Adequacy:
 
     def summary(self) -> str:
         """One line: adequate, or why not and where the map should not be trusted."""
-        if self.adequate:
+        if self.adequate and self.unresolved_rms_mm == 0:
             return "model adequate: the readings agree with the spline and the probe's noise"
         failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
-        parts = [f"model inadequate ({failed}): structure finer than "
+        head = f"model inadequate ({failed})" if not self.adequate else \
+            "model adequate, bands widened"
+        parts = [f"{head}: structure finer than "
                  f"{self.knot_spacing_mm:.0f} mm, about {self.unresolved_rms_mm * 1e3:.1f} um "
                  "RMS unresolved"]
         for w in self.where()[:3]:
@@ -111,16 +113,23 @@ def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
 
 
 def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
-           regions: tuple[int, int] = (3, 3), form_surface=None) -> Adequacy:
+           regions: tuple[int, int] = (3, 3), form_surface=None, suspect: bool = False
+           ) -> Adequacy:
     """Checks of the readings (heights y at basis ``rows`` of ``surface``) against the Gaussian
     ``prior`` belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the
     probe's stated span [lo, hi] or None; ``regions``: the grid the plate is split into;
-    ``form_surface``: the spline the form can follow (default ``surface``)."""
+    ``form_surface``: the spline the form can follow (default ``surface``); ``suspect``: the
+    plate is known to have structure finer than the coarse knots (a grown model): then the
+    learned noise beyond the span's centre sqrt(lo hi) counts as unresolved structure, not as
+    probe noise (the readings alone cannot split the two)."""
     form_surface = form_surface or surface
     n = len(readings)
     noise_std_mm = hyper.noise_std_mm
     r = noise_std_mm**2
     r_p = min(noise_std_mm, noise_range_mm[1]) ** 2 if noise_range_mm is not None else r
+    r_mag = r_p  # the probe noise the unresolved variance is measured beyond
+    if suspect and noise_range_mm is not None:
+        r_mag = min(r_p, noise_range_mm[0] * noise_range_mm[1])
     ex = np.linspace(*plate_mm[0], regions[0] + 1)
     ey = np.linspace(*plate_mm[1], regions[1] + 1)
     spacing = float(max(np.diff(form_surface.sx.knots).max(),
@@ -134,7 +143,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     xy = positions_mm(surface, rows)
     form = (hyper.form_std_mm, hyper.length_scale_mm)
     form_pts, form_var = checks.unresolved_form_var(form_surface, *form, xy[:, 0], xy[:, 1])
-    excess = e2 - q - r_p - form_pts  # beyond the probe noise and the form's finer part
+    excess = e2 - q - r_mag - form_pts  # beyond the probe noise and the form's finer part
     stdz = e2 / (q + r_p)
     ms_z = float(np.mean(z**2))
     result = {
@@ -171,7 +180,9 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     adequate = all(c["passed"] for c in result.values())
     global_fail = not all(result[k]["passed"] for k in result if k not in ("regions",
                                                                            "resolution"))
-    if all(result[k]["passed"] for k in result if k != "resolution"):
+    if suspect:
+        var = np.where(counts >= MIN_READINGS, var, max(0.0, float(excess.mean())))
+    elif all(result[k]["passed"] for k in result if k != "resolution"):
         var[:] = 0.0
     else:
         thin = counts < MIN_READINGS

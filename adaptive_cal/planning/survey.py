@@ -119,7 +119,8 @@ def check(plan: SurveyPlan, state: SurveyState, *, coarse: bool = False) -> Adeq
     prior = state.prior if state.prior is not None else plan.model.belief(state.hyper, extra)
     form = plan.model.form_surface if extra is None else plan.model.surface
     return assess(plan.model.surface, plan.plate_mm, state.rows, state.heights_mm, prior,
-                  state.hyper, plan.noise_range_mm, plan.adequacy_regions, form_surface=form)
+                  state.hyper, plan.noise_range_mm, plan.adequacy_regions, form_surface=form,
+                  suspect=extra is not None)
 
 
 def stop_reason(plan: SurveyPlan, state: SurveyState) -> str | None:
