@@ -32,6 +32,7 @@ from adaptive_cal.gaussian import checks
 
 ALPHA = 0.01  # false-alarm level of the whole check on an adequate model (split below)
 MIN_READINGS = 3  # a region is tested with at least this many readings
+NEGLIGIBLE_MM = 0.5e-3  # unresolved RMS below this is not reported (still in the stds)
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,7 +76,7 @@ class Adequacy:
         """The regions with unresolved structure, largest first."""
         out = []
         total = self.region_var_mm2 + self.form_var_mm2
-        for i, j in zip(*np.nonzero(total > 0)):
+        for i, j in zip(*np.nonzero(total >= NEGLIGIBLE_MM**2)):
             out.append({"x_mm": [float(self.edges_x_mm[i]), float(self.edges_x_mm[i + 1])],
                         "y_mm": [float(self.edges_y_mm[j]), float(self.edges_y_mm[j + 1])],
                         "unresolved_rms_mm": float(np.sqrt(total[i, j])),
@@ -84,7 +85,7 @@ class Adequacy:
 
     def summary(self) -> str:
         """One line: adequate, or why not and where the map should not be trusted."""
-        if self.adequate and self.unresolved_rms_mm == 0:
+        if self.adequate and self.unresolved_rms_mm < NEGLIGIBLE_MM:
             return "model adequate: the readings agree with the spline and the probe's noise"
         failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
         head = f"model inadequate ({failed})" if not self.adequate else \
