@@ -8,7 +8,8 @@ plate, which the map's bands must carry. Checks (each at a stated level; ALPHA i
 
 1. ``innovations``: the mean square of the standardized innovations (gaussian.checks) below
    its chi2(n) / n upper bound;
-2. ``noise_span``: sigma_n <= hi (skipped without a span);
+2. ``noise_span``: sigma_n <= hi (1 + z / sqrt(2 n)), its sampling error allowed (skipped
+   without a span);
 3. ``loo``: closed-form leave-one-out residuals e_i standardized by the surface's LOO variance
    q_i plus r_p: their mean square below the chi2 bound;
 4. ``regions``: the same per region of a grid over the plate (Bonferroni over the regions),
@@ -27,6 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import norm
 
 from adaptive_cal.gaussian import checks
 
@@ -154,8 +156,11 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
                 "is": "mean square of standardized leave-one-out residuals"},
     }
     if noise_range_mm is not None:
-        result["noise_span"] = {"value": noise_std_mm, "bound": float(noise_range_mm[1]),
-                                "is": "learned noise std (mm) against the probe's stated high"}
+        # sigma_n from n readings has a relative std of about 1 / sqrt(2 n)
+        slack = 1.0 + float(norm.isf(a_glob)) / np.sqrt(2.0 * n)
+        result["noise_span"] = {"value": noise_std_mm, "bound": float(noise_range_mm[1]) * slack,
+                                "is": "learned noise std (mm) against the probe's stated high, "
+                                      "with its sampling error"}
     i = np.clip(np.searchsorted(ex, xy[:, 0], side="right") - 1, 0, regions[0] - 1)
     j = np.clip(np.searchsorted(ey, xy[:, 1], side="right") - 1, 0, regions[1] - 1)
     counts = np.zeros(regions, int)
