@@ -10,7 +10,7 @@ from adaptive_cal.cell.build import survey_plan
 from adaptive_cal.cell.schema import load_yaml, parse_cell
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.run.devices import open_cell
-from adaptive_cal.run.truth import truth_error
+from adaptive_cal.run.truth import state_truth_error
 
 from helpers import SIM_CELL, drive
 
@@ -39,7 +39,7 @@ def _run_to_bound(cells):
         plan = survey_plan(cell)
         state = drive(plan, opened)
         assert sv.stop_reason(plan, state) == "mean_std_bound", i
-        coverage.append(truth_error(plan, state.belief, opened.simulated.surface_mm)["coverage95"])
+        coverage.append(state_truth_error(plan, state, opened.simulated.surface_mm)["coverage95"])
         touches.append(state.touches)
     return coverage, touches
 

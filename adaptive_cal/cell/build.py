@@ -4,16 +4,19 @@ module reads a ``Cell``.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.gaussian.prior import Hyper, PriorModel
-from adaptive_cal.gaussian.spline import Surface, default_knots
+from adaptive_cal.gaussian.spline import Surface, default_knots, embedding, refined
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.scoring import candidate_grid
 from adaptive_cal.planning.stopping import AtLeast, MaxStdBelow, MeanStdBelow, StopRule, TouchBudget
 
 EVAL_POINTS = 41  # the evaluation grid over the plate is EVAL_POINTS x EVAL_POINTS
+GROW_CAP = 160  # a model grows (knots refined once) only up to this many coefficients
 
 
 def knots_for(cell: Cell) -> tuple[np.ndarray, np.ndarray]:
@@ -45,6 +48,33 @@ def prior_model(cell: Cell) -> PriorModel:
         log_std = log_std[:2] + (noise_log_std,)
     return PriorModel(surface, float(np.tan(np.radians(m.tilt_std_deg))), m.offset_std_mm,
                       (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)), hyper0, log_std)
+
+
+def grown_model(model: PriorModel, cap: int = GROW_CAP
+                ) -> tuple[PriorModel, np.ndarray] | tuple[None, None]:
+    """The model on refined knots (every interval halved) whose form stays on the coarse knots
+    (exactly the same prior and posterior until it grows), and the unit covariance of the finer
+    structure on the refined knots: squared-exponential at the refined spacing. (None, None)
+    when the refined spline would have more than ``cap`` coefficients."""
+    s = model.surface
+    fine = Surface.create(refined(s.sx.knots), refined(s.sy.knots), ends=s.sx.ends)
+    if fine.size > cap:
+        return None, None
+    length = float(max(np.diff(fine.sx.knots).max(), np.diff(fine.sy.knots).max()))
+    gx, gy = fine.knot_grid()
+    d2 = (gx[:, None] - gx[None, :]) ** 2 + (gy[:, None] - gy[None, :]) ** 2
+    unit = np.exp(-0.5 * d2 / length**2)
+    return replace(model, surface=fine, embed=embedding(s, fine), coarse=s), unit
+
+
+def plan_model(cell: Cell) -> PriorModel:
+    """The model a survey of ``cell`` plans with (its belief.npz has these knots): the prior
+    model, on the refined knots of ``grown_model`` when ``model.grow`` (and within the cap)."""
+    model = prior_model(cell)
+    if cell.model.grow:
+        big, _ = grown_model(model)
+        return big or model
+    return model
 
 
 def stop_rule(cell: Cell, coefficients: int, *, informed_prior: bool = False) -> StopRule:
@@ -81,11 +111,21 @@ def criterion(cell: Cell) -> str:
 
 
 def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel | None = None,
-                eval_points: int = EVAL_POINTS) -> SurveyPlan:
+                eval_points: int = EVAL_POINTS, grow: bool | None = None) -> SurveyPlan:
     """Everything the planner reads from the cell file, read once. ``informed_prior``: the
     survey starts from an earlier run's belief (``--prior-from``): no touch floor in the stop
-    rule (learning is off for such a survey anyway, see ``planning.survey.learns``)."""
+    rule (learning is off for such a survey anyway, see ``planning.survey.learns``).
+    ``grow``: a model that grows where its self-checks find structure finer than the knots
+    (``grown_model``; planning runs on the refined knots from the start; default
+    ``model.grow``). A survey from an earlier belief plans on the same knots but does not grow."""
+    grow = cell.model.grow if grow is None else grow
     model = model or prior_model(cell)
+    coarse_size = model.surface.size
+    growth = None
+    if grow and model.coarse is None:
+        big, unit = grown_model(model)
+        model = big or model
+        growth = unit if big is not None and not informed_prior else None
     wp, m = cell.workplane, cell.workplane.edge_margin_mm
     inner = ((wp.x_mm[0] + m, wp.x_mm[1] - m), (wp.y_mm[0] + m, wp.y_mm[1] - m))
     cand = candidate_grid(model.surface, wp.allows, *inner, cell.plan.candidates)
@@ -102,4 +142,6 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
         gate_sigma=cell.model.gate_sigma, learn=cell.model.learn_hyper,
         hyper_after=plan.hyper_after, hyper_every=plan.hyper_every, criterion=criterion(cell),
         refine=plan.refine, batch=plan.batch,
-        stop=stop_rule(cell, model.surface.size, informed_prior=informed_prior))
+        stop=stop_rule(cell, coarse_size, informed_prior=informed_prior), growth=growth,
+        noise_range_mm=(tuple(cell.probe.noise_range_mm)
+                        if cell.probe.noise_range_mm is not None else None))

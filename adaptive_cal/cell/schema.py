@@ -204,6 +204,10 @@ class Model(Block):
     max_curvature_per_mm: float = Field(5e-5, gt=0, description="k_max of Brunn eq. 15")
     learn_hyper: bool = Field(True, description="refit form amplitude, length scale and noise")
     gate_sigma: float = Field(4.0, gt=0, description="Mahalanobis gate; a failing reading is retaken")
+    grow: bool = Field(True, description="plan on knots refined once (every interval halved, up "
+                       "to 160 coefficients) whose finer structure the prior takes where the "
+                       "self-checks find the plate rougher than the knots (the same posterior "
+                       "until then); false: the knots as given")
 
     @field_validator("knots_x", "knots_y")
     @classmethod

@@ -7,6 +7,11 @@ Prior: a = a_tilt + a_form, independent Gaussians.
   plane exactly, so the tilt is inside the model.
 * form:  a_form ~ N(0, sigma_f^2 K_x kron K_y), K(u, v) = exp(-(u - v)^2 / (2 l^2)) at the knots.
 
+Grown models (``embed``): the spline lives on refined knots and the form on the coarse ones,
+a_form = E a_coarse, E = ``spline.embedding`` (exact), plus an extra covariance given by the
+caller (structure finer than the coarse knots, per region, ``planning.survey``); with zero extra
+the posterior equals the coarse model's.
+
 Hyper-parameters theta = (sigma_f, l, sigma_n) are fitted by maximising the log marginal
 likelihood of the readings, log N(y; H m0, H C0(theta) H^T + sigma_n^2 I), plus a weak
 log-normal hyper-prior around the configured values (MAP-II), with JAX gradients.
@@ -46,6 +51,16 @@ class PriorModel:
     centre_mm: tuple[float, float]
     hyper0: Hyper  # configured values: start of the fit and centre of the hyper-prior
     hyper_log_std: tuple[float, float, float] = (1.0, 0.7, 1.0)
+    embed: np.ndarray | None = None  # E (K x K_coarse): the form lives on coarser knots
+    coarse: Surface | None = None  # the coarse spline E maps from
+
+    @property
+    def form_surface(self) -> Surface:
+        """The spline whose knots carry the form (the coarse one of a grown model)."""
+        return self.coarse if self.coarse is not None else self.surface
+
+    def _embed(self) -> np.ndarray:
+        return self.embed if self.embed is not None else np.eye(self.surface.size)
 
     @property
     def tilt_basis(self) -> np.ndarray:
@@ -59,14 +74,17 @@ class PriorModel:
         return (p * var) @ p.T
 
     def form_cov(self, form_std_mm, length_scale_mm, xp=np):
-        s = self.surface
-        return _form_cov(s.sx.knots[: s.sx.size], s.sy.knots[: s.sy.size], form_std_mm,
-                         length_scale_mm, xp)
+        s = self.form_surface
+        c = _form_cov(s.sx.knots[: s.sx.size], s.sy.knots[: s.sy.size], form_std_mm,
+                      length_scale_mm, xp)
+        return c if self.embed is None else self.embed @ c @ self.embed.T
 
-    def belief(self, hyper: Hyper) -> Belief:
-        """The prior belief N(0, C_tilt + C_form(theta))."""
+    def belief(self, hyper: Hyper, extra: np.ndarray | None = None) -> Belief:
+        """The prior belief N(0, C_tilt + C_form(theta) + extra)."""
         k = self.surface.size
         cov = self.tilt_cov() + self.form_cov(hyper.form_std_mm, hyper.length_scale_mm)
+        if extra is not None:
+            cov = cov + extra
         return Belief(np.zeros(k), cov + JITTER_MM2 * np.eye(k))
 
 
@@ -111,12 +129,13 @@ def log_marginal(model: PriorModel, hyper: Hyper, rows: np.ndarray, readings: np
                               model.belief(hyper).cov, hyper.noise_std_mm**2))
 
 
-def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, mu, sd,
-                  weights=1.0):
+def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, mu, sd, embed,
+                  extra, weights=1.0):
     """-(log N(y; 0, H C0(theta) H^T + sigma_n^2 W^-1) + log hyper-prior); padded rows masked.
+    C0 = C_tilt + E C_form E^T + extra (E = I and extra = 0 unless the model grew).
     ``weights`` w_i in (0, 1]: a reading judged an outlier with probability p has w = 1 - p."""
     sf, ls, sn = jnp.exp(log_theta)
-    cov = tilt_cov + _form_cov(knots_x, knots_y, sf, ls, jnp) \
+    cov = tilt_cov + embed @ _form_cov(knots_x, knots_y, sf, ls, jnp) @ embed.T + extra \
         + JITTER_MM2 * jnp.eye(tilt_cov.shape[0])
     loglik = log_evidence(rows, readings, cov, sn**2 / weights, mask, jnp)
     logprior = -0.5 * jnp.sum(((log_theta - mu) / sd) ** 2)
@@ -127,11 +146,13 @@ def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, m
 _value_and_grad = jax.jit(jax.value_and_grad(_neg_log_post))
 
 
-def _model_args(model: PriorModel) -> tuple:
-    s = model.surface
+def _model_args(model: PriorModel, extra=None) -> tuple:
+    s = model.form_surface
+    k = model.surface.size
     return (jnp.asarray(model.tilt_cov()), jnp.asarray(s.sx.knots[: s.sx.size]),
             jnp.asarray(s.sy.knots[: s.sy.size]), jnp.log(jnp.asarray(model.hyper0)),
-            jnp.asarray(model.hyper_log_std))
+            jnp.asarray(model.hyper_log_std), jnp.asarray(model._embed()),
+            jnp.asarray(extra if extra is not None else np.zeros((k, k))))
 
 
 def _padded(rows, readings):
@@ -156,14 +177,14 @@ def _padded_weights(size: int, weights=None):
 
 
 def fit_hyper(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
-              start: Hyper | None = None) -> Hyper:
+              start: Hyper | None = None, extra: np.ndarray | None = None) -> Hyper:
     """MAP-II hyper-parameters from the readings (L-BFGS-B on log theta, JAX gradients)."""
-    return hyper_posterior(model, rows, readings, start, points=False)[0][0]
+    return hyper_posterior(model, rows, readings, start, points=False, extra=extra)[0][0]
 
 
 def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
-                    start: Hyper | None = None, *, points: bool = True, weights=None
-                    ) -> list[tuple[Hyper, float]]:
+                    start: Hyper | None = None, *, points: bool = True, weights=None,
+                    extra: np.ndarray | None = None) -> list[tuple[Hyper, float]]:
     """Hyper-parameters with weights: the MAP, and with ``points`` also 2 x 3 sigma points of
     the Laplace approximation in log theta (at +-2 sd along each principal axis, unscented
     weights with kappa = 1, corrected by the true posterior density). Conditioning on each and
@@ -172,7 +193,7 @@ def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     if not jax.config.jax_enable_x64:
         raise RuntimeError("fit_hyper needs float64: call adaptive_cal.use_float64() first")
     padded = _padded(rows, readings)
-    args = padded + _model_args(model) + (_padded_weights(padded[2].shape[0], weights),)
+    args = padded + _model_args(model, extra) + (_padded_weights(padded[2].shape[0], weights),)
 
     def fun(x):
         v, g = _value_and_grad(jnp.asarray(x), *args)
@@ -212,7 +233,7 @@ def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
 
 
 def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
-                   start: Hyper | None = None, weights=None
+                   start: Hyper | None = None, weights=None, extra: np.ndarray | None = None
                    ) -> tuple[Belief, list[tuple[Hyper, float]]]:
     """The belief with learned hyper-parameters: the posterior of the readings under each
     weighted point of ``hyper_posterior``, moment-matched into one Gaussian,
@@ -221,9 +242,10 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
 
     so the belief carries the hyper-parameter uncertainty. Returns it and the points (the MAP
     first: its noise serves the fusions until the next refit). ``weights`` w_i: reading i's
-    noise variance is sigma_n^2 / w_i in the fit and the posterior (robust: outliers out)."""
+    noise variance is sigma_n^2 / w_i in the fit and the posterior (robust: outliers out).
+    ``extra``: a fixed covariance added to the prior (a grown model's finer structure)."""
     w = np.ones(len(readings)) if weights is None else np.asarray(weights, float)
-    points = hyper_posterior(model, rows, readings, start=start, weights=w)
-    belief = mixture([condition(model.belief(h), rows, readings, h.noise_std_mm**2 / w)
+    points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra)
+    belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)
                       for h, _ in points], [wt for _, wt in points])
     return belief, points

@@ -186,3 +186,19 @@ def default_knots(lo_mm: float, hi_mm: float, tolerance_mm: float, max_curvature
     spacing = np.sqrt(6.0 * tolerance_mm / max_curvature_per_mm)
     n = int(np.clip(np.ceil((hi_mm - lo_mm) / spacing) + 1, minimum, maximum))
     return np.linspace(lo_mm, hi_mm, n)
+
+
+def refined(knots: np.ndarray) -> np.ndarray:
+    """The knots with the midpoint of every interval inserted (nested: a cubic spline on the
+    old knots is one on the new knots)."""
+    knots = np.asarray(knots, float)
+    mid = 0.5 * (knots[:-1] + knots[1:])
+    return np.sort(np.concatenate([knots, mid]))
+
+
+def embedding(coarse: Surface, fine: Surface) -> np.ndarray:
+    """E (K_fine x K_coarse): the fine spline's knot values of every coarse spline, exact when
+    the fine knots contain the coarse ones (a spline is parameterised by its knot values), so
+    basis_fine(x, y) E = basis_coarse(x, y)."""
+    gx, gy = fine.knot_grid()
+    return coarse.basis(gx, gy)

@@ -54,6 +54,13 @@ class SurveyPlan:
     refine: int
     batch: int
     stop: StopRule
+    # self-checks (planning.adequacy): the probe's stated noise span [lo, hi] (mm) or None, and
+    # the grid of regions the plate is split into to say where the model is inadequate
+    noise_range_mm: Interval | None = None
+    adequacy_regions: tuple[int, int] = (3, 3)
+    # a model that grows: the unit covariance (K x K) of structure finer than the coarse knots
+    # on the refined knots of ``model`` (whose form lives on ``model.coarse``), or None
+    growth: np.ndarray | None = None
 
     @property
     def coefficients(self) -> int:

@@ -1,4 +1,7 @@
-"""Stopping rules: each returns the reason to stop or None; compose with | (any) and & (all)."""
+"""Stopping rules: each returns the reason to stop or None; compose with | (any) and & (all).
+
+A variance bound never stops a survey whose model is known to be inadequate
+(``Status.adequate`` False, see ``planning.adequacy``): only the touch budget stops it then."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,6 +13,8 @@ class Status:
     touches: int
     mean_std_mm: float  # RMS posterior std over the plate: sqrt(trace(Q C) / area)
     max_std_mm: float  # largest posterior std on the evaluation grid
+    adequate: bool = True  # the model's self-checks pass (or have nothing to check)
+    unresolved_rms_mm: float = 0.0  # structure finer than the spline, included in the stds
 
 
 class StopRule:
@@ -33,7 +38,7 @@ class MeanStdBelow(StopRule):
     name = "mean_std_bound"
 
     def __call__(self, status):
-        return self.name if status.mean_std_mm <= self.bound_mm else None
+        return self.name if status.adequate and status.mean_std_mm <= self.bound_mm else None
 
 
 @dataclass(frozen=True)
@@ -42,7 +47,7 @@ class MaxStdBelow(StopRule):
     name = "max_std_bound"
 
     def __call__(self, status):
-        return self.name if status.max_std_mm <= self.bound_mm else None
+        return self.name if status.adequate and status.max_std_mm <= self.bound_mm else None
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ import numpy as np
 from adaptive_cal.formats.recording import surface_height_mm
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, learned_belief
+from adaptive_cal.planning.adequacy import Adequacy, assess
 from adaptive_cal.planning.gate import Retake, Told, flagged_p, judge as gate_judge, pending_after
 from adaptive_cal.planning.robust import InvalidReading, check_touch, predictive  # noqa: F401
 from adaptive_cal.planning.plan import SurveyPlan
@@ -61,6 +62,8 @@ class SurveyState:
     fitted_at: int = 0
     prior: bl.Belief | None = None
     weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    adequacy: Adequacy | None = None
+    grown_mm2: np.ndarray | None = None
 
     @property
     def fused(self) -> int:
@@ -88,11 +91,41 @@ def start(plan: SurveyPlan, *, prior: bl.Belief | None = None,
 
 
 def status(plan: SurveyPlan, state: SurveyState) -> Status:
-    """Touches, RMS posterior std sqrt(trace(Q C) / area) and the largest std on the grid."""
+    """Touches, RMS std sqrt(trace(Q C) / area + mean s_u^2) and the largest std on the grid
+    (mm), of the TRUE plate: the spline's posterior variance plus the unresolved-structure
+    variance s_u^2 the self-checks found; ``adequate``: the checks pass (a survey that learns
+    is not adequate before its first check)."""
     c = state.belief.cov
     var = np.einsum("nk,nk->n", plan.eval_rows @ c, plan.eval_rows)
-    return Status(state.touches, float(bl.rms_std(c, plan.gram, plan.model.surface.area_mm2)),
-                  float(np.sqrt(max(var.max(), 0.0))))
+    j_area = float(bl.integrated_variance(c, plan.gram)) / plan.model.surface.area_mm2
+    u = unresolved_var_mm2(plan, state, plan.eval_xy)
+    adequate = state.adequacy.adequate if state.adequacy is not None else not learns(plan, state)
+    return Status(state.touches, float(np.sqrt(max(j_area, 0.0) + u.mean())),
+                  float(np.sqrt(max((var + u).max(), 0.0))), adequate,
+                  float(np.sqrt(u.mean())))
+
+
+def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:
+    """s_u^2 (mm^2) at points ``xy`` (N, 2): variance of the plate the spline cannot represent
+    (0 while the self-checks pass). Add it to the spline's variance for bands of the plate."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    if state.adequacy is None:
+        return np.zeros(len(xy))
+    return state.adequacy.unresolved_var_mm2(xy[:, 0], xy[:, 1])
+
+
+def check(plan: SurveyPlan, state: SurveyState, *, coarse: bool = False) -> Adequacy | None:
+    """The model's self-checks on every fused reading (``planning.adequacy.assess``) under the
+    current hyper-parameters (``coarse``: against the model before it grew), or None with
+    fewer than 3 readings."""
+    if state.fused < 3:
+        return None
+    extra = None if coarse else extra_cov(plan, state)
+    prior = state.prior if state.prior is not None else plan.model.belief(state.hyper, extra)
+    form = plan.model.form_surface if extra is None else plan.model.surface
+    return assess(plan.model.surface, plan.plate_mm, state.rows, state.heights_mm, prior,
+                  state.hyper, plan.noise_range_mm, plan.adequacy_regions, form_surface=form,
+                  suspect=extra is not None)
 
 
 def stop_reason(plan: SurveyPlan, state: SurveyState) -> str | None:
@@ -161,14 +194,45 @@ def learns(plan: SurveyPlan, state: SurveyState) -> bool:
     return plan.learn and state.prior is None
 
 
+def extra_cov(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
+    """D U D: the grown model's prior covariance of structure finer than the coarse knots,
+    U = ``plan.growth`` (unit amplitude on the fine knots), D = diag(amplitude of the region
+    of each coefficient); None before the model grew."""
+    if plan.growth is None or state.grown_mm2 is None or not state.grown_mm2.any():
+        return None
+    gx, gy = plan.model.surface.knot_grid()
+    (x0, x1), (y0, y1) = plan.plate_mm
+    rx, ry = plan.adequacy_regions
+    i = np.clip(((gx - x0) / (x1 - x0) * rx).astype(int), 0, rx - 1)
+    j = np.clip(((gy - y0) / (y1 - y0) * ry).astype(int), 0, ry - 1)
+    d = np.sqrt(state.grown_mm2[i, j])
+    return d[:, None] * plan.growth * d[None, :]
+
+
 def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     """Re-fit the hyper-parameters to every fused reading and rebuild the belief: the
     posterior under each weighted hyper-parameter point, moment-matched (so the belief
-    carries the hyper-parameter uncertainty); the MAP's noise serves later fusions."""
-    belief, points = learned_belief(plan.model, state.rows, state.heights_mm, start=state.hyper,
-                                    weights=state.weights)
-    return replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
-                   fitted_at=state.fused)
+    carries the hyper-parameter uncertainty); the MAP's noise serves later fusions. Then the
+    self-checks (``check``). A plan that can grow (``plan.growth``) checks the coarse model
+    first: where it is inadequate, the prior takes the unresolved variance found there as
+    finer structure on the refined knots, and the belief is rebuilt from the fused readings
+    (exact: the batch posterior under the grown prior); where it is adequate, that is 0."""
+    def fitted(state):
+        belief, points = learned_belief(plan.model, state.rows, state.heights_mm,
+                                        start=state.hyper, weights=state.weights,
+                                        extra=extra_cov(plan, state))
+        return replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
+                       fitted_at=state.fused)
+
+    state = fitted(state)
+    if plan.growth is not None and state.prior is None and state.fused >= 3:
+        coarse = check(plan, state, coarse=True)
+        grown = np.zeros(plan.adequacy_regions) if coarse.adequate else \
+            coarse.region_var_mm2 + coarse.form_var_mm2
+        old = state.grown_mm2 if state.grown_mm2 is not None else np.zeros_like(grown)
+        if not np.allclose(grown, old):
+            state = fitted(replace(state, grown_mm2=grown))
+    return replace(state, adequacy=check(plan, state))
 
 
 def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
@@ -196,11 +260,14 @@ def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
                    touched_xy_mm=tuple(zip(rec.x_mm.tolist(), rec.y_mm.tolist())))
 
 
-def grid(plan: SurveyPlan, belief: bl.Belief, n: int = 61):
-    """(gx, gy, mean, std): posterior mean and std (mm) on an n x n grid over the whole plate."""
+def grid(plan: SurveyPlan, belief: bl.Belief, n: int = 61, state: SurveyState | None = None):
+    """(gx, gy, mean, std): posterior mean and std (mm) on an n x n grid over the whole plate;
+    with ``state`` the std includes its unresolved-structure variance (bands of the plate)."""
     (x0, x1), (y0, y1) = plan.plate_mm
     gx, gy = np.linspace(x0, x1, n), np.linspace(y0, y1, n)
     xx, yy = np.meshgrid(gx, gy, indexing="ij")
     rows = plan.model.surface.basis(xx.ravel(), yy.ravel())
     mean, var = bl.predict(belief, rows)
+    if state is not None:
+        var = var + unresolved_var_mm2(plan, state, np.stack([xx.ravel(), yy.ravel()], 1))
     return gx, gy, mean.reshape(n, n), np.sqrt(var).reshape(n, n)

@@ -87,7 +87,23 @@ def run_section(result: dict) -> str:
         t = result["truth"]
         rows.append(("simulated cell: true error", f"RMS {_um(t['rms_error_mm'])}, max "
                      f"{_um(t['max_error_mm'])}; the 95 % band covers {t['coverage95']:.0%} of the plate"))
-    return "<h2>The run</h2>" + _table(rows, cls="kv")
+    return "<h2>The run</h2>" + _table(rows, cls="kv") + model_section(result)
+
+
+def model_section(result: dict) -> str:
+    """Whether the spline's self-checks passed, and where the map should not be trusted."""
+    m = result.get("model")
+    if not m:
+        return ""
+    rows = [("verdict", escape(m.get("summary", "")))]
+    rows += [(escape(k), f"{'passed' if c['passed'] else 'FAILED'}: {c['value']:.3g} "
+              f"(bound {c['bound']:.3g}; {escape(c.get('is', ''))})")
+             for k, c in m.get("checks", {}).items()]
+    rows += [(f"x {w['x_mm'][0]:.0f}..{w['x_mm'][1]:.0f} mm, y {w['y_mm'][0]:.0f}.."
+              f"{w['y_mm'][1]:.0f} mm", f"about {_um(w['unresolved_rms_mm'])} RMS unresolved "
+              f"({w['readings']} readings): do not trust the map here to better than this")
+             for w in m.get("where", [])]
+    return "<h3>Is the model adequate?</h3>" + _table(rows, cls="kv")
 
 
 def incomplete_banner(result: dict, resume: str | None) -> str:

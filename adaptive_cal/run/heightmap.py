@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptive_cal.cell.build import prior_model
+from adaptive_cal.cell.build import plan_model
 from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.spline import Surface
@@ -89,6 +89,6 @@ def load_map(run_dir: str | Path) -> HeightMap:
     if any(tilt.get(k) is None for k in "abc"):
         raise ValueError(f"{run_dir / 'result.json'}: no tilt a, b, c (is it a finished run?)")
     wp = cell.workplane
-    return HeightMap(prior_model(cell).surface, belief,
+    return HeightMap(plan_model(cell).surface, belief,
                      (float(tilt["a"]), float(tilt["b"]), float(tilt["c"])),
                      (tuple(wp.x_mm), tuple(wp.y_mm)), missing(result), cell.name)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptive_cal.cell.build import prior_model
+from adaptive_cal.cell.build import plan_model
 from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
@@ -19,7 +19,7 @@ from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.run.folder import finite_json, replace_atomically, write_json
-from adaptive_cal.run.truth import truth_error
+from adaptive_cal.run.truth import state_truth_error
 
 
 def plate_estimates(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generator,
@@ -56,13 +56,14 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
         "knots_mm": {"x": surface.sx.knots.tolist(), "y": surface.sy.knots.tolist(),
                      "ends": surface.sx.ends},
     }
+    result["model"] = model_block(state, status)
     xyz = (touched_heights(plan, recording)
            if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
                                   xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
                                   SAMPLES))
     if truth is not None:
-        result["truth"] = truth_error(plan, state.belief, truth)
+        result["truth"] = state_truth_error(plan, state, truth)
     return finite_json(result)
 
 
@@ -83,6 +84,17 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     return finite_json(result)
 
 
+def model_block(state: sv.SurveyState, status) -> dict:
+    """result.json's "model": whether the spline's self-checks pass, each check, the RMS of the
+    structure finer than the spline (mm, included in the posterior stds) and where the map
+    should not be trusted (``planning.adequacy``)."""
+    if state.adequacy is None:
+        return {"adequate": status.adequate, "checks": {}, "unresolved_rms_mm": 0.0,
+                "where": [], "summary": "not checked (too few fused readings, or nothing "
+                "learned)" if not status.adequate else "not checked (nothing learned)"}
+    return state.adequacy.as_dict()
+
+
 def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path, history,
                   true_rms_mm=None) -> None:
     """surface.png (mean and std maps, touches numbered by seq) and convergence.png (std against
@@ -90,7 +102,7 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     from adaptive_cal.report import figures as plots
 
     wp = cell.workplane
-    gx, gy, mean, std = sv.grid(plan, state.belief)
+    gx, gy, mean, std = sv.grid(plan, state.belief, state=state)
     keep = [(k.x_mm, k.y_mm) for k in wp.keep_outs]
     touched = np.array(state.touched_xy_mm, float).reshape(-1, 2)  # numbered as in the recording
     fig = plots.surface_figure(gx, gy, mean, std, touched, wp.x_mm, wp.y_mm,
@@ -120,13 +132,13 @@ def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> None:
 
 def read_belief(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
     """The belief ``save_belief`` wrote into RUN_DIR/belief.npz, as saved (not widened), and its
-    hyper-parameters; its knots must be the ones ``cell`` gives (``prior_model(cell).surface``
+    hyper-parameters; its knots must be the ones ``cell`` gives (``plan_model(cell).surface``
     then evaluates it)."""
     path = Path(run_dir) / "belief.npz"
     if not path.exists():
         raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
     data = np.load(path)
-    surface = prior_model(cell).surface
+    surface = plan_model(cell).surface
     if (len(data["knots_x"]) != len(surface.sx.knots) or len(data["knots_y"]) != len(surface.sy.knots)
             or not np.allclose(data["knots_x"], surface.sx.knots)
             or not np.allclose(data["knots_y"], surface.sy.knots)):

@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from adaptive_cal.cell.build import prior_model, survey_plan
+from adaptive_cal.cell.build import plan_model, survey_plan
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.effects.frame import plane_in_corrected_frame
 from adaptive_cal.formats.recording import RecordingWriter, read_recording, repair_cut_row
@@ -135,7 +135,7 @@ def load_prior(run_dir: Path, cell: Cell, correction: str | tuple[float, float] 
     touches. Returns the belief, the hyper-parameters and the ``applied_correction`` record."""
     earlier, hyper = read_belief(run_dir, cell)
     info = applied_correction(run_dir, correction)
-    model = prior_model(cell)
+    model = plan_model(cell)
     if info["assumed"] != "none":
         earlier = corrected_belief(model, earlier, info["correction_deg"]["rx"],
                                    info["correction_deg"]["ry"])

@@ -27,7 +27,7 @@ from adaptive_cal.planning.route import path_length_mm
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, run_loop
-from adaptive_cal.run.truth import truth_error
+from adaptive_cal.run.truth import state_truth_error
 from adaptive_cal.study.config import Study
 from adaptive_cal.study.designs import (Evaluator, grid_points, grid_sizes, learned_belief, level_tilt_mm,
                       paper_points, random_points)
@@ -98,7 +98,7 @@ class _PastTheStop:
                       "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"]}
 
     def __call__(self, state: sv.SurveyState, status: Status) -> str | None:
-        err = truth_error(self.plan, state.belief, self.truth)
+        err = state_truth_error(self.plan, state, self.truth)
         self.trajectory.append([state.touches, status.mean_std_mm, err["rms_error_mm"]])
         why = self.plan.stop(status)
         if self.stop is None and why:
@@ -123,7 +123,7 @@ def run_planner(ctx: Context, *, learn: bool, target_true: float) -> dict:
         opened.close()
     if watch.stop is None:  # budget spent, or no admissible point: the last state is the stop
         status = sv.status(plan, state)
-        err = truth_error(plan, state.belief, watch.truth)
+        err = state_truth_error(plan, state, watch.truth)
         watch.note(state, status, plan.stop(status) or NO_ADMISSIBLE_POINT, err)
     return record(ctx, "adaptive" if learn else "greedy_fixed", watch.trajectory, watch.stop,
                   watch.final, state.touched_xy_mm, watch.reason, target_true,

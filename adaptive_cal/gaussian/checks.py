@@ -1,0 +1,114 @@
+"""Self-checks of a Gaussian linear model y = H a + v, a ~ N(m0, C0), v ~ N(0, r I): is what was
+read consistent with it? Exact and closed form (Cholesky of the n x n prior predictive
+covariance S = H C0 H^T + r I; never Monte Carlo).
+
+* standardized innovations: z = L^-1 (y - H m0), L L^T = S. z_i is the residual of reading i
+  against the posterior of readings 1..i-1, divided by its predictive std (the Cholesky factor
+  is the sequential filter); under the model z ~ N(0, I), so sum z_i^2 ~ chi2(n).
+* leave-one-out predictive residuals: with alpha = S^-1 (y - H m0),
+
+      e_i = y_i - E[y_i | y_-i] = alpha_i / [S^-1]_ii,   Var(e_i) = 1 / [S^-1]_ii,
+
+  so all n leave-one-out predictions cost one Cholesky (Rasmussen & Williams eq. 5.12).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve, solve_triangular
+from scipy.stats import chi2
+
+
+class LeaveOneOut(NamedTuple):
+    """Residuals y_i - E[y_i | every other reading] (mm) and their predictive variances (mm^2),
+    which include the reading noise r."""
+
+    residual_mm: np.ndarray
+    variance_mm2: np.ndarray
+
+
+def _predictive(rows, readings, prior_mean, prior_cov, noise_var):
+    rows = np.atleast_2d(np.asarray(rows, float))
+    r = np.broadcast_to(np.asarray(noise_var, float), (rows.shape[0],))
+    s = rows @ prior_cov @ rows.T + np.diag(r)
+    return s, np.asarray(readings, float) - rows @ np.asarray(prior_mean, float)
+
+
+def standardized_innovations(rows, readings, prior_mean, prior_cov, noise_var) -> np.ndarray:
+    """z = L^-1 (y - H m0): the readings' innovations in reading order, each divided by its
+    predictive std; N(0, I) under the model."""
+    s, d = _predictive(rows, readings, prior_mean, prior_cov, noise_var)
+    if len(d) == 0:
+        return d
+    lower = np.linalg.cholesky(s)
+    return solve_triangular(lower, d, lower=True)
+
+
+def leave_one_out(rows, readings, prior_mean, prior_cov, noise_var) -> LeaveOneOut:
+    """Closed-form leave-one-out residuals e_i = [S^-1 d]_i / [S^-1]_ii and variances
+    1 / [S^-1]_ii, d = y - H m0."""
+    s, d = _predictive(rows, readings, prior_mean, prior_cov, noise_var)
+    if len(d) == 0:
+        return LeaveOneOut(d, d)
+    factor = cho_factor(s, lower=True)
+    s_inv = cho_solve(factor, np.eye(len(d)))
+    diag = np.diag(s_inv)
+    return LeaveOneOut(s_inv @ d / diag, 1.0 / diag)
+
+
+def mean_square_interval(n: int, alpha: float) -> tuple[float, float]:
+    """Two-sided (1 - alpha) interval of the mean of n squared N(0, 1): chi2(n) / n."""
+    return (float(chi2.ppf(0.5 * alpha, n) / n), float(chi2.isf(0.5 * alpha, n) / n))
+
+
+def mean_square_upper(n: int, alpha: float) -> float:
+    """One-sided (1 - alpha) upper bound of the mean of n squared N(0, 1)."""
+    return float(chi2.isf(alpha, n) / n)
+
+
+class Projection(NamedTuple):
+    """Per axis: a(t) = m(t)^T G^-1 b(t), c(t) = m(t)^T G^-1 B G^-1 m(t) at points t, and
+    tr(G^-1 B) / L (see ``unresolved_form_var``)."""
+
+    a: np.ndarray
+    c: np.ndarray
+    mean: float
+
+
+def _axis_projection(spline, t, length_mm: float, nodes: int = 12) -> Projection:
+    g_nodes, g_weights = np.polynomial.legendre.leggauss(nodes)
+    lo, hi = spline.knots[:-1, None], spline.knots[1:, None]
+    q = (0.5 * (hi - lo) * g_nodes + 0.5 * (hi + lo)).ravel()
+    w = (0.5 * (hi - lo) * g_weights).ravel()
+    m = spline.basis(q)  # (nq, K)
+    gram = spline.gram()
+    kqq = np.exp(-0.5 * ((q[:, None] - q[None, :]) / length_mm) ** 2)
+    mw = m * w[:, None]
+    big_b = mw.T @ kqq @ mw  # integral integral m(s) k(s, u) m(u)^T
+    t = np.asarray(t, float)
+    b_t = mw.T @ np.exp(-0.5 * ((q[:, None] - t[None, :]) / length_mm) ** 2)  # (K, nt)
+    m_t = spline.basis(t)  # (nt, K)
+    g_inv_m = np.linalg.solve(gram, m_t.T)  # (K, nt)
+    a = np.einsum("kn,kn->n", g_inv_m, b_t)
+    c = np.einsum("kn,kn->n", g_inv_m, big_b @ g_inv_m)
+    return Projection(a, c, float(np.trace(np.linalg.solve(gram, big_b)) / spline.period))
+
+
+def unresolved_form_var(surface, form_std_mm: float, length_scale_mm: float, x_mm, y_mm
+                        ) -> tuple[np.ndarray, float]:
+    """Variance of the part of a form f ~ GP(0, s^2 exp(-|p - q|^2 / (2 l^2))) that the spline
+    cannot represent: f - P f, P the L2 projection onto the spline on its knots,
+
+        Var(f(p) - Pf(p)) = s^2 (1 - 2 a_x(x) a_y(y) + c_x(x) c_y(y)),
+        mean over the plate = s^2 (1 - tr(Gx^-1 Bx) tr(Gy^-1 By) / (Lx Ly)),
+
+    with G = integral m m^T, B = integral integral m(s) k(s, u) m(u)^T, b(t) = integral
+    m(s) k(s, t): the kernel and the basis are tensor products, so every term is a product of
+    1-D integrals (Gauss-Legendre, 12 nodes per knot interval). Returns the variance at the
+    points (mm^2) and its mean over the plate (mm^2). Small when l is long against the knot
+    spacing; near s^2 when l is shorter than it."""
+    px = _axis_projection(surface.sx, x_mm, length_scale_mm)
+    py = _axis_projection(surface.sy, y_mm, length_scale_mm)
+    var = form_std_mm**2 * (1 - 2 * px.a * py.a + px.c * py.c)
+    return np.maximum(var, 0.0), max(0.0, form_std_mm**2 * (1 - px.mean * py.mean))

@@ -1,0 +1,198 @@
+"""Is the spline adequate for the plate it maps? Self-checks on the fused readings, and the
+variance of the structure the spline cannot represent (finer than its knot spacing).
+
+The learned reading noise sigma_n is a nugget: probe noise plus whatever the bicubic spline on
+its knots cannot follow. With the probe's stated noise span [lo, hi] (``probe.noise_range_mm``)
+the probe's share is r_p = min(sigma_n, hi)^2; the rest is unresolved structure of the TRUE
+plate, which the map's bands must carry. Checks (each at a stated level; ALPHA in all):
+
+1. ``innovations``: the mean square of the standardized innovations (gaussian.checks) below
+   its chi2(n) / n upper bound;
+2. ``noise_span``: sigma_n <= hi (1 + z / sqrt(2 n)), its sampling error allowed (skipped
+   without a span);
+3. ``loo``: closed-form leave-one-out residuals e_i standardized by the surface's LOO variance
+   q_i plus r_p: their mean square below the chi2 bound;
+4. ``regions``: the same per region of a grid over the plate (Bonferroni over the regions),
+   which says *where*;
+5. ``resolution``: the learned form (amplitude s_f, length scale l) has a part finer than the
+   knots, f - P f (P: L2 projection onto the spline), whose variance is exact and closed form
+   (``gaussian.checks.unresolved_form_var``); its RMS must stay below half the probe noise.
+
+Unresolved variance at a point: the projection variance of the learned form there, plus the
+region's s_k^2 = max(0, mean_k(e_i^2 - q_i - r_p)) (unbiased for an extra white term), kept
+only where a check 1-4 fails (else 0): the bands and the stop statistic add it
+(``planning.survey.status``), and the stop never fires while a check fails.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import norm
+
+from adaptive_cal.gaussian import checks
+
+ALPHA = 0.01  # false-alarm level of the whole check on an adequate model (split below)
+MIN_READINGS = 3  # a region is tested with at least this many readings
+NEGLIGIBLE_MM = 0.5e-3  # unresolved RMS below this is not reported (still in the stds)
+
+
+@dataclass(frozen=True, eq=False)
+class Adequacy:
+    """The verdict: ``adequate``; ``checks`` (name -> dict with passed, value, bound);
+    ``region_var_mm2`` (rx, ry) unresolved variance per region between ``edges_x_mm`` and
+    ``edges_y_mm``; ``knot_spacing_mm``: the finest scale the spline resolves."""
+
+    adequate: bool
+    checks: dict
+    region_var_mm2: np.ndarray
+    edges_x_mm: np.ndarray
+    edges_y_mm: np.ndarray
+    knot_spacing_mm: float
+    readings: np.ndarray  # (rx, ry) fused readings per region
+    surface: object = None  # the spline, for the learned form's projection variance
+    form: tuple[float, float] = (0.0, 1.0)  # learned (s_f mm, l mm)
+    form_var_mm2: float = 0.0  # its plate mean
+
+    def unresolved_var_mm2(self, x_mm, y_mm) -> np.ndarray:
+        """s_u^2 (mm^2) at points (x, y): the projection variance of the learned form there
+        plus the region's variance."""
+        x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
+        return self._region_var(x_mm, y_mm) + (
+            checks.unresolved_form_var(self.surface, *self.form, x_mm, y_mm)[0]
+            if self.form_var_mm2 > 0 else 0.0)
+
+    def _region_var(self, x_mm, y_mm) -> np.ndarray:
+        i = np.clip(np.searchsorted(self.edges_x_mm, x_mm, side="right") - 1, 0,
+                    len(self.edges_x_mm) - 2)
+        j = np.clip(np.searchsorted(self.edges_y_mm, y_mm, side="right") - 1, 0,
+                    len(self.edges_y_mm) - 2)
+        return self.region_var_mm2[i, j]
+
+    @property
+    def unresolved_rms_mm(self) -> float:
+        """sqrt of the area-mean unresolved variance (regions are equal)."""
+        return float(np.sqrt(self.region_var_mm2.mean() + self.form_var_mm2))
+
+    def where(self) -> list[dict]:
+        """The regions with unresolved structure, largest first."""
+        out = []
+        total = self.region_var_mm2 + self.form_var_mm2
+        for i, j in zip(*np.nonzero(total >= NEGLIGIBLE_MM**2)):
+            out.append({"x_mm": [float(self.edges_x_mm[i]), float(self.edges_x_mm[i + 1])],
+                        "y_mm": [float(self.edges_y_mm[j]), float(self.edges_y_mm[j + 1])],
+                        "unresolved_rms_mm": float(np.sqrt(total[i, j])),
+                        "readings": int(self.readings[i, j])})
+        return sorted(out, key=lambda w: -w["unresolved_rms_mm"])
+
+    def summary(self) -> str:
+        """One line: adequate, or why not and where the map should not be trusted."""
+        if self.adequate and self.unresolved_rms_mm < NEGLIGIBLE_MM:
+            return "model adequate: the readings agree with the spline and the probe's noise"
+        failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
+        head = f"model inadequate ({failed})" if not self.adequate else \
+            "model adequate, bands widened"
+        parts = [f"{head}: structure finer than "
+                 f"{self.knot_spacing_mm:.0f} mm, about {self.unresolved_rms_mm * 1e3:.1f} um "
+                 "RMS unresolved"]
+        for w in self.where()[:3]:
+            parts.append(f"x {w['x_mm'][0]:.0f}..{w['x_mm'][1]:.0f} mm, y {w['y_mm'][0]:.0f}.."
+                         f"{w['y_mm'][1]:.0f} mm: {w['unresolved_rms_mm'] * 1e3:.1f} um")
+        return "; ".join(parts)
+
+    def as_dict(self) -> dict:
+        return {"adequate": self.adequate, "checks": self.checks,
+                "unresolved_rms_mm": self.unresolved_rms_mm, "where": self.where(),
+                "finer_than_mm": self.knot_spacing_mm, "summary": self.summary()}
+
+
+def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
+    """(x, y) of readings from their basis rows: a row is m_x(x) kron m_y(y) and a spline
+    reproduces constants and straight lines (sum m = 1, m . knots = t), so x = m_x . knots_x.
+    Exact for natural and not-a-knot ends."""
+    r = rows.reshape(len(rows), surface.sx.size, surface.sy.size)
+    mx, my = r.sum(axis=2), r.sum(axis=1)
+    return np.stack([mx @ surface.sx.knots, my @ surface.sy.knots], 1)
+
+
+def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
+           regions: tuple[int, int] = (3, 3), form_surface=None, suspect: bool = False
+           ) -> Adequacy:
+    """Checks of the readings (heights y at basis ``rows`` of ``surface``) against the Gaussian
+    ``prior`` belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the
+    probe's stated span [lo, hi] or None; ``regions``: the grid the plate is split into;
+    ``form_surface``: the spline the form can follow (default ``surface``); ``suspect``: the
+    plate is known to have structure finer than the coarse knots (a grown model): then the
+    learned noise beyond the span's centre sqrt(lo hi) counts as unresolved structure, not as
+    probe noise (the readings alone cannot split the two)."""
+    form_surface = form_surface or surface
+    n = len(readings)
+    noise_std_mm = hyper.noise_std_mm
+    r = noise_std_mm**2
+    r_p = min(noise_std_mm, noise_range_mm[1]) ** 2 if noise_range_mm is not None else r
+    r_mag = r_p  # the probe noise the unresolved variance is measured beyond
+    if suspect and noise_range_mm is not None:
+        r_mag = min(r_p, noise_range_mm[0] * noise_range_mm[1])
+    ex = np.linspace(*plate_mm[0], regions[0] + 1)
+    ey = np.linspace(*plate_mm[1], regions[1] + 1)
+    spacing = float(max(np.diff(form_surface.sx.knots).max(),
+                        np.diff(form_surface.sy.knots).max()))
+    nreg = regions[0] * regions[1]
+    a_glob, a_reg = ALPHA / 6, ALPHA / 2 / nreg  # innovations, noise, loo: ALPHA/6 each
+    z = checks.standardized_innovations(rows, readings, prior.mean, prior.cov, r)
+    loo = checks.leave_one_out(rows, readings, prior.mean, prior.cov, r)
+    q = np.maximum(loo.variance_mm2 - r, 0.0)
+    e2 = loo.residual_mm**2
+    xy = positions_mm(surface, rows)
+    form = (hyper.form_std_mm, hyper.length_scale_mm)
+    form_pts, form_var = checks.unresolved_form_var(form_surface, *form, xy[:, 0], xy[:, 1])
+    excess = e2 - q - r_mag - form_pts  # beyond the probe noise and the form's finer part
+    stdz = e2 / (q + r_p)
+    ms_z = float(np.mean(z**2))
+    result = {
+        "innovations": {"value": ms_z, "bound": checks.mean_square_upper(n, a_glob),
+                        "is": "mean square of standardized innovations"},
+        "loo": {"value": float(np.mean(stdz)), "bound": checks.mean_square_upper(n, a_glob),
+                "is": "mean square of standardized leave-one-out residuals"},
+    }
+    if noise_range_mm is not None:
+        # sigma_n from n readings has a relative std of about 1 / sqrt(2 n)
+        slack = 1.0 + float(norm.isf(a_glob)) / np.sqrt(2.0 * n)
+        result["noise_span"] = {"value": noise_std_mm, "bound": float(noise_range_mm[1]) * slack,
+                                "is": "learned noise std (mm) against the probe's stated high, "
+                                      "with its sampling error"}
+    i = np.clip(np.searchsorted(ex, xy[:, 0], side="right") - 1, 0, regions[0] - 1)
+    j = np.clip(np.searchsorted(ey, xy[:, 1], side="right") - 1, 0, regions[1] - 1)
+    counts = np.zeros(regions, int)
+    var = np.zeros(regions)
+    flagged = np.zeros(regions, bool)
+    worst = 0.0
+    for a in range(regions[0]):
+        for b in range(regions[1]):
+            sel = (i == a) & (j == b)
+            counts[a, b] = sel.sum()
+            if counts[a, b] < MIN_READINGS:
+                continue
+            ms = float(stdz[sel].mean())
+            flagged[a, b] = ms > checks.mean_square_upper(int(counts[a, b]), a_reg)
+            worst = max(worst, ms / checks.mean_square_upper(int(counts[a, b]), a_reg))
+            var[a, b] = max(0.0, float(excess[sel].mean()))
+    result["regions"] = {"value": worst, "bound": 1.0,
+                         "is": "largest regional LOO mean square over its chi2 bound"}
+    result["resolution"] = {"value": float(np.sqrt(form_var)), "bound": 0.5 * np.sqrt(r_p),
+                            "is": "RMS (mm) of the learned form finer than the knots"}
+    for c in result.values():
+        c["passed"] = bool(c["value"] <= c["bound"])
+    adequate = all(c["passed"] for c in result.values())
+    global_fail = not all(result[k]["passed"] for k in result if k not in ("regions",
+                                                                           "resolution"))
+    if suspect:
+        var = np.where(counts >= MIN_READINGS, var, max(0.0, float(excess.mean())))
+    elif all(result[k]["passed"] for k in result if k != "resolution"):
+        var[:] = 0.0
+    else:
+        thin = counts < MIN_READINGS
+        var[thin] = max(0.0, float(excess.mean()))  # too few readings: the plate's mean
+        if not global_fail:
+            var[~flagged & ~thin] = 0.0
+    return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var)

@@ -1,0 +1,315 @@
+"""The model checks itself: closed-form LOO and innovations against brute force, the checks flag
+a rough plate the spline cannot follow and pass plates drawn from the model (Monte Carlo with a
+stated false-alarm bound), the unresolved variance widens the bands and the stop never fires
+while the model is inadequate.
+
+Plates here are written independently of the project's prior (numpy only): a Matern-3/2 field
+sampled by Cholesky on a grid and bilinear between nodes, an edge roll-off and a milling ripple.
+``python tests/test_adequacy.py [--plates N]`` prints coverage and true vs claimed RMS per family
+(the quick check of issue 14; the official benchmark is benchmarks/bench_plates.py)."""
+import sys
+
+import numpy as np
+import pytest
+
+import adaptive_cal
+from adaptive_cal.gaussian import belief as bl
+
+try:
+    from adaptive_cal.gaussian import checks
+except ImportError:  # the quick check, run against main (before the checks existed)
+    checks = None
+
+adaptive_cal.use_float64()
+
+
+# ---------------------------------------------------------------- plates (numpy only)
+def matern32_grid(rng, x_mm, y_mm, std_mm, length_mm, step_mm=10.0):
+    """A Matern-3/2 field (std, length scale) on a grid, bilinear between the nodes."""
+    gx = np.arange(x_mm[0], x_mm[1] + step_mm, step_mm)
+    gy = np.arange(y_mm[0], y_mm[1] + step_mm, step_mm)
+    xx, yy = np.meshgrid(gx, gy, indexing="ij")
+    p = np.stack([xx.ravel(), yy.ravel()], 1)
+    d = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(-1)) * np.sqrt(3) / length_mm
+    k = std_mm**2 * (1 + d) * np.exp(-d) + 1e-12 * np.eye(len(p))
+    z = (np.linalg.cholesky(k) @ rng.standard_normal(len(p))).reshape(xx.shape)
+
+    def height(x, y):
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        fi = np.clip((x - gx[0]) / step_mm, 0, len(gx) - 1 - 1e-9)
+        fj = np.clip((y - gy[0]) / step_mm, 0, len(gy) - 1 - 1e-9)
+        i, j = fi.astype(int), fj.astype(int)
+        u, v = fi - i, fj - j
+        return ((1 - u) * (1 - v) * z[i, j] + u * (1 - v) * z[i + 1, j]
+                + (1 - u) * v * z[i, j + 1] + u * v * z[i + 1, j + 1])
+    return height
+
+
+def plate(family: str, seed: int, x_mm=(-225, 225), y_mm=(-185, 185)):
+    """A true plate height (mm) of one family: random tilt +-1 deg plus the family's form."""
+    rng = np.random.default_rng(7000 + seed)
+    a, b = np.tan(np.radians(rng.uniform(-1, 1, 2)))
+    c = rng.uniform(-0.2, 0.2)
+    smooth = matern32_grid(rng, x_mm, y_mm, 0.02, 400.0, step_mm=25.0)
+    if family == "rough":
+        form = matern32_grid(rng, x_mm, y_mm, 0.02, 60.0)
+    elif family == "ripple":
+        ph = rng.uniform(0, 2 * np.pi)
+        def form(x, y):
+            return smooth(x, y) + 0.006 * np.sin(2 * np.pi * x / 30.0 + ph)
+    elif family == "edge":
+        def form(x, y):
+            dx = np.minimum(x - x_mm[0], x_mm[1] - x)
+            dy = np.minimum(y - y_mm[0], y_mm[1] - y)
+            d = np.minimum(dx, dy)
+            return smooth(x, y) - 0.020 * np.clip(1 - d / 25.0, 0, 1) ** 2
+    else:
+        form = smooth
+
+    def height(x, y):
+        return a * np.asarray(x) + b * np.asarray(y) + c + form(x, y)
+    return height
+
+
+def run_plate(family, seed, *, max_touches=150, noise_mm=0.005, grow=False):
+    """The library's ask/tell (planning.shell.Survey) on one plate to its own stop: touches,
+    claimed RMS std, true RMS error, coverage95 of the true plate, adequacy summary."""
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.planning.shell import Survey
+    from helpers import sim_cell
+
+    cell = sim_cell(probe={"noise_range_mm": [0.003, 0.008]},
+                    plan={"stop": {"mean_std_mm": 0.004, "max_touches": max_touches}})
+    plan = survey_plan(cell, grow=True) if grow else survey_plan(cell)
+    truth = plate(family, seed)
+    rng = np.random.default_rng(seed)
+    survey = Survey(plan)
+    while not survey.stop_reason():
+        targets = survey.ask()
+        if not targets:
+            break
+        t = targets[0]
+        reading = truth(t.x_mm, t.y_mm) - t.z_mm + plan.zero_mm + noise_mm * rng.standard_normal()
+        survey.tell(t.x_mm, t.y_mm, t.z_mm, float(reading))
+    mean, var = bl.predict(survey.belief, plan.eval_rows)
+    if hasattr(sv, "unresolved_var_mm2"):
+        var = var + sv.unresolved_var_mm2(plan, survey.state, plan.eval_xy)
+    err = mean - truth(plan.eval_xy[:, 0], plan.eval_xy[:, 1])
+    adequacy = getattr(survey.state, "adequacy", None)
+    return {"touches": survey.touches, "claimed_mm": survey.status().mean_std_mm,
+            "true_mm": float(np.sqrt(np.mean(err**2))),
+            "coverage95": float(np.mean(np.abs(err) <= bl.Z95 * np.sqrt(var))),
+            "stopped": survey.stop_reason(),
+            "model": adequacy.summary() if adequacy is not None else "-"}
+
+
+# ---------------------------------------------------------------- the closed forms
+def _problem(seed=0, n=25, k=12):
+    rng = np.random.default_rng(seed)
+    a = rng.standard_normal((k, k))
+    cov = a @ a.T / k + 0.1 * np.eye(k)
+    rows = rng.standard_normal((n, k))
+    mean = rng.standard_normal(k)
+    y = rows @ mean + rng.standard_normal(n)
+    return rows, y, mean, cov, 0.3
+
+
+def test_leave_one_out_equals_brute_force():
+    rows, y, m0, c0, r = _problem()
+    loo = checks.leave_one_out(rows, y, m0, c0, r)
+    for i in range(len(y)):
+        keep = np.arange(len(y)) != i
+        post = bl.condition(bl.Belief(m0, c0), rows[keep], y[keep], r)
+        pred = rows[i] @ post.mean
+        var = rows[i] @ post.cov @ rows[i] + r
+        assert loo.residual_mm[i] == pytest.approx(y[i] - pred, rel=1e-9, abs=1e-12)
+        assert loo.variance_mm2[i] == pytest.approx(var, rel=1e-9)
+
+
+def test_standardized_innovations_equal_the_sequential_filter():
+    rows, y, m0, c0, r = _problem(1)
+    z = checks.standardized_innovations(rows, y, m0, c0, r)
+    b = bl.Belief(m0, c0)
+    for i in range(len(y)):
+        inn = bl.innovation(b, rows[i], y[i], r)
+        assert z[i] == pytest.approx(inn.residual_mm / np.sqrt(inn.variance_mm2), rel=1e-8)
+        b, _ = bl.fuse(b, rows[i], y[i], r)
+
+
+def test_positions_are_recovered_from_basis_rows():
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.planning.adequacy import positions_mm
+    from helpers import sim_cell
+
+    s = survey_plan(sim_cell()).model.surface
+    xy = np.array([[-225.0, -185.0], [12.3, 45.6], [224.0, 100.0], [-100.0, 185.0]])
+    assert np.allclose(positions_mm(s, s.basis(xy[:, 0], xy[:, 1])), xy, atol=1e-9)
+
+
+# ---------------------------------------------------------------- the checks
+def _plan(**probe):
+    from adaptive_cal.cell.build import survey_plan
+    from helpers import sim_cell
+
+    return survey_plan(sim_cell(probe={"noise_range_mm": [0.003, 0.008], **probe}))
+
+
+def _readings(plan, heights_fn, n, rng, noise_mm=0.005):
+    (x0, x1), (y0, y1) = plan.bounds_mm
+    xy = np.stack([rng.uniform(x0, x1, n), rng.uniform(y0, y1, n)], 1)
+    rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])
+    return rows, heights_fn(rows, xy) + noise_mm * rng.standard_normal(n)
+
+
+def test_checks_pass_plates_drawn_from_the_model():
+    """100 plates drawn from the prior at the true hyper-parameters, 60 readings each with 5 um
+    noise inside the stated span. The whole check's nominal false-alarm rate is ALPHA = 1 %;
+    LOO residuals in a region are correlated, so it is higher: measured 6 of 200 (3 %). Bound:
+    8 of 100 (P(>= 9) = 0.4 % at 3 %); a false alarm's unresolved RMS stays small."""
+    from adaptive_cal.planning.adequacy import assess
+
+    plan = _plan()
+    hyper = plan.model.hyper0._replace(noise_std_mm=0.005)
+    prior = plan.model.belief(hyper)
+    rng = np.random.default_rng(3)
+    alarms = 0
+    for _ in range(100):
+        a = bl.sample(prior, rng, 1)[0]
+        rows, y = _readings(plan, lambda rows, xy: rows @ a, 60, rng)
+        v = assess(plan.model.surface, plan.plate_mm, rows, y, prior, hyper,
+                   plan.noise_range_mm, plan.adequacy_regions)
+        alarms += not v.adequate
+        assert v.adequate or v.unresolved_rms_mm < 0.008
+    assert alarms <= 8
+
+
+def test_checks_flag_a_rough_plate_and_say_where():
+    """A Matern-3/2 field (20 um, 60 mm) on the right third of the plate only, smooth elsewhere:
+    the learned model is inadequate, the unresolved RMS is several um and sits at x > 75 mm."""
+    from adaptive_cal.planning import survey as sv
+
+    plan = _plan()
+    rough = matern32_grid(np.random.default_rng(5), (-225, 225), (-185, 185), 0.02, 60.0)
+    state = sv.start(plan)
+    rng = np.random.default_rng(6)
+
+    def heights(rows, xy):
+        return 0.001 * xy[:, 0] + np.where(xy[:, 0] > 75, rough(xy[:, 0], xy[:, 1]), 0.0)
+    rows, y = _readings(plan, heights, 90, rng)
+    from dataclasses import replace
+    state = sv.refit(plan, replace(state, rows=rows, heights_mm=y))
+    v = state.adequacy
+    assert not v.adequate
+    assert v.unresolved_rms_mm > 0.003
+    top = v.where()[0]
+    assert top["x_mm"][0] >= 75 - 1e-9 and top["unresolved_rms_mm"] > 0.006
+    left = v.unresolved_var_mm2(np.array([-200.0]), np.array([0.0]))[0]
+    assert np.sqrt(left) < 0.5 * top["unresolved_rms_mm"]
+    assert "inadequate" in v.summary() and "um" in v.summary()
+    # the stop statistic carries it, and a variance bound never fires while inadequate
+    st = sv.status(plan, state)
+    assert not st.adequate and st.unresolved_rms_mm == pytest.approx(v.unresolved_rms_mm, rel=0.05)
+    assert st.mean_std_mm >= st.unresolved_rms_mm
+    from adaptive_cal.planning.stopping import MeanStdBelow, Status, TouchBudget
+    rule = MeanStdBelow(1.0) | TouchBudget(500)
+    assert rule(st) is None
+    assert rule(Status(st.touches, st.mean_std_mm, st.max_std_mm, True)) == "mean_std_bound"
+    assert (MeanStdBelow(1.0) | TouchBudget(st.touches))(st) == "touch_budget"
+
+
+def test_status_of_an_adequate_model_is_the_spline_variance():
+    from adaptive_cal.planning import survey as sv
+
+    plan = _plan()
+    state = sv.start(plan)
+    st = sv.status(plan, state)
+    j = bl.rms_std(state.belief.cov, plan.gram, plan.model.surface.area_mm2)
+    assert st.mean_std_mm == pytest.approx(j) and st.unresolved_rms_mm == 0.0
+    assert not st.adequate  # a survey that learns is not adequate before its first check
+
+
+# ---------------------------------------------------------------- the model grows
+def _grown_plan():
+    from adaptive_cal.cell.build import survey_plan
+    from helpers import sim_cell
+
+    return survey_plan(sim_cell(probe={"noise_range_mm": [0.003, 0.008]}), grow=True)
+
+
+def test_a_grown_model_before_it_grows_is_the_coarse_model():
+    """Refined knots with the form on the coarse knots: rows map exactly (h_fine E = h_coarse)
+    and the posterior mean and variance at any point equal the coarse model's."""
+    plan, coarse = _grown_plan(), _plan()
+    m = plan.model
+    assert m.surface.size > coarse.coefficients == m.coarse.size
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(-180, 180, (30, 2))
+    hf = m.surface.basis(xy[:, 0], xy[:, 1])
+    hc = coarse.model.surface.basis(xy[:, 0], xy[:, 1])
+    assert np.allclose(hf @ m.embed, hc, atol=1e-12)
+    hyper = m.hyper0
+    y = rng.normal(0, 0.01, 30)
+    pf = bl.condition(m.belief(hyper), hf, y, 0.005**2)
+    pc = bl.condition(coarse.model.belief(hyper), hc, y, 0.005**2)
+    q = rng.uniform(-200, 200, (50, 2))
+    mf, vf = bl.predict(pf, m.surface.basis(q[:, 0], q[:, 1]))
+    mc, vc = bl.predict(pc, coarse.model.surface.basis(q[:, 0], q[:, 1]))
+    # equal up to the prior's jitter (1e-10 mm^2 on each of K coefficients): 0.1 nm
+    assert np.allclose(mf, mc, atol=2e-7) and np.allclose(vf, vc, rtol=1e-3, atol=2e-10)
+
+
+def test_growth_rebuilds_the_batch_posterior_on_the_grown_basis_where_the_plate_is_rough():
+    """A plate rough on its right third: the coarse check fails there, the prior grows there
+    (and only a little elsewhere), the belief equals the batch posterior of every fused reading
+    under the grown prior (per hyper-parameter point, mixed), the regions' std rises where it
+    is rough, and the next touch goes there."""
+    from dataclasses import replace
+
+    from adaptive_cal.gaussian.prior import learned_belief
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.planning.ask import ask
+
+    plan = _grown_plan()
+    rough = matern32_grid(np.random.default_rng(5), (-225, 225), (-185, 185), 0.02, 60.0)
+    rng = np.random.default_rng(6)
+
+    def heights(rows, xy):
+        return 0.001 * xy[:, 0] + np.where(xy[:, 0] > 75, rough(xy[:, 0], xy[:, 1]), 0.0)
+    rows, y = _readings(plan, heights, 90, rng)
+    state = sv.refit(plan, replace(sv.start(plan), rows=rows, heights_mm=y))
+    assert state.grown_mm2 is not None
+    assert state.grown_mm2[2].mean() > 4 * state.grown_mm2[0].mean()
+    extra = sv.extra_cov(plan, state)
+    belief, points = learned_belief(plan.model, rows, y, start=state.hyper, extra=extra)
+    assert [h for h, _ in points][0] == pytest.approx(state.hyper, rel=1e-3)
+    # batch posterior under the grown prior at the state's hyper-parameter points
+    batch = bl.mixture([bl.condition(plan.model.belief(h, extra), rows, y, h.noise_std_mm**2)
+                        for h, _ in state.hyper_points], [w for _, w in state.hyper_points])
+    assert np.allclose(state.belief.mean, batch.mean, atol=1e-9)
+    assert np.allclose(state.belief.cov, batch.cov, atol=1e-12)
+    t = ask(plan, state, 1)[0]
+    assert t.x_mm > 75 - 1e-9
+
+
+# ---------------------------------------------------------------- the quick check
+def main(argv):
+    plates = int(argv[argv.index("--plates") + 1]) if "--plates" in argv else 8
+    families = [f for f in ("smooth", "rough", "ripple", "edge") if f"--{f}" in argv] or \
+        ["smooth", "rough", "ripple", "edge"]
+    print("family   touches  claimed_um  true_um  coverage95 (mean, min)")
+    for family in families:
+        runs = [run_plate(family, s, grow="--grow" in argv) for s in range(plates)]
+        cov = [r["coverage95"] for r in runs]
+        print(f"{family:8s} {np.mean([r['touches'] for r in runs]):7.1f} "
+              f"{np.mean([r['claimed_mm'] for r in runs]) * 1e3:11.2f} "
+              f"{np.sqrt(np.mean([r['true_mm']**2 for r in runs])) * 1e3:8.2f} "
+              f"{np.mean(cov):10.2f} {np.min(cov):.2f}", flush=True)
+        for r in runs:
+            print(f"    {r['touches']:4d} {r['claimed_mm']*1e3:6.2f} {r['true_mm']*1e3:6.2f} "
+                  f"{r['coverage95']:.2f} {r['stopped']} | {r['model'][:150]}", flush=True)
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    main(sys.argv)
