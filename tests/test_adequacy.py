@@ -81,7 +81,7 @@ def run_plate(family, seed, *, max_touches=150, noise_mm=0.005, grow=False):
 
     cell = sim_cell(probe={"noise_range_mm": [0.003, 0.008]},
                     plan={"stop": {"mean_std_mm": 0.004, "max_touches": max_touches}})
-    plan = survey_plan(cell, grow=True) if grow else survey_plan(cell)
+    plan = survey_plan(cell, grow=True) if grow else survey_plan(cell, grow=False)
     truth = plate(family, seed)
     rng = np.random.default_rng(seed)
     survey = Survey(plan)
@@ -142,7 +142,7 @@ def test_positions_are_recovered_from_basis_rows():
     from adaptive_cal.planning.adequacy import positions_mm
     from helpers import sim_cell
 
-    s = survey_plan(sim_cell()).model.surface
+    s = survey_plan(sim_cell(), grow=False).model.surface
     xy = np.array([[-225.0, -185.0], [12.3, 45.6], [224.0, 100.0], [-100.0, 185.0]])
     assert np.allclose(positions_mm(s, s.basis(xy[:, 0], xy[:, 1])), xy, atol=1e-9)
 
@@ -152,7 +152,7 @@ def _plan(**probe):
     from adaptive_cal.cell.build import survey_plan
     from helpers import sim_cell
 
-    return survey_plan(sim_cell(probe={"noise_range_mm": [0.003, 0.008], **probe}))
+    return survey_plan(sim_cell(probe={"noise_range_mm": [0.003, 0.008], **probe}), grow=False)
 
 
 def _readings(plan, heights_fn, n, rng, noise_mm=0.005):

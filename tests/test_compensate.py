@@ -270,7 +270,9 @@ def test_grid_export_covers_the_workplane_and_matches_the_map(mapped, tmp_path):
     assert (x.min(), x.max(), y.min(), y.max()) == (-225, 225, -185, 185)
     assert np.diff(np.unique(x)).max() <= 7 and np.diff(np.unique(y)).max() <= 7
     mean, std = load_map(run_dir).height("nominal")(x, y)
-    assert np.allclose(h, mean, atol=1e-6) and np.allclose(s, std, atol=1e-6)
+    # written to 1e-6 mm, at positions written to 1e-4 mm: on a plate tilted ~0.014 mm/mm the
+    # position rounding adds up to ~0.7e-6 mm to the height's own 0.5e-6 mm
+    assert np.allclose(h, mean, atol=2e-6) and np.allclose(s, std, atol=1e-6)
     assert np.sqrt(np.mean((h - truth(x, y)) ** 2)) < 0.01  # it is the plate
 
 

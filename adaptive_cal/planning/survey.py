@@ -66,6 +66,14 @@ class SurveyState:
     grown_mm2: np.ndarray | None = None
 
     @property
+    def fused_weights(self) -> np.ndarray:
+        """w_i of each fused reading (1 for readings fused without one, e.g. a state built by
+        hand from rows and heights)."""
+        w = np.ones(self.fused)
+        w[:min(len(self.weights), self.fused)] = self.weights[:self.fused]
+        return w
+
+    @property
     def fused(self) -> int:
         """Number of fused readings."""
         return len(self.heights_mm)
@@ -219,7 +227,7 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     (exact: the batch posterior under the grown prior); where it is adequate, that is 0."""
     def fitted(state):
         belief, points = learned_belief(plan.model, state.rows, state.heights_mm,
-                                        start=state.hyper, weights=state.weights,
+                                        start=state.hyper, weights=state.fused_weights,
                                         extra=extra_cov(plan, state))
         return replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
                        fitted_at=state.fused)
