@@ -102,30 +102,33 @@ def pattern(kind: str, rng: np.random.Generator, x, y) -> tuple[np.ndarray, dict
 
 
 def recording(kind: str, rng: np.random.Generator, sigma: float = 10.0,
-              columns: bool | None = None) -> dict:
+              columns: bool | None = None, shape_rng: np.random.Generator | None = None) -> dict:
     """One recording: readings, design and truth. ``columns``: the column-wise serpentine
     (default: only for backlash_y)."""
     columns = (kind == "backlash_y") if columns is None else columns
     x, y = grid_path(columns)
     n = x.size
     h = rng.normal(0, 1e-4) * x + rng.normal(0, 1e-4) * y + rng.normal(0, 0.1)
-    shape, truth = pattern(kind, rng, x, y)
+    shape, truth = pattern(kind, shape_rng or rng, x, y)  # shape_rng: rounds sharing one shape
     size = 0.0
     if kind != "null":
         norm = _unplaned_norm(x, y, shape)
-        size = sigma * NOISE_MM / norm * rng.choice([-1.0, 1.0])
+        size = sigma * NOISE_MM / norm * (shape_rng or rng).choice([-1.0, 1.0])
         h = h + size * shape
     reading = h + NOISE_MM * rng.standard_normal(n)
     return {"kind": kind, "x": x, "y": y, "t": TOUCH_S * np.arange(n), "reading": reading,
             "scale_mm": float(size), "truth": truth, "columns": bool(columns)}
 
 
-def write(directory: Path, case: dict, name: str = "rec.csv") -> tuple[Path, Path]:
-    """The cell file and the recording (v1 CSV) under ``directory``; returns their paths."""
+def write(directory: Path, case: dict, name: str = "rec.csv",
+          stated_noise_mm: float = NOISE_MM) -> tuple[Path, Path]:
+    """The cell file (stating ``stated_noise_mm`` as the probe noise) and the recording (v1 CSV)
+    under ``directory``; returns their paths."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     cell = directory / "cell.yaml"
-    cell.write_text(CELL_YAML, encoding="utf-8")
+    cell.write_text(CELL_YAML.replace(f"noise_std_mm: {NOISE_MM:g}",
+                                      f"noise_std_mm: {stated_noise_mm:g}"), encoding="utf-8")
     lines = ["# adaptive-cal recording v1", "seq,t_s,x_mm,y_mm,z_mm,reading_mm"]
     lines += [f"{i},{t:.1f},{x:.3f},{y:.3f},0,{r:.6f}" for i, (t, x, y, r) in
               enumerate(zip(case["t"], case["x"], case["y"], case["reading"]))]
