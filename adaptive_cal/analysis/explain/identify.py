@@ -4,6 +4,7 @@ An effect E is aliased with a set F (the tilt of each round, possibly another ef
 direction of span(E) lies nearly in span(F): the smallest canonical correlation between the two
 spans exceeds ``ALIAS_CC`` (0.99: the tilt absorbs more than 99 % of the regressor's norm, less
 than 14 % is left to see). For one-column effects the canonical correlation is |P_F x| / |x|.
+Between two effects this is directional (``spans``): A inside B's span is not B inside A's.
 
 ``suggest_touches`` adds touches from a menu that fits the residual axis the effect shows on
 (time: repeats of reference points at a later time; direction: a reversed pass; indication: a
