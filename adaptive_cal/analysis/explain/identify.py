@@ -237,7 +237,7 @@ def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0, *,
                         "mutual": [o for o in partners if spans.inside(projected[o], projected[name])],
                         "why": why,
                         "suggested_design": suggest_touches(ctx, name, ["tilt"] + partners, dz_mm)})
-        elif cc_t.max() > ALIAS_CC and E.shape[1] > 1:
+        elif cc_t.max() > ALIAS_CC and E.shape[1] > 1 and name != verdict:
             out.append({"effect": name, "aliased_with": ["tilt"], "why": (
                 f"partly: one combination of its shapes is absorbed by the tilt (canonical "
                 f"correlation {cc_t.max():.4f}); the others are identifiable"),

@@ -29,6 +29,7 @@ from adaptive_cal.analysis.explain.candidates import Candidate, Context
 from adaptive_cal.analysis.explain.evidence import Projector
 from adaptive_cal.analysis.explain.locate import axis_bases, where
 
+MAX_COLUMNS = 48  # of a one-coordinate basis (memory: n x 48 floats)
 ALPHA = 0.01  # family-wise false-alarm rate of the structure tests on a recording of noise only
 AXIS_OF = {"position along x": "position", "position along y": "position",
            "direction along y": "direction"}
@@ -49,10 +50,11 @@ def arrival(v: np.ndarray, round_index: np.ndarray) -> np.ndarray:
 
 def one_coordinate(v: np.ndarray, span: tuple[float, float], n: int) -> np.ndarray:
     """A function of one coordinate: one offset per distinct value on a grid design, else a
-    Fourier series down to twice the median spacing (at most n / 3 columns)."""
+    Fourier series down to twice the median spacing (at most n / 3 and ``MAX_COLUMNS``
+    columns)."""
     keys = np.round(v, 1)
     levels = np.unique(keys)
-    cap = max(n // 3, 1)
+    cap = max(min(n // 3, MAX_COLUMNS), 2)
     if 2 <= levels.size <= cap:
         return (keys[:, None] == levels[None, 1:]).astype(float)
     width = max(span[1] - span[0], 1e-9)
