@@ -100,3 +100,14 @@ def test_the_reference_rounds_stay_form_and_report_the_structure_left(cheng_roun
     s = f["structure_after_model"]
     assert s["library"][0] == "form" and s["tests"]["noise"]["real"]  # 29 um left, 10 um stated
     assert s["library_rms_mm"] > 3 * s["residual_rms_mm"]
+
+
+def test_cli_prints_the_unexplained_structure_and_what_is_not_testable(tmp_path, capsys):
+    from adaptive_cal.cli import main
+    cell, rec = gen.write(tmp_path, gen.recording("backlash_y", np.random.default_rng(1), 10.0))
+    assert main(["explain", str(rec), "--robot", str(cell), "--out", str(tmp_path / "o")]) == 0
+    text = capsys.readouterr().out
+    assert "verdict: unexplained" in text and "unexplained structure along direction" in text
+    assert "arriving moving +y" in text and "not testable: reversal" in text
+    assert not list((tmp_path / "o").glob("*-explained.yaml"))  # no library effect to write
+    assert (tmp_path / "o" / "residual_vs_direction.png").stat().st_size > 1000
