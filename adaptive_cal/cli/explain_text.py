@@ -57,12 +57,28 @@ def touches_lines(touches: list[dict]) -> list[str]:
 
 def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
     fit, amb = report["fit"], report.get("ambiguous_with") or []
-    out = [f"verdict: {report['verdict']} (probability {report['verdict_probability']:.2f}"
+    kind = "1 - p of the structure test" if report["verdict"] == "unexplained" else "probability"
+    out = [f"verdict: {report['verdict']} ({kind} {report['verdict_probability']:.2f}"
            + (f"; cannot be told apart from {', '.join(amb)} on this design" if amb else "") + ")"]
+    u = report.get("unexplained")
+    if u:
+        near = (f"; the nearest library effect, {u['nearest_library_effect']}, explains "
+                f"{100 * u['library_share']:.0f} % of it" if u.get("nearest_library_effect") else "")
+        out.append(f"  unexplained structure along {u['axis']}: {u['detail']}{near}")
+        out.extend(f"    near x {w['x_mm']:g}, y {w['y_mm']:g} mm: residual "
+                   f"{1e3 * w['residual_mm']:+.1f} um" for w in u["where"])
     for e in report["left_out"]:
         out.append(left_out_line(e, units.get(e["effect"], {})))
     for e in report["not_identifiable"]:
-        alias = f" (cannot be told from {', '.join(e['aliased_with'])})" if e["aliased_with"] else ""
+        if e.get("not_testable"):
+            out.append(f"  not testable: {e['effect']}: {e['why'].removeprefix('not testable: ')}")
+            design = e.get("suggested_design") or {}
+            if design.get("description"):
+                out.append(f"    suggested: {design['description']}")
+            continue
+        alias = (f" (inside the span of {', '.join(e['inside_span_of'])})" if e.get("inside_span_of")
+                 else f" (cannot be told from {', '.join(e['aliased_with'])})" if e["aliased_with"]
+                 else "")
         out.append(f"  not identifiable: {e['effect']}{alias}: {e['why']}")
         design = e.get("suggested_design") or {}
         if design.get("description"):

@@ -44,10 +44,14 @@ def residual_maps(explanation: Explanation) -> Figure:
 
 
 def revealing_axis(explanation: Explanation) -> str:
-    """The verdict's axis, or (for none) the axis with the smallest F-test p-value."""
+    """The verdict's axis (for unexplained: the axis of the structure left, where the mismatch
+    has it), or (for none) the axis with the smallest F-test p-value."""
     rep = explanation.findings
     if rep["verdict"] in effects.EFFECTS:
         return effects.get(rep["verdict"]).axis
+    axis = (rep.get("unexplained") or {}).get("axis")
+    if axis in rep["mismatch"]["by"] and rep["mismatch"]["by"][axis].get("p_value") is not None:
+        return axis
     tested = {k: v["p_value"] for k, v in rep["mismatch"]["by"].items()
               if v.get("p_value") is not None}
     return min(tested, key=tested.get)

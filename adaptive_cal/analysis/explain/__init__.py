@@ -3,7 +3,8 @@ model it and show the fit improve (issue 4; docs/explain.md).
 
 Modules: design (features, nominal, nuisance), evidence (marginal likelihood, LOO), candidates
 (effect library scored by evidence), suspects (readings that disagree with every model),
-locate (mismatch by axis), identify (aliasing and suggested
+locate (mismatch by axis), structure (structure left after the library: the
+``unexplained`` verdict), spans (directional identifiability), identify (aliasing and suggested
 touches), rounds (flatness change vs noise), core (the pipeline), summary (the explained cell
 file). The figures are in ``adaptive_cal.report.explain_figures``; the concealed-effect recordings
 in ``adaptive_cal.simulation.concealed``. The physics is ``adaptive_cal.effects``.

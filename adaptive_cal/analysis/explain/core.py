@@ -26,6 +26,8 @@ from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precisio
 from adaptive_cal.analysis.explain.identify import not_identifiable
 from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
+from adaptive_cal.analysis.explain.spans import covering
+from adaptive_cal.analysis.explain.structure import residual_structure
 from adaptive_cal.analysis.explain.suspects import SUSPECT, model_terms, suspect_probability
 
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
@@ -165,6 +167,11 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
     best = cands[0] if cands else None
     winner = best if best and best.log_bf > threshold else None
+    structure = residual_structure(ctx, cands, winner, threshold, design.noise_stated_mm)
+    unexplained = structure.pop("unexplained")
+    nearest = winner
+    if unexplained:
+        winner = None  # the library names less than half of the structure: no library name
     left_out = []
     for c in cands:
         if c.log_bf <= threshold:
@@ -187,16 +194,21 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         after, loo1 = before, loo0
     rms = lambda r: float(np.sqrt(np.mean(r ** 2)))
     prob = model_probabilities(cands)
+    ambiguous = [c.effect for c in cands if winner is not None and c is not winner
+                 and c.log_bf > threshold and winner.log_bf - c.log_bf < AMBIGUOUS]
+    ambiguous += [n for n in covering(ctx, winner, cands, threshold) if n not in ambiguous]
+    verdict = "unexplained" if unexplained else (winner.effect if winner else "none")
     findings = {
-        "verdict": winner.effect if winner else "none",
-        "verdict_probability": float(prob[1 + cands.index(winner)] if winner else prob[0]),
-        "ambiguous_with": [c.effect for c in cands if winner is not None and c is not winner
-                           and c.log_bf > threshold and winner.log_bf - c.log_bf < AMBIGUOUS],
+        "verdict": verdict,
+        "verdict_probability": (1.0 - structure["finding"]["p_value"] if unexplained else
+                                float(prob[1 + cands.index(winner)] if winner else prob[0])),
+        "ambiguous_with": ambiguous,
         "left_out": left_out,
         "suspect_readings": suspects,
         "readings": {"total": design.n + len(suspects), "used": design.n,
                      "suspect": len(suspects)},
-        "not_identifiable": not_identifiable(ctx, sigma) if identifiability else [],
+        "not_identifiable": (not_identifiable(ctx, sigma, verdict=verdict, ambiguous=tuple(
+            ambiguous)) if identifiability else []),
         "mismatch": locate(ctx),
         "fit": {"rms_before_mm": rms(before), "rms_after_mm": rms(after),
                 "cv_rms_before_mm": rms(loo0), "cv_rms_after_mm": rms(loo1),
@@ -207,7 +219,11 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
                         "sharing": c.sharing} for c in cands],
         "calibration": _calibration(ctx, sigma),
         "threshold": {"log_bayes_factor": threshold},
+        "structure_after_model": structure,
     }
+    if unexplained:
+        findings["unexplained"] = structure["finding"]
+        findings["unexplained"]["nearest_library_effect"] = nearest.effect if nearest else None
     if design.rounds > 1:
         findings["rounds"] = flatness_change(design, np.random.default_rng(rng))
     return Explanation(findings, ctx, cands, winner, before, after)

@@ -33,6 +33,7 @@ class Design:
     unknown: tuple[str, ...]
     paths: tuple[str, ...]
     noise_floor_mm: float = 0.0  # the probe's stated noise (cell file), 0 where not stated
+    noise_stated_mm: float = 0.0  # the largest noise the cell file states, 0 where not stated
 
     @property
     def n(self) -> int:
@@ -68,10 +69,29 @@ class Design:
 
     @property
     def untestable(self) -> frozenset[str]:
-        """Effects this cell cannot show: along reach without robot.base_xy_mm."""
-        if self.geometry.base_xy_mm is not None:
-            return frozenset()
-        return frozenset(e.name for e in effects.LIBRARY if e.axis == "reach")
+        """Effects this design cannot show (``untestable_why``): not scored."""
+        return frozenset(self.untestable_why())
+
+    def untestable_why(self) -> dict[str, str]:
+        """Effect name -> why the design cannot show it: along reach without robot.base_xy_mm;
+        a reversal without touches arriving both ways along x within a round. (A drift where
+        time is a linear function of position is tested -- a warm-up is not a plane -- and
+        ``identify`` says that any drift is then confounded with the plate's shape.)"""
+        out = {}
+        if self.geometry.base_xy_mm is None:
+            out.update({e.name: "not testable: the cell file lacks robot.base_xy_mm, the robot "
+                        "base position the reach is measured from"
+                        for e in effects.LIBRARY if e.axis == "reach"})
+        d = self.features.direction
+        pos = [int(np.count_nonzero((self.round_index == r) & (d > 0))) for r in range(self.rounds)]
+        neg = [int(np.count_nonzero((self.round_index == r) & (d < 0))) for r in range(self.rounds)]
+        if not any(p >= 2 and q >= 2 for p, q in zip(pos, neg)):
+            out["reversal"] = (
+                f"not testable: the design never reverses along x (touches arriving moving +x: "
+                f"{sum(pos)}, moving -x: {sum(neg)}, no round with two of each); an offset by "
+                "direction of arrival along x is then an offset of the touches before the first "
+                "move along x, which the tilt and the plate's shape take")
+        return out
 
     def with_ideal_reading(self, ideal_reading_mm: np.ndarray) -> "Design":
         feats = self.features.with_ideal_reading(ideal_reading_mm)
@@ -151,16 +171,16 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     return Design(feats, geometry, cat["r"].astype(int), cat["seq"].astype(int), cat["z"],
                   cat["read"], nominal, tuple(known), unknown,
                   tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)),
-                  stated_noise_mm(cell))
+                  stated_noise_mm(cell), stated_noise_mm(cell, high=True))
 
 
-def stated_noise_mm(cell: Cell) -> float:
-    """The reading noise the cell file states: the lower end of probe.noise_range_mm, else
-    probe.noise_std_mm where the file gives it; 0 where it states neither (the default first
-    guess is not a statement)."""
+def stated_noise_mm(cell: Cell, high: bool = False) -> float:
+    """The reading noise the cell file states: the lower end (``high``: the upper end) of
+    probe.noise_range_mm, else probe.noise_std_mm where the file gives it; 0 where it states
+    neither (the default first guess is not a statement)."""
     probe = cell.probe
     if probe.noise_range_mm is not None:
-        return float(min(probe.noise_range_mm))
+        return float(max(probe.noise_range_mm) if high else min(probe.noise_range_mm))
     if "noise_std_mm" in probe.model_fields_set:
         return float(probe.noise_std_mm)
     return 0.0

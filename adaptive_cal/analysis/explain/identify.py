@@ -4,6 +4,7 @@ An effect E is aliased with a set F (the tilt of each round, possibly another ef
 direction of span(E) lies nearly in span(F): the smallest canonical correlation between the two
 spans exceeds ``ALIAS_CC`` (0.99: the tilt absorbs more than 99 % of the regressor's norm, less
 than 14 % is left to see). For one-column effects the canonical correlation is |P_F x| / |x|.
+Between two effects this is directional (``spans``): A inside B's span is not B inside A's.
 
 ``suggest_touches`` adds touches from a menu that fits the residual axis the effect shows on
 (time: repeats of reference points at a later time; direction: a reversed pass; indication: a
@@ -16,9 +17,10 @@ import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.analysis.explain.candidates import CANDIDATES, Context, prior_scale
+from adaptive_cal.analysis.explain import spans
 from adaptive_cal.analysis.explain.evidence import Projector
 
-ALIAS_CC = 0.99
+ALIAS_CC = spans.ALIAS_CC
 TARGET_CC = 0.9
 MAX_EXTRA = 12
 
@@ -179,50 +181,63 @@ def _gap_touches(ctx: Context, count: int = 4) -> dict:
             "touches": touches, "fill_distance_mm": fill0}
 
 
-def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0) -> list[dict]:
-    """The ``not_identifiable`` block: aliased effects with why and a suggested design."""
+def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0, *,
+                     verdict: str | None = None, ambiguous: tuple[str, ...] = ()) -> list[dict]:
+    """The ``not_identifiable`` block: effects the design cannot show (not testable), effects
+    the tilt absorbs, and effects whose signature lies inside another's span (directional:
+    ``spans``; ``inside_span_of``, with ``share_explained_by`` and ``explains_share_of`` per
+    partner). The verdict is left out where the data separated it (no partner of it is in
+    ``ambiguous``)."""
     d = ctx.design
     out = []
     names = [n for n in CANDIDATES if n not in d.unknown]
-    for name in [n for n in names if n in d.untestable]:
+    why_not = d.untestable_why()
+    for name in [n for n in names if n in why_not]:
         names.remove(name)
-        out.append({"effect": name, "aliased_with": [], "why": "not testable: the cell file "
-                    "lacks robot.base_xy_mm, the robot base position the reach is measured from",
-                    "suggested_design": {"description": "add robot.base_xy_mm: [x, y] (mm, "
-                                         "workplane frame) to the cell file", "touches": []}})
+        fix = ("add robot.base_xy_mm: [x, y] (mm, workplane frame) to the cell file"
+               if effects.get(name).axis == "reach" else
+               "a pass that arrives at the same points moving -x as well as +x (a reversed row)")
+        out.append({"effect": name, "aliased_with": [], "not_testable": True, "why": why_not[name],
+                    "suggested_design": {"description": fix, "touches": []}})
     T = _tilt(d.features, d.round_index, d.rounds, d.geometry)
     offsets = Projector.of(T[:, 2::3])  # the variation about each round's mean
     bumps = [n for n in names if _is_bump(effects.get(n))]
     regs = {n: representative(ctx, n) for n in names if n not in bumps}
+    projected = {n: ctx.project(E) for n, E in regs.items()}
     for name, E in regs.items():
         effect = effects.get(name)
-        left = (float(np.linalg.norm(ctx.project(E), axis=0).max())
+        left = (float(np.linalg.norm(projected[name], axis=0).max())
                 * prior_scale(effect, _shown(effect)) / sigma_mm)
         cc_t = canonical_correlations(_centred(offsets, E), offsets(T))
-        if cc_t.min() > ALIAS_CC:
+        if cc_t.min() > ALIAS_CC and name != verdict:  # a verdict passed the tilt: shown
             why = (f"the tilt absorbs {100 * cc_t.min() ** 2:.2f} % of the regressor's variation "
                    f"(canonical correlation {cc_t.min():.4f}); an effect of typical prior size "
                    f"leaves {left:.2f} sigma after the tilt")
             if effect.axis == "time":
                 why += ("; time is then a linear function of position on this design, so any "
                         "drift -- linear or a warm-up -- is a function of position too and "
-                        "cannot be told from the plate's tilt and form")
+                        "cannot be told from a plate shape: a warm-up named here rests on the "
+                        "library's form being the plate's whole shape")
             out.append({"effect": name, "aliased_with": ["tilt"], "why": why,
                         "suggested_design": suggest_touches(ctx, name, ["tilt"], dz_mm)})
             continue
-        partners = []
-        for other, F in regs.items():
-            if other == name:
-                continue
-            cc = canonical_correlations(ctx.project(E), ctx.project(F))
-            if cc.min() > ALIAS_CC:
-                partners.append((other, float(cc.min())))
+        if name == verdict and not ambiguous:
+            continue  # the data separated the verdict from everything else
+        partners = [o for o in regs if o != name and spans.inside(projected[name], projected[o])]
+        if name == verdict:
+            partners = [o for o in partners if o in ambiguous]
         if partners:
-            why = "after the tilt, its regressor lies in the span of " + ", ".join(
-                f"{p} (canonical correlation {c:.4f})" for p, c in partners)
-            out.append({"effect": name, "aliased_with": [p for p, _ in partners], "why": why,
-                        "suggested_design": suggest_touches(ctx, name, ["tilt"] + [p for p, _ in partners], dz_mm)})
-        elif cc_t.max() > ALIAS_CC and E.shape[1] > 1:
+            shares = {o: spans.share(projected[name], projected[o]) for o in partners}
+            back = {o: spans.share(projected[o], projected[name]) for o in partners}
+            why = "after the tilt, its signature lies inside the span of " + ", ".join(
+                f"{o} ({o} explains {100 * shares[o]:.1f} % of it; it explains {100 * back[o]:.1f} "
+                f"% of {o}'s)" for o in partners)
+            out.append({"effect": name, "aliased_with": partners, "inside_span_of": partners,
+                        "share_explained_by": shares, "explains_share_of": back,
+                        "mutual": [o for o in partners if spans.inside(projected[o], projected[name])],
+                        "why": why,
+                        "suggested_design": suggest_touches(ctx, name, ["tilt"] + partners, dz_mm)})
+        elif cc_t.max() > ALIAS_CC and E.shape[1] > 1 and name != verdict:
             out.append({"effect": name, "aliased_with": ["tilt"], "why": (
                 f"partly: one combination of its shapes is absorbed by the tilt (canonical "
                 f"correlation {cc_t.max():.4f}); the others are identifiable"),

@@ -17,7 +17,7 @@ def write_cell(explanation: Explanation, cell_data: dict, cell_path: str | Path,
                out_dir: str | Path) -> Path | None:
     """The cell file with the winning effect added to simulation.effects (std in comments)."""
     rep = explanation.findings
-    if rep["verdict"] == "none":
+    if rep["verdict"] in ("none", "unexplained"):
         return None
     entry = next(e for e in rep["left_out"] if e["effect"] == rep["verdict"])
     params = {k: (v[-1] if isinstance(v, list) else v) for k, v in entry["params"].items()}

@@ -1,0 +1,155 @@
+"""Structure the library does not explain: the ``unexplained`` verdict (issue 15, items 3 and 6).
+
+After the library's best explanation L (the verdict and every other candidate above the
+threshold, at their best nonlinear parameters) is removed with the calibrated nuisance, the
+residual is tested for structure that is left:
+
+- along an axis: the bases of ``locate`` (position, time, direction of arrival along x, reach,
+  indication) and three finer ones the library has no effect for -- a function of x alone, a
+  function of y alone (a ripple, one offset per column or row), and the direction of arrival
+  along y (a backlash in y) -- each by the nested-model F-test given N and L;
+- against the probe's stated noise (``probe.noise_range_mm``'s upper end, else
+  ``probe.noise_std_mm`` where the cell file states it): RSS / sigma_stated^2 against
+  chi-square(m) -- readings scattered at twice the stated noise are structure, not noise.
+
+The tests are Bonferroni-corrected to a family-wise ``ALPHA``. The verdict is ``unexplained``
+when the most significant corrected test passes and the structure left (its energy beyond what
+noise gives: explained - q s^2 for an axis, RSS - m sigma_stated^2 for the noise) is larger than
+the energy the library explains (|M y|^2 - |r_L|^2): the library then names less than half of
+what is there, and the nearest library name would be a guess. Where the library explains most of
+it (the reference plate: form takes 150 -> 31 um, 10 um stated) the verdict stands and the
+structure left is still reported (``structure_after_model``).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from adaptive_cal.analysis.explain.candidates import Candidate, Context
+from adaptive_cal.analysis.explain.evidence import Projector
+from adaptive_cal.analysis.explain.locate import axis_bases, where
+
+MAX_COLUMNS = 48  # of a one-coordinate basis (memory: n x 48 floats)
+ALPHA = 0.01  # family-wise false-alarm rate of the structure tests on a recording of noise only
+AXIS_OF = {"position along x": "position", "position along y": "position",
+           "direction along y": "direction"}
+
+
+def arrival(v: np.ndarray, round_index: np.ndarray) -> np.ndarray:
+    """+1 / -1 moving +v / -v into the point, per round in touch order (0 before any move)."""
+    out = np.zeros(v.size)
+    for r in np.unique(round_index):
+        idx = np.flatnonzero(round_index == r)
+        last = 0.0
+        for k in range(1, idx.size):
+            step = v[idx[k]] - v[idx[k - 1]]
+            last = 1.0 if step > 1e-9 else (-1.0 if step < -1e-9 else last)
+            out[idx[k]] = last
+    return out
+
+
+def one_coordinate(v: np.ndarray, span: tuple[float, float], n: int) -> np.ndarray:
+    """A function of one coordinate: one offset per distinct value on a grid design, else a
+    Fourier series down to twice the median spacing (at most n / 3 and ``MAX_COLUMNS``
+    columns)."""
+    keys = np.round(v, 1)
+    levels = np.unique(keys)
+    cap = max(min(n // 3, MAX_COLUMNS), 2)
+    if 2 <= levels.size <= cap:
+        return (keys[:, None] == levels[None, 1:]).astype(float)
+    width = max(span[1] - span[0], 1e-9)
+    gaps = np.diff(np.sort(v))
+    gaps = gaps[gaps > 1e-9]
+    finest = 2.0 * float(np.median(gaps)) if gaps.size else width
+    k = int(np.clip(width / max(finest, 1e-9), 1, cap // 2))
+    w = 2.0 * np.pi * np.arange(1, k + 1)[None, :] * (v[:, None] - span[0]) / (2.0 * width)
+    return np.hstack([np.sin(w), np.cos(w)])
+
+
+def _bases(ctx: Context) -> dict[str, np.ndarray]:
+    d = ctx.design
+    f = d.features
+    out = {k: v for k, v in axis_bases(ctx).items() if not isinstance(v, str)}
+    out["position along x"] = one_coordinate(f.x_mm, d.geometry.x_range_mm, d.n)
+    out["position along y"] = one_coordinate(f.y_mm, d.geometry.y_range_mm, d.n)
+    dy = arrival(f.y_mm, d.round_index)
+    out["direction along y"] = np.stack([dy > 0, dy < 0], 1).astype(float)
+    return out
+
+
+def _axis_test(P: Projector, r: np.ndarray, m: int, X: np.ndarray) -> dict:
+    Xt = P(X)
+    U, s, _ = np.linalg.svd(Xt, full_matrices=False)
+    keep = s > 1e-8 * max(s.max(initial=0.0), 1e-300)
+    q = int(min(keep.sum(), max(m - 3, 0)))
+    if q == 0:
+        return {"p_value": 1.0, "excess_mm2": 0.0, "q": 0}
+    proj = U[:, keep][:, :q].T @ r
+    explained = float(proj @ proj)
+    rss1 = max(float(r @ r) - explained, 1e-300)
+    s2 = rss1 / (m - q)
+    F = (explained / q) / s2
+    return {"p_value": float(stats.f.sf(F, q, m - q)), "excess_mm2": max(explained - q * s2, 0.0),
+            "q": q}
+
+
+def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate | None,
+                       threshold: float, noise_mm: float) -> dict:
+    """The ``structure_after_model`` block, and whether the verdict is ``unexplained``."""
+    d = ctx.design
+    lib = [c for c in cands if c.log_bf > threshold]
+    G = np.hstack([ctx.nuisance] + [c.columns for c in lib])
+    P = Projector.of(G)
+    r = P(d.target)
+    m = d.n - P.rank
+    if m < 4:
+        return {"unexplained": False, "tests": {}, "note": "too few readings to test"}
+    tests = {name: _axis_test(P, r, m, X) for name, X in _bases(ctx).items()}
+    rss = float(r @ r)
+    if noise_mm > 0:
+        tests["noise"] = {"p_value": float(stats.chi2.sf(rss / noise_mm ** 2, m)),
+                          "excess_mm2": max(rss - m * noise_mm ** 2, 0.0), "q": 0,
+                          "stated_noise_mm": noise_mm,
+                          "residual_rms_mm": float(np.sqrt(rss / m))}
+    k = len(tests)
+    for t in tests.values():
+        t["p_value_corrected"] = min(1.0, t["p_value"] * k)
+        t["structure_rms_mm"] = float(np.sqrt(t.pop("excess_mm2") / d.n))
+        t["real"] = bool(t["p_value_corrected"] < ALPHA)
+    library_mm2 = float(ctx.yt @ ctx.yt) - rss if lib else 0.0
+    real = {n: t for n, t in tests.items() if t["real"]}
+    out = {"library": [c.effect for c in lib], "residual_rms_mm": float(np.sqrt(rss / d.n)),
+           "library_rms_mm": float(np.sqrt(max(library_mm2, 0.0) / d.n)),
+           "tests": tests, "alpha": ALPHA, "unexplained": False}
+    if not real:
+        return out
+    left_mm2 = max(t["structure_rms_mm"] for t in real.values()) ** 2 * d.n
+    axes = [n for n in real if n != "noise"] or ["noise"]  # the most specific axis that shows it
+    name = max(axes, key=lambda n: (real[n]["structure_rms_mm"], -real[n]["p_value"]))
+    t = real[name]
+    out["unexplained"] = bool(left_mm2 > library_mm2)
+    sigma = float(np.sqrt(rss / m))
+    out["finding"] = {
+        "axis": AXIS_OF.get(name, name), "test": name, "p_value": t["p_value_corrected"],
+        "structure_rms_mm": t["structure_rms_mm"],
+        "library_share": float(library_mm2 / (library_mm2 + left_mm2)) if lib else 0.0,
+        "nearest_library_effect": winner.effect if winner else None,
+        "where": where(ctx, r, sigma), "detail": _detail(name, t, r, ctx)}
+    return out
+
+
+def _detail(name: str, t: dict, r: np.ndarray, ctx: Context) -> str:
+    d = ctx.design
+    what = (f"{1e3 * t['structure_rms_mm']:.1f} um rms of structure (p = {t['p_value_corrected']:.2g}"
+            ", corrected for the tests made)")
+    if name == "noise":
+        return (f"readings scatter {1e3 * t['residual_rms_mm']:.1f} um rms about the best library "
+                f"model, the probe's stated noise is {1e3 * t['stated_noise_mm']:.1f} um: {what}")
+    if name == "direction along y":
+        dy = arrival(d.features.y_mm, d.round_index)
+        up, down = r[dy > 0], r[dy < 0]
+        return (f"arriving moving +y the residual averages {1e3 * up.mean():+.1f} um, moving -y "
+                f"{1e3 * down.mean():+.1f} um (no library effect acts along y's direction): {what}")
+    if name.startswith("position along"):
+        return f"a function of {name[-1]} alone, finer than the library's form: {what}"
+    return f"along {name}, beyond every library effect: {what}"
