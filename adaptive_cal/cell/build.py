@@ -102,4 +102,6 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
         gate_sigma=cell.model.gate_sigma, learn=cell.model.learn_hyper,
         hyper_after=plan.hyper_after, hyper_every=plan.hyper_every, criterion=criterion(cell),
         refine=plan.refine, batch=plan.batch,
-        stop=stop_rule(cell, model.surface.size, informed_prior=informed_prior))
+        stop=stop_rule(cell, model.surface.size, informed_prior=informed_prior),
+        speed_mm_per_s=cell.robot.speed_mm_per_s, touch_time_s=cell.robot.touch_time_s,
+        start_xy_mm=(0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)))

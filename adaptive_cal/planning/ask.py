@@ -4,7 +4,10 @@ the workspace, refined by gradient steps, or a batch planned ahead and ordered f
 A candidate is allowed when its reading lands inside the usable stroke with probability
 >= 1 - 1e-6 (``scoring.stroke_ok``) and, with a workspace box, its approach height
 z = mean - (lo + hi) / 2 + zero lies inside the box's z range. The criterion ``integrated``
-takes the largest drop of J = trace(Q C); ``max`` the smallest largest variance after the reading.
+takes the largest drop of J = trace(Q C) per second of robot time (``plan.time_aware``: travel
+at ``plan.speed_mm_per_s`` from where the probe is, plus ``plan.touch_time_s``), or the largest
+drop alone; ``max`` the smallest largest variance after the reading. A batch is chosen greedily
+along the path it is picked in (each pick priced from the previous one), then ordered for travel.
 """
 from __future__ import annotations
 
@@ -14,7 +17,8 @@ import numpy as np
 
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import plan_batch, travel_order
-from adaptive_cal.planning.scoring import minimax_choice, refine, stroke_ok, variance_drop
+from adaptive_cal.planning.scoring import (minimax_choice, rate_choice, refine, stroke_ok,
+                                           touch_time_s, variance_drop)
 from adaptive_cal.planning.survey import SurveyState
 
 
@@ -41,42 +45,63 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         x, y, z, _ = state.retake
         return [target(plan, state, x, y, z_mm=z, retake=True)]
     rows, cov, r = plan.candidates.rows, state.belief.cov, state.noise_var
+    xy = plan.candidates.xy_mm
+    here = (np.asarray(from_xy, float)[:2] if from_xy is not None
+            else plan.here_xy_mm(state.touched_xy_mm))
+    timed = plan.time_aware and plan.criterion == "integrated"
     mean = rows @ state.belief.mean
     z_ok = np.ones(len(mean), bool)
     if plan.z_range_mm is not None:
         z = plan.approach_height(mean)
         z_ok = (z >= plan.z_range_mm[0]) & (z <= plan.z_range_mm[1])
 
-    def pick(c):
+    def allowed(c):
         d, var = variance_drop(rows, c, plan.gram, r)
-        ok = stroke_ok(var, r, plan.usable_mm) & z_ok
+        return d, stroke_ok(var, r, plan.usable_mm) & z_ok
+
+    def pick(c, at=here):
+        d, ok = allowed(c)
         if not ok.any():
             return -1
         if plan.criterion == "max":
             return minimax_choice(rows, c, r, ok)
+        if timed:
+            return rate_choice(d, ok, xy, at, plan.speed_mm_per_s, plan.touch_time_s)
         return int(np.argmax(np.where(ok, d, -np.inf)))
 
+    def per_second(p_xy, drop):
+        """The objective at points (N, 2): dJ per second of robot time, or dJ."""
+        if not timed:
+            return drop
+        t = touch_time_s(np.reshape(p_xy, (-1, 2)), here, plan.speed_mm_per_s, plan.touch_time_s)
+        return drop / np.maximum(t, 1e-9)
+
+    if n == 1 and timed and plan.lookahead > 1:  # receding horizon: the first of a batch
+        n, first_only = plan.lookahead, True
+    else:
+        first_only = False
     if n == 1:
         i = pick(cov)
         if i < 0:
             return []
-        xy = plan.candidates.xy_mm[i]
+        p = xy[i]
         if plan.criterion == "integrated" and plan.refine:
-            d, var = variance_drop(rows, cov, plan.gram, r)
-            d = np.where(stroke_ok(var, r, plan.usable_mm) & z_ok, d, -np.inf)
-            top = np.argsort(-d)[: plan.refine]
-            xy = _refined(plan, state, plan.candidates.xy_mm[top[np.isfinite(d[top])]])
-        return [target(plan, state, *xy)]
-    chosen = [i for i in plan_batch(pick, rows, cov, r, n) if i >= 0]
+            d, ok = allowed(cov)
+            score = np.where(ok, per_second(xy, d), -np.inf)
+            top = np.argsort(-score)[: plan.refine]
+            p = _refined(plan, state, xy[top[np.isfinite(score[top])]], per_second)
+        return [target(plan, state, *p)]
+    chosen = plan_batch(pick, rows, cov, r, n, xy, here)
     if not chosen:
         return []
-    pts = plan.candidates.xy_mm[chosen]
-    begin = from_xy if from_xy is not None else pts[0]
-    return [target(plan, state, *pts[i]) for i in travel_order(begin, pts)]
+    pts = xy[chosen]
+    order = travel_order(here, pts)
+    return [target(plan, state, *pts[i]) for i in (order[:1] if first_only else order)]
 
 
-def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray) -> np.ndarray:
-    """Gradient refinement of the best few candidates; the best refined point wins."""
+def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray, value) -> np.ndarray:
+    """Gradient refinement (of dJ) of the best few candidates; the refined point of largest
+    ``value(xy, dJ)`` (the plan's objective) wins."""
     r, cov = state.noise_var, state.belief.cov
 
     def accept(x, y):
@@ -86,7 +111,7 @@ def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray) -> np.nda
 
     results = [refine(plan.model.surface, xy, cov, plan.gram, r, list(plan.bounds_mm), accept)
                for xy in starts]
-    return max(results, key=lambda res: res[1])[0]
+    return max(results, key=lambda res: float(np.ravel(value(res[0], res[1]))[0]))[0]
 
 
 def target(plan: SurveyPlan, state: SurveyState, x_mm, y_mm, *, z_mm=None,

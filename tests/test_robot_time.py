@@ -1,0 +1,145 @@
+"""Robot time as the cost: the time-aware choice against a brute-force argmax of the same
+objective, batches priced along their path and ordered for travel, robot time in result.json,
+the terminal and the study records."""
+from dataclasses import replace
+from itertools import permutations
+
+import numpy as np
+import pytest
+
+from adaptive_cal.cell.build import survey_plan
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.planning import route, scoring
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.ask import ask
+
+from helpers import sim_cell
+
+RNG = np.random.default_rng(14)
+
+
+def _plan(**kw):
+    """The simulated cell's plan on a coarse candidate grid, no refinement, learning off."""
+    cell = sim_cell(plan={"candidates": 600, "refine": 0},
+                    model={"knots_x": 6, "knots_y": 5, "learn_hyper": False})
+    return replace(survey_plan(cell), **kw)
+
+
+def _told(plan, n):
+    """A state after n touches at random allowed points (readings where the belief expects
+    them: the covariance does not depend on the readings)."""
+    state = sv.start(plan)
+    for i in RNG.choice(len(plan.candidates.xy_mm), n, replace=False):
+        x, y = plan.candidates.xy_mm[i]
+        h = plan.model.surface.basis(np.array([x]), np.array([y]))[0]
+        mean = float(h @ state.belief.mean)
+        z = plan.approach_height(mean)
+        state, _ = sv.tell(plan, state, x, y, z, mean - z + plan.zero_mm)
+    return state
+
+
+def _brute_objective(plan, state, here):
+    """dJ / (touch_time_s + |p - here| / speed) for every allowed candidate, by explicit
+    posterior covariances (trace(Q C) before minus after, one candidate at a time, in loops)."""
+    cov, r, gram = state.belief.cov, state.noise_var, plan.gram
+    j0 = np.trace(gram @ cov)
+    out = np.full(len(plan.candidates.xy_mm), -np.inf)
+    for i, (h, p) in enumerate(zip(plan.candidates.rows, plan.candidates.xy_mm)):
+        var = float(h @ cov @ h)
+        if scoring.STROKE_Z * np.sqrt(var + r) > 0.5 * (plan.usable_mm[1] - plan.usable_mm[0]):
+            continue  # not promised inside the stroke
+        drop = j0 - np.trace(gram @ bl.covariance_after(cov, h[None], r))
+        dist = np.sqrt((p[0] - here[0]) ** 2 + (p[1] - here[1]) ** 2)
+        out[i] = drop / (plan.touch_time_s + dist / plan.speed_mm_per_s)
+    return out
+
+
+@pytest.mark.parametrize("touches,speed,touch_s", [(6, 150.0, 3.0), (12, 20.0, 0.5),
+                                                   (12, 500.0, 10.0)])
+def test_time_aware_choice_is_the_brute_force_argmax_of_drop_per_second(touches, speed, touch_s):
+    plan = _plan(speed_mm_per_s=speed, touch_time_s=touch_s, lookahead=1)
+    state = _told(plan, touches)
+    here = plan.here_xy_mm(state.touched_xy_mm)
+    assert tuple(here) == state.touched_xy_mm[-1]
+    brute = _brute_objective(plan, state, here)
+    best = plan.candidates.xy_mm[int(np.argmax(brute))]
+    t = ask(plan, state, 1)[0]
+    np.testing.assert_allclose([t.x_mm, t.y_mm], best)
+    # the same from an explicit probe position, and the choice moves with the probe
+    other = np.array([-200.0, -170.0])
+    t2 = ask(plan, state, 1, from_xy=other)[0]
+    np.testing.assert_allclose([t2.x_mm, t2.y_mm],
+                               plan.candidates.xy_mm[int(np.argmax(_brute_objective(plan, state,
+                                                                                    other)))])
+
+
+def test_time_blind_choice_is_the_largest_drop_and_the_first_touch_starts_at_the_centre():
+    plan = _plan(time_aware=False)
+    state = _told(plan, 5)
+    brute = _brute_objective(replace(plan, speed_mm_per_s=1e12), state, (0.0, 0.0))
+    t = ask(plan, state, 1)[0]
+    np.testing.assert_allclose([t.x_mm, t.y_mm], plan.candidates.xy_mm[int(np.argmax(brute))])
+    start = sv.start(plan)
+    assert tuple(plan.here_xy_mm(start.touched_xy_mm)) == (0.0, 0.0)  # the plate centre
+
+
+def test_rate_choice_prices_travel_and_refuses_when_nothing_is_allowed():
+    xy = np.array([[0.0, 0.0], [300.0, 0.0]])
+    drop = np.array([1.0, 1.6])
+    ok = np.array([True, True])
+    # 3 s + 0 s against 3 s + 2 s: 1 / 3 > 1.6 / 5
+    assert scoring.rate_choice(drop, ok, xy, (0.0, 0.0), 150.0, 3.0) == 0
+    assert scoring.rate_choice(drop, ok, xy, (300.0, 0.0), 150.0, 3.0) == 1
+    assert scoring.rate_choice(drop, ok, xy, (0.0, 0.0), 1e9, 3.0) == 1  # travel free
+    assert scoring.rate_choice(drop, np.array([False, False]), xy, (0, 0), 150.0, 3.0) == -1
+
+
+def test_a_batch_is_priced_along_its_path_and_its_travel_order_never_lengthens_it():
+    plan = _plan(lookahead=1)
+    state = _told(plan, 8)
+    here = plan.here_xy_mm(state.touched_xy_mm)
+    batch = ask(plan, state, 6)
+    assert len(batch) == 6
+    pts = np.array([[t.x_mm, t.y_mm] for t in batch])
+    # the batch as chosen: each pick the best drop per second from the previous one
+    rows, cov, r = plan.candidates.rows, state.belief.cov, state.noise_var
+    chosen, at = [], here
+    for _ in range(6):
+        s = replace(state, belief=bl.Belief(state.belief.mean, cov))
+        i = int(np.argmax(_brute_objective(plan, s, at)))
+        chosen.append(i)
+        cov = bl.covariance_after(cov, rows[i:i + 1], r)
+        at = plan.candidates.xy_mm[i]
+    picked = plan.candidates.xy_mm[chosen]
+    assert sorted(map(tuple, pts)) == sorted(map(tuple, picked))
+    assert route.path_length_mm(here, pts) <= route.path_length_mm(here, picked) + 1e-9
+
+
+def test_travel_order_never_lengthens_the_given_order():
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        n = int(rng.integers(1, 14))
+        pts = rng.uniform(-200, 200, (n, 2))
+        if seed % 3 == 0:  # a given order already short (a serpentine row): kept or bettered
+            pts = pts[np.argsort(pts[:, 0])]
+        start = rng.uniform(-200, 200, 2)
+        order = route.travel_order(start, pts)
+        assert sorted(order) == list(range(n))
+        assert route.path_length_mm(start, pts[order]) <= route.path_length_mm(start, pts) + 1e-9
+        if n <= 6:  # and never longer than 1.15 x the best open path
+            opt = min(route.path_length_mm(start, pts[list(p)]) for p in permutations(range(n)))
+            assert route.path_length_mm(start, pts[order]) <= 1.15 * opt + 1e-9
+
+
+def test_robot_time_is_travel_at_speed_plus_touch_time():
+    pts = [(3.0, 4.0), (3.0, 4.0), (6.0, 8.0)]  # a retake at the same point travels nothing
+    s, travel = route.robot_time_s((0.0, 0.0), pts, 2.0, 1.5)
+    assert travel == pytest.approx(10.0)
+    assert s == pytest.approx(10.0 / 2.0 + 3 * 1.5)
+    assert route.robot_time_s((0, 0), [], 2.0, 1.5) == (0.0, 0.0)
+
+
+def test_plan_carries_the_robot_speed_touch_time_and_start():
+    cell = sim_cell(robot={"speed_mm_per_s": 123.0, "touch_time_s": 2.5})
+    plan = survey_plan(cell)
+    assert (plan.speed_mm_per_s, plan.touch_time_s, plan.start_xy_mm) == (123.0, 2.5, (0.0, 0.0))
