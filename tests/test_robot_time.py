@@ -94,25 +94,41 @@ def test_rate_choice_prices_travel_and_refuses_when_nothing_is_allowed():
     assert scoring.rate_choice(drop, np.array([False, False]), xy, (0, 0), 150.0, 3.0) == -1
 
 
-def test_a_batch_is_priced_along_its_path_and_its_travel_order_never_lengthens_it():
-    plan = _plan(lookahead=1)
+def _greedy_set(plan, state, k):
+    """k picks, each the allowed candidate of largest drop of J after the picks before it,
+    by explicit covariances (allowed: inside the stroke under the belief now)."""
+    rows, cov, r, gram = plan.candidates.rows, state.belief.cov, state.noise_var, plan.gram
+    half = 0.5 * (plan.usable_mm[1] - plan.usable_mm[0])
+    ok = [scoring.STROKE_Z * np.sqrt(float(h @ cov @ h) + r) <= half for h in rows]
+    chosen = []
+    for _ in range(k):
+        j0 = np.trace(gram @ cov)
+        drops = [j0 - np.trace(gram @ bl.covariance_after(cov, h[None], r)) if a else -np.inf
+                 for h, a in zip(rows, ok)]
+        chosen.append(int(np.argmax(drops)))
+        cov = bl.covariance_after(cov, rows[chosen[-1]][None], r)
+    return chosen
+
+
+def test_a_batch_is_the_greedy_set_and_its_travel_order_never_lengthens_it():
+    plan = _plan(lookahead=6)
     state = _told(plan, 8)
     here = plan.here_xy_mm(state.touched_xy_mm)
-    batch = ask(plan, state, 6)
-    assert len(batch) == 6
-    pts = np.array([[t.x_mm, t.y_mm] for t in batch])
-    # the batch as chosen: each pick the best drop per second from the previous one
-    rows, cov, r = plan.candidates.rows, state.belief.cov, state.noise_var
-    chosen, at = [], here
-    for _ in range(6):
-        s = replace(state, belief=bl.Belief(state.belief.mean, cov))
-        i = int(np.argmax(_brute_objective(plan, s, at)))
-        chosen.append(i)
-        cov = bl.covariance_after(cov, rows[i:i + 1], r)
-        at = plan.candidates.xy_mm[i]
-    picked = plan.candidates.xy_mm[chosen]
-    assert sorted(map(tuple, pts)) == sorted(map(tuple, picked))
-    assert route.path_length_mm(here, pts) <= route.path_length_mm(here, picked) + 1e-9
+    picked = plan.candidates.xy_mm[_greedy_set(plan, state, 6)]
+    for batch in (ask(plan, state, 6), ask(plan, state)):  # asked for, or planned ahead
+        assert len(batch) == 6
+        pts = np.array([[t.x_mm, t.y_mm] for t in batch])
+        assert sorted(map(tuple, pts)) == sorted(map(tuple, picked))
+        assert route.path_length_mm(here, pts) <= route.path_length_mm(here, picked) + 1e-9
+    # one touch asked for: the best drop per second alone; no lookahead while time is blind
+    assert len(ask(plan, state, 1)) == 1
+    assert len(ask(replace(plan, time_aware=False), state)) == 1
+
+
+def test_no_planning_ahead_while_the_stroke_steers_the_choice():
+    plan = _plan(lookahead=6)
+    state = sv.start(plan)  # the tilt unknown: only points near the centre are promised
+    assert len(ask(plan, state)) == 1
 
 
 def test_travel_order_never_lengthens_the_given_order():
@@ -143,3 +159,21 @@ def test_plan_carries_the_robot_speed_touch_time_and_start():
     cell = sim_cell(robot={"speed_mm_per_s": 123.0, "touch_time_s": 2.5})
     plan = survey_plan(cell)
     assert (plan.speed_mm_per_s, plan.touch_time_s, plan.start_xy_mm) == (123.0, 2.5, (0.0, 0.0))
+
+
+def test_a_batch_ends_where_its_picks_would_stop_the_survey():
+    plan = _plan(lookahead=40)
+    state = _told(plan, 10)
+    picks = _greedy_set(plan, state, 40)
+    cov, rows, r = state.belief.cov, plan.candidates.rows, state.noise_var
+    area = plan.model.surface.area_mm2
+    need = None
+    for k, i in enumerate(picks, 1):  # brute force: the first count whose RMS std meets 4 um
+        cov = bl.covariance_after(cov, rows[i][None], r)
+        if np.sqrt(np.trace(plan.gram @ cov) / area) <= 0.004:
+            need = k
+            break
+    assert need is not None and 1 < need < 40
+    batch = ask(plan, state)
+    assert len(batch) == need
+    assert sorted((t.x_mm, t.y_mm) for t in batch) == sorted(map(tuple, plan.candidates.xy_mm[picks[:need]]))

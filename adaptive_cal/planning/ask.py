@@ -6,8 +6,14 @@ A candidate is allowed when its reading lands inside the usable stroke with prob
 z = mean - (lo + hi) / 2 + zero lies inside the box's z range. The criterion ``integrated``
 takes the largest drop of J = trace(Q C) per second of robot time (``plan.time_aware``: travel
 at ``plan.speed_mm_per_s`` from where the probe is, plus ``plan.touch_time_s``), or the largest
-drop alone; ``max`` the smallest largest variance after the reading. A batch is chosen greedily
-along the path it is picked in (each pick priced from the previous one), then ordered for travel.
+drop alone; ``max`` the smallest largest variance after the reading.
+
+A batch is the greedy set by the drop of J (the covariance after a reading does not depend on its
+value), ended early where those picks would already stop the survey, then ordered for travel
+from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware planner plans
+``plan.lookahead`` touches ahead once the stroke no longer steers the choice (at least
+``FREE`` of the candidates promised inside it): the touches one at a time would take, in a
+shorter path.
 """
 from __future__ import annotations
 
@@ -15,11 +21,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from adaptive_cal.gaussian.belief import rms_std
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import plan_batch, travel_order
 from adaptive_cal.planning.scoring import (minimax_choice, rate_choice, refine, stroke_ok,
                                            touch_time_s, variance_drop)
+from adaptive_cal.planning.stopping import Status
 from adaptive_cal.planning.survey import SurveyState
+
+
+#: share of the candidates promised inside the stroke from which the planner plans ahead
+FREE = 0.95
 
 
 @dataclass(frozen=True)
@@ -40,7 +52,6 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
     """The next touch(es): ``n`` (default ``plan.batch``) targets, a batch ordered for travel
     from ``from_xy``; the owed retake alone when one is pending. Empty when no allowed point
     can be promised inside the stroke."""
-    n = n or plan.batch
     if state.retake is not None:
         x, y, z, _ = state.retake
         return [target(plan, state, x, y, z_mm=z, retake=True)]
@@ -55,18 +66,19 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         z = plan.approach_height(mean)
         z_ok = (z >= plan.z_range_mm[0]) & (z <= plan.z_range_mm[1])
 
-    def allowed(c):
-        d, var = variance_drop(rows, c, plan.gram, r)
-        return d, stroke_ok(var, r, plan.usable_mm) & z_ok
+    d0, var0 = variance_drop(rows, cov, plan.gram, r)
+    # approach heights come from the belief now, so every touch of a batch must be promised
+    # inside the stroke under it (variance only falls with readings: then also after them)
+    ok = stroke_ok(var0, r, plan.usable_mm) & z_ok
 
-    def pick(c, at=here):
-        d, ok = allowed(c)
+    def pick(c, timed_here=False):
+        d = d0 if c is cov else variance_drop(rows, c, plan.gram, r)[0]
         if not ok.any():
             return -1
         if plan.criterion == "max":
             return minimax_choice(rows, c, r, ok)
-        if timed:
-            return rate_choice(d, ok, xy, at, plan.speed_mm_per_s, plan.touch_time_s)
+        if timed_here:
+            return rate_choice(d, ok, xy, here, plan.speed_mm_per_s, plan.touch_time_s)
         return int(np.argmax(np.where(ok, d, -np.inf)))
 
     def per_second(p_xy, drop):
@@ -76,27 +88,35 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         t = touch_time_s(np.reshape(p_xy, (-1, 2)), here, plan.speed_mm_per_s, plan.touch_time_s)
         return drop / np.maximum(t, 1e-9)
 
-    if n == 1 and timed and plan.lookahead > 1:  # receding horizon: the first of a batch
-        n, first_only = plan.lookahead, True
-    else:
-        first_only = False
+    if n is None and plan.batch == 1 and timed and plan.lookahead > 1 and ok.mean() >= FREE:
+        n = plan.lookahead  # the stroke no longer steers the choice: plan ahead, order for travel
+    n = n or plan.batch
     if n == 1:
-        i = pick(cov)
+        i = pick(cov, timed)
         if i < 0:
             return []
         p = xy[i]
         if plan.criterion == "integrated" and plan.refine:
-            d, ok = allowed(cov)
-            score = np.where(ok, per_second(xy, d), -np.inf)
+            score = np.where(ok, per_second(xy, d0), -np.inf)
             top = np.argsort(-score)[: plan.refine]
             p = _refined(plan, state, xy[top[np.isfinite(score[top])]], per_second)
         return [target(plan, state, *p)]
-    chosen = plan_batch(pick, rows, cov, r, n, xy, here)
+    # a batch: the greedy set by the drop of J (the touches the one-at-a-time rule would take
+    # while the hyper-parameters stay), then ordered for travel from where the probe is
+    chosen = plan_batch(pick, rows, cov, r, n,
+                        enough=lambda c, k: bool(plan.stop(_status_after(plan, c, state.touches + k))))
     if not chosen:
         return []
     pts = xy[chosen]
-    order = travel_order(here, pts)
-    return [target(plan, state, *pts[i]) for i in (order[:1] if first_only else order)]
+    return [target(plan, state, *pts[i]) for i in travel_order(here, pts)]
+
+
+def _status_after(plan: SurveyPlan, cov: np.ndarray, touches: int) -> Status:
+    """The status the stopping rules would see with covariance ``cov`` after ``touches``
+    (as ``survey.status``: RMS std sqrt(trace(Q C) / area), largest std on the grid)."""
+    var = np.einsum("nk,nk->n", plan.eval_rows @ cov, plan.eval_rows)
+    return Status(touches, float(rms_std(cov, plan.gram, plan.model.surface.area_mm2)),
+                  float(np.sqrt(max(var.max(), 0.0))))
 
 
 def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray, value) -> np.ndarray:

@@ -17,7 +17,7 @@ from adaptive_cal.planning.scoring import Candidates
 from adaptive_cal.planning.stopping import StopRule
 
 Interval = tuple[float, float]
-LOOKAHEAD = 8
+LOOKAHEAD = 32
 
 
 @dataclass(frozen=True, eq=False)

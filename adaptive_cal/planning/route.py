@@ -10,23 +10,22 @@ import numpy as np
 from adaptive_cal.gaussian.belief import covariance_after
 
 
-def plan_batch(pick: Callable[..., int], rows, cov, noise_var, k: int,
-               xy_mm: np.ndarray | None = None, here_xy_mm=None) -> list[int]:
-    """k candidate indices chosen greedily; the covariance is updated after each pick without
-    readings (it does not depend on them), so the batch can be taken in any order. With
-    ``xy_mm`` and ``here_xy_mm``, ``pick(cov, here)`` also gets where the probe would be: the
-    start, then the last pick (the batch is priced along the path it was chosen in). Stops
-    early at a pick of -1 (nothing allowed)."""
+def plan_batch(pick: Callable[[np.ndarray], int], rows, cov, noise_var, k: int,
+               enough: Callable[[np.ndarray, int], bool] | None = None) -> list[int]:
+    """Up to k candidate indices chosen greedily; the covariance is updated after each pick
+    without readings (it does not depend on them), so the batch can be taken in any order.
+    Ends early at a pick of -1 (nothing allowed) or when ``enough(cov_after, picks)`` says the
+    picks so far would stop the survey (a batch taken in travel order then holds no touch the
+    greedy order would not have made before its stop)."""
     chosen = []
-    here = None if here_xy_mm is None else np.asarray(here_xy_mm, float)
     for _ in range(k):
-        i = pick(cov) if here is None else pick(cov, here)
+        i = pick(cov)
         if i < 0:
             break
         chosen.append(i)
         cov = covariance_after(cov, rows[i : i + 1], noise_var)
-        if here is not None:
-            here = np.asarray(xy_mm[i], float)
+        if enough is not None and enough(cov, len(chosen)):
+            break
     return chosen
 
 
