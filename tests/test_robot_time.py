@@ -177,3 +177,57 @@ def test_a_batch_ends_where_its_picks_would_stop_the_survey():
     batch = ask(plan, state)
     assert len(batch) == need
     assert sorted((t.x_mm, t.y_mm) for t in batch) == sorted(map(tuple, plan.candidates.xy_mm[picks[:need]]))
+
+
+def test_result_json_terminal_and_report_give_touches_and_robot_time_side_by_side(tmp_path,
+                                                                                  capsys):
+    import json
+
+    import yaml
+
+    from adaptive_cal.cli import main
+    from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.report.sections import run_section
+
+    from helpers import SIM_CELL
+
+    data = yaml.safe_load(SIM_CELL.read_text())
+    data["plan"]["stop"]["max_touches"] = 12
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert main(["run", "--robot", str(cell), "--out", str(out), "--no-progress"]) == 0
+    r = json.loads((out / "result.json").read_text())
+    rec = read_recording(out / "recording.csv")
+    xy = np.column_stack([rec.x_mm, rec.y_mm])
+    s, travel = route.robot_time_s((0.0, 0.0), xy, 150.0, 3.0)  # sim-cell: 150 mm/s, 3 s
+    assert r["touches"] == len(xy) == 12
+    assert r["travel_mm"] == pytest.approx(travel) and r["robot_time_s"] == pytest.approx(s)
+    text = capsys.readouterr().out
+    assert f"robot time: about {s / 60:.1f} min for 12 touches ({travel / 1000:.1f} m of travel)" in text
+    assert f"about {s / 60:.1f} min for 12 touches" in run_section(r)
+
+
+def test_study_summary_puts_touches_and_robot_time_side_by_side():
+    from adaptive_cal.study.config import load_study
+    from adaptive_cal.study.summary import summarise, table
+
+    from helpers import ROOT
+
+    study, _ = load_study(ROOT / "configs" / "study-tilts.yaml")
+
+    def rec(strategy, plate, touches, time_s, travel):
+        return {"strategy": strategy, "plate": plate, "touches": touches, "robot_time_s": time_s,
+                "travel_mm": travel, "touches_true": touches, "robot_time_true_s": time_s,
+                "true_rms_mm": 0.005, "true_max_mm": 0.02, "coverage95": 0.95,
+                "mean_std_mm": 0.005, "trajectory": []}
+
+    records = [rec("adaptive", 0, 60, 200.0, 3000.0), rec("adaptive", 1, 80, 280.0, 4000.0),
+               rec("grid", 0, 72, 240.0, 3500.0), rec("grid", 1, 88, 300.0, 4500.0)]
+    s = summarise(study.model_copy(update={"strategies": ["adaptive", "grid"]}), records)
+    assert s["strategies"]["adaptive"]["stop_travel_mm_mean"] == 3500.0
+    assert s["adaptive_vs_grid"] == {"plates": 2, "touch_ratio": pytest.approx(70 / 80),
+                                     "robot_time_ratio": pytest.approx(240 / 270)}
+    text = table(s)
+    assert "| adaptive | 70.0 / 78 | 240 | 100% | 70.0 | 240 | 5.00 |" in text
+    assert "touches 0.88 x, robot time 0.89 x" in text
