@@ -11,9 +11,9 @@ drop alone; ``max`` the smallest largest variance after the reading.
 A batch is the greedy set by the drop of J (the covariance after a reading does not depend on its
 value), ended early where those picks would already stop the survey, then ordered for travel
 from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware planner plans
-``plan.lookahead`` touches ahead once the stroke no longer steers the choice (at least
-``FREE`` of the candidates promised inside it): the touches one at a time would take, in a
-shorter path.
+``plan.lookahead`` touches ahead (never more than were made: 4, 8, 16, ... while the
+hyper-parameters are learned) once the stroke no longer steers the choice (at least ``FREE`` of
+the candidates promised inside it): the touches one at a time would take, in a shorter path.
 """
 from __future__ import annotations
 
@@ -89,7 +89,9 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         return drop / np.maximum(t, 1e-9)
 
     if n is None and plan.batch == 1 and timed and plan.lookahead > 1 and ok.mean() >= FREE:
-        n = plan.lookahead  # the stroke no longer steers the choice: plan ahead, order for travel
+        # the stroke no longer steers the choice: plan ahead and order for travel, never more
+        # touches than were made (the hyper-parameters rest on at least as many readings)
+        n = max(1, min(plan.lookahead, state.touches))
     n = n or plan.batch
     if n == 1:
         i = pick(cov, timed)
