@@ -91,7 +91,7 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
     if n is None and plan.batch == 1 and timed and plan.lookahead > 1 and ok.mean() >= FREE:
         # the stroke no longer steers the choice: plan ahead and order for travel, never more
         # touches than were made (the hyper-parameters rest on at least as many readings)
-        n = max(1, min(plan.lookahead, state.touches))
+        n = max(1, min(plan.lookahead, 2 * state.touches))
     n = n or plan.batch
     if n == 1:
         i = pick(cov, timed)
