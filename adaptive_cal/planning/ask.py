@@ -11,8 +11,8 @@ drop alone; ``max`` the smallest largest variance after the reading.
 A batch is the greedy set by the drop of J (the covariance after a reading does not depend on its
 value), ended early where those picks would already stop the survey, then ordered for travel
 from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware planner plans
-``plan.lookahead`` touches ahead (never more than were made: 4, 8, 16, ... while the
-hyper-parameters are learned) once the stroke no longer steers the choice (at least ``FREE`` of
+``plan.lookahead`` touches ahead (at most twice the touches made, so the hyper-parameters
+being learned rest on a third of the readings a batch ends with) once the stroke no longer steers the choice (at least ``FREE`` of
 the candidates promised inside it): the touches one at a time would take, in a shorter path.
 """
 from __future__ import annotations
@@ -89,8 +89,9 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         return drop / np.maximum(t, 1e-9)
 
     if n is None and plan.batch == 1 and timed and plan.lookahead > 1 and ok.mean() >= FREE:
-        # the stroke no longer steers the choice: plan ahead and order for travel, never more
-        # touches than were made (the hyper-parameters rest on at least as many readings)
+        # the stroke no longer steers the choice: plan ahead and order for travel, at most twice
+        # the touches made (batches swept in travel order from the start left the
+        # hyper-parameters learned from one side of the plate)
         n = max(1, min(plan.lookahead, 2 * state.touches))
     n = n or plan.batch
     if n == 1:
