@@ -17,7 +17,7 @@ from adaptive_cal.planning.scoring import Candidates
 from adaptive_cal.planning.stopping import StopRule
 
 Interval = tuple[float, float]
-LOOKAHEAD = 32
+LOOKAHEAD = 64
 
 
 @dataclass(frozen=True, eq=False)
