@@ -144,4 +144,6 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
         refine=plan.refine, batch=plan.batch,
         stop=stop_rule(cell, coarse_size, informed_prior=informed_prior), growth=growth,
         noise_range_mm=(tuple(cell.probe.noise_range_mm)
-                        if cell.probe.noise_range_mm is not None else None))
+                        if cell.probe.noise_range_mm is not None else None),
+        speed_mm_per_s=cell.robot.speed_mm_per_s, touch_time_s=cell.robot.touch_time_s,
+        start_xy_mm=(0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)))

@@ -188,6 +188,9 @@ def _summary(r: dict, out: Path) -> None:
         lines.append(f"true error: RMS {tr['rms_error_mm'] * 1e3:.2f} um, max "
                      f"{tr['max_error_mm'] * 1e3:.2f} um, 95 % band covers {tr['coverage95']:.0%} "
                      "of the plate")
+    if r.get("robot_time_s") is not None:  # touches and robot time side by side
+        lines.append(f"robot time: about {r['robot_time_s'] / 60:.1f} min for {r['touches']} "
+                     f"touches ({r['travel_mm'] / 1000:.1f} m of travel)")
     lines.append(f"wrote {out}/recording.csv, result.json, surface.png, convergence.png")
     print("\n".join(lines))
 

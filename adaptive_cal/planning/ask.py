@@ -4,7 +4,16 @@ the workspace, refined by gradient steps, or a batch planned ahead and ordered f
 A candidate is allowed when its reading lands inside the usable stroke with probability
 >= 1 - 1e-6 (``scoring.stroke_ok``) and, with a workspace box, its approach height
 z = mean - (lo + hi) / 2 + zero lies inside the box's z range. The criterion ``integrated``
-takes the largest drop of J = trace(Q C); ``max`` the smallest largest variance after the reading.
+takes the largest drop of J = trace(Q C) per second of robot time (``plan.time_aware``: travel
+at ``plan.speed_mm_per_s`` from where the probe is, plus ``plan.touch_time_s``), or the largest
+drop alone; ``max`` the smallest largest variance after the reading.
+
+A batch is the greedy set by the drop of J (the covariance after a reading does not depend on its
+value), ended early where those picks would already stop the survey, then ordered for travel
+from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware planner plans
+``plan.lookahead`` touches ahead (at most twice the touches made, so the hyper-parameters
+being learned rest on a third of the readings a batch ends with) once the stroke no longer steers the choice (at least ``FREE`` of
+the candidates promised inside it): the touches one at a time would take, in a shorter path.
 """
 from __future__ import annotations
 
@@ -12,10 +21,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from adaptive_cal.gaussian.belief import rms_std
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import plan_batch, travel_order
-from adaptive_cal.planning.scoring import minimax_choice, refine, stroke_ok, variance_drop
+from adaptive_cal.planning.scoring import (minimax_choice, rate_choice, refine, stroke_ok,
+                                           touch_time_s, variance_drop)
+from adaptive_cal.planning.stopping import Status
 from adaptive_cal.planning.survey import SurveyState
+
+
+#: share of the candidates promised inside the stroke from which the planner plans ahead
+FREE = 0.95
 
 
 @dataclass(frozen=True)
@@ -36,47 +52,79 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
     """The next touch(es): ``n`` (default ``plan.batch``) targets, a batch ordered for travel
     from ``from_xy``; the owed retake alone when one is pending. Empty when no allowed point
     can be promised inside the stroke."""
-    n = n or plan.batch
     if state.retake is not None:
         x, y, z, _ = state.retake
         return [target(plan, state, x, y, z_mm=z, retake=True)]
     rows, cov, r = plan.candidates.rows, state.belief.cov, state.noise_var
+    xy = plan.candidates.xy_mm
+    here = (np.asarray(from_xy, float)[:2] if from_xy is not None
+            else plan.here_xy_mm(state.touched_xy_mm))
+    timed = plan.time_aware and plan.criterion == "integrated"
     mean = rows @ state.belief.mean
     z_ok = np.ones(len(mean), bool)
     if plan.z_range_mm is not None:
         z = plan.approach_height(mean)
         z_ok = (z >= plan.z_range_mm[0]) & (z <= plan.z_range_mm[1])
 
-    def pick(c):
-        d, var = variance_drop(rows, c, plan.gram, r)
-        ok = stroke_ok(var, r, plan.usable_mm) & z_ok
+    d0, var0 = variance_drop(rows, cov, plan.gram, r)
+    # approach heights come from the belief now, so every touch of a batch must be promised
+    # inside the stroke under it (variance only falls with readings: then also after them)
+    ok = stroke_ok(var0, r, plan.usable_mm) & z_ok
+
+    def pick(c, timed_here=False):
+        d = d0 if c is cov else variance_drop(rows, c, plan.gram, r)[0]
         if not ok.any():
             return -1
         if plan.criterion == "max":
             return minimax_choice(rows, c, r, ok)
+        if timed_here:
+            return rate_choice(d, ok, xy, here, plan.speed_mm_per_s, plan.touch_time_s)
         return int(np.argmax(np.where(ok, d, -np.inf)))
 
+    def per_second(p_xy, drop):
+        """The objective at points (N, 2): dJ per second of robot time, or dJ."""
+        if not timed:
+            return drop
+        t = touch_time_s(np.reshape(p_xy, (-1, 2)), here, plan.speed_mm_per_s, plan.touch_time_s)
+        return drop / np.maximum(t, 1e-9)
+
+    if n is None and plan.batch == 1 and timed and plan.lookahead > 1 and ok.mean() >= FREE:
+        # the stroke no longer steers the choice: plan ahead and order for travel, at most twice
+        # the touches made (batches swept in travel order from the start left the
+        # hyper-parameters learned from one side of the plate)
+        n = max(1, min(plan.lookahead, 2 * state.touches))
+    n = n or plan.batch
     if n == 1:
-        i = pick(cov)
+        i = pick(cov, timed)
         if i < 0:
             return []
-        xy = plan.candidates.xy_mm[i]
+        p = xy[i]
         if plan.criterion == "integrated" and plan.refine:
-            d, var = variance_drop(rows, cov, plan.gram, r)
-            d = np.where(stroke_ok(var, r, plan.usable_mm) & z_ok, d, -np.inf)
-            top = np.argsort(-d)[: plan.refine]
-            xy = _refined(plan, state, plan.candidates.xy_mm[top[np.isfinite(d[top])]])
-        return [target(plan, state, *xy)]
-    chosen = [i for i in plan_batch(pick, rows, cov, r, n) if i >= 0]
+            score = np.where(ok, per_second(xy, d0), -np.inf)
+            top = np.argsort(-score)[: plan.refine]
+            p = _refined(plan, state, xy[top[np.isfinite(score[top])]], per_second)
+        return [target(plan, state, *p)]
+    # a batch: the greedy set by the drop of J (the touches the one-at-a-time rule would take
+    # while the hyper-parameters stay), then ordered for travel from where the probe is
+    chosen = plan_batch(pick, rows, cov, r, n,
+                        enough=lambda c, k: bool(plan.stop(_status_after(plan, c, state.touches + k))))
     if not chosen:
         return []
-    pts = plan.candidates.xy_mm[chosen]
-    begin = from_xy if from_xy is not None else pts[0]
-    return [target(plan, state, *pts[i]) for i in travel_order(begin, pts)]
+    pts = xy[chosen]
+    return [target(plan, state, *pts[i]) for i in travel_order(here, pts)]
 
 
-def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray) -> np.ndarray:
-    """Gradient refinement of the best few candidates; the best refined point wins."""
+def _status_after(plan: SurveyPlan, cov: np.ndarray, touches: int) -> Status:
+    """The status the stopping rules would see with covariance ``cov`` after ``touches``
+    (as ``survey.status``: RMS std sqrt(trace(Q C) / area), largest std on the grid)."""
+    var = np.einsum("nk,nk->n", plan.eval_rows @ cov, plan.eval_rows)
+    return Status(touches, float(rms_std(cov, plan.gram, plan.model.surface.area_mm2)),
+                  float(np.sqrt(max(var.max(), 0.0))))
+
+
+def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray, value) -> np.ndarray:
+    """Gradient refinement (of dJ) of the best few candidates; the refined point of largest
+    ``value(xy, dJ)`` (the plan's objective) wins."""
     r, cov = state.noise_var, state.belief.cov
 
     def accept(x, y):
@@ -86,7 +134,7 @@ def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray) -> np.nda
 
     results = [refine(plan.model.surface, xy, cov, plan.gram, r, list(plan.bounds_mm), accept)
                for xy in starts]
-    return max(results, key=lambda res: res[1])[0]
+    return max(results, key=lambda res: float(np.ravel(value(res[0], res[1]))[0]))[0]
 
 
 def target(plan: SurveyPlan, state: SurveyState, x_mm, y_mm, *, z_mm=None,

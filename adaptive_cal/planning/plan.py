@@ -17,6 +17,7 @@ from adaptive_cal.planning.scoring import Candidates
 from adaptive_cal.planning.stopping import StopRule
 
 Interval = tuple[float, float]
+LOOKAHEAD = 64
 
 
 @dataclass(frozen=True, eq=False)
@@ -33,7 +34,12 @@ class SurveyPlan:
     hyper-parameters (``hyper_after`` readings first, then every ``hyper_every``);
     ``criterion``: ``integrated`` or ``max`` (resolved); ``refine``: best candidates refined
     by gradient steps (0: none); ``batch``: touches planned per ask; ``stop``: the composed
-    stopping rule."""
+    stopping rule; ``speed_mm_per_s``/``touch_time_s``: the robot's travel speed and the time
+    of one touch, which price a touch at t = touch_time_s + distance / speed_mm_per_s from
+    where the probe is (``start_xy_mm`` before the first touch); ``time_aware``: choose by
+    the drop of J per second of robot time (False: by the drop of J alone); ``lookahead``: with
+    ``time_aware``, one touch asked for is the first of a batch of this many planned ahead and
+    ordered for travel (receding horizon; 1: the best touch per second alone)."""
 
     model: PriorModel
     candidates: Candidates
@@ -61,11 +67,20 @@ class SurveyPlan:
     # a model that grows: the unit covariance (K x K) of structure finer than the coarse knots
     # on the refined knots of ``model`` (whose form lives on ``model.coarse``), or None
     growth: np.ndarray | None = None
+    speed_mm_per_s: float = 100.0
+    touch_time_s: float = 3.0
+    start_xy_mm: tuple[float, float] = (0.0, 0.0)
+    time_aware: bool = True
+    lookahead: int = LOOKAHEAD
 
     @property
     def coefficients(self) -> int:
         """K, the number of spline coefficients."""
         return self.model.surface.size
+
+    def here_xy_mm(self, touched_xy_mm) -> np.ndarray:
+        """Where the probe is: the last touched point, or the start before the first touch."""
+        return np.asarray(touched_xy_mm[-1] if len(touched_xy_mm) else self.start_xy_mm, float)
 
     def approach_height(self, mean_mm):
         """Reference height z putting the expected reading mid-way in the usable stroke:

@@ -1,5 +1,6 @@
-"""Batches and travel order: the covariance after a reading does not depend on its value, so a
-batch is chosen greedily without readings and may then be taken in any order (Brunn, sec. IV)."""
+"""Batches, travel order and robot time: the covariance after a reading does not depend on its
+value, so a batch is chosen greedily without readings and may then be taken in any order (Brunn,
+sec. IV); robot time = straight travel at the robot's speed + the time of each touch."""
 from __future__ import annotations
 
 from typing import Callable
@@ -9,19 +10,28 @@ import numpy as np
 from adaptive_cal.gaussian.belief import covariance_after
 
 
-def plan_batch(pick: Callable[[np.ndarray], int], rows, cov, noise_var, k: int) -> list[int]:
-    """k candidate indices chosen greedily; the covariance is updated after each pick without
-    readings (it does not depend on them), so the batch can be taken in any order."""
+def plan_batch(pick: Callable[[np.ndarray], int], rows, cov, noise_var, k: int,
+               enough: Callable[[np.ndarray, int], bool] | None = None) -> list[int]:
+    """Up to k candidate indices chosen greedily; the covariance is updated after each pick
+    without readings (it does not depend on them), so the batch can be taken in any order.
+    Ends early at a pick of -1 (nothing allowed) or when ``enough(cov_after, picks)`` says the
+    picks so far would stop the survey (a batch taken in travel order then holds no touch the
+    greedy order would not have made before its stop)."""
     chosen = []
     for _ in range(k):
         i = pick(cov)
+        if i < 0:
+            break
         chosen.append(i)
         cov = covariance_after(cov, rows[i : i + 1], noise_var)
+        if enough is not None and enough(cov, len(chosen)):
+            break
     return chosen
 
 
 def travel_order(start_xy, points_xy: np.ndarray) -> list[int]:
-    """Order points for a short path from ``start_xy``: nearest neighbour, then 2-opt."""
+    """Order points for a short open path from ``start_xy``: the shorter of the given order and
+    the nearest-neighbour order, then 2-opt; never longer than the given order."""
     pts = np.asarray(points_xy, float)
     n = len(pts)
     left, order, here = set(range(n)), [], np.asarray(start_xy, float)
@@ -30,6 +40,8 @@ def travel_order(start_xy, points_xy: np.ndarray) -> list[int]:
         order.append(j)
         left.remove(j)
         here = pts[j]
+    if path_length_mm(start_xy, pts) <= path_length_mm(start_xy, pts[order]):
+        order = list(range(n))
     path = [np.asarray(start_xy, float)] + [pts[i] for i in order]
 
     def d(a, b):
@@ -53,5 +65,15 @@ def travel_order(start_xy, points_xy: np.ndarray) -> list[int]:
 
 
 def path_length_mm(start_xy, points_xy) -> float:
+    """Length (mm) of the straight path from ``start_xy`` through ``points_xy`` in order."""
     pts = np.vstack([np.asarray(start_xy, float)[None], np.asarray(points_xy, float)])
     return float(np.hypot(*np.diff(pts, axis=0).T).sum())
+
+
+def robot_time_s(start_xy, points_xy, speed_mm_per_s: float, touch_time_s: float
+                 ) -> tuple[float, float]:
+    """(robot time in s, travel in mm) of touching ``points_xy`` in order from ``start_xy``:
+    straight travel at ``speed_mm_per_s`` plus ``touch_time_s`` per touch."""
+    pts = np.asarray(points_xy, float).reshape(-1, 2)
+    travel = path_length_mm(start_xy, pts) if len(pts) else 0.0
+    return travel / speed_mm_per_s + len(pts) * touch_time_s, travel

@@ -8,6 +8,10 @@ so scoring N candidates is one (N x K)(K x 2K) product against [W | C] (jit-comp
 A reading at p lands inside the usable stroke [lo, hi] with probability >= 1 - 1e-6 when the
 approach height puts its expected value mid-stroke and z* sqrt(h^T C h + r) <= (hi - lo) / 2,
 z* = Phi^-1(1 - 0.5e-6); other points wait until the belief allows them.
+
+Robot time prices a touch: t(p) = t_touch + |p - p_here| / v (straight travel at speed v from
+where the probe is, then the touch). The time-aware choice maximises the drop per second,
+dJ(p) / t(p), over the allowed candidates (``rate_choice``).
 """
 from __future__ import annotations
 
@@ -76,6 +80,25 @@ def stroke_ok(variance_mm2: np.ndarray, noise_var: float, usable_mm: tuple[float
     """True where the reading lands inside the usable stroke with probability >= 1 - 1e-6."""
     half = 0.5 * (usable_mm[1] - usable_mm[0])
     return STROKE_Z * np.sqrt(variance_mm2 + noise_var) <= half
+
+
+def touch_time_s(xy_mm: np.ndarray, here_xy_mm, speed_mm_per_s: float,
+                 touch_time_s: float) -> np.ndarray:
+    """Robot time (s) of a touch at each point from ``here_xy_mm``: straight travel at
+    ``speed_mm_per_s`` plus ``touch_time_s``."""
+    d = np.hypot(*(np.asarray(xy_mm, float) - np.asarray(here_xy_mm, float)).T)
+    return touch_time_s + d / speed_mm_per_s
+
+
+def rate_choice(drop_mm4: np.ndarray, allowed: np.ndarray, xy_mm: np.ndarray, here_xy_mm,
+                speed_mm_per_s: float, touch_s: float) -> int:
+    """Index of the allowed candidate of largest drop of J per second of robot time,
+    dJ / (touch_s + distance / speed); -1 when none is allowed. With ``touch_s`` 0 a
+    candidate at the probe's own position is priced at a tiny positive time."""
+    if not allowed.any():
+        return -1
+    t = np.maximum(touch_time_s(xy_mm, here_xy_mm, speed_mm_per_s, touch_s), 1e-9)
+    return int(np.argmax(np.where(allowed, drop_mm4 / t, -np.inf)))
 
 
 @lru_cache(maxsize=8)

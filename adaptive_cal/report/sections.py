@@ -75,9 +75,18 @@ def cell_section(cell: Cell, result: dict) -> str:
     return "<h2>The cell</h2>" + _table(rows, cls="kv")
 
 
+def _robot_time(result: dict) -> str:
+    """Touches and robot time side by side (result.json before robot time was written: '-')."""
+    if result.get("robot_time_s") is None:
+        return "-"
+    return (f"about {result['robot_time_s'] / 60:.1f} min for {result['touches']} touches "
+            f"({result['travel_mm'] / 1000:.1f} m of travel)")
+
+
 def run_section(result: dict) -> str:
     p, h = result["posterior"], result.get("hyper", {})
     rows = [("touches", f"{result['touches']} ({result['fused']} fused)"),
+            ("robot time", _robot_time(result)),
             ("stopped because", escape(result["stopped_because"].replace("_", " "))),
             ("posterior std over the plate", f"RMS {_um(p['mean_std_mm'])}, max {_um(p['max_std_mm'])}"),
             ("reading noise (learned)", _um(h.get("noise_std_mm"))),

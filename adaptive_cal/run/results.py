@@ -18,6 +18,7 @@ from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.planning.route import robot_time_s
 from adaptive_cal.run.folder import finite_json, replace_atomically, write_json
 from adaptive_cal.run.truth import state_truth_error
 
@@ -44,9 +45,15 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
     status = sv.status(plan, state)
     stop = cell.plan.stop
     surface = plan.model.surface
+    robot_s, travel_mm = robot_time_s(plan.start_xy_mm, state.touched_xy_mm, plan.speed_mm_per_s,
+                                      plan.touch_time_s)
     result = {
         "touches": state.touches,
         "fused": state.fused,
+        # robot time beside the touches: straight travel from the plate centre through every
+        # touch at robot.speed_mm_per_s, plus robot.touch_time_s per touch (an estimate)
+        "robot_time_s": robot_s,
+        "travel_mm": travel_mm,
         "stopped_because": stopped_because,
         "bound": {"mean_std_mm": stop.mean_std_mm, "max_std_mm": stop.max_std_mm,
                   "max_touches": stop.max_touches},

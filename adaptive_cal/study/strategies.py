@@ -9,7 +9,9 @@
   readings are taken as if every touch landed inside the stroke (a levelled frame or a jogging
   operator), which favours them.
 
-Robot time = xy travel from the plate centre at robot.speed_mm_per_s + touch_time_s per touch.
+Robot time = straight xy travel from the plate centre through every touch at
+robot.speed_mm_per_s + touch_time_s per touch (``planning.route.robot_time_s``, as result.json);
+each record has the touches, robot time and travel at the strategy's own stop side by side.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import PriorModel
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
-from adaptive_cal.planning.route import path_length_mm
+from adaptive_cal.planning.route import robot_time_s
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, run_loop
@@ -53,12 +55,14 @@ class Context:
         t = truth(cell)(plan.eval_xy[:, 0], plan.eval_xy[:, 1])
         return cls(study, plate, cell, plan.model, ev, t, plan.eval_xy)
 
-    def robot_time_s(self, xy) -> float:
+    def robot(self, xy) -> tuple[float, float]:
+        """(robot time in s, travel in mm) of touching ``xy`` in order from the plate centre."""
         wp, robot = self.cell.workplane, self.cell.robot
         start = (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm))
-        xy = np.asarray(xy, float).reshape(-1, 2)
-        travel = path_length_mm(start, xy) if len(xy) else 0.0
-        return travel / robot.speed_mm_per_s + len(xy) * robot.touch_time_s
+        return robot_time_s(start, xy, robot.speed_mm_per_s, robot.touch_time_s)
+
+    def robot_time_s(self, xy) -> float:
+        return self.robot(xy)[0]
 
 
 def record(ctx: Context, strategy: str, trajectory: list, stop: int, final: dict, xy,
@@ -72,6 +76,7 @@ def record(ctx: Context, strategy: str, trajectory: list, stop: int, final: dict
     return {"strategy": strategy, "plate": ctx.plate.index, "seed": ctx.plate.seed,
             "noise_std_mm": ctx.plate.noise_std_mm, "touches": int(stop),
             "stop_reason": stop_reason, "robot_time_s": ctx.robot_time_s(xy[:stop]),
+            "travel_mm": ctx.robot(xy[:stop])[1],
             **{k: float(final[k]) for k in ("mean_std_mm", "true_rms_mm", "true_max_mm",
                                              "coverage95")},
             "touches_true": true_touches,
@@ -266,7 +271,7 @@ def run_grid(ctx: Context, target_true: float) -> dict:
         stop, final, best_xy, reason = len(xy), fig, xy, "touch_budget"
     rec = record(ctx, "grid", trajectory, stop, final, best_xy, reason, target_true,
                  hyper=list(learner.hyper), grid=[nx, ny])
-    rec["robot_time_s"] = ctx.robot_time_s(best_xy)
+    rec["robot_time_s"], rec["travel_mm"] = ctx.robot(best_xy)
     if true_xy is not None:  # each grid is its own run: time the grid that met the target
         rec["robot_time_true_s"] = ctx.robot_time_s(true_xy)
     return rec

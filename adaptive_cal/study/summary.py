@@ -37,9 +37,19 @@ def summarise(study: Study, records: list[dict]) -> dict:
             "stop_touches_mean": _mean(r["touches"] for r in recs),
             "stop_touches_p90": float(np.percentile([r["touches"] for r in recs], 90)),
             "stop_robot_time_s_mean": _mean(r["robot_time_s"] for r in recs),
+            "stop_travel_mm_mean": _mean(r.get("travel_mm") for r in recs),
             "stop_mean_std_mm_mean": _mean(r["mean_std_mm"] for r in recs),
         }
     adaptive = by.get("adaptive", [])
+    grids = {r["plate"]: r for r in by.get("grid", [])}
+    same = [(a, grids[a["plate"]]) for a in adaptive if a["plate"] in grids]
+    if same:  # each at its own stop, the same plates: touches and robot time side by side
+        out["adaptive_vs_grid"] = {
+            "plates": len(same),
+            "touch_ratio": float(np.mean([a["touches"] for a, _ in same])
+                                 / np.mean([g["touches"] for _, g in same])),
+            "robot_time_ratio": float(np.mean([a["robot_time_s"] for a, _ in same])
+                                      / np.mean([g["robot_time_s"] for _, g in same]))}
     lb = [r for r in adaptive if r.get("relaxed_touches") is not None]
     relaxed = _mean(r["relaxed_touches"] for r in lb)
     best = [r.get("best_integer_touches") for r in lb]
@@ -131,13 +141,15 @@ def table(summary: dict) -> str:
              f"error {(b['true_rms_mm'] or b['mean_std_mm']) * 1e3:.1f} um; "
              f"{summary['plates']} plates", "",
              "| strategy | touches to true bound (mean / p90) | robot time (s) | reached | "
-             "touches at own stop | true RMS (um) | true max (um) | coverage95 |",
-             "|---|---|---|---|---|---|---|---|"]
+             "touches at own stop | robot time at own stop (s) | true RMS (um) | true max (um) | "
+             "coverage95 |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for name, s in summary["strategies"].items():
         lines.append(
             f"| {name} | {s['touches_mean']:.1f} / {s['touches_p90']:.0f} | "
             f"{_f(s['robot_time_s_mean'], fmt='{:.0f}')} | {s['true_bound_reached']:.0%} | "
-            f"{_f(s['stop_touches_mean'])} | {_f(s['true_rms_mm_mean'], 1e3, '{:.2f}')} | "
+            f"{_f(s['stop_touches_mean'])} | {_f(s['stop_robot_time_s_mean'], fmt='{:.0f}')} | "
+            f"{_f(s['true_rms_mm_mean'], 1e3, '{:.2f}')} | "
             f"{_f(s['true_max_mm_mean'], 1e3, '{:.1f}')} | {_f(s['coverage95_mean'], 1, '{:.3f}')} |")
     lb = summary.get("lower_bound") or {}
     if lb.get("plates"):
@@ -160,6 +172,11 @@ def table(summary: dict) -> str:
                           f"({_f(lb['greedy_known_touches'])} touches, "
                           f"{lb['greedy_known_over_relaxed']:.2f} x relaxed); adaptive / greedy "
                           f"known: {lb['adaptive_over_greedy_known']:.2f} (mean of per-plate ratios)")
+    vg = summary.get("adaptive_vs_grid")
+    if vg:
+        lines += ["", f"adaptive / grid at each one's own stop ({vg['plates']} plates, ratio of "
+                  f"means): touches {vg['touch_ratio']:.2f} x, robot time "
+                  f"{vg['robot_time_ratio']:.2f} x"]
     vp = summary.get("adaptive_vs_paper")
     if vp:
         lines += ["", f"paper's procedure: {vp['paper_touches_mean']:.1f} touches, true RMS "
