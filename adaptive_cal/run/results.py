@@ -20,9 +20,11 @@ SAMPLES = 200
 
 
 def plate_estimates(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generator,
-                     samples: int = SAMPLES) -> dict:
+                     samples: int | None = None) -> dict:
     """Tilt and flatness of the plate from the belief: value on the posterior mean surface,
-    interval over surfaces sampled from the belief (evaluation grid over the whole plate)."""
+    interval over ``samples`` (default ``SAMPLES``) surfaces sampled from the belief
+    (evaluation grid over the whole plate)."""
+    samples = SAMPLES if samples is None else samples
     xy, rows = plan.eval_xy, plan.eval_rows
     mean, _ = bl.predict(belief, rows)
     draws = bl.sample(belief, rng, samples) @ rows.T  # (S, N)
