@@ -166,6 +166,7 @@ def check_mutant(root, cell, n, family, data, tally):
         tally["resume"]["new touches"] += len(new)
 
 
+@pytest.mark.slow  # about 5-8 min on a shared 2-core machine: 220 mutants x 4 commands
 def test_every_recording_mutant_is_refused_cleanly_or_gives_a_valid_result(base, monkeypatch):
     root, cell = base
     monkeypatch.setattr(session, "run", partial(session.run, max_new_touches=1))
@@ -189,3 +190,22 @@ def test_every_recording_mutant_is_refused_cleanly_or_gives_a_valid_result(base,
     assert set(families) == set(FAMILIES) and MUTANTS >= 200
     for c in tally.values():
         assert c["refused"] + c["valid"] == MUTANTS and c["refused"] > 0 and c["valid"] > 0
+
+
+@pytest.mark.slow  # about 10 s alone (writing the 40 MB file is most of it); 38 s under load
+def test_a_million_rows_get_a_clear_message_not_an_out_of_memory_kill(tmp_path, capsys):
+    """Issue 15/16: a recording of 10**6 rows (about 40 MB) given to ``flatness``. The reader
+    streams the file and stops at MAX_ROWS + 1 with the line, before anything grows with it."""
+    from adaptive_cal.formats.recording import MAX_ROWS
+
+    n = 10**6
+    i = np.arange(n)
+    x, y = (i % 1000) * 0.4 - 200.0, (i // 1000) * 0.3 - 150.0
+    body = "\n".join(f"{k},,{a:.1f},{b:.1f},0,{1e-4 * (k % 97):.4f}" for k, a, b in zip(i, x, y))
+    path = tmp_path / "million.csv"
+    path.write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm\n" + body + "\n")
+    t0 = time.monotonic()
+    assert main(["flatness", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"million.csv:{MAX_ROWS + 3}: more than {MAX_ROWS} rows" in err
+    assert time.monotonic() - t0 < 10
