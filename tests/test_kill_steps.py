@@ -149,7 +149,7 @@ def test_a_real_sigkill_at_a_random_moment_loses_no_row(tmp_path, cell_file):
     out = tmp_path / "run"
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg",
            "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "adaptive_cal", "run", "--robot",
+    proc = subprocess.Popen([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot",
                              str(cell_file), "--out", str(out), "--no-progress"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     rows = rng.randrange(2, BUDGET - 2)
