@@ -132,12 +132,15 @@ def check_mutant(root, cell, n, family, data, tally):
     rc, out, err = _cli(["flatness", str(rec), "--json", "--samples", "8"])
     if _classify(what + " flatness", rc, err, tally["flatness"]):
         _strict_json(out)
+        # touches on one line or at one point: no tilt or flatness (issue 16, defect 9)
+        assert family != "geometry", f"{what}: {out[:200]}"
     # explain
     target = m / "explain.json"
     target.unlink(missing_ok=True)
     rc, out, err = _cli(["explain", str(rec), "--robot", str(root / "cell16.yaml"),
                          "--json", str(target)])
     if _classify(what + " explain", rc, err, tally["explain"]):
+        assert family != "geometry", f"{what}: explain gave a result"
         _strict_json(target.read_text(encoding="utf-8"))
     # report of a run folder holding the mutant
     d = _run_folder(root, "rep", data, root / "cell16.yaml")
@@ -219,3 +222,19 @@ def test_a_million_rows_get_a_clear_message_not_an_out_of_memory_kill(tmp_path, 
     err = capsys.readouterr().err
     assert f"million.csv:{MAX_ROWS + 3}: more than {MAX_ROWS} rows" in err
     assert time.monotonic() - t0 < 10
+
+
+def test_output_cut_short_by_head_is_not_an_internal_error(cheng_round0):
+    """``adaptive-cal flatness REC | head -1``: the pipe closes early (issue 16, defect 11)."""
+    import subprocess
+    import sys
+
+    from helpers import ROOT
+
+    cmd = (f"{sys.executable} -m adaptive_cal.cli flatness {cheng_round0} --samples 20 | head -1;"
+           " exit ${PIPESTATUS[0]}")
+    done = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True, cwd=ROOT,
+                          timeout=120)
+    assert done.stdout.startswith(str(cheng_round0)) and done.stdout.count("\n") == 1
+    assert "internal error" not in done.stderr and "Traceback" not in done.stderr
+    assert done.returncode == 0, done.stderr[-500:]

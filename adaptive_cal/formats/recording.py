@@ -191,6 +191,9 @@ def read_recording(path: str | os.PathLike) -> Recording:
                 for c in REQUIRED:
                     where = f"{path}:{lineno}: column {c}"
                     data[c].append(_limited(cells[col[c]], c, where, blank_ok=(c == "t_s")))
+                if data["t_s"][-1] < 0:
+                    raise RecordingError(f"{path}:{lineno}: column t_s: {cells[col['t_s']]!r} is "
+                                         "negative (seconds since the start of the run)")
                 seq = data["seq"][-1]
                 if seq != int(seq) or seq < 0:
                     raise RecordingError(f"{path}:{lineno}: column seq: {cells[col['seq']]!r} is "
