@@ -29,6 +29,7 @@ The same loop with the recording written before each fusion, progress and truth 
 ``start_survey``       a ``Survey`` (ask, tell, skip, status, stop_reason, grid, history)
 ``open_cell``          the cell's robot and probe (the simulator for ``robot.adapter: sim``)
 ``run_loop``           ask -> touch -> judge -> record -> fuse until a stop predicate fires
+``InvalidReading``     what ``tell`` raises for a NaN reading or a touch off the plate or in a keep-out
 ``run_session``        a whole run into a folder: recording, result.json, figures, belief
 ``read_recording``     a v1 recording (``RecordingWriter`` writes one)
 ``flatness``           the paper's flatness figures of a recording with 95 % intervals
@@ -51,6 +52,7 @@ _LAZY = {
     "Survey": "adaptive_cal.planning.shell",
     "open_cell": "adaptive_cal.run.devices",
     "run_loop": "adaptive_cal.run.loop",
+    "InvalidReading": "adaptive_cal.planning.robust",
     "run_session": "adaptive_cal.run.session:run",
     "read_recording": "adaptive_cal.formats.recording",
     "RecordingWriter": "adaptive_cal.formats.recording",

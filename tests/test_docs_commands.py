@@ -1,4 +1,5 @@
-"""Every command in the fenced ```bash blocks of README.md and docs/newcomer.md runs.
+"""Every command in the fenced ```bash blocks of README.md, docs/newcomer.md and docs/compensate.md
+runs.
 
 Each file's commands run in order, in a fresh folder holding links to the repository's configs/
 and adaptive_cal/ (the paths the docs use), so later commands see what earlier ones wrote.
@@ -18,7 +19,7 @@ import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = ["README.md", "docs/newcomer.md"]
+DOCS = ["README.md", "docs/newcomer.md", "docs/compensate.md"]
 SKIP = re.compile(r"^\s*(python3? -m venv|\. \S*activate|source \S*activate|pip install|python3? -m pip"
                   r"|python3? -m pytest|pytest)\b")
 COMMAND_TIMEOUT_S = 300

@@ -1,5 +1,6 @@
 """Oracle tests for flatness figures: the paper's published values, brute force, exact cases."""
 import json
+import re
 
 import numpy as np
 import pytest
@@ -289,3 +290,20 @@ def test_flatness_json_is_valid_json_off_grid(tmp_path, capsys):
     assert out["average_range_mm"] == {"x": None, "y": None}
     assert main(["flatness", str(path), "--samples", "50"]) == 0
     assert "x n/a (touches not on a grid along x)" in capsys.readouterr().out
+
+
+def test_flatness_text_says_what_each_answer_is_of(cheng_round0, capsys):
+    """A bare recording: the touched points' answer (the paper's eq. 5 figure, inside its own
+    interval), the whole plate's said to need a map, the tilt-included spread labelled apart."""
+    from adaptive_cal.cli import main
+
+    assert main(["flatness", str(cheng_round0), "--samples", "100"]) == 0
+    out = capsys.readouterr().out
+    touched = [line for line in out.splitlines() if "flatness of the" in line and "touched" in line]
+    assert len(touched) == 1 and "least squares 541.7 um" in touched[0]  # eq. 5 (paper: 0.5414 mm)
+    lo, hi = (float(v) for v in re.search(r"least squares [\d.]+ um \(95 % ([\d.]+) \.\. ([\d.]+) um",
+                                          touched[0]).groups())
+    assert lo <= 541.7 <= hi
+    assert "flatness of the whole plate (from the map): needs a map" in out
+    assert "--robot CELL.yaml" in out
+    assert "max - min with the tilt included (not flatness)" in out

@@ -1,6 +1,8 @@
 """``adaptive-cal report DIR``: one self-contained HTML page per run, checked as text and as
 rendered by headless Chromium (skipped, with the reason, where chromium is not installed)."""
 import base64
+import contextlib
+import io
 import json
 import os
 import re
@@ -30,7 +32,10 @@ def run_dir(tmp_path_factory):
     path = d / "quick-cell.yaml"
     path.write_text(yaml.safe_dump(cell))
     out = d / "run"
-    assert main(["run", "--robot", str(path), "--out", str(out), "--no-progress"]) == 0
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["run", "--robot", str(path), "--out", str(out), "--no-progress"]) == 0
+    (d / "run-stdout.txt").write_text(printed.getvalue())  # the terminal summary, for the tests
     return out
 
 
@@ -77,9 +82,10 @@ def test_page_is_self_contained_with_every_section_and_unit(run_dir, capsys):
     assert (f"frame_new = frame_nominal * rotx({t['rx_deg']:+.4f} deg) * "
             f"roty({t['ry_deg']:+.4f} deg)") in html
     assert f"rotx({np.radians(t['rx_deg']):+.6f})" in html  # RoboDK takes radians
-    # flatness with its interval, in mm and um
-    assert f"{ls['value']:.4f} mm" in html
-    assert f"{ls['ci95'][0]:.4f} .. {ls['ci95'][1]:.4f} mm" in html
+    # flatness with its interval, in um, as the terminal prints it
+    assert f"{ls['value'] * 1e3:.1f} um" in html
+    assert f"(95 % {ls['ci95'][0] * 1e3:.1f} .. {ls['ci95'][1] * 1e3:.1f} um)" in html
+    assert "of the whole plate (from the map)" in html and "touched points (Cheng eqs. 1-6)" in html
     assert "minimum zone (ISO 1101)" in html and "95 % interval" in html
     assert "No explain findings" in html  # and it says how to get them
 
@@ -133,3 +139,80 @@ def test_renders_in_headless_chromium(explained, capsys):
     # the embedded figures decoded: the viridis/magma maps put strongly coloured pixels on the page
     saturation = img.max(axis=-1) - img.min(axis=-1)
     assert (saturation > 0.4).mean() > 0.01, "no coloured figure pixels: images did not render"
+
+
+def _flatness_lines(text: str) -> list[str]:
+    return [line.strip() for line in text.splitlines() if line.strip().startswith("flatness of")]
+
+
+def test_run_flatness_and_report_give_the_same_answer_to_the_digit(run_dir, capsys):
+    """Issue 17 item 3: both answers (touched points, whole plate) in the same words and digits
+    from run's summary, `flatness` on the run folder's recording, and the report page."""
+    from html import unescape
+
+    from adaptive_cal.analysis.flatness_answer import value_text
+
+    run_lines = _flatness_lines((run_dir.parent / "run-stdout.txt").read_text())
+    assert len(run_lines) == 2 and "touched points" in run_lines[0] and "whole plate" in run_lines[1]
+    assert main(["flatness", str(run_dir / "recording.csv")]) == 0
+    assert _flatness_lines(capsys.readouterr().out) == run_lines
+    result = json.loads((run_dir / "result.json").read_text())
+    page = unescape(_page(run_dir, capsys))
+    for answer in ("touched_flatness_mm", "flatness_mm"):
+        for key in ("least_squares", "minimum_zone"):
+            text = value_text(result[answer][key])
+            assert text in page and any(text in line for line in run_lines), (answer, key, text)
+
+
+def test_every_point_estimate_lies_inside_its_own_interval(run_dir):
+    result = json.loads((run_dir / "result.json").read_text())
+    for answer in ("touched_flatness_mm", "flatness_mm"):
+        for key, f in result[answer].items():
+            if isinstance(f, dict):
+                lo, hi = f["ci95"]
+                assert lo <= f["value"] <= hi, (answer, key, f)
+                assert f["value_is"]
+
+
+def test_entry_falls_back_to_the_posterior_median_outside_the_interval():
+    from adaptive_cal.analysis.flatness_answer import MEDIAN, answer_lines, entry
+
+    samples = np.linspace(1.0, 2.0, 401)  # 95 % interval 1.025 .. 1.975, median 1.5
+    inside = entry(1.2, samples, "figure")
+    assert inside == {"value": 1.2, "ci95": [1.025, 1.975], "value_is": "figure"}
+    below = entry(0.5, samples, "figure")
+    assert below["value"] == pytest.approx(1.5) and below["value_is"] == MEDIAN
+    lines = answer_lines({"flatness_mm": {"least_squares": below, "minimum_zone": inside}})
+    assert "least squares 1500.0 um* (95 % 1025.0 .. 1975.0 um)" in lines[0]
+    assert any(line.startswith("* posterior median") for line in lines)
+
+
+def test_report_from_a_bare_recording_with_its_cell(run_dir, tmp_path, capsys):
+    """Issue 17 item 10: report RECORDING.csv --robot CELL.yaml replays the recording and renders
+    the same page, said to be built from a recording; its numbers are `flatness --robot`'s."""
+    from html import unescape
+
+    rec = tmp_path / "bare.csv"
+    shutil.copyfile(run_dir / "recording.csv", rec)
+    cell = tmp_path / "cell.yaml"
+    shutil.copyfile(run_dir / "cell.yaml", cell)
+    assert main(["report", str(rec)]) == 2
+    err = capsys.readouterr().err
+    assert "--robot CELL.yaml" in err and "Traceback" not in err
+    assert main(["report", str(rec), "--robot", str(cell)]) == 0
+    out = tmp_path / "bare.html"
+    assert f"wrote {out}" in capsys.readouterr().out
+    page = unescape(out.read_text(encoding="utf-8"))
+    assert "Built from a recording, not a run" in page
+    for heading in ("Tilt correction for the controller", "Flatness", "Touches on the plate",
+                    "Surface and its uncertainty", "The run", "The cell"):
+        assert f">{heading}" in page, heading
+    assert main(["flatness", str(rec), "--robot", str(cell)]) == 0
+    lines = _flatness_lines(capsys.readouterr().out)
+    assert len(lines) == 2
+    # every "V um (95 % L .. H um)" of the terminal is on the page
+    texts = [t for line in lines
+             for t in re.findall(r"\d+\.\d um\*? \(95 % [\d.]+ \.\. [\d.]+ um\)", line)]
+    assert len(texts) == 4
+    for text in texts:
+        assert text in page, text

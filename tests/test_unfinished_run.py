@@ -53,7 +53,7 @@ def test_terminal_summary_of_an_interrupted_run_opens_with_what_is_missing(inter
     _summary(result, out)
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("INCOMPLETE: interrupted after 9 touches; posterior RMS std ")
-    assert lines[0].endswith(f"um against the 4 um bound. Not a result: continue with --resume {out}")
+    assert lines[0].endswith(f"um against the 4 um bound. Not a result. Continue with adaptive-cal run --resume {out}")
     assert any(line.startswith("tilt correction (provisional): rx ") for line in lines)
 
 

@@ -19,6 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.analysis.flatness_answer import entry
 from adaptive_cal.formats.recording import (Recording, RecordingError, read_recording,
                                            surface_height_mm)
 from adaptive_cal.gaussian import belief as bl
@@ -97,8 +98,10 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
     rx, ry = fl.average_ranges_mm(x, y, z)
     out = {"recording": str(path), "touches": int(len(z)),
            "tilt": fl.plane_tilt(x, y, z),
-           "flatness_mm": fl.interval_figures({k: values[k] for k in NAMES},
-                                              {k: sampled[k] for k in NAMES}),
+           # figures of the measured heights; a posterior median where one lies outside its
+           # interval (value_is says which: analysis.flatness_answer.entry)
+           "flatness_mm": {k: entry(values[k], sampled[k], "figure of the measured heights")
+                           for k in NAMES},
            # None where the touches are not a grid along that axis (the paper's method needs one)
            "average_range_mm": {"x": fl.finite_or_none(rx), "y": fl.finite_or_none(ry)},
            "noise_std_mm": hyper["noise_std_mm"], "hyper": hyper}

@@ -9,13 +9,15 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from adaptive_cal import effects as effect_library
+from adaptive_cal.cell.block import Block
 from adaptive_cal.cell.consistency import check_cell
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
+from adaptive_cal.cell.simulation import FrameCorrection, Simulation  # noqa: F401 (re-exported)
+from adaptive_cal.formats.heightmap import beside, check_map
 from adaptive_cal.gaussian.belief import Z95
-from adaptive_cal.hardware.config import Strict
 from adaptive_cal.hardware.hses.config import HsesConfig
 from adaptive_cal.hardware.manual.config import ManualConfig
 from adaptive_cal.hardware.modbus.config import ModbusConfig
@@ -25,11 +27,6 @@ from adaptive_cal.hardware.serial.config import SerialConfig
 Interval = tuple[float, float]
 REACH_MM = 1e5  # no coordinate of a cell lies farther than 100 m from the workplane origin
 MAX_KNOTS = 64  # control points per axis (K = knots_x * knots_y coefficients, C is K x K)
-
-
-class Block(Strict):
-    """A block of the cell file: strict, and every number finite (NaN and inf are refused)."""
-    model_config = ConfigDict(allow_inf_nan=False)
 
 
 def _interval(v: Interval, what: str) -> Interval:
@@ -248,37 +245,6 @@ class Plan(Block):
     drift_std_mm: float = Field(0.01, ge=0, description="widening for --prior-from")
 
 
-class Simulation(Block):
-    """The simulated cell's truth: effects from the effect table and the noise it adds."""
-
-    seed: int = Field(0, description="seed of the simulated noise")
-    effects: dict[str, dict[str, float]] = Field(
-        {}, description="effect name -> parameters (DESIGN.md effect table)")
-    unknown: list[str] = Field(["tilt"], description="effects explain calibrates from a recording")
-    noise_std_mm: float = Field(0.002, ge=0, description="probe noise")
-    repeatability_mm: float = Field(0.005, ge=0, description="robot z repeatability (1 sigma)")
-    xy_repeatability_mm: float = Field(0.01, ge=0, description="robot x/y repeatability (1 sigma)")
-
-    @field_validator("effects")
-    @classmethod
-    def _effects(cls, v):
-        for name, params in v.items():
-            try:
-                effect_library.complete_params(name, params or {})
-            except KeyError as e:
-                raise ValueError(e.args[0]) from None
-        return v
-
-    @field_validator("unknown")
-    @classmethod
-    def _unknown(cls, v):
-        names = effect_library.EFFECT_NAMES
-        bad = [n for n in v if n.split(".")[0] not in names]
-        if bad:
-            raise ValueError(f"unknown effect(s) {bad}; known: {', '.join(names)}")
-        return v
-
-
 class Cell(Block):
     """A whole cell file."""
 
@@ -316,6 +282,8 @@ class Cell(Block):
     @model_validator(mode="after")
     def _consistent(self):
         check_cell(self)
+        if self.simulation is not None and self.simulation.surface_file is not None:
+            check_map(self.simulation.surface_file, self.workplane, "simulation.surface_file")
         return self
 
     @property
@@ -328,6 +296,14 @@ def parse_cell(data: dict, source: str = "cell") -> Cell:
     return validate(Cell, data, source)
 
 
+def resolve_files(data: dict, path: str | Path) -> dict:
+    """``data`` read from ``path`` with simulation.surface_file relative to the file's folder."""
+    sim = data.get("simulation") if isinstance(data, dict) else None
+    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str):
+        data = {**data, "simulation": {**sim, "surface_file": beside(sim["surface_file"], path)}}
+    return data
+
+
 def load_cell(path: str | Path) -> Cell:
     """Read and validate a cell file."""
-    return parse_cell(load_yaml(path), str(path))
+    return parse_cell(resolve_files(load_yaml(path), path), str(path))

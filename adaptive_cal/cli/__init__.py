@@ -24,6 +24,7 @@ SUBCOMMANDS = {
     "emulate": ("adaptive_cal.cli.emulate", "serve an emulated cell (HSES, Modbus PLC, gauge) on loopback"),
     "study": ("adaptive_cal.cli.study", "simulation studies: strategies on synthetic plates, lower bound, Dask"),
     "report": ("adaptive_cal.cli.report", "one self-contained HTML page of a run folder, for whoever adjusts the robot"),
+    "compensate": ("adaptive_cal.cli.compensate", "apply a run's map to a toolpath (G-code or CSV), or export it on a grid"),
 }
 
 

@@ -1,42 +1,57 @@
-"""``adaptive-cal flatness``: the paper's figures of a recording with 95 % intervals.
+"""``adaptive-cal flatness``: the flatness of a recording with 95 % intervals.
 
-Values are the figures of the touched points (least-squares plane, eqs. 1-6 of Cheng et al.,
-range, ISO 1101 minimum zone), so they compare with published numbers; the 95 % interval is the
-spread over predicted repeat measurements at the same touches (``analysis.flatness_intervals``).
-``--compare`` gives the probability that a later round's flatness is larger.
+Of the touched points (least-squares plane, eqs. 1-6 of Cheng et al., and the ISO 1101 minimum
+zone), so they compare with published numbers. In a run folder (beside cell.yaml and belief.npz)
+or with ``--robot CELL.yaml`` (the recording replayed to a map) also of the whole plate, from the
+map: ``analysis.flatness_answer``, the same lines and digits as ``run`` and the report. A bare
+recording's interval comes from its own prior (``analysis.flatness_intervals``). ``--compare``
+gives the probability that a later round's flatness is larger.
 """
 from __future__ import annotations
 
 import json
 import sys
 
-from adaptive_cal.cli.common import check_recording
-
-NAMES = ("least_squares", "range", "minimum_zone")
+from adaptive_cal.cli.common import UserError, check_recording
 
 
 def add_arguments(p) -> None:
-    p.add_argument("recording", metavar="RECORDING.csv", help="a v1 recording")
+    p.add_argument("recording", metavar="RECORDING.csv", help="a v1 recording; in a run folder "
+                   "(beside cell.yaml and belief.npz) the whole plate's flatness is given too")
+    p.add_argument("--robot", metavar="CELL.yaml", help="the cell file the recording was taken "
+                   "with: replay it to a map and give the whole plate's flatness too")
     p.add_argument("--compare", metavar="OTHER.csv", help="a later round: probability that its "
-                   "flatness is larger, and the interval of the difference")
+                   "flatness (of the touched points) is larger, and the interval of the difference")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
-    p.add_argument("--samples", type=int, default=400, help="posterior samples for the intervals")
+    p.add_argument("--samples", type=int, default=None, help="posterior samples for the "
+                   "intervals (default: 200 with a map, as in run, so the digits are the run's; 400 "
+                   "for a bare recording)%(default).0s")
     p.add_argument("--seed", type=int, default=0, help="seed of the posterior samples")
+
+
+NO_PLATE = ("needs a map: give the cell file (--robot CELL.yaml), or the recording of a run "
+            "folder (beside its cell.yaml and belief.npz)")
 
 
 def command(args) -> int:
     import numpy as np
 
     from adaptive_cal.analysis.flatness_intervals import compare, recording_flatness
+    from adaptive_cal.cli.common import check_cell_file
 
     check_recording(args.recording)
+    bare_samples = args.samples or 400
+    if args.robot:
+        check_cell_file(args.robot)
     if args.compare:
         check_recording(args.compare)
-    rng = np.random.default_rng(args.seed)
-    out, sampled = recording_flatness(args.recording, rng, args.samples)
-    if args.compare:
-        other, sampled_b = recording_flatness(args.compare, rng, args.samples)
+        rng = np.random.default_rng(args.seed)
+        out, sampled = recording_flatness(args.recording, rng, bare_samples)
+        other, sampled_b = recording_flatness(args.compare, rng, bare_samples)
         out = {"first": out, "second": other, "change": compare(sampled, sampled_b)}
+    else:
+        out = map_flatness(args) or recording_flatness(args.recording, np.random.default_rng(
+            args.seed), bare_samples)[0]
     if args.json:
         json.dump(out, sys.stdout, indent=2, allow_nan=False)
         print()
@@ -45,16 +60,67 @@ def command(args) -> int:
     return 0
 
 
-def _one(r: dict) -> list[str]:
-    t, f = r["tilt"], r["flatness_mm"]
+def map_flatness(args) -> dict | None:
+    """Both answers (touched points and whole plate) from the run folder's saved belief, or from
+    the recording replayed with --robot; None for a bare recording without a cell."""
+    from pathlib import Path
+
+    import numpy as np
+
+    rec_path = Path(args.recording)
+    folder = rec_path.parent
+    saved = folder / "belief.npz"
+    if not args.robot and not ((folder / "cell.yaml").exists() and saved.exists()):
+        return None
+    from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.gaussian.belief import Belief
+    from adaptive_cal.gaussian.prior import Hyper
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.run.results import touched_heights
+
+    cell = load_cell(args.robot or folder / "cell.yaml")
+    plan = survey_plan(cell)
+    rec = read_recording(rec_path)
+    if args.robot:
+        state = sv.replay(plan, sv.start(plan), rec)
+        belief, noise_mm, source = state.belief, state.hyper.noise_std_mm, f"replayed with {args.robot}"
+    else:
+        data = np.load(saved)
+        belief = Belief(data["mean"], data["cov"])
+        noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm
+        source = f"the map saved in {saved}"
+    xyz = touched_heights(plan, rec)
+    if len(xyz[2]) < 4:
+        raise UserError(f"{rec_path}: {len(xyz[2])} usable touches; flatness needs at least 4")
+    out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
+                          args.samples or SAMPLES)
+    return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
+            "noise_std_mm": noise_mm, **out}
+
+
+def _one(r: dict, say_no_plate: bool = True) -> list[str]:
+    from adaptive_cal.analysis.flatness_answer import answer_lines
+
+    t = r["tilt"]
+    if "map" in r:  # both answers, the tilt of the whole plate's map
+        return ([f"{r['recording']}: {r['touches']} touches, reading noise "
+                 f"{r['noise_std_mm'] * 1e3:.1f} um; map: {r['map']}",
+                 f"  tilt correction (whole plate): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} "
+                 f"deg (a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm)"]
+                + ["  " + line for line in answer_lines(r)])
+    touched = {**r["flatness_mm"], "points": r["touches"]}
     lines = [f"{r['recording']}: {r['touches']} touches, reading noise {r['noise_std_mm'] * 1e3:.1f} um",
-             f"  tilt correction: rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
+             f"  tilt correction (touched points): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
              f"(a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm)"]
-    for k in NAMES:
-        lo, hi = f[k]["ci95"]
-        lines.append(f"  flatness {k:14s} {f[k]['value']:.4f} mm  (95 % of repeats {lo:.4f} .. {hi:.4f})")
+    lines += ["  " + line for line in answer_lines({"touched_flatness_mm": touched},
+                                                      no_plate=NO_PLATE if say_no_plate else None)]
+    lines.append(f"  height spread of the touched points, max - min with the tilt included (not "
+                 f"flatness): {r['flatness_mm']['range']['value']:.4f} mm")
     a = r["average_range_mm"]
-    lines.append("  average range " + ", ".join(
+    lines.append("  average range (Cheng Table 8, tilt included) " + ", ".join(
         f"{k} {a[k]:.4f} mm" if a[k] is not None else f"{k} n/a (touches not on a grid along {k})"
         for k in ("x", "y")))
     return lines
@@ -89,7 +155,8 @@ def compare_table(out: dict) -> list[str]:
         lines.append(f"  {LABELS[k]:<19}{va:>9.4f}{vb:>9.4f}{vb - va:>+9.4f}   "
                      f"{f'{lo:+.4f} .. {hi:+.4f}':<26}{c['p_b_greater']:>8.2f}  {_verdict(c)}")
     lines += ["  P(worse): the probability that the later flatness is larger (over predicted repeat",
-              "  measurements). Range includes the tilt: a corrected tilt shows there, not flatness."]
+              "  measurements). Range: max - min of the heights, the tilt included (not flatness):",
+              "  a corrected tilt shows there."]
     return lines
 
 
@@ -97,4 +164,4 @@ def _print(out: dict) -> None:
     if "change" not in out:
         print("\n".join(_one(out)))
         return
-    print("\n".join(_one(out["first"]) + _one(out["second"]) + compare_table(out)))
+    print("\n".join(_one(out["first"], False) + _one(out["second"], False) + compare_table(out)))

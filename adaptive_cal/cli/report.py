@@ -1,27 +1,77 @@
-"""``adaptive-cal report DIR``: one self-contained HTML page of a run (figures embedded)."""
+"""``adaptive-cal report DIR`` (a run folder) or ``adaptive-cal report RECORDING.csv --robot
+CELL.yaml`` (a bare recording replayed with its cell file): one self-contained HTML page
+(figures embedded)."""
 from __future__ import annotations
 
 
 def add_arguments(p) -> None:
-    p.add_argument("run_dir", metavar="DIR", help="a run folder written by 'adaptive-cal run --out "
-                   "DIR' (result.json, recording.csv, cell.yaml, belief.npz; explain.json and "
-                   "explain's figures are included when present)")
+    p.add_argument("run_dir", metavar="DIR|RECORDING.csv", help="a run folder written by "
+                   "'adaptive-cal run --out DIR' (result.json, recording.csv, cell.yaml, "
+                   "belief.npz; explain.json and explain's figures are included when present), or "
+                   "a recording with --robot")
+    p.add_argument("--robot", metavar="CELL.yaml", default=None, help="with a recording: the cell "
+                   "file it was taken with; the recording is replayed to a map%(default).0s")
     # "%(default).0s" prints nothing; it stops the formatter appending "(default: None)"
     p.add_argument("--out", metavar="FILE.html", default=None,
-                   help="where to write the page (default: DIR/report.html)%(default).0s")
+                   help="where to write the page (default: DIR/report.html, or RECORDING.html "
+                   "beside a recording)%(default).0s")
 
 
 def command(args) -> int:
     from pathlib import Path
 
-    from adaptive_cal.cli.common import UserError
+    from adaptive_cal.cli.common import UserError, check_cell_file, check_recording
 
     given = Path(args.run_dir)
     if given.is_file():
-        raise UserError(f"{given} is a file; report wants the run folder: adaptive-cal report "
-                        f"{given.parent}")
-    from adaptive_cal.report.html import write
+        if not args.robot:
+            raise UserError(f"{given} is a file; report wants the run folder, adaptive-cal "
+                            f"report {given.parent}, or, for a bare recording, the cell file it "
+                            f"was taken with: adaptive-cal report {given} --robot CELL.yaml")
+        check_recording(str(given))
+        check_cell_file(args.robot)
+        path = _from_recording(given, Path(args.robot), args.out)
+    else:
+        if args.robot:
+            raise UserError(f"--robot goes with a recording; {given} is a run folder, which holds "
+                            "its own cell.yaml")
+        from adaptive_cal.report.html import write
 
-    path = write(args.run_dir, args.out)
+        path = write(args.run_dir, args.out)
     print(f"wrote {path}")
     return 0
+
+
+def _from_recording(recording, cell_file, out) -> "Path":
+    """Replay the recording with the cell's plan (``run.session.replay``) and write its page."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from adaptive_cal.analysis.flatness_answer import SEED
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.cli.common import UserError
+    from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.report.html import render_recording
+    from adaptive_cal.run.results import result_of
+    from adaptive_cal.run.session import replay
+
+    cell = load_cell(cell_file)
+    plan = survey_plan(cell)
+    rec = read_recording(recording)
+    if rec.fused.sum() < 4:
+        raise UserError(f"{recording}: {int(rec.fused.sum())} fused touches; a report needs at "
+                        "least 4")
+    state, _, _ = replay(plan, sv.start(plan), recording)
+    stopped = plan.stop(sv.status(plan, state)) or "recording_ended"
+    result = result_of(cell, plan, state, rec, stopped, rng=np.random.default_rng(SEED))
+    s = plan.model.surface
+    belief = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
+              "knots_y": s.sy.knots}
+    out = Path(out) if out else Path(recording).with_suffix(".html")
+    html = render_recording(result, cell, rec, belief, Path(recording), Path(cell_file))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(html, encoding="utf-8")
+    return out

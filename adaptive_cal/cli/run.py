@@ -14,8 +14,13 @@ def add_arguments(p) -> None:
     p.add_argument("--out", metavar="DIR", help="output folder: recording.csv, result.json, "
                    "surface.png, convergence.png, belief.npz, cell.yaml")
     p.add_argument("--resume", metavar="DIR", help="continue an interrupted run from DIR/recording.csv")
-    p.add_argument("--prior-from", metavar="RUN_DIR", help="start from an earlier run's belief, "
+    p.add_argument("--prior-from", metavar="RUN_DIR", help="re-check: start from an earlier run's "
+                   "belief, moved into the user frame corrected since (--correction-applied) and "
                    "widened by plan.drift_std_mm (mm)")
+    p.add_argument("--correction-applied", metavar="proposed|none|RX,RY", help="with --prior-from: "
+                   "the user-frame correction applied since RUN_DIR, rotx(RX) roty(RY) about the "
+                   "frame origin: 'proposed' (the default: RUN_DIR's result.json tilt, deg), "
+                   "'none' (not applied), or the measured angles RX,RY in deg, e.g. 0.11,-0.80")
     p.add_argument("--dry-run", action="store_true", help="plan and print the first touches, move nothing")
     p.add_argument("--yes", action="store_true", help="do not ask before moving a real robot")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -57,9 +62,18 @@ def command(args) -> int:
         folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
         created = (folders, before)
+    correction = _correction(args)
+    if args.prior_from:
+        try:
+            c = session.applied_correction(Path(args.prior_from), correction)
+        except ValueError as e:
+            raise UserError(str(e)) from None
+        print(f"re-check from {args.prior_from}: correction assumed applied ({c['assumed']}): "
+              f"rx {c['correction_deg']['rx']:+.4f} deg, ry {c['correction_deg']['ry']:+.4f} deg")
     try:
         # the cell file is copied only once the session holds the folder's lock
         result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,
+                             correction_applied=correction,
                              progress=not args.no_progress,
                              before_start=None if args.resume else lambda: _copy_cell(out, cell_path))
     except BaseException as e:
@@ -77,13 +91,53 @@ def command(args) -> int:
               f"{result['touches']} touches): nothing to do, nothing changed")
         return 0
     _summary(result, out)
+    if result.get("prior_from", {}).get("disagreement"):
+        print(f"re-check stopped: {result['prior_from']['disagreement']}")
+        return 1
     return 130 if result["stopped_because"] == "interrupted" else 0
 
 
+def _correction(args):
+    """--correction-applied as session.run takes it: 'proposed', 'none' or (rx, ry) in deg."""
+    text = args.correction_applied
+    if text is None:
+        return "proposed"
+    if not args.prior_from:
+        raise UserError("--correction-applied needs --prior-from RUN_DIR")
+    if text.strip() in ("proposed", "none"):
+        return text.strip()
+    try:
+        rx, ry = (float(v) for v in text.split(","))
+    except ValueError:
+        raise UserError(f"--correction-applied {text!r}: expected proposed, none or RX,RY in deg "
+                        "(two numbers, e.g. 0.11,-0.80)") from None
+    if not all(abs(v) <= 10 for v in (rx, ry)):  # also refuses nan and inf
+        raise UserError(f"--correction-applied {text!r}: each angle must be finite and within "
+                        "+-10 deg")
+    return rx, ry
+
+
 def _copy_cell(out: Path, cell_path: Path) -> None:
-    """Copy the cell file into --out (the run folder keeps the cell it was run with)."""
-    if cell_path.resolve() != (out / "cell.yaml").resolve():
-        shutil.copyfile(cell_path, out / "cell.yaml")
+    """Copy the cell file into --out (the run folder keeps the cell it was run with). A height
+    map named relative to the cell file (simulation.surface_file) is written as an absolute path
+    in the copy, so --resume and report find it from the run folder."""
+    if cell_path.resolve() == (out / "cell.yaml").resolve():
+        return
+    import yaml
+
+    from adaptive_cal.cell.files import load_yaml
+    from adaptive_cal.formats.heightmap import beside
+
+    data = load_yaml(cell_path)
+    sim = data.get("simulation") if isinstance(data, dict) else None
+    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str):
+        data["simulation"] = {**sim, "surface_file": str(Path(beside(sim["surface_file"],
+                                                                      cell_path)).resolve())}
+        text = (f"# copied from {cell_path} by adaptive-cal run; simulation.surface_file made "
+                "absolute\n" + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
+        (out / "cell.yaml").write_text(text, encoding="utf-8")
+        return
+    shutil.copyfile(cell_path, out / "cell.yaml")
 
 
 def _undo_if_empty(out: Path, created: tuple[list[Path], set[str]]) -> bool:
@@ -113,25 +167,21 @@ def _has_touches(rec: Path) -> bool:
     return len(rows) > 1  # the header, then one row per touch
 
 
-def _ci(f: dict) -> str:
-    lo, hi = f["ci95"]
-    return f"{f['value'] * 1e3:.1f} um (95 % {lo * 1e3:.1f} .. {hi * 1e3:.1f})"
-
-
 def _summary(r: dict, out: Path) -> None:
-    from adaptive_cal.report.status import missing
+    from adaptive_cal.analysis.flatness_answer import answer_lines
+    from adaptive_cal.report.status import missing, next_step
 
     gap = missing(r)
-    t, p, fl = r["tilt"], r["posterior"], r["flatness_mm"]
-    lines = [f"INCOMPLETE: {gap}. Not a result: continue with --resume {out}"] if gap else []
+    t, p = r["tilt"], r["posterior"]
+    then = next_step(r, f"adaptive-cal run --resume {out}")
+    lines = [f"INCOMPLETE: {gap}. Not a result. {then}"] if gap else []
     lines += [
         f"stopped: {r['stopped_because']} after {r['touches']} touches ({r['fused']} fused)",
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
         f"tilt correction{' (provisional)' if gap else ''}: rx {t['rx_deg']:+.4f} deg, "
         f"ry {t['ry_deg']:+.4f} deg (a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm, c {t['c']:+.4f} mm)",
-        f"flatness{' (provisional)' if gap else ''}: least squares {_ci(fl['least_squares'])}; "
-        f"minimum zone {_ci(fl['minimum_zone'])}",
     ]
+    lines += answer_lines(r, provisional=bool(gap))
     if "truth" in r:
         tr = r["truth"]
         lines.append(f"true error: RMS {tr['rms_error_mm'] * 1e3:.2f} um, max "

@@ -13,7 +13,10 @@ Flags (``;``-separated in the ``flags`` column) say what the loop did with a rea
 ``gated`` (failed the Mahalanobis gate: not fused, the point is taken again once), ``retake``
 (the second reading at that point; fused if it passes the gate), ``surprise`` (a retake that
 failed the gate too but agreed with the first reading: fused -- the surface really is there),
-``rejected`` (not fused: disagreed with both, or outside the usable stroke, or too much spread).
+``rejected`` (not fused: disagreed with both, or outside the usable stroke, or too much spread),
+``invalid`` (with ``rejected``: NaN or infinite, off the workplane or inside a keep-out; a
+non-finite value is written as 0 and flagged ``nonfinite``), ``outlier=0.12`` (the reading's
+posterior outlier probability, two decimals; a fused reading carries the weight 1 - p).
 """
 from __future__ import annotations
 

@@ -111,12 +111,14 @@ def log_marginal(model: PriorModel, hyper: Hyper, rows: np.ndarray, readings: np
                               model.belief(hyper).cov, hyper.noise_std_mm**2))
 
 
-def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, mu, sd):
-    """-(log N(y; 0, H C0(theta) H^T + sigma_n^2 I) + log hyper-prior); padded rows masked."""
+def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, mu, sd,
+                  weights=1.0):
+    """-(log N(y; 0, H C0(theta) H^T + sigma_n^2 W^-1) + log hyper-prior); padded rows masked.
+    ``weights`` w_i in (0, 1]: a reading judged an outlier with probability p has w = 1 - p."""
     sf, ls, sn = jnp.exp(log_theta)
     cov = tilt_cov + _form_cov(knots_x, knots_y, sf, ls, jnp) \
         + JITTER_MM2 * jnp.eye(tilt_cov.shape[0])
-    loglik = log_evidence(rows, readings, cov, sn**2, mask, jnp)
+    loglik = log_evidence(rows, readings, cov, sn**2 / weights, mask, jnp)
     logprior = -0.5 * jnp.sum(((log_theta - mu) / sd) ** 2)
     return -(loglik + logprior)
 
@@ -145,6 +147,14 @@ def _padded(rows, readings):
     return jnp.asarray(padded), jnp.asarray(y), jnp.asarray(mask)
 
 
+def _padded_weights(size: int, weights=None):
+    """Reading weights padded with 1 to the padded size (``weights`` None: all 1)."""
+    w = np.ones(size)
+    if weights is not None:
+        w[:len(weights)] = weights
+    return jnp.asarray(w)
+
+
 def fit_hyper(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
               start: Hyper | None = None) -> Hyper:
     """MAP-II hyper-parameters from the readings (L-BFGS-B on log theta, JAX gradients)."""
@@ -152,15 +162,17 @@ def fit_hyper(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
 
 
 def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
-                    start: Hyper | None = None, *, points: bool = True
+                    start: Hyper | None = None, *, points: bool = True, weights=None
                     ) -> list[tuple[Hyper, float]]:
     """Hyper-parameters with weights: the MAP, and with ``points`` also 2 x 3 sigma points of
     the Laplace approximation in log theta (at +-2 sd along each principal axis, unscented
     weights with kappa = 1, corrected by the true posterior density). Conditioning on each and
-    mixing carries the hyper-parameter uncertainty into the belief."""
+    mixing carries the hyper-parameter uncertainty into the belief. ``weights`` (n,) in (0, 1]:
+    reading i has noise variance sigma_n^2 / w_i (outliers weighted out; default all 1)."""
     if not jax.config.jax_enable_x64:
         raise RuntimeError("fit_hyper needs float64: call adaptive_cal.use_float64() first")
-    args = _padded(rows, readings) + _model_args(model)
+    padded = _padded(rows, readings)
+    args = padded + _model_args(model) + (_padded_weights(padded[2].shape[0], weights),)
 
     def fun(x):
         v, g = _value_and_grad(jnp.asarray(x), *args)
@@ -200,15 +212,18 @@ def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
 
 
 def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
-                   start: Hyper | None = None) -> tuple[Belief, list[tuple[Hyper, float]]]:
+                   start: Hyper | None = None, weights=None
+                   ) -> tuple[Belief, list[tuple[Hyper, float]]]:
     """The belief with learned hyper-parameters: the posterior of the readings under each
     weighted point of ``hyper_posterior``, moment-matched into one Gaussian,
 
         m = sum_k a_k m_k,   C = sum_k a_k (C_k + (m_k - m)(m_k - m)^T),
 
     so the belief carries the hyper-parameter uncertainty. Returns it and the points (the MAP
-    first: its noise serves the fusions until the next refit)."""
-    points = hyper_posterior(model, rows, readings, start=start)
-    belief = mixture([condition(model.belief(h), rows, readings, h.noise_std_mm**2)
-                      for h, _ in points], [w for _, w in points])
+    first: its noise serves the fusions until the next refit). ``weights`` w_i: reading i's
+    noise variance is sigma_n^2 / w_i in the fit and the posterior (robust: outliers out)."""
+    w = np.ones(len(readings)) if weights is None else np.asarray(weights, float)
+    points = hyper_posterior(model, rows, readings, start=start, weights=w)
+    belief = mixture([condition(model.belief(h), rows, readings, h.noise_std_mm**2 / w)
+                      for h, _ in points], [wt for _, wt in points])
     return belief, points

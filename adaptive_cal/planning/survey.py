@@ -30,7 +30,8 @@ import numpy as np
 from adaptive_cal.formats.recording import surface_height_mm
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, learned_belief
-from adaptive_cal.planning.gate import Retake, Told, judge as gate_judge, pending_after
+from adaptive_cal.planning.gate import Retake, Told, flagged_p, judge as gate_judge, pending_after
+from adaptive_cal.planning.robust import InvalidReading, check_touch, predictive  # noqa: F401
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 
@@ -45,7 +46,9 @@ class SurveyState:
     (basis rows (n, K), heights (n,)); ``touches``: touches made, fused or not;
     ``touched_xy_mm``: where each touch went, in order; ``retake``: a gated reading that owes
     a second touch, or None; ``fitted_at``: fused readings at the last refit; ``prior``: a
-    belief carried over from an earlier run (``--prior-from``), or None."""
+    belief carried over from an earlier run (``--prior-from``), or None; ``weights``: each fused
+    reading's share w = 1 - p of the noise precision (p its flagged outlier probability: its
+    noise variance is r / w in every fusion and refit)."""
 
     belief: bl.Belief
     hyper: Hyper
@@ -57,6 +60,7 @@ class SurveyState:
     retake: Retake | None = None
     fitted_at: int = 0
     prior: bl.Belief | None = None
+    weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def fused(self) -> int:
@@ -82,6 +86,7 @@ def start(plan: SurveyPlan, *, prior: bl.Belief | None = None,
     return SurveyState(belief, hyper, rows=np.zeros((0, plan.coefficients)), prior=prior)
 
 
+
 def status(plan: SurveyPlan, state: SurveyState) -> Status:
     """Touches, RMS posterior std sqrt(trace(Q C) / area) and the largest std on the grid."""
     c = state.belief.cov
@@ -101,10 +106,21 @@ def _row(plan: SurveyPlan, x_mm: float, y_mm: float) -> np.ndarray:
 
 def judge(plan: SurveyPlan, state: SurveyState, x_mm: float, y_mm: float, z_mm: float,
           reading_mm: float) -> Told:
-    """The gate's decision on a reading that was taken (flags for the recording); pure."""
+    """The gate's decision on a reading that was taken (flags for the recording); pure.
+
+    Raises ``InvalidReading`` (a ValueError naming the value) for a NaN or infinite reading or
+    position, a position off the workplane or inside a keep-out: such a reading is never fused
+    (a loop records it flagged ``invalid`` and counts it with ``skip``). Before the first refit
+    the reading is judged against the hyper-prior's mixture (``robust.predictive``)."""
+    check_touch(plan, x_mm, y_mm, z_mm, reading_mm)
     height = surface_height_mm(reading_mm, z_mm, plan.zero_mm)
-    return gate_judge(state.belief, _row(plan, x_mm, y_mm), height, state.noise_var,
-                      plan.gate_sigma, state.retake, x_mm, y_mm, z_mm)
+    row = _row(plan, x_mm, y_mm)
+    unlearned = learns(plan, state) and not state.hyper_points
+    pred = predictive(plan, state.belief, state.hyper, state.rows, state.heights_mm,
+                      state.weights, row, unlearned)
+    lo, hi = plan.usable_mm
+    return gate_judge(pred, height, state.noise_var, plan.gate_sigma, state.retake, x_mm, y_mm,
+                      z_mm, stroke_mm=hi - lo)
 
 
 def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
@@ -116,17 +132,19 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
         return state
     h = _row(plan, told.x_mm, told.y_mm)
     state = replace(state, rows=np.vstack([state.rows, h[None]]),
-                    heights_mm=np.append(state.heights_mm, told.height_mm))
+                    heights_mm=np.append(state.heights_mm, told.height_mm),
+                    weights=np.append(state.weights, told.weight))
     n = state.fused
     if learns(plan, state) and n >= plan.hyper_after and n - state.fitted_at >= plan.hyper_every:
         return refit(plan, state)
-    belief, _ = bl.fuse(state.belief, h, told.height_mm, state.noise_var)
+    belief, _ = bl.fuse(state.belief, h, told.height_mm, state.noise_var / told.weight)
     return replace(state, belief=belief)
 
 
 def tell(plan: SurveyPlan, state: SurveyState, x_mm: float, y_mm: float, z_mm: float,
          reading_mm: float) -> tuple[SurveyState, Told]:
-    """``judge`` then ``fuse``: the new state and the judgement (flags for the recording)."""
+    """``judge`` then ``fuse``: the new state and the judgement (flags for the recording).
+    An invalid reading raises ``InvalidReading`` and changes nothing."""
     told = judge(plan, state, x_mm, y_mm, z_mm, reading_mm)
     return fuse(plan, state, told), told
 
@@ -147,24 +165,28 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     """Re-fit the hyper-parameters to every fused reading and rebuild the belief: the
     posterior under each weighted hyper-parameter point, moment-matched (so the belief
     carries the hyper-parameter uncertainty); the MAP's noise serves later fusions."""
-    belief, points = learned_belief(plan.model, state.rows, state.heights_mm, start=state.hyper)
+    belief, points = learned_belief(plan.model, state.rows, state.heights_mm, start=state.hyper,
+                                    weights=state.weights)
     return replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
                    fitted_at=state.fused)
 
 
 def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
     """The state after a recording's touches, from a fresh ``state``: fused rows by their
-    flags, the touch count and positions, the hyper-parameters, a retake still owed."""
+    flags (and their outlier weights, ``outlier=p``), the touch count and positions, the
+    hyper-parameters, a retake still owed."""
     rec, fused = recording, recording.fused
     if fused.any():
         rows = plan.model.surface.basis(rec.x_mm[fused], rec.y_mm[fused])
         heights = surface_height_mm(rec.reading_mm[fused], rec.z_mm[fused], plan.zero_mm)
-        state = replace(state, rows=rows, heights_mm=heights)
+        flags = [f for f, keep in zip(rec.flags, fused) if keep] if rec.flags else []
+        weights = 1.0 - np.array([flagged_p(f) for f in flags]) if flags else np.ones(len(rows))
+        state = replace(state, rows=rows, heights_mm=heights, weights=weights)
         if learns(plan, state) and len(heights) >= plan.hyper_after:
             state = refit(plan, state)
         else:
             state = replace(state, belief=bl.condition(state.belief, rows, heights,
-                                                       state.noise_var))
+                                                       state.noise_var / weights))
     retake = None
     if len(rec) and rec.flags and "gated" in rec.flags[-1]:
         i = len(rec) - 1

@@ -2,10 +2,12 @@
 
     html = render(run_dir)        # reads DIR/result.json, recording.csv, cell.yaml, belief.npz
     write(run_dir)                # DIR/report.html
+    render_recording(result, cell, rec, belief, recording, cell_file)   # a replayed recording
 
 The page holds the cell, the touches on the plate, the surface and its uncertainty, the tilt
 correction as a controller takes it (rx, ry in deg; frame_new = frame_nominal * rotx(rx) *
-roty(ry)), the flatness figures with 95 % intervals, and what ``explain`` found when
+roty(ry)), the flatness of the touched points and of the whole plate with 95 % intervals
+(``analysis.flatness_answer``'s words), and what ``explain`` found when
 DIR/explain.json exists (the pieces: ``sections.py``). Figures are embedded as base64 PNG: the
 file can be mailed on its own. Reads files, writes one; no numerical work beyond evaluating the
 saved belief on a grid.
@@ -93,7 +95,11 @@ def surface_png(run_dir: Path, cell: Cell, rec, result: dict) -> str | None:
     if not path.exists():
         png = run_dir / "surface.png"
         return base64.b64encode(png.read_bytes()).decode("ascii") if png.exists() else None
-    data = np.load(path)
+    return belief_png(np.load(path), cell, rec, result)
+
+
+def belief_png(data, cell: Cell, rec, result: dict) -> str:
+    """The maps of a belief given as belief.npz holds it (mean, cov, knots_x, knots_y)."""
     ends = result.get("knots_mm", {}).get("ends", cell.model.ends)
     surface = Surface.create(data["knots_x"], data["knots_y"], ends=ends)
     wp = cell.workplane
@@ -140,30 +146,61 @@ def render(run_dir: str | Path) -> str:
     cell = load_cell(run_dir / "cell.yaml")
     rec = read_recording(run_dir / "recording.csv")
     conv = run_dir / "convergence.png"
+    return page(result, cell, rec, surface_png(run_dir, cell, rec, result),
+                base64.b64encode(conv.read_bytes()).decode("ascii") if conv.exists() else None,
+                run_dir=run_dir)
+
+
+def render_recording(result: dict, cell: Cell, rec, belief_data, recording: Path,
+                     cell_file: Path) -> str:
+    """The page of a bare recording replayed with its cell file (``run.results.result_of``):
+    the same sections, said to be built from a recording; no convergence history, no explain."""
+    return page(result, cell, rec, belief_png(belief_data, cell, rec, result), None,
+                source=(Path(recording), Path(cell_file)))
+
+
+def page(result: dict, cell: Cell, rec, surface_b64: str | None, convergence_b64: str | None,
+         run_dir: Path | None = None, source: tuple[Path, Path] | None = None) -> str:
+    """The page from its pieces: a run folder's (``run_dir``) or a replayed recording's
+    (``source`` = (recording, cell file))."""
     title = f"Workplane map: {cell.name}"
+    if source is None:
+        origin = (f"Run folder <code>{escape(run_dir.resolve())}</code>.")
+        footer = f"{escape(run_dir.name)}/result.json, recording.csv, cell.yaml, belief.npz"
+        resume = f"adaptive-cal run --resume {run_dir}"
+    else:
+        rec_path, cell_path = source
+        origin = (f"<b>Built from a recording, not a run:</b> <code>{escape(rec_path.resolve())}"
+                  f"</code> replayed with the cell file <code>{escape(cell_path.resolve())}</code> "
+                  "(every fused touch, one refit of the hyper-parameters at the end; a run's own "
+                  "figures may differ in the last digit).")
+        footer = f"{escape(rec_path.name)} replayed with {escape(cell_path.name)}"
+        resume = None
+    conv_note = ("no convergence history in a recording: the page of the run folder has it"
+                 if source else "Posterior std against touches (um, log scale); dashed: the bound.")
     body = [
         f"<h1>{escape(title)}</h1>",
-        f"<p class='note'>Run folder <code>{escape(run_dir.resolve())}</code>. Lengths in mm (um where "
-        "marked), angles in deg, heights in the workplane frame.</p>",
-        incomplete_banner(result, run_dir),
+        f"<p class='note'>{origin} Lengths in mm (um where marked), angles in deg, heights in the "
+        "workplane frame.</p>",
+        incomplete_banner(result, resume),
         cards(result, run_dir),
-        tilt_section(result["tilt"], provisional=missing(result) is not None),
+        tilt_section(result["tilt"], provisional=missing(result) is not None,
+                     spread=result["flatness_mm"].get("range")),
         flatness_section(result),
         "<h2>Touches on the plate</h2>",
         image(_png(touches_figure(cell, rec)), "touches", "The plate drawn to scale; numbers are the "
              "recording's seq."),
         "<h2>Surface and its uncertainty</h2>",
-        image(surface_png(run_dir, cell, rec, result), "surface", "Left: posterior mean height with "
+        image(surface_b64, "surface", "Left: posterior mean height with "
              "the least-squares plane removed (um). Right: posterior standard deviation (um)."),
         "<h2>Convergence</h2>",
-        image(base64.b64encode(conv.read_bytes()).decode("ascii") if conv.exists() else None,
-             "convergence", "Posterior std against touches (um, log scale); dashed: the bound."),
+        image(convergence_b64, "convergence", conv_note) if convergence_b64 or not source
+        else f"<p class='note'>{escape(conv_note)}.</p>",
         run_section(result),
         cell_section(cell, result),
-        explain_section(run_dir),
+        explain_section(run_dir) if run_dir is not None else "",
         f"<footer>adaptive-cal {__version__}, report written "
-        f"{_dt.datetime.now().strftime('%Y-%m-%d %H:%M')} from {escape(run_dir.name)}/result.json, "
-        "recording.csv, cell.yaml, belief.npz.</footer>",
+        f"{_dt.datetime.now().strftime('%Y-%m-%d %H:%M')} from {footer}.</footer>",
     ]
     return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<title>{escape(title)}</title><style>{CSS}</style></head><body>"

@@ -11,12 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
+from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, PLATE, SPREAD,
+                                                   touched_what, value_text)
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.report.status import missing
+from adaptive_cal.report.status import missing, next_step
 
 UM = 1000.0
-FLATNESS = (("least_squares", "least squares (Cheng eq. 5)"), ("minimum_zone", "minimum zone (ISO 1101)"),
-            ("range", "range, max - min (tilt included)"))
 EXPLAIN_FIGURES = ("residual_map.png", "residual_vs_position.png", "residual_vs_time.png",
                    "residual_vs_direction.png", "residual_vs_reach.png",
                    "residual_vs_indication.png", "fitted_effect.png")
@@ -52,13 +52,6 @@ def _table(rows, head=None, cls="") -> str:
 
 def _um(mm) -> str:
     return "-" if mm is None else f"{mm * UM:.1f} um"
-
-
-def _interval(f: dict) -> str:
-    lo, hi = f.get("ci95", [None, None])
-    if lo is None:
-        return "-"
-    return f"{lo:.4f} .. {hi:.4f} mm"
 
 
 def cell_section(cell: Cell, result: dict) -> str:
@@ -97,19 +90,21 @@ def run_section(result: dict) -> str:
     return "<h2>The run</h2>" + _table(rows, cls="kv")
 
 
-def incomplete_banner(result: dict, run_dir: Path) -> str:
+def incomplete_banner(result: dict, resume: str | None) -> str:
     """The page's opening line for an unfinished run (interrupted, budget spent, bound not met);
-    nothing for a finished one."""
+    nothing for a finished one. ``resume``: the command that continues it (None for a recording)."""
     gap = missing(result)
     if gap is None:
         return ""
+    then = f"{escape(next_step(result, resume))}, then write this report again."
     return (f"<p class='incomplete'><b>INCOMPLETE: {escape(gap)}.</b> This map is not a result: "
             "the tilt correction and the flatness below are provisional; do not correct the frame "
-            f"from them. Continue the run with <code>adaptive-cal run --resume "
-            f"{escape(run_dir)}</code>, then write this report again.</p>")
+            f"from them. {then}</p>")
 
 
-def tilt_section(tilt: dict, provisional: bool = False) -> str:
+def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = None) -> str:
+    """The correction for the controller; ``spread``: the raw height spread of the plate (max -
+    min, the tilt included), shown here, never under Flatness."""
     rx, ry = tilt["rx_deg"], tilt["ry_deg"]
     R = rotation(rx, ry)
     sx, sy = tilt.get("rx_std_deg"), tilt.get("ry_std_deg")
@@ -120,6 +115,8 @@ def tilt_section(tilt: dict, provisional: bool = False) -> str:
                                               f"c {tilt['c']:+.4f} mm"),
             ("height change over 100 mm", f"along x {tilt['a'] * 100 * UM:+.1f} um, along y "
                                           f"{tilt['b'] * 100 * UM:+.1f} um")]
+    if spread:
+        rows.append((SPREAD.replace(" (not flatness)", ", whole plate"), escape(value_text(spread))))
     matrix = "<br>".join("[" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in R)
     head = ("<h2>Tilt correction for the controller (provisional)</h2><p><b>Provisional:</b> the "
             "run did not finish (see the top of the page); apply it only after the run meets its "
@@ -137,17 +134,30 @@ def tilt_section(tilt: dict, provisional: bool = False) -> str:
 
 
 def flatness_section(result: dict) -> str:
-    fl = result["flatness_mm"]
-    rows = []
-    for key, name in FLATNESS:
-        if key in fl:
-            f = fl[key]
-            rows.append((name, f"<b>{f['value']:.4f} mm</b>", _interval(f), _um(f["value"])))
+    """Both answers (``analysis.flatness_answer``), in the words and digits of the terminal."""
+    rows, used = [], []
+    touched, plate = result.get("touched_flatness_mm"), result["flatness_mm"]
+    for what, figs in ((touched_what(touched["points"]) if touched else None, touched),
+                       (PLATE, plate)):
+        if not figs:
+            continue
+        used.append(figs)
+        for key, name in FIGURES:
+            if key in figs:
+                rows.append((escape(what), escape(name), f"<b>{escape(value_text(figs[key]))}</b>",
+                             escape(figs[key].get("value_is", "-"))))
+    notes = [n for n in (MEDIAN_NOTE,) if any(f.get("value_is") == MEDIAN for u in used
+                                              for f in u.values() if isinstance(f, dict))]
     return ("<h2>Flatness</h2>"
-            + _table(rows, head=("figure", "value", "95 % interval", "in um"))
-            + "<p class='note'>Value: the figure of the posterior mean surface over the whole plate. "
-              "Interval: the same figure over surfaces sampled from the belief. Least squares and "
-              "minimum zone are measured normal to the planes; range includes the tilt.</p>")
+            + _table(rows, head=("flatness", "figure", "value (95 % interval)", "value is"))
+            + "".join(f"<p class='note'>{escape(n)}</p>" for n in notes)
+            + "<p class='note'>Both figures remove the tilt: least squares is the spread of the "
+              "heights about their least-squares plane (eq. 5), minimum zone the distance of the "
+              "two closest parallel planes enclosing them; both measured normal to the planes. "
+              "Touched points: the figure of the measured heights, the interval over predicted "
+              "repeat measurements at the same touches. Whole plate: the figure of the mean map, "
+              "the interval over surfaces sampled from the belief. The same numbers are printed by "
+              "<code>adaptive-cal run</code> and <code>adaptive-cal flatness</code>.</p>")
 
 
 def explain_section(run_dir: Path) -> str:
@@ -197,14 +207,16 @@ def explain_section(run_dir: Path) -> str:
     return "".join(parts)
 
 
-def cards(result: dict, run_dir: Path) -> str:
+def cards(result: dict, run_dir: Path | None) -> str:
     t, ls, p = result["tilt"], result["flatness_mm"]["least_squares"], result["posterior"]
     tilt_label = "tilt correction" + (" (provisional)" if missing(result) else "")
+    text = value_text(ls).split(" (", 1)
     cards = [(f"rx {t['rx_deg']:+.4f} deg<br>ry {t['ry_deg']:+.4f} deg", tilt_label),
-             (f"{ls['value']:.4f} mm", f"flatness, least squares (95 % {_interval(ls)})"),
+             (escape(text[0]), f"flatness {PLATE}, least squares"
+              + (f" ({escape(text[1])}" if len(text) > 1 else "")),
              (f"{_um(p['mean_std_mm'])}", f"RMS posterior std after {result['touches']} touches")]
-    ex = run_dir / "explain.json"
-    if ex.exists():
+    ex = run_dir / "explain.json" if run_dir is not None else None
+    if ex is not None and ex.exists():
         cards.append((escape(json.loads(ex.read_text(encoding="utf-8")).get("verdict", "-")),
                       "explain verdict (left-out physics)"))
     return "<div class='cards'>" + "".join(

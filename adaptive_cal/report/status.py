@@ -12,6 +12,15 @@ WHY = {
     "interrupted": "interrupted",
     "touch_budget": "touch budget spent",
     "no_admissible_point": "stopped: no admissible point",
+    "invalid_readings": "stopped: 3 invalid readings in a row (NaN, infinite or off the plate)",
+    "prior_disagrees_with_readings": "stopped: the readings contradict the earlier belief "
+                                     "(--prior-from) in the frame assumed",
+}
+# reasons that --resume does not cure: what to do instead
+INSTEAD = {
+    "prior_disagrees_with_readings": "give the correction really applied (--correction-applied "
+                                     "proposed | none | RX,RY) or map from scratch without "
+                                     "--prior-from, in a new folder",
 }
 # reasons after which a run may be complete (when no bound is left unmet)
 FINISHING = ("mean_std_bound", "max_std_bound", "touch_budget", "at_least")
@@ -39,7 +48,12 @@ def missing(result: dict) -> str | None:
     return "; ".join([text] + unmet)
 
 
-def provisional_note(result: dict) -> str:
-    """What to do with the tilt correction of an unfinished run."""
-    return ("the tilt correction is provisional: do not correct the frame from it; continue the "
-            "run with --resume to meet the bound first")
+def next_step(result: dict, resume: str | None) -> str:
+    """What to do with an unfinished run, one sentence: ``resume`` is the command that continues
+    it (None when nothing continues it, e.g. a page built from a recording)."""
+    instead = INSTEAD.get(result.get("stopped_because", ""))
+    if instead:
+        return instead[0].upper() + instead[1:]
+    if resume:
+        return f"Continue with {resume}"
+    return "Take more touches until the bound is met"

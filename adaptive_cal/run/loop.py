@@ -7,7 +7,11 @@ Each touch:
 
 1. the probe cycle touches the target (a ``TouchRejected`` touch is recorded, flagged, counted
    and never fused);
-2. the gate judges the reading (pure: flags for the recording);
+2. the gate judges the reading (pure: flags for the recording). A reading ``survey.judge``
+   refuses (``InvalidReading``: NaN or infinite, off the workplane, inside a keep-out) is
+   recorded flagged ``invalid;rejected`` (a non-finite value written as 0, the flag
+   ``nonfinite`` saying so), counted with ``survey.skip`` and never fused; the loop goes on,
+   and ends with ``INVALID_READINGS`` after ``MAX_INVALID`` such readings in a row;
 3. ``record(row)`` writes it -- before anything else happens with the reading, so a crash or a
    kill during the fusion (and its refit) loses nothing that was taken;
 4. the reading is fused (and the hyper-parameters refitted on schedule);
@@ -28,10 +32,14 @@ from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.ask import Target, ask
 from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.planning.robust import InvalidReading
 from adaptive_cal.planning.stopping import Status
 
 #: the reason a loop ends when no allowed point can be promised inside the probe stroke
 NO_ADMISSIBLE_POINT = "no_admissible_point"
+#: the reason a loop ends after ``MAX_INVALID`` invalid readings in a row (a broken device)
+INVALID_READINGS = "invalid_readings"
+MAX_INVALID = 3
 
 
 class Row(NamedTuple):
@@ -48,7 +56,8 @@ class Row(NamedTuple):
 
 class Step(NamedTuple):
     """What the hooks see after each touch: the new state and its status, the target, and
-    either the touch and its judgement or the probe cycle's rejection."""
+    either the touch and its judgement or the probe cycle's rejection (``invalid``: the reason
+    ``survey.judge`` refused the reading, or None)."""
 
     state: sv.SurveyState
     status: Status
@@ -56,6 +65,7 @@ class Step(NamedTuple):
     touch: Touch | None
     told: Told | None
     rejected: TouchRejected | None
+    invalid: InvalidReading | None = None
 
 
 Hook = Callable[[Step], None]
@@ -78,6 +88,7 @@ class SurveyLoop:
         self.plan, self.state, self.cycle = plan, state, cycle
         self.stop = stop or survey_stop(plan)
         self.record, self.hooks, self.interrupt = record, tuple(hooks), interrupt
+        self.invalid_in_a_row = 0
 
     def run(self) -> str:
         """Ask, touch, record and fuse until the stop predicate fires; returns its reason, or
@@ -91,14 +102,16 @@ class SurveyLoop:
                 return NO_ADMISSIBLE_POINT
             for target in targets:
                 step = self.touch(target)
-                if (self.state.retake is not None or self.interrupt()
+                if self.invalid_in_a_row >= MAX_INVALID:
+                    return INVALID_READINGS
+                if (step.invalid is not None or self.state.retake is not None or self.interrupt()
                         or self.stop(self.state, step.status)):
                     break  # a batch never runs past the stop rule (the touch budget included)
 
     def touch(self, target: Target) -> Step:
         """One touch at ``target``: taken, judged, recorded, then fused; hooks called."""
         plan = self.plan
-        touch = told = rejected = None
+        touch = told = rejected = invalid = None
         try:
             touch = self.cycle.touch(target.x_mm, target.y_mm, target.z_mm)
         except TouchRejected as e:
@@ -106,13 +119,22 @@ class SurveyLoop:
             self._reject(target, e)
         except ProbeLeftDown as e:  # the tip may be down: keep what was read, then stop
             if e.touch is not None:
-                self._take(e.touch)
+                try:
+                    self._take(e.touch)
+                except InvalidReading:
+                    self._invalid(target, e.touch)
             elif isinstance(e.__cause__, TouchRejected):
                 self._reject(target, e.__cause__)
             raise
         else:
-            told = self._take(touch)
-        step = Step(self.state, sv.status(plan, self.state), target, touch, told, rejected)
+            try:
+                told = self._take(touch)
+            except InvalidReading as e:
+                invalid = e
+                self._invalid(target, touch)
+        self.invalid_in_a_row = self.invalid_in_a_row + 1 if invalid is not None else 0
+        step = Step(self.state, sv.status(plan, self.state), target, touch, told, rejected,
+                    invalid)
         for hook in self.hooks:
             hook(step)
         return step
@@ -125,6 +147,17 @@ class SurveyLoop:
                          touch.reading_mm, told.flags))
         self.state = sv.fuse(self.plan, self.state, told)
         return told
+
+    def _invalid(self, target: Target, touch: Touch) -> None:
+        """Record a reading ``survey.judge`` refused (flagged ``invalid``, never fused; a
+        non-finite value is written as 0 with the flag ``nonfinite``) and count the touch at
+        its target."""
+        values = (touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
+        finite = [v if math.isfinite(v) else 0.0 for v in values]
+        flags = ("invalid", "rejected") + (() if finite == list(values) else ("nonfinite",))
+        t_s = touch.t_s if math.isfinite(touch.t_s) else self.cycle.clock()
+        self._record(Row(self.state.touches, t_s, *finite, flags))
+        self.state = sv.skip(self.plan, self.state, target.x_mm, target.y_mm)
 
     def _reject(self, target: Target, e: TouchRejected) -> None:
         """Record a touch the probe cycle rejected (flagged, never fused) and count it."""

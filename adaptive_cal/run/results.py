@@ -1,6 +1,8 @@
 """What a run reports: tilt correction, posterior std, flatness with 95 % intervals, truth
 errors on a simulated cell, and the figures. Every figure with an interval is written as
-{"value": v, "ci95": [low, high]} in mm. Randomness (the posterior samples) is passed in.
+{"value": v, "ci95": [low, high], "value_is": ...} in mm; flatness comes from
+``analysis.flatness_answer`` (of the touched points and of the whole plate). Randomness (the
+posterior samples) is passed in.
 """
 from __future__ import annotations
 
@@ -8,46 +10,37 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.cell.build import prior_model
+from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer
 from adaptive_cal.cell.schema import Cell
+from adaptive_cal.formats.recording import read_recording, surface_height_mm
 from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.run.folder import finite_json, replace_atomically, write_json
 from adaptive_cal.run.truth import truth_error
 
-SAMPLES = 200
-
 
 def plate_estimates(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generator,
-                     samples: int | None = None) -> dict:
-    """Tilt and flatness of the plate from the belief: value on the posterior mean surface,
-    interval over ``samples`` (default ``SAMPLES``) surfaces sampled from the belief
-    (evaluation grid over the whole plate)."""
-    samples = SAMPLES if samples is None else samples
-    xy, rows = plan.eval_xy, plan.eval_rows
-    mean, _ = bl.predict(belief, rows)
-    draws = bl.sample(belief, rng, samples) @ rows.T  # (S, N)
-    x, y = xy[:, 0], xy[:, 1]
-    values = fl.figures(x, y, mean)
-    names = ("least_squares", "range", "minimum_zone")
-    sampled = fl.sampled_figures(x, y, draws)
-    flat = fl.interval_figures({k: values[k] for k in names}, {k: sampled[k] for k in names})
-    tilt = fl.plane_tilt(x, y, mean)
-    angles = np.array([fl.tilt_correction_deg(*fl.least_squares_plane(x, y, d)[:2]) for d in draws])
-    tilt["rx_std_deg"], tilt["ry_std_deg"] = (float(v) for v in angles.std(axis=0))
-    return {"tilt": tilt, "flatness_mm": flat}
+                    samples: int = SAMPLES) -> dict:
+    """Tilt and flatness of the whole plate from the belief (``analysis.flatness_answer``)."""
+    return flatness_answer(plan, belief, 0.0, None, rng, samples)
 
 
-def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path,
-                  stopped_because: str, *, rng: np.random.Generator, history=None, truth=None,
-                  true_rms_mm=None) -> dict:
-    """result.json, surface.png and convergence.png in ``out``, each replaced whole (a temporary
-    file moved over the old one); returns the result dict (non-finite numbers as None).
-    ``rng`` draws the posterior samples of the intervals; ``history``: the status before the
-    first touch and after each one (convergence figure)."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+def touched_heights(plan: SurveyPlan, recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, height) in mm of a recording's fused touches, with the plan's probe zero: the
+    heights exactly as written, so a result and ``flatness`` on the file agree to the digit."""
+    rec = read_recording(recording) if isinstance(recording, (str, Path)) else recording
+    f = rec.fused
+    return rec.x_mm[f], rec.y_mm[f], surface_height_mm(rec.reading_mm[f], rec.z_mm[f], plan.zero_mm)
+
+
+def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
+              stopped_because: str, *, rng: np.random.Generator, truth=None) -> dict:
+    """The result dict of a state (result.json without writing it): counts, bounds, posterior,
+    hyper-parameters, knots, tilt and the flatness answer (touched points from ``recording``, a
+    path or a Recording, and the whole plate), and the truth errors when ``truth`` is given."""
     status = sv.status(plan, state)
     stop = cell.plan.stop
     surface = plan.model.surface
@@ -63,9 +56,28 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
         "knots_mm": {"x": surface.sx.knots.tolist(), "y": surface.sy.knots.tolist(),
                      "ends": surface.sx.ends},
     }
-    result.update(plate_estimates(plan, state.belief, rng))
+    xyz = (touched_heights(plan, recording)
+           if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
+    result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
+                                  xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
+                                  SAMPLES))
     if truth is not None:
         result["truth"] = truth_error(plan, state.belief, truth)
+    return finite_json(result)
+
+
+def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path,
+                  stopped_because: str, *, rng: np.random.Generator, history=None, truth=None,
+                  true_rms_mm=None) -> dict:
+    """result.json, surface.png and convergence.png in ``out``, each replaced whole (a temporary
+    file moved over the old one); returns the result dict (non-finite numbers as None).
+    ``rng`` draws the posterior samples of the intervals; ``history``: the status before the
+    first touch and after each one (convergence figure)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    result = result_of(cell, plan, state, out / "recording.csv", stopped_because, rng=rng,
+                       truth=truth)
+    status = sv.status(plan, state)
     # the figures first: result.json, written last, marks the results complete (a kill while
     # drawing leaves the old result.json, so --resume does not take the run as finished)
     write_figures(cell, plan, state, out, history or [status], true_rms_mm)
@@ -108,3 +120,20 @@ def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> None:
               "knots_y": s.sy.knots, "hyper": np.array(state.hyper),
               "touches": np.array(state.touches), "fused": np.array(state.fused)}
     replace_atomically(path, lambda f: np.savez(f, **arrays), binary=True)
+
+
+def read_belief(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
+    """The belief ``save_belief`` wrote into RUN_DIR/belief.npz, as saved (not widened), and its
+    hyper-parameters; its knots must be the ones ``cell`` gives (``prior_model(cell).surface``
+    then evaluates it)."""
+    path = Path(run_dir) / "belief.npz"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
+    data = np.load(path)
+    surface = prior_model(cell).surface
+    if (len(data["knots_x"]) != len(surface.sx.knots) or len(data["knots_y"]) != len(surface.sy.knots)
+            or not np.allclose(data["knots_x"], surface.sx.knots)
+            or not np.allclose(data["knots_y"], surface.sy.knots)):
+        raise ValueError(f"{path}: the earlier run used other knots; give the cell file the same "
+                         "model.knots_x / knots_y")
+    return bl.Belief(data["mean"], data["cov"]), Hyper(*data["hyper"].tolist())

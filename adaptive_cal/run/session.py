@@ -21,6 +21,7 @@ import numpy as np
 
 from adaptive_cal.cell.build import prior_model, survey_plan
 from adaptive_cal.cell.schema import Cell
+from adaptive_cal.effects.frame import plane_in_corrected_frame
 from adaptive_cal.formats.recording import RecordingWriter, read_recording, repair_cut_row
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
@@ -28,9 +29,9 @@ from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.run.devices import open_cell
-from adaptive_cal.run.folder import run_lock
+from adaptive_cal.run.folder import run_lock, write_json
 from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, History, Row, SurveyLoop
-from adaptive_cal.run.results import save_belief, write_results
+from adaptive_cal.run.results import read_belief, save_belief, write_results
 from adaptive_cal.run.truth import TrueError
 
 RESULTS_SEED = 0  # the posterior samples behind result.json's intervals
@@ -61,28 +62,100 @@ def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path
     return sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0, next_seq
 
 
-def load_prior(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
-    """An earlier run's belief, widened by the drift allowance d = plan.drift_std_mm: the plate
-    may have moved rigidly since (offset std d, slopes std d over half the plate diagonal) and
-    its form may have changed by a quarter of that (form std d / 4, same length scale). A
-    routine re-check then needs a handful of touches."""
-    path = Path(run_dir) / "belief.npz"
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
-    data = np.load(path)
-    hyper = Hyper(*data["hyper"].tolist())
+CORRECTION_RANGE_DEG = 10.0  # as simulation.frame_correction_deg
+# a re-check (--prior-from) stops after this many readings the gate flagged and their retakes
+# confirmed (flag "surprise"): the plate is not where the earlier belief, moved by the
+# correction assumed applied, puts it
+PRIOR_SURPRISES = 3
+PRIOR_DISAGREES = "prior_disagrees_with_readings"
+
+
+def applied_correction(run_dir: Path, correction: str | tuple[float, float] = "proposed") -> dict:
+    """The user-frame correction assumed applied since the run in ``run_dir``: ``"proposed"``
+    (its result.json tilt, rx_deg / ry_deg), ``"none"`` (not applied: its belief is used as is)
+    or (rx, ry) in deg (a measured applied correction). Returns the record result.json keeps:
+    {"run": ..., "correction_deg": {"rx": .., "ry": ..}, "assumed": proposed | none | measured}."""
+    run_dir = Path(run_dir)
+    if correction == "none":
+        rx, ry, assumed = 0.0, 0.0, "none"
+    elif correction == "proposed":
+        path = run_dir / "result.json"
+        try:
+            tilt = json.loads(path.read_text(encoding="utf-8"))["tilt"]
+            rx, ry = float(tilt["rx_deg"]), float(tilt["ry_deg"])
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise ValueError(f"{path}: no proposed tilt correction (tilt rx_deg, ry_deg) to "
+                             f"assume applied ({type(e).__name__}: {e}); pass the applied one "
+                             "as --correction-applied RX,RY (deg), or none") from None
+        assumed = "proposed"
+    elif isinstance(correction, str) or len(correction) != 2:
+        raise ValueError(f"correction {correction!r}: expected 'proposed', 'none' or (rx, ry) in deg")
+    else:
+        rx, ry = (float(v) for v in correction)
+        assumed = "measured"
+    if not all(math.isfinite(v) and abs(v) <= CORRECTION_RANGE_DEG for v in (rx, ry)):
+        raise ValueError(f"correction rx {rx} deg, ry {ry} deg: each must be finite and within "
+                         f"+-{CORRECTION_RANGE_DEG:g} deg")
+    return {"run": str(run_dir), "correction_deg": {"rx": rx, "ry": ry}, "assumed": assumed}
+
+
+def corrected_belief(model, belief: bl.Belief, rx_deg: float, ry_deg: float) -> bl.Belief:
+    """The belief in the user frame corrected by rotx(rx) roty(ry) (``effects.frame``: about the
+    frame's origin). The mean's plane theta = (s_x, s_y, c at the plate centre), its least-squares
+    plane in coefficient space (theta = P^+ m, P = model.tilt_basis; exact when the mean is a
+    plane), is replaced by the same plane seen in the corrected frame, exactly
+    (``plane_in_corrected_frame``); the form is kept (its change is second order: below 1e-4 of
+    the form height for a 1 deg correction). The covariance goes through the map's Jacobian
+    A = I + P (J - I) P^+, J the plane map's 3 x 3 Jacobian (central differences)."""
+    p = model.tilt_basis
+    pinv = np.linalg.pinv(p)
+    xc, yc = model.centre_mm
+
+    def mapped(theta):
+        sx, sy, c = theta
+        a, b, c0 = plane_in_corrected_frame(sx, sy, c - sx * xc - sy * yc, rx_deg, ry_deg)
+        return np.array([a, b, c0 + a * xc + b * yc])
+
+    theta = pinv @ belief.mean
+    steps = np.array([1e-6, 1e-6, 1e-6])
+    jac = np.column_stack([(mapped(theta + h) - mapped(theta - h)) / (2 * h[i])
+                           for i, h in enumerate(np.diag(steps))])
+    a = np.eye(len(belief.mean)) + p @ (jac - np.eye(3)) @ pinv
+    cov = a @ belief.cov @ a.T
+    return bl.Belief(belief.mean + p @ (mapped(theta) - theta), 0.5 * (cov + cov.T))
+
+
+def load_prior(run_dir: Path, cell: Cell, correction: str | tuple[float, float] = "proposed"
+               ) -> tuple[bl.Belief, Hyper, dict]:
+    """An earlier run's belief, moved into the user frame corrected since (``correction``, see
+    ``applied_correction``; default: the correction that run proposed), then widened by the
+    drift allowance d = plan.drift_std_mm: the plate may have moved rigidly since (offset std
+    d, slopes std d over half the plate diagonal) and its form may have changed by a quarter of
+    that (form std d / 4, same length scale). A routine re-check then needs a handful of
+    touches. Returns the belief, the hyper-parameters and the ``applied_correction`` record."""
+    earlier, hyper = read_belief(run_dir, cell)
+    info = applied_correction(run_dir, correction)
     model = prior_model(cell)
-    if (len(data["knots_x"]) != len(model.surface.sx.knots)
-            or not np.allclose(data["knots_x"], model.surface.sx.knots)
-            or not np.allclose(data["knots_y"], model.surface.sy.knots)):
-        raise ValueError(f"{path}: the earlier run used other knots; give the cell file the same "
-                         "model.knots_x / knots_y")
+    if info["assumed"] != "none":
+        earlier = corrected_belief(model, earlier, info["correction_deg"]["rx"],
+                                   info["correction_deg"]["ry"])
     d = cell.plan.drift_std_mm
     wp = cell.workplane
     half = 0.5 * math.hypot(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
     drift = type(model)(model.surface, d / half, d, model.centre_mm, hyper)
     extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
-    return bl.widen(bl.Belief(data["mean"], data["cov"]), extra), hyper
+    return bl.widen(earlier, extra), hyper, info
+
+
+def _disagreement(carried: dict, surprises: list[int]) -> str:
+    """Why a re-check stopped early, and what to do, in one sentence for the terminal."""
+    c = carried["correction_deg"]
+    return (f"the plate is not where the earlier run's belief puts it in the frame assumed "
+            f"({carried['assumed']}: rx {c['rx']:+.4f} deg, ry {c['ry']:+.4f} deg): "
+            f"{len(surprises)} readings (seq {', '.join(map(str, surprises))}) were confirmed by "
+            "their retake far outside its band. Not a result: give the correction that was "
+            "really applied (--correction-applied proposed | none | RX,RY), or map from scratch "
+            "without --prior-from")
 
 
 @contextmanager
@@ -112,31 +185,36 @@ def _main_thread() -> bool:
 
 
 def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | Path | None = None,
-        progress: bool = True, max_new_touches: int | None = None,
+        correction_applied: str | tuple[float, float] = "proposed", progress: bool = True,
+        max_new_touches: int | None = None,
         before_start: Callable[[], None] | None = None) -> dict:
     """Run the loop on the cell until a stopping rule fires; write recording, results, figures.
 
     The folder is locked for the whole run (``run.folder.run_lock``): a second run or resume on
     it fails at once with ``RunFolderBusy``. Resuming a finished run (its stopping rule already
     holds) changes nothing and returns its result.json with ``already_finished`` (the reason).
-    ``max_new_touches`` stops (as ``interrupted``)
+    ``prior_from``: start from that run's belief in the frame ``correction_applied`` gives
+    (``load_prior``); result.json then records it as "prior_from". ``max_new_touches`` stops
+    (as ``interrupted``)
     after that many touches: used by tests to simulate an interruption at a chosen point.
     ``before_start()`` runs once the lock is held (the CLI copies the cell file into the folder
     there, so it never writes into a folder another run holds)."""
     with run_lock(out):
         if before_start is not None:
             before_start()
-        return _run(cell, RunPaths(Path(out)), resume, prior_from, progress, max_new_touches)
+        return _run(cell, RunPaths(Path(out)), resume, prior_from, correction_applied, progress,
+                    max_new_touches)
 
 
-def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, progress: bool,
-         max_new_touches: int | None) -> dict:
+def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_applied,
+         progress: bool, max_new_touches: int | None) -> dict:
     if paths.recording.exists() and not resume:
         raise FileExistsError(f"{paths.recording} exists: continue it with --resume, or choose "
                               "another --out")
     if resume and not paths.recording.exists():
         raise FileNotFoundError(f"{paths.recording}: nothing to resume")
-    prior, hyper = load_prior(Path(prior_from), cell) if prior_from else (None, None)
+    prior, hyper, carried = (load_prior(Path(prior_from), cell, correction_applied)
+                             if prior_from else (None, None, None))
     plan = survey_plan(cell, informed_prior=prior is not None)
     state = sv.start(plan, prior=prior, hyper=hyper)
     start_t, next_seq = 0.0, 0
@@ -165,13 +243,19 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, progress: bool,
     if bar is not None:
         hooks.append(lambda step: _update(bar, cell, step.status))
 
+    surprises = []  # seqs of readings confirmed by their retake far from the belief
+
     def record(row: Row) -> None:
         writer.append(seq=row.seq + seq_offset, t_s=row.t_s, x_mm=row.x_mm, y_mm=row.y_mm, z_mm=row.z_mm,
                       reading_mm=row.reading_mm, flags=row.flags, round=0)
+        if "surprise" in row.flags:
+            surprises.append(row.seq + seq_offset)
 
     stopped, error = None, None
     with _deferred_interrupt() as flag:
         def stop(state, status):
+            if carried is not None and len(surprises) >= PRIOR_SURPRISES:
+                return PRIOR_DISAGREES
             why = plan.stop(status)
             if why:
                 return why
@@ -205,6 +289,11 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, progress: bool,
         result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
                                rng=np.random.default_rng(RESULTS_SEED), history=history.statuses,
                                truth=truth, true_rms_mm=true_rms.rms_mm if true_rms else None)
+        if carried is not None:
+            if stopped == PRIOR_DISAGREES:
+                carried = {**carried, "disagreement": _disagreement(carried, surprises)}
+            result = {**result, "prior_from": carried}
+            write_json(paths.out / "result.json", result)
     if error is not None:
         raise error
     return result

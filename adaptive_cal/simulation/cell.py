@@ -1,5 +1,6 @@
-"""The simulated cell: a plate with tilt and form, every effect of the effect table as a forward
-model, robot repeatability, probe stroke, resolution and noise, all seeded.
+"""The simulated cell: a plate with tilt and form (or a height map, ``simulation.surface_file``),
+every effect of the effect table as a forward model, robot repeatability, probe stroke,
+resolution, noise and gross errors (``simulation.outlier_rate`` / ``outlier_mm``), all seeded.
 
 It knows the truth, so runs on it report their true error. Randomness for touch number ``k`` is
 drawn from ``np.random.default_rng([seed, k])``: a resumed run sees the same plate and noise.
@@ -12,6 +13,8 @@ import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, Simulation
+from adaptive_cal.effects.frame import height_in_corrected_frame
+from adaptive_cal.formats.heightmap import load_heightmap
 from adaptive_cal.hardware.base import Sample
 
 
@@ -47,12 +50,24 @@ class SimulatedCell:
 
     # -- truth -------------------------------------------------------------------------
     def surface_mm(self, x_mm, y_mm) -> np.ndarray:
-        """True plate height (tilt + form + local defects) in the workplane frame."""
+        """True plate height (tilt + form + local defects) in the workplane frame the robot
+        moves in: with ``simulation.frame_correction_deg`` the corrected one (the height along
+        its z axis at its x, y: ``effects.frame``), else the nominal one."""
+        fc = self.sim.frame_correction_deg
+        if fc is None:
+            return self.nominal_surface_mm(x_mm, y_mm)
+        return height_in_corrected_frame(self.nominal_surface_mm, x_mm, y_mm, fc.rx_deg, fc.ry_deg)
+
+    def nominal_surface_mm(self, x_mm, y_mm) -> np.ndarray:
+        """True plate height in the nominal workplane frame (the effects as configured)."""
         x = np.asarray(x_mm, float)
         y = np.broadcast_to(np.asarray(y_mm, float), x.shape)
         f = effects.Features(x, y, np.zeros(x.shape), np.zeros(x.shape), np.zeros(x.shape))
         surface, _ = effects.split(self.sim.effects)
-        return effects.total_change(surface, f, self.geometry)
+        height = effects.total_change(surface, f, self.geometry)
+        if self.sim.surface_file is not None:
+            height = height + load_heightmap(self.sim.surface_file)(x, y)
+        return height
 
     # -- Motion --------------------------------------------------------------------------
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
@@ -82,9 +97,19 @@ class SimulatedCell:
         _, others = effects.split(self.sim.effects)
         value = ideal + float(effects.total_change(others, f, self.geometry)[0])
         value += self.sim.noise_std_mm * rng.standard_normal()
+        value += gross_error_mm(self.sim, rng)
         value = float(np.clip(value, 0.0, self.stroke_mm))  # the probe bottoms out
         value = round(value / self.resolution_mm) * self.resolution_mm
         return Sample(value, self.t_s, f"{value:.6f}".encode())
 
     def close(self) -> None:
         pass
+
+
+def gross_error_mm(sim: Simulation, rng: np.random.Generator) -> float:
+    """A reading's gross error: N(0, outlier_mm^2) with probability outlier_rate, else 0. Drawn
+    after the reading's other draws, so the other draws do not depend on the outlier keys."""
+    if sim.outlier_rate <= 0:
+        return 0.0
+    hit, error = rng.random(), rng.standard_normal()
+    return sim.outlier_mm * error if hit < sim.outlier_rate else 0.0

@@ -6,6 +6,7 @@ floor) run in ``check_feasible`` once the base cell is known.
 """
 from __future__ import annotations
 
+import glob
 import math
 from pathlib import Path
 from typing import Literal
@@ -14,7 +15,9 @@ from pydantic import Field, field_validator, model_validator
 
 from adaptive_cal.gaussian.belief import rms_std_from_integrated_variance
 from adaptive_cal.hardware.config import Strict
-from adaptive_cal.cell.schema import Cell, ConfigError, Rect, load_yaml, parse_cell, validate
+from adaptive_cal.cell.schema import (Cell, ConfigError, Rect, load_yaml, parse_cell, resolve_files,
+                                     validate)
+from adaptive_cal.formats.heightmap import HeightMapError, beside, check_map
 
 STRATEGIES = ("adaptive", "greedy_fixed", "paper", "grid", "random")
 SHAPES = ("bow_x", "bow_y", "twist", "warp")
@@ -41,6 +44,10 @@ class PlateDistribution(Strict):
                                     "noise (probe.noise_range_mm), as a user quotes the probe's "
                                     "datasheet; false: only the cell's first guess")
     keep_outs: list[Rect] | None = Field(None, description="replace the cell's keep-outs")
+    surface_files: str | None = Field(
+        None, description="glob of height maps (DESIGN.md format; relative to the study file): "
+        "plate i is the i-th file in sorted order (cycling), its truth that map alone (tilt, "
+        "offset and form above are not drawn); noise drawn as before")
 
     @field_validator("form_pv_mm", "noise_std_mm")
     @classmethod
@@ -134,16 +141,42 @@ def base_cell_dict(study: Study, study_path: str | Path | None) -> dict:
     path = Path(study.cell)
     if not path.is_absolute() and study_path is not None:
         path = Path(study_path).resolve().parent / path
-    return load_yaml(path)
+    return resolve_files(load_yaml(path), path)
 
 
 def load_study(path: str | Path) -> tuple[Study, dict]:
     """Read a study file and its base cell; raise ConfigError naming each bad key."""
-    study = parse_study(load_yaml(path), str(path))
+    data = load_yaml(path)
+    plate = data.get("plate") if isinstance(data, dict) else None
+    if isinstance(plate, dict) and isinstance(plate.get("surface_files"), str):
+        data = {**data, "plate": {**plate, "surface_files": beside(plate["surface_files"], path)}}
+    study = parse_study(data, str(path))
     cell_dict = base_cell_dict(study, path)
     cell = parse_cell(cell_dict, f"{path}: cell")
     check_feasible(study, cell, str(path))
     return study, cell_dict
+
+
+def surface_files(study: Study) -> list[str]:
+    """The height maps of plate.surface_files, sorted (empty when the key is not given)."""
+    pattern = study.plate.surface_files
+    return sorted(glob.glob(pattern)) if pattern is not None else []
+
+
+def check_surface_files(study: Study, cell: Cell, source: str) -> None:
+    """Every map of plate.surface_files must load and cover the cell's workplane."""
+    if study.plate.surface_files is None:
+        return
+    files = surface_files(study)
+    if not files:
+        raise ConfigError(f"{source}: plate.surface_files={study.plate.surface_files!r} "
+                          "matches no file (benchmarks/plates/generate.py writes the realistic "
+                          "plates' maps)")
+    for f in files:
+        try:
+            check_map(f, cell.workplane, "plate.surface_files")
+        except HeightMapError as e:
+            raise ConfigError(f"{source}: {e}") from None
 
 
 def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
@@ -159,6 +192,7 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
     """
     from adaptive_cal.planning.scoring import STROKE_Z
 
+    check_surface_files(study, cell, source)
     p, m, probe = study.plate, cell.model, cell.probe
     steepest = math.sqrt(2.0) * math.tan(math.radians(p.tilt_deg))
     allowed = STROKE_Z * math.tan(math.radians(m.tilt_std_deg))

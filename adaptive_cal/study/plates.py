@@ -1,6 +1,6 @@
 """Synthetic plates: each drawn from its own seed, so a study can grow or resume and plate i is
 always the same plate. A plate is a variation of the base cell: its simulation block (tilt,
-form, noise) and the study's bound and keep-outs."""
+form, noise; or a height map of plate.surface_files) and the study's bound and keep-outs."""
 from __future__ import annotations
 
 import copy
@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from adaptive_cal.simulation.cell import SimulatedCell
+from adaptive_cal.simulation.cell import SimulatedCell, gross_error_mm
 from adaptive_cal.cell.schema import Cell, parse_cell
-from adaptive_cal.study.config import Study
+from adaptive_cal.study.config import Study, surface_files
 
 
 @dataclass(frozen=True)
@@ -23,6 +23,7 @@ class Plate:
     effects: dict
     noise_std_mm: float
     repeatability_mm: float
+    surface_file: str | None = None  # a height map (plate.surface_files): the whole truth
 
 
 def sample_plate(study: Study, index: int) -> Plate:
@@ -40,7 +41,11 @@ def sample_plate(study: Study, index: int) -> Plate:
     effects = {"tilt": {"a": float(a), "b": float(b), "c": float(c)}}
     if pv > 0 and any(weights.values()):
         effects["form"] = {"pv_mm": float(pv), **weights}
-    return Plate(index, int(rng.integers(2**31)), effects, noise, p.repeatability_mm)
+    seed = int(rng.integers(2**31))
+    files = surface_files(study)
+    if files:  # the map is the plate; the draws above keep the noise as without maps
+        return Plate(index, seed, {}, noise, p.repeatability_mm, files[index % len(files)])
+    return Plate(index, seed, effects, noise, p.repeatability_mm)
 
 
 def plate_cell(study: Study, base: dict, plate: Plate) -> Cell:
@@ -49,6 +54,8 @@ def plate_cell(study: Study, base: dict, plate: Plate) -> Cell:
     sim = dict(data.get("simulation") or {})
     sim.update(seed=plate.seed, effects=plate.effects, noise_std_mm=plate.noise_std_mm,
                repeatability_mm=plate.repeatability_mm)
+    if plate.surface_file is not None:
+        sim["surface_file"] = plate.surface_file
     data["simulation"] = sim
     if study.plate.noise_range_known:
         # the reading noise the planner sees: probe noise and z repeatability together; a
@@ -88,5 +95,6 @@ def heights_at(cell: Cell, xy: np.ndarray, first_touch: int = 0) -> np.ndarray:
         rng = np.random.default_rng([sim.seed, first_touch + k])
         e = rng.standard_normal(4)
         surface = float(f(x + sim.xy_repeatability_mm * e[0], y + sim.xy_repeatability_mm * e[1]))
-        out[k] = surface - sim.repeatability_mm * e[2] + sim.noise_std_mm * e[3]
+        out[k] = (surface - sim.repeatability_mm * e[2] + sim.noise_std_mm * e[3]
+                  + gross_error_mm(sim, rng))
     return out

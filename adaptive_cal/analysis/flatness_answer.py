@@ -1,0 +1,134 @@
+"""The one flatness answer of a map, used by ``run`` (summary, result.json), ``flatness`` and the
+report, with the same words and numbers in all three:
+
+- of the touched points: the paper's figures (Cheng et al. eqs. 1-6, and the ISO 1101 minimum
+  zone) of the measured heights; interval: the same figures over predicted repeat measurements at
+  the same touches, z* = B m* + e*, m* drawn from the belief, e* ~ N(0, sigma^2 I);
+- of the whole plate: the figures of the posterior mean map on the plan's evaluation grid;
+  interval: the same figures over surfaces sampled from the belief.
+
+Both figures remove the tilt (the least-squares or minimum-zone plane); the raw height spread
+(max - min, tilt included) is kept as ``range`` and labelled as such, never called flatness.
+
+Flatness is a max - min statistic: under noise the figure of the measured heights is biased up,
+and the figure of the mean map (smoother than any sample) down, so either can fall outside its own
+sampled interval. A value is then replaced by the posterior median of the samples, and
+``value_is`` says which it is. Randomness is passed in: one generator, plate draws first, then
+touched ones, so the same seed gives the same digits wherever the answer is computed.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.gaussian import belief as bl
+
+SAMPLES = 200  # posterior samples behind every interval (run, flatness and report alike)
+SEED = 0  # the seed of those samples
+FIGURES = (("least_squares", "least squares (Cheng eq. 5)"),
+           ("minimum_zone", "minimum zone (ISO 1101)"))
+PLATE = "of the whole plate (from the map)"
+SPREAD = "height spread, max - min with the tilt included (not flatness)"
+MEDIAN = "posterior median"
+MEDIAN_NOTE = ("* posterior median of the samples: the figure itself lay outside its 95 % interval "
+               "(flatness is a max - min statistic, biased by noise and by smoothing)")
+
+
+def touched_what(points: int) -> str:
+    return f"of the {points} touched points (Cheng eqs. 1-6)"
+
+
+def entry(value: float, samples: np.ndarray, figure_is: str) -> dict:
+    """{"value", "ci95", "value_is"}: the figure when it lies in its 95 % interval, else the
+    posterior median of the samples (JSON-ready; non-finite as None)."""
+    samples = np.asarray(samples, dtype=np.float64)
+    lo, hi = fl._ci95(samples)
+    if lo is not None and not lo <= value <= hi:
+        return {"value": float(np.median(samples)), "ci95": [lo, hi], "value_is": MEDIAN}
+    return {"value": fl.finite_or_none(value), "ci95": [lo, hi], "value_is": figure_is}
+
+
+def _figures(x, y, z, draws, figure_is: str) -> dict:
+    values = {"least_squares": fl.ls_flatness_mm(x, y, z),
+              "minimum_zone": fl.minimum_zone_mm(x, y, z).value_mm, "range": fl.range_mm(z)}
+    sampled = {"least_squares": fl.ls_flatness_samples_mm(x, y, draws),
+               "minimum_zone": np.array([fl.minimum_zone_mm(x, y, d).value_mm for d in draws]),
+               "range": np.ptp(draws, axis=1)}
+    return {k: entry(values[k], sampled[k], figure_is) for k in values}
+
+
+def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator,
+                 samples: int = SAMPLES) -> tuple[dict, dict]:
+    """(tilt, flatness of the whole plate): the tilt of the mean map's least-squares plane with
+    the std of its angles over the sampled surfaces, and the figures with intervals."""
+    x, y = eval_xy[:, 0], eval_xy[:, 1]
+    mean, _ = bl.predict(belief, eval_rows)
+    draws = bl.sample(belief, rng, samples) @ eval_rows.T  # (S, N)
+    tilt = fl.plane_tilt(x, y, mean)
+    angles = np.array([fl.tilt_correction_deg(*fl.least_squares_plane(x, y, d)[:2]) for d in draws])
+    tilt["rx_std_deg"], tilt["ry_std_deg"] = (float(v) for v in angles.std(axis=0))
+    return tilt, _figures(x, y, mean, draws, "figure of the mean map")
+
+
+def touched_answer(x, y, z, rows, belief: bl.Belief, noise_std_mm: float,
+                   rng: np.random.Generator, samples: int = SAMPLES) -> dict:
+    """Flatness of the touched points: the figures of the heights z (mm) at (x, y), intervals over
+    predicted repeats B m* + e* (``rows`` = B, the spline rows of the touches)."""
+    x, y, z = (np.asarray(v, dtype=np.float64) for v in (x, y, z))
+    draws = bl.sample(belief, rng, samples) @ np.asarray(rows).T
+    draws = draws + noise_std_mm * rng.standard_normal(draws.shape)
+    out = _figures(x, y, z, draws, "figure of the measured heights")
+    return {"points": int(len(z)), **out}
+
+
+def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=None,
+                    rng: np.random.Generator | None = None, samples: int = SAMPLES) -> dict:
+    """{"tilt", "flatness_mm" (whole plate), "touched_flatness_mm" (when ``touched_xyz`` =
+    (x, y, height) in mm is given)} from a ``SurveyPlan``'s evaluation grid and a belief over its
+    spline. ``rng`` defaults to ``default_rng(SEED)``; the plate is drawn first."""
+    rng = np.random.default_rng(SEED) if rng is None else rng
+    tilt, plate = plate_answer(plan.eval_xy, plan.eval_rows, belief, rng, samples)
+    out = {"tilt": tilt, "flatness_mm": plate}
+    if touched_xyz is not None:
+        x, y, z = touched_xyz
+        rows = plan.model.surface.basis(np.asarray(x, float), np.asarray(y, float))
+        out["touched_flatness_mm"] = touched_answer(x, y, z, rows, belief, noise_std_mm, rng, samples)
+    return out
+
+
+# -- the words, shared by the terminal (run, flatness) and the report ---------------------------
+def value_text(f: dict) -> str:
+    """e.g. "276.4 um (95 % 268.6 .. 293.6 um)"; a posterior median is marked with "*"."""
+    star = "*" if f.get("value_is") == MEDIAN else ""
+    if f.get("value") is None:
+        return "n/a"
+    lo, hi = f.get("ci95", [None, None])
+    ci = f" (95 % {lo * 1e3:.1f} .. {hi * 1e3:.1f} um)" if lo is not None else ""
+    return f"{f['value'] * 1e3:.1f} um{star}{ci}"
+
+
+def answer_line(what: str, figures: dict) -> str:
+    return f"flatness {what}: " + "; ".join(
+        f"{name.split(' (')[0]} {value_text(figures[key])}" for key, name in FIGURES if key in figures)
+
+
+def answer_lines(result: dict, provisional: bool = False, no_plate: str | None = None) -> list[str]:
+    """The flatness lines of a result (touched points first, then the whole plate, then the raw
+    spread and a note for any posterior median); ``no_plate``: what to say when there is no map."""
+    mark = ", provisional" if provisional else ""
+    lines, used = [], []
+    touched = result.get("touched_flatness_mm")
+    if touched:
+        lines.append(answer_line(touched_what(touched["points"]) + mark, touched))
+        used.append(touched)
+    plate = result.get("flatness_mm")
+    if plate:
+        lines.append(answer_line(PLATE + mark, plate))
+        used.append(plate)
+        if "range" in plate:
+            lines.append(f"{SPREAD}: {value_text(plate['range'])}")
+    elif no_plate:
+        lines.append(f"flatness {PLATE}: {no_plate}")
+    if any(f.get("value_is") == MEDIAN for u in used for f in u.values() if isinstance(f, dict)):
+        lines.append(MEDIAN_NOTE)
+    return lines

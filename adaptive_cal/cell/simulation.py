@@ -1,0 +1,55 @@
+"""The ``simulation:`` block of the cell file: the simulated truth (effects, noise, gross errors,
+a height map, a user-frame correction applied to the simulated robot)."""
+from __future__ import annotations
+
+from pydantic import Field, field_validator
+
+from adaptive_cal import effects as effect_library
+from adaptive_cal.cell.block import Block
+
+
+class FrameCorrection(Block):
+    """A user-frame correction applied to the simulated robot (deg): frame * rotx(rx) * roty(ry)."""
+
+    rx_deg: float = Field(0.0, ge=-10, le=10, description="rotation about the user frame's x axis")
+    ry_deg: float = Field(0.0, ge=-10, le=10, description="then about its y axis (RoboDK order)")
+
+
+class Simulation(Block):
+    """The simulated cell's truth: effects from the effect table and the noise it adds."""
+
+    seed: int = Field(0, description="seed of the simulated noise")
+    effects: dict[str, dict[str, float]] = Field(
+        {}, description="effect name -> parameters (DESIGN.md effect table)")
+    unknown: list[str] = Field(["tilt"], description="effects explain calibrates from a recording")
+    noise_std_mm: float = Field(0.002, ge=0, description="probe noise")
+    repeatability_mm: float = Field(0.005, ge=0, description="robot z repeatability (1 sigma)")
+    xy_repeatability_mm: float = Field(0.01, ge=0, description="robot x/y repeatability (1 sigma)")
+    frame_correction_deg: FrameCorrection | None = Field(
+        None, description="the tilt correction applied to the robot's user frame (e.g. the one a "
+        "run proposed, result.json tilt): the robot then moves and probes in the rotated frame, "
+        "about the frame's origin; see run --correction-applied")
+    surface_file: str | None = Field(None, description="true plate from a height map (DESIGN.md; "
+                                     "relative to the cell file); effects add on top")
+    outlier_rate: float = Field(0.0, ge=0, lt=0.5, description="share of readings replaced by a "
+                                "gross error, 0 to below 0.5")
+    outlier_mm: float = Field(0.1, ge=0, description="standard deviation of that gross error")
+
+    @field_validator("effects")
+    @classmethod
+    def _effects(cls, v):
+        for name, params in v.items():
+            try:
+                effect_library.complete_params(name, params or {})
+            except KeyError as e:
+                raise ValueError(e.args[0]) from None
+        return v
+
+    @field_validator("unknown")
+    @classmethod
+    def _unknown(cls, v):
+        names = effect_library.EFFECT_NAMES
+        bad = [n for n in v if n.split(".")[0] not in names]
+        if bad:
+            raise ValueError(f"unknown effect(s) {bad}; known: {', '.join(names)}")
+        return v

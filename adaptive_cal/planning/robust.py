@@ -1,0 +1,86 @@
+"""What a reading must be before it is judged, and what it is judged against.
+
+* ``check_touch``: a NaN or infinite reading or position, a position off the workplane or
+  inside a keep-out raises ``InvalidReading`` naming the value; nothing is fused.
+* ``predictive``: the law of a reading's height at a basis row. After the hyper-parameters are
+  learned the belief already mixes their posterior points: one Gaussian. Before the first
+  refit the belief rests on the configured first guess of the form amplitude and length scale
+  alone, and a genuine reading far from the first touches could fail the gate (the README
+  run's touch 3: d = 4.97 under a 0.05 mm form amplitude the readings later put at 0.35 mm).
+  So it is judged against the mixture over the hyper-prior's sigma points in (log form
+  amplitude, log length scale) -- the centre and +-sqrt(3) prior std along each axis, weights
+  1/3 and 1/6 (unscented, kappa = 1) times the evidence of the readings fused so far under
+  each point -- each conditioned on those readings.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.gaussian.prior import Hyper, log_evidence
+from adaptive_cal.planning.gate import Predictive
+from adaptive_cal.planning.plan import SurveyPlan
+
+
+class InvalidReading(ValueError):
+    """A reading that cannot be fused: not finite, off the workplane or inside a keep-out."""
+
+
+def check_touch(plan: SurveyPlan, x_mm: float, y_mm: float, z_mm: float,
+                reading_mm: float) -> None:
+    """Raise ``InvalidReading`` unless the touch is finite, on the workplane (``plate_mm``) and
+    outside every keep-out. A point in the edge margin is on the plate and is accepted."""
+    for name, value in (("reading_mm", reading_mm), ("x_mm", x_mm), ("y_mm", y_mm),
+                        ("z_mm", z_mm)):
+        if not math.isfinite(value):
+            raise InvalidReading(f"{name} = {value} is not a finite number: not fused")
+    (x0, x1), (y0, y1) = plan.plate_mm
+    if not (x0 <= x_mm <= x1 and y0 <= y_mm <= y1):
+        raise InvalidReading(f"touch at x_mm = {x_mm:g}, y_mm = {y_mm:g} is outside the "
+                             f"workplane x_mm [{x0:g}, {x1:g}], y_mm [{y0:g}, {y1:g}]: not fused")
+    if not plan.allows(x_mm, y_mm):
+        (bx0, bx1), (by0, by1) = plan.bounds_mm  # inside the edge margin
+        inner = (min(max(x_mm, bx0), bx1), min(max(y_mm, by0), by1))
+        if not plan.allows(*inner):
+            raise InvalidReading(f"touch at x_mm = {x_mm:g}, y_mm = {y_mm:g} is inside a "
+                                 "keep-out: not fused")
+
+
+def _hyper_points(model, centre: Hyper) -> list[tuple[Hyper, float]]:
+    """Sigma points of the hyper-prior in (log form amplitude, log length scale), noise kept."""
+    n, kappa = 2, 1.0
+    step = math.sqrt(n + kappa)
+    points = [(centre, kappa / (n + kappa))]
+    for i in range(n):
+        for sign in (1.0, -1.0):
+            values = list(centre)
+            values[i] = values[i] * math.exp(sign * step * model.hyper_log_std[i])
+            points.append((Hyper(*values), 0.5 / (n + kappa)))
+    return points
+
+
+def predictive(plan: SurveyPlan, belief: bl.Belief, hyper: Hyper, rows: np.ndarray,
+               heights_mm: np.ndarray, weights: np.ndarray, row: np.ndarray,
+               unlearned: bool) -> Predictive:
+    """The predictive mixture of a reading's height at ``row`` (see module docstring)."""
+    if not unlearned:
+        mean, var = bl.predict(belief, row[None])
+        return Predictive.gaussian(float(mean[0]), float(var[0]) + hyper.noise_std_mm**2)
+    means, variances, logw = [], [], []
+    for h, w in _hyper_points(plan.model, hyper):
+        r = h.noise_std_mm**2
+        b = plan.model.belief(h)
+        evidence = 0.0
+        if len(heights_mm):
+            noise = r / weights
+            b = bl.condition(b, rows, heights_mm, noise)
+            evidence = float(log_evidence(rows, heights_mm, plan.model.belief(h).cov, noise))
+        m, v = bl.predict(b, row[None])
+        means.append(float(m[0]))
+        variances.append(float(v[0]) + r)
+        logw.append(math.log(w) + evidence)
+    logw = np.asarray(logw)
+    return Predictive(np.asarray(means), np.asarray(variances), np.exp(logw - logw.max()))
+

@@ -1,0 +1,94 @@
+"""A run folder's map as a height function: RUN_DIR/belief.npz (the posterior, read by
+``run.results.read_belief``), cell.yaml (its spline and workplane) and result.json (the tilt
+correction the run proposed), for ``adaptive-cal compensate`` and the ``--grid`` export.
+
+Frames: ``nominal`` gives the whole mapped height (tilt and offset included) in the workplane
+frame the run measured in; ``corrected`` gives the height left once the run's proposed
+correction is applied -- the frame rotated by rx, ry and its origin moved by +c along z, which
+removes the least-squares plane z = a x + b y + c of the posterior mean on the run's evaluation
+grid (result.json ``tilt``, from ``run.results.plate_estimates``): the form alone. The std is the
+posterior std in both frames (the correction is a fixed, applied value).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from adaptive_cal.cell.build import prior_model
+from adaptive_cal.cell.schema import load_cell
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.gaussian.spline import Surface
+from adaptive_cal.report.status import missing
+from adaptive_cal.run.results import read_belief
+
+FRAMES = ("nominal", "corrected")
+TOP_GRID = 101  # nodes per side of the grid that finds the highest mapped height
+
+
+@dataclass(frozen=True)
+class HeightMap:
+    """``plane_abc``: the proposed correction's plane (a, b mm/mm, c mm); ``plate_mm``: the
+    workplane ((x0, x1), (y0, y1)); ``unfinished``: what the run is missing, or None."""
+
+    surface: Surface
+    belief: bl.Belief
+    plane_abc: tuple[float, float, float]
+    plate_mm: tuple[tuple[float, float], tuple[float, float]]
+    unfinished: str | None
+    name: str
+
+    def height(self, frame: str = "nominal"):
+        """height(x_mm, y_mm) -> (mean_mm, std_mm) in ``frame`` (see the module's doc)."""
+        if frame not in FRAMES:
+            raise ValueError(f"frame {frame!r}: choose one of {', '.join(FRAMES)}")
+        a, b, c = self.plane_abc if frame == "corrected" else (0.0, 0.0, 0.0)
+
+        def height(x_mm, y_mm):
+            x, y = np.broadcast_arrays(np.asarray(x_mm, float), np.asarray(y_mm, float))
+            mean, var = bl.predict(self.belief, self.surface.basis(x.ravel(), y.ravel()))
+            mean = np.asarray(mean) - (a * x.ravel() + b * y.ravel() + c)
+            std = np.sqrt(np.maximum(np.asarray(var), 0.0))
+            return mean.reshape(x.shape), std.reshape(x.shape)
+
+        return height
+
+    def grid(self, step_mm: float, frame: str = "nominal"):
+        """(x_mm, y_mm, height_mm, std_mm) on a regular grid covering the workplane, its ends
+        on the edges and its step at most ``step_mm`` (flattened, x outer, y inner)."""
+        if not step_mm > 0:
+            raise ValueError(f"--step-mm {step_mm}: must be positive")
+        axes = [np.linspace(lo, hi, int(np.ceil((hi - lo) / step_mm - 1e-9)) + 1)
+                for lo, hi in self.plate_mm]
+        xx, yy = (v.ravel() for v in np.meshgrid(*axes, indexing="ij"))
+        mean, std = self.height(frame)(xx, yy)
+        return xx, yy, mean, std
+
+    def top_mm(self, frame: str = "nominal") -> float:
+        """The highest mapped height on the workplane (on a TOP_GRID x TOP_GRID grid)."""
+        step = max(hi - lo for lo, hi in self.plate_mm) / (TOP_GRID - 1)
+        return float(self.grid(step, frame)[2].max())
+
+
+def load_map(run_dir: str | Path) -> HeightMap:
+    """The map of a run folder written by ``adaptive-cal run --out RUN_DIR``."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"--map {run_dir}: no such folder (give the run folder that "
+                                "'adaptive-cal run --out' wrote)")
+    for name in ("cell.yaml", "result.json", "belief.npz"):
+        if not (run_dir / name).exists():
+            raise FileNotFoundError(f"--map {run_dir}: {name} is missing (a run folder holds "
+                                    "cell.yaml, result.json and belief.npz)")
+    cell = load_cell(run_dir / "cell.yaml")
+    result = json.loads((run_dir / "result.json").read_text(encoding="utf-8"))
+    belief, _ = read_belief(run_dir, cell)
+    tilt = result.get("tilt") or {}
+    if any(tilt.get(k) is None for k in "abc"):
+        raise ValueError(f"{run_dir / 'result.json'}: no tilt a, b, c (is it a finished run?)")
+    wp = cell.workplane
+    return HeightMap(prior_model(cell).surface, belief,
+                     (float(tilt["a"]), float(tilt["b"]), float(tilt["c"])),
+                     (tuple(wp.x_mm), tuple(wp.y_mm)), missing(result), cell.name)

@@ -1,0 +1,317 @@
+"""adaptive-cal compensate: toolpath parsing and writing, splitting against a brute-force check,
+refusals, the grid export, and the acceptance test on the simulated cell (the compensated
+engraving follows the TRUE plate within the tolerance where the map is confident)."""
+import json
+
+import numpy as np
+import pytest
+
+from adaptive_cal.analysis import compensate as cp
+from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.cell.build import survey_plan
+from adaptive_cal.cell.schema import load_cell
+from adaptive_cal.cli import main
+from adaptive_cal.formats.toolpath import ToolpathError, read_toolpath, write_toolpath
+from adaptive_cal.gaussian.belief import Z95
+from adaptive_cal.run import session
+from adaptive_cal.run.heightmap import load_map
+from adaptive_cal.simulation.cell import SimulatedCell
+
+from helpers import ROOT, sim_cell
+
+EXAMPLE = ROOT / "configs" / "engrave-example.gcode"
+PLATE = ((-200.0, 200.0), (-150.0, 150.0))
+T = 0.01
+
+PROGRAM = """%
+(header) ; two comment styles
+G21 G90
+G0 Z5 (safe)
+G0 X-100 Y-50
+G1 Z-0.1 F100
+G1 X100 ; modal Y and Z
+Y50
+X-100 Y-50 ; diagonal
+M5
+G0 Z5
+%
+"""
+
+
+def flat(mean=0.0, std=0.0):
+    return lambda x, y: (np.full(np.shape(x), mean, float), np.full(np.shape(x), std, float))
+
+
+def wavy(x, y):
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    return 0.05 * np.sin(x / 30.0) + 1e-5 * x * y + 0.2, np.full(x.shape, 0.001)
+
+
+# -- parsing and writing -------------------------------------------------------------------------
+
+def test_gcode_round_trip_is_verbatim_and_modal_coordinates_are_resolved():
+    path = read_toolpath(PROGRAM, "p")
+    assert write_toolpath(path, {}) == PROGRAM
+    ends = [(m.line, m.cut, m.end) for m in path.moves]
+    assert ends == [(4, False, (None, None, 5.0)), (5, False, (-100.0, -50.0, 5.0)),
+                    (6, True, (-100.0, -50.0, -0.1)), (7, True, (100.0, -50.0, -0.1)),
+                    (8, True, (100.0, 50.0, -0.1)), (9, True, (-100.0, -50.0, -0.1)),
+                    (11, False, (-100.0, -50.0, 5.0))]
+    assert path.moves[3].start == (-100.0, -50.0, -0.1)
+
+
+def test_zero_map_changes_only_formatting_and_keeps_every_comment():
+    path = read_toolpath(PROGRAM, "p")
+    res = cp.compensate(path, flat(), PLATE, T, top_mm=0.0, name="p")
+    assert res.added == 0 and not res.wide
+    text = write_toolpath(path, res.pieces)
+    again = read_toolpath(text, "out")
+    assert [m.end for m in again.moves] == [m.end for m in path.moves]
+    for comment in ("(header)", "; two comment styles", "(safe)", "; modal Y and Z", "; diagonal"):
+        assert comment in text
+    assert "M5" in text.splitlines() and text.startswith("%\n")
+
+
+def test_a_raised_map_raises_every_z_and_crlf_is_kept():
+    text = PROGRAM.replace("\n", "\r\n")
+    path = read_toolpath(text, "p")
+    res = cp.compensate(path, flat(0.25), PLATE, T, top_mm=0.4, name="p")
+    out = write_toolpath(path, res.pieces, header_comment="made by a test")
+    assert "\r\n" in out and "\n" not in out.replace("\r\n", "")
+    again = read_toolpath(out, "out")
+    first, *rest = again.moves
+    assert first.end[2] == pytest.approx(5.4)  # X, Y unknown yet: raised by the highest height
+    for a, b in zip(rest, path.moves[1:]):
+        assert a.end[:2] == b.end[:2] and a.end[2] == pytest.approx(b.end[2] + 0.25)
+
+
+def test_csv_round_trip_keeps_other_columns_and_inserted_rows_copy_them():
+    text = "id,x_mm,y_mm,z_mm,feed\na,-100,0,-0.1,300\nb,100,0,-0.1,600\n"
+    path = read_toolpath(text, "pts.csv")
+    assert write_toolpath(path, {}) == text
+    res = cp.compensate(path, wavy, PLATE, T, top_mm=1.0, name="pts.csv")
+    assert res.added > 0
+    rows = [r.split(",") for r in write_toolpath(path, res.pieces).splitlines()]
+    assert rows[0] == ["id", "x_mm", "y_mm", "z_mm", "feed"]
+    assert rows[1][0] == "a" and rows[-1][0] == "b" and all(r[4] == "600" for r in rows[2:])
+    xs = [float(r[1]) for r in rows[1:]]
+    assert xs == sorted(xs) and len(rows) == 3 + res.added
+
+
+@pytest.mark.parametrize("program, words", [
+    ("G20\nG0 X0 Y0 Z1\n", ["line 1", "G20", "inches"]),
+    ("G91\nG0 X1\n", ["line 1", "G91", "relative"]),
+    ("G0 X0 Y0 Z1\nG2 X10 Y0 I5 J0\n", ["line 2", "G2", "arc"]),
+    ("G0 X0 Y0 Z1\nG3 X10 Y0 R5\n", ["line 2", "G3", "arc"]),
+    ("G0 X0 Y0 Z1\nG1 X10 A90\n", ["line 2", "A"]),
+    ("G0 X0 Y0 Z1\nG1 X#1\n", ["line 2", "cannot read"]),
+    ("G0 X0 Y0 Z1 (open\n", ["line 1", "parenthesis"]),
+    ("X0 Y0 Z1\n", ["line 1", "before any G0 or G1"]),
+    ("G0 X0 Y0 Z1\nG33 X1\n", ["line 2", "G33", "not supported"]),
+    ("x_mm,y_mm\n1,2\n", ["line 1", "z_mm"]),
+    ("x_mm,y_mm,z_mm\n1,2,3\n1,two,3\n", ["line 3", "y_mm", "'two'"]),
+    ("x_mm,y_mm,z_mm\n1,2,3\n1,2\n", ["line 3", "2 fields"]),
+    ("x_mm,y_mm,z_mm\nnan,2,3\n", ["line 2", "finite"]),
+])
+def test_unsupported_input_is_refused_naming_the_line(program, words):
+    with pytest.raises(ToolpathError) as e:
+        read_toolpath(program, "prog")
+    for w in words:
+        assert w in str(e.value)
+
+
+@pytest.mark.parametrize("program, words", [
+    ("G0 X0 Y0 Z1\nG1 X300\n", ["line 2", "(300, 0) mm is outside", "x [-200, 200]"]),
+    ("G0 Z1\nG1 X10\n", ["line 2", "not known"]),
+    ("G1 X0 Y0 Z1\n", ["line 1", "not known"]),
+])
+def test_paths_that_cannot_be_compensated_are_refused(program, words):
+    with pytest.raises(ToolpathError) as e:
+        cp.compensate(read_toolpath(program, "prog"), flat(), PLATE, T, top_mm=0.0, name="prog")
+    for w in words:
+        assert w in str(e.value)
+
+
+# -- splitting against brute force ---------------------------------------------------------------
+
+def _greedy_count(surface, limit):
+    """Brute force: from each kept sample the farthest sample whose chord holds everywhere."""
+    i, count, n = 0, 0, len(surface)
+    while i < n - 1:
+        j = n - 1
+        while j > i + 1:
+            t = np.linspace(0, 1, j - i + 1)[1:-1]
+            chord = surface[i] + t * (surface[j] - surface[i])
+            if np.all(np.abs(chord - surface[i + 1:j]) <= limit[i + 1:j]):
+                break
+            j -= 1
+        i, count = j, count + 1
+    return count
+
+
+@pytest.mark.parametrize("std", [0.0, 0.001, 0.004])
+def test_split_path_follows_the_map_within_the_budget_checked_by_brute_force(std):
+    height = lambda x, y: (wavy(x, y)[0], np.full(np.shape(x), std))
+    path = read_toolpath("G0 X-190 Y-140 Z1\nG1 Z-0.1\nG1 X190 Y140 Z-0.3\n", "p")
+    res = cp.compensate(path, height, PLATE, T, top_mm=1.0, name="p")
+    pts = np.array(res.pieces[2])
+    assert res.added == len(pts) - 1 > 5
+    # every kept point lies on programmed + mapped
+    t = (pts[:, 0] + 190) / 380
+    assert np.allclose(pts[:, 2], -0.1 - 0.2 * t + height(pts[:, 0], pts[:, 1])[0], atol=1e-12)
+    # brute force: the output polyline at 0.01 mm steps against programmed + mapped
+    full = np.r_[[[-190.0, -140.0, -0.1 + height(-190.0, -140.0)[0]]], pts]
+    s = np.linspace(0, 1, 47_500)
+    x, y = -190 + 380 * s, -140 + 280 * s
+    out_z = np.interp(x, full[:, 0], full[:, 2])
+    err = np.abs(out_z - (-0.1 - 0.2 * s + height(x, y)[0]))
+    assert err.max() <= T - Z95 * std + 1e-6  # the budget, plus the sampling slack (<< 1 um)
+    assert res.max_deviation_mm <= T - Z95 * std
+    # no worse than twice the fewest points a brute-force search finds on the same samples
+    ts = cp.samples(np.hypot(380, 280))
+    surf = -0.1 - 0.2 * ts + height(-190 + 380 * ts, -140 + 280 * ts)[0]
+    best = _greedy_count(surf, np.full(len(ts), T - Z95 * std))
+    assert len(pts) <= 2 * best
+
+
+def test_bisect_holds_its_own_condition_on_random_data():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        surface = np.cumsum(rng.normal(size=200)) * 0.01
+        limit = rng.uniform(0.005, 0.02, 200)
+        kept = cp.bisect(surface, limit)
+        assert kept[0] == 0 and kept[-1] == 199 and kept == sorted(set(kept))
+        out = np.interp(np.arange(200), kept, surface[kept])
+        assert np.all(np.abs(out - surface) <= limit + 1e-15)
+
+
+def test_a_plane_needs_no_split_and_a_plunge_is_one_piece():
+    plane = lambda x, y: (0.01 * np.asarray(x) - 0.02 * np.asarray(y), np.zeros(np.shape(x)))
+    path = read_toolpath("G0 X-190 Y-140 Z1\nG1 Z-0.1\nG1 X190 Y140\n", "p")
+    res = cp.compensate(path, plane, PLATE, T, top_mm=1.0, name="p")
+    assert res.added == 0 and len(res.pieces[1]) == 1 and res.max_deviation_mm < 1e-12
+
+
+def test_wide_band_is_reported_where_it_is():
+    def height(x, y):
+        x = np.asarray(x, float)
+        return np.zeros(x.shape), np.where(x > 50, 0.008, 0.001)  # band 15.7 um past x = 50
+
+    path = read_toolpath("G0 X0 Y0 Z1\nG1 Z0\nG1 X40\nG1 X100 Y10\n", "p")
+    res = cp.compensate(path, height, PLATE, T, top_mm=0.0, name="p")
+    assert [w.line for w in res.wide] == [4]
+    w = res.wide[0]
+    assert w.x_mm > 50 and w.band_mm == pytest.approx(Z95 * 0.008)
+    msg = cp.refusal(res.wide, T, "p")
+    assert "line 4" in msg and "15.7 um" in msg and "10.0 um" in msg and "--mark" in msg
+
+
+# -- the simulated cell ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def mapped(tmp_path_factory):
+    out = tmp_path_factory.mktemp("compensate") / "run"
+    cell = sim_cell()
+    session.run(cell, out, progress=False)
+    (out / "cell.yaml").write_text((ROOT / "configs" / "sim-cell.yaml").read_text())
+    return out, SimulatedCell.from_cell(cell).surface_mm
+
+
+@pytest.mark.parametrize("frame", ["nominal", "corrected"])
+def test_engraving_follows_the_true_plate_within_tolerance_where_the_map_is_confident(
+        mapped, tmp_path, frame, capsys):
+    run_dir, truth = mapped
+    out = tmp_path / "out.gcode"
+    assert main(["compensate", str(EXAMPLE), "--map", str(run_dir), "--out", str(out),
+                 "--frame", frame]) == 0
+    assert "points added by splitting" in capsys.readouterr().out
+    hmap = load_map(run_dir)
+    a, b, c = hmap.plane_abc if frame == "corrected" else (0, 0, 0)
+    true = lambda x, y: truth(x, y) - (a * x + b * y + c)
+    prog, comp = read_toolpath(EXAMPLE.read_text(), "in"), read_toolpath(out.read_text(), "out")
+    # the example engraves at a constant depth: every cut that moves in x, y is at Z -0.1 mm
+    assert all(m.start[2] == m.end[2] == -0.1 for m in prog.moves
+               if m.cut and m.start[:2] != m.end[:2])
+    worst, checked = 0.0, 0
+    for m in comp.moves:  # each output cut, sampled 0.1 mm apart
+        if not m.cut or m.start[:2] == m.end[:2]:
+            continue
+        p0, p1 = np.array(m.start), np.array(m.end)
+        s = np.linspace(0, 1, int(np.hypot(*(p1 - p0)[:2]) / 0.1) + 2)
+        xyz = p0 + s[:, None] * (p1 - p0)
+        band = Z95 * hmap.height(frame)(xyz[:, 0], xyz[:, 1])[1]
+        err = np.abs(xyz[:, 2] - (-0.1) - true(xyz[:, 0], xyz[:, 1]))[band <= T]
+        checked += err.size
+        worst = max(worst, err.max(initial=0.0))
+    print(f"{frame}: worst error against the true plate {worst * 1e3:.2f} um at {checked} samples")
+    assert checked > 10_000 and worst <= T, f"{worst * 1e3:.2f} um"
+
+
+def test_the_corrected_frame_removes_the_plane_the_run_proposed(mapped):
+    run_dir, _ = mapped
+    hmap = load_map(run_dir)
+    plan = survey_plan(load_cell(run_dir / "cell.yaml"))
+    x, y = plan.eval_xy.T
+    nominal = hmap.height("nominal")(x, y)[0]
+    tilt = fl.plane_tilt(x, y, nominal)
+    assert hmap.plane_abc == pytest.approx((tilt["a"], tilt["b"], tilt["c"]), abs=1e-12)
+    corrected = hmap.height("corrected")(x, y)[0]
+    left = fl.least_squares_plane(x, y, corrected)
+    assert abs(left.a) < 1e-12 and abs(left.b) < 1e-12 and abs(left.c) < 1e-12
+
+
+def test_grid_export_covers_the_workplane_and_matches_the_map(mapped, tmp_path):
+    run_dir, truth = mapped
+    grid = tmp_path / "map.csv"
+    assert main(["compensate", "--map", str(run_dir), "--grid", str(grid), "--step-mm", "7"]) == 0
+    lines = grid.read_text().splitlines()
+    assert lines[0] == "x_mm,y_mm,height_mm,std_mm"
+    x, y, h, s = np.loadtxt(grid, delimiter=",", skiprows=1).T
+    assert (x.min(), x.max(), y.min(), y.max()) == (-225, 225, -185, 185)
+    assert np.diff(np.unique(x)).max() <= 7 and np.diff(np.unique(y)).max() <= 7
+    mean, std = load_map(run_dir).height("nominal")(x, y)
+    assert np.allclose(h, mean, atol=1e-6) and np.allclose(s, std, atol=1e-6)
+    assert np.sqrt(np.mean((h - truth(x, y)) ** 2)) < 0.01  # it is the plate
+
+
+def test_cli_refuses_a_wide_band_and_marks_it_with_mark(mapped, tmp_path, capsys):
+    run_dir, _ = mapped
+    prog = tmp_path / "edge.gcode"
+    prog.write_text("G0 X-225 Y-185 Z5\nG1 Z-0.1\nG1 X225\nG0 Z5\n")  # along the edge: wide band
+    out = tmp_path / "out.gcode"
+    assert main(["compensate", str(prog), "--map", str(run_dir), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "band exceeds the tolerance 10.0 um" in err and "line 3" in err and not out.exists()
+    assert main(["compensate", str(prog), "--map", str(run_dir), "--out", str(out), "--mark"]) == 0
+    marked = [ln for ln in out.read_text().splitlines() if "exceeds the tolerance" in ln]
+    assert marked and all(ln.startswith("G1") for ln in marked)
+    assert "NOT within the tolerance" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--map", "nowhere", "--grid", "g.csv"], ["nowhere", "no such folder"]),
+    (["--map", "RUN"], ["PROGRAM and --out"]),
+    (["P", "--map", "RUN", "--grid", "g.csv"], ["not both"]),
+    (["P", "--map", "RUN", "--out", "o", "--tolerance-mm", "0"], ["--tolerance-mm", "positive"]),
+    (["missing.gcode", "--map", "RUN", "--out", "o"], ["missing.gcode", "no such file"]),
+])
+def test_bad_command_lines_give_clear_errors(mapped, argv, words, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "P").write_text("G0 X0 Y0 Z1\n")
+    argv = [str(mapped[0]) if a == "RUN" else a for a in argv]
+    assert main(["compensate", *argv]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    for w in words:
+        assert w in err
+
+
+def test_result_json_tilt_is_what_the_map_uses(mapped):
+    run_dir, _ = mapped
+    tilt = json.loads((run_dir / "result.json").read_text())["tilt"]
+    assert load_map(run_dir).plane_abc == (tilt["a"], tilt["b"], tilt["c"])
+
+
+def test_a_gcode_comment_naming_columns_is_still_gcode():
+    path = read_toolpath("; columns x_mm, y_mm, z_mm\nG0 X1 Y2 Z3\n", "p")
+    assert path.kind == "gcode" and path.moves[0].end == (1.0, 2.0, 3.0)

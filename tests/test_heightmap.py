@@ -1,0 +1,195 @@
+"""Height maps (formats/heightmap.py) as the simulated truth and as study plates; outliers in the
+simulated readings. Oracles: bilinear interpolation reproduces a bilinear function exactly; the
+simulator's readings against the study's own draws; the outlier share by Monte Carlo."""
+import numpy as np
+import pytest
+import yaml
+
+from adaptive_cal.cell.schema import ConfigError, load_cell, load_yaml
+from adaptive_cal.formats.heightmap import (HEADER, HeightMapError, load_heightmap, parse_heightmap,
+                                            write_heightmap)
+from adaptive_cal.simulation.cell import SimulatedCell
+from adaptive_cal.study.config import load_study
+from adaptive_cal.study.plates import heights_at, plate_cell, sample_plate, truth
+
+from helpers import SIM_CELL, sim_cell
+
+XS = np.linspace(-225, 225, 10)
+YS = np.linspace(-185, 185, 8)
+
+
+def bilinear(x, y):
+    return 0.3 + 1e-3 * x - 2e-3 * y + 1e-5 * x * y
+
+
+def write_map(path, xs=XS, ys=YS, f=bilinear):
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    return write_heightmap(path, xs, ys, f(X, Y))
+
+
+def cell_with_map(tmp_path, name="plate.csv", **sim):
+    data = load_yaml(SIM_CELL)
+    data["simulation"] = {**data["simulation"], "surface_file": name, **sim}
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_bilinear_map_is_reproduced_exactly_in_any_row_order(tmp_path):
+    path = write_map(tmp_path / "m.csv")
+    lines = path.read_text().splitlines()
+    rng = np.random.default_rng(0)
+    shuffled = [lines[0]] + [lines[1 + i] for i in rng.permutation(len(lines) - 1)]
+    m = parse_heightmap("\n".join(shuffled) + "\n", "shuffled")
+    x, y = rng.uniform(-225, 225, 500), rng.uniform(-185, 185, 500)
+    assert np.allclose(m(x, y), bilinear(x, y), atol=1e-9)
+    assert np.allclose(load_heightmap(path)(x, y), bilinear(x, y), atol=1e-9)
+    assert m.covers((-225, 225), (-185, 185)) and not m.covers((-230, 225), (-185, 185))
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda ls: ["x,y,z"] + ls[1:], ["line 1", "x_mm,y_mm,height_mm", "'x,y,z'"]),
+    (lambda ls: ls[1:], ["line 1", HEADER]),
+    (lambda ls: ls[:5] + ["-225,-132.857143,abc"] + ls[6:], ["line 6", "height_mm", "'abc'"]),
+    (lambda ls: ls[:5] + ["-225,-132.857143,"] + ls[6:], ["line 6", "height_mm", "''"]),
+    (lambda ls: ls[:5] + ["-225,nan,0.1"] + ls[6:], ["line 6", "y_mm", "'nan'"]),
+    (lambda ls: ls[:3] + ls[4:], ["not a regular grid", "missing"]),
+    (lambda ls: ls + ["-225,-185,0.2"], ["given twice", "first on line 2"]),
+    (lambda ls: ls[:7] + ["1,2"] + ls[8:], ["line 8", "3 values"]),
+])
+def test_bad_maps_are_refused_naming_file_line_and_value(tmp_path, edit, words):
+    lines = write_map(tmp_path / "m.csv").read_text().splitlines()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(edit(lines)) + "\n")
+    with pytest.raises(HeightMapError) as e:
+        load_heightmap(bad)
+    assert str(bad) in str(e.value)
+    for w in words:
+        assert w in str(e.value)
+
+
+def test_irregular_grid_is_refused(tmp_path):
+    path = write_map(tmp_path / "m.csv", xs=np.array([-225, -100, 0, 225.0]))
+    with pytest.raises(HeightMapError, match="not a regular grid: x_mm nodes -225 and -100"):
+        load_heightmap(path)
+
+
+def test_cell_takes_its_truth_from_a_map_relative_to_the_cell_file(tmp_path):
+    write_map(tmp_path / "plate.csv")
+    cell = load_cell(cell_with_map(tmp_path))
+    sim = SimulatedCell.from_cell(cell)
+    x, y = np.array([-100.0, 3.0, 200.0]), np.array([50.0, -7.0, 180.0])
+    without = SimulatedCell.from_cell(sim_cell())
+    # the map adds to simulation.effects (tilt and form of sim-cell.yaml)
+    assert np.allclose(sim.surface_mm(x, y), without.surface_mm(x, y) + bilinear(x, y))
+
+
+def test_a_map_that_does_not_cover_the_workplane_is_refused(tmp_path):
+    write_map(tmp_path / "plate.csv", xs=np.linspace(-200, 225, 10))
+    with pytest.raises(ConfigError) as e:
+        load_cell(cell_with_map(tmp_path))
+    msg = str(e.value)
+    assert "simulation.surface_file" in msg and "plate.csv" in msg and "does not cover" in msg
+    assert "x_mm=[-200, 225]" in msg
+
+
+def test_a_missing_map_is_refused_naming_the_key(tmp_path):
+    with pytest.raises(ConfigError, match=r"simulation.surface_file: .*nope.csv: cannot read"):
+        load_cell(cell_with_map(tmp_path, "nope.csv"))
+
+
+@pytest.mark.parametrize("rate", [0.5, -0.01, 0.9])
+def test_outlier_rate_outside_zero_to_half_is_refused_naming_the_key(rate):
+    with pytest.raises(ConfigError, match="simulation.outlier_rate"):
+        sim_cell(simulation={"outlier_rate": rate})
+
+
+def _readings(cell, n):
+    sim = SimulatedCell.from_cell(cell)
+    out = []
+    for k in range(n):
+        sim.move_to(10.0 * (k % 7), -5.0 * (k % 5), 0.0)
+        out.append(sim.read().reading_mm)
+    return np.array(out)
+
+
+def test_outliers_replace_the_stated_share_and_leave_other_readings_as_they_were():
+    n, rate = 3000, 0.2
+    clean = _readings(sim_cell(), n)
+    dirty = _readings(sim_cell(simulation={"outlier_rate": rate, "outlier_mm": 1.0}), n)
+    hit = np.abs(dirty - clean) > 1e-9
+    # the other draws are untouched: readings without a gross error are bit-for-bit the same
+    assert np.array_equal(dirty[~hit], clean[~hit])
+    # Monte Carlo: share within 4.5 binomial sigma of the rate (|N(0, 1 mm)| < 1e-9: never)
+    assert abs(hit.mean() - rate) < 4.5 * np.sqrt(rate * (1 - rate) / n)
+    assert 0.8 < np.std(dirty[hit] - clean[hit]) < 1.2
+
+
+def test_study_designs_see_the_simulators_readings_outliers_included(tmp_path):
+    write_map(tmp_path / "plate.csv")
+    cell = load_cell(cell_with_map(tmp_path, outlier_rate=0.3, outlier_mm=0.5,
+                                   repeatability_mm=0.0))
+    sim = SimulatedCell.from_cell(cell)
+    xy = np.array([[-200.0 + 10 * k, 150.0 - 7 * k] for k in range(40)])  # inside the stroke
+    read = []
+    for x, y in xy:
+        sim.move_to(x, y, 0.0)
+        read.append(sim.read().reading_mm - cell.probe.zero_mm)
+    expected = heights_at(cell, xy)
+    assert np.allclose(read, expected, atol=1.01e-4)  # the probe's resolution
+    assert np.ptp(np.array(read) - truth(cell)(xy[:, 0], xy[:, 1])) > 0.1  # gross errors there
+
+
+def _study(tmp_path, files):
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    for i in range(files):
+        write_map(maps / f"p{i}.csv", f=lambda x, y, i=i: bilinear(x, y) + 0.01 * i)
+    data = load_yaml(SIM_CELL.parent / "study-smoke.yaml")
+    data["cell"] = str(SIM_CELL)
+    data["plate"] = {**data["plate"], "surface_files": "maps/p*.csv"}
+    path = tmp_path / "study.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_study_plates_are_the_maps_in_turn_with_noise_drawn_as_before(tmp_path):
+    study, base = load_study(_study(tmp_path, 2))
+    no_maps = study.plate.model_copy(update={"surface_files": None})
+    plain = study.model_copy(update={"plate": no_maps})
+    for i in range(3):
+        p, q = sample_plate(study, i), sample_plate(plain, i)
+        assert p.surface_file.endswith(f"p{i % 2}.csv") and p.effects == {}
+        assert (p.noise_std_mm, p.seed) == (q.noise_std_mm, q.seed)
+        cell = plate_cell(study, base, p)
+        assert np.isclose(truth(cell)(0.0, 0.0), bilinear(0.0, 0.0) + 0.01 * (i % 2))
+
+
+def test_study_glob_matching_nothing_or_a_bad_map_is_refused(tmp_path):
+    path = _study(tmp_path, 1)
+    (tmp_path / "maps" / "p1.csv").write_text("x_mm,y_mm,height_mm\n0,0,1\n")
+    with pytest.raises(ConfigError, match=r"plate.surface_files: .*p1.csv: x_mm takes one value"):
+        load_study(path)
+    data = load_yaml(path)
+    data["plate"]["surface_files"] = "nothing/*.csv"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"plate.surface_files=.*nothing/\*.csv' matches no file"):
+        load_study(path)
+
+
+def test_a_run_folder_keeps_a_relative_map_findable(tmp_path):
+    """The run folder's copy of the cell names the map by an absolute path: --resume and report
+    read the cell from the run folder, where the relative name would not resolve."""
+    from adaptive_cal.cli.run import _copy_cell
+
+    (tmp_path / "maps").mkdir()
+    write_map(tmp_path / "maps" / "plate.csv")
+    cell_path = cell_with_map(tmp_path, name="maps/plate.csv")
+    out = tmp_path / "runs" / "a"
+    out.mkdir(parents=True)
+    _copy_cell(out, cell_path)
+    copied = load_cell(out / "cell.yaml")
+    assert copied.simulation.surface_file == str((tmp_path / "maps" / "plate.csv").resolve())
+    x, y = np.array([-100.0, 200.0]), np.array([50.0, 180.0])
+    assert np.allclose(SimulatedCell.from_cell(copied).surface_mm(x, y),
+                       SimulatedCell.from_cell(load_cell(cell_path)).surface_mm(x, y))

@@ -1,0 +1,247 @@
+"""Re-check after a frame correction (issue 17, item 8): the correction's geometry against brute
+force, the simulated plate in a corrected frame, and end to end on the simulated cell: map,
+apply the proposed correction to the simulated plate, re-check with --prior-from."""
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from adaptive_cal.analysis.flatness import plane_tilt, tilt_correction_deg
+from adaptive_cal.cell.build import prior_model, survey_plan
+from adaptive_cal.cell.schema import ConfigError, load_yaml
+from adaptive_cal.cli import main
+from adaptive_cal.effects.frame import (height_in_corrected_frame, plane_in_corrected_frame,
+                                        rotation)
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.run import session
+from adaptive_cal.simulation.cell import SimulatedCell
+
+from helpers import ROOT, SIM_CELL, sim_cell
+
+PLANES = [(0.014, 0.0019, 0.2), (-0.03, 0.05, -1.5), (0.0, 0.0, 0.7), (0.08, -0.02, 3.0)]
+RECHECK_SEED = 2  # another day's noise (the map uses seed 1), as configs/sim-cell-corrected.yaml
+
+
+@pytest.mark.parametrize("a, b, c", PLANES)
+def test_the_proposed_correction_levels_its_plane(a, b, c):
+    """Round trip: the correction computed from a plane (tilt_correction_deg), applied, gives a
+    zero-tilt plane, its height at the frame origin c / sqrt(1 + a^2 + b^2), to 1e-9."""
+    rx, ry = tilt_correction_deg(a, b)
+    a1, b1, c1 = plane_in_corrected_frame(a, b, c, rx, ry)
+    assert abs(a1) < 1e-9 and abs(b1) < 1e-9
+    assert c1 == pytest.approx(c / np.sqrt(1 + a * a + b * b), abs=1e-9)
+
+
+@pytest.mark.parametrize("a, b, c", PLANES)
+def test_plane_in_corrected_frame_matches_brute_force(a, b, c):
+    """Oracle: points of the nominal plane, expressed in the corrected frame (p_new = R^T p),
+    lie on the plane the function returns; also for a correction that is not the proposed one."""
+    rng = np.random.default_rng(3)
+    rx, ry = 0.7, -1.9
+    xy = rng.uniform(-300, 300, (20, 2))
+    p = np.column_stack([xy, a * xy[:, 0] + b * xy[:, 1] + c])
+    q = p @ rotation(rx, ry)  # rows R^T p
+    a1, b1, c1 = plane_in_corrected_frame(a, b, c, rx, ry)
+    np.testing.assert_allclose(q[:, 2], a1 * q[:, 0] + b1 * q[:, 1] + c1, atol=1e-10)
+    # rotx(rx) roty(ry) as tilt_correction_deg states it: R e_z = (sin ry, -sin rx cos ry, ...)
+    r = np.radians([rx, ry])
+    np.testing.assert_allclose(rotation(rx, ry)[:, 2], [np.sin(r[1]), -np.sin(r[0]) * np.cos(r[1]),
+                                                        np.cos(r[0]) * np.cos(r[1])], atol=1e-15)
+
+
+def test_height_in_corrected_frame_lies_on_the_surface():
+    """The height along the corrected z: the point R (x, y, t) is on the curved surface (to
+    1e-10 mm), and on a plane it is the plane_in_corrected_frame height."""
+    def bowl(x, y):
+        return 0.014 * x + 0.002 * y + 0.2 + 3e-6 * (np.asarray(x) ** 2 - 0.5 * np.asarray(y) ** 2)
+
+    x, y = np.meshgrid(np.linspace(-225, 225, 7), np.linspace(-185, 185, 5))
+    rx, ry = 0.11, -0.80
+    t = height_in_corrected_frame(bowl, x, y, rx, ry)
+    p = np.stack([x, y, t], -1) @ rotation(rx, ry).T  # rows R (x, y, t)
+    np.testing.assert_allclose(p[..., 2], bowl(p[..., 0], p[..., 1]), atol=1e-10)
+    a1, b1, c1 = plane_in_corrected_frame(0.014, 0.002, 0.2, rx, ry)
+    flat = height_in_corrected_frame(lambda u, v: 0.014 * u + 0.002 * v + 0.2, x, y, rx, ry)
+    np.testing.assert_allclose(flat, a1 * x + b1 * y + c1, atol=1e-10)
+
+
+def test_corrected_belief_moves_the_plane_exactly_and_keeps_the_form():
+    model = prior_model(sim_cell())
+    p = model.tilt_basis
+    rng = np.random.default_rng(0)
+    form = 0.05 * rng.standard_normal(p.shape[0])
+    form -= p @ np.linalg.lstsq(p, form, rcond=None)[0]  # no plane in it
+    theta = np.array([0.014, 0.0019, 0.2])  # slopes and height at the plate centre
+    rx, ry = tilt_correction_deg(0.014, 0.0019)
+    cov = model.belief(model.hyper0).cov
+    out = session.corrected_belief(model, bl.Belief(p @ theta + form, cov), rx, ry)
+    xc, yc = model.centre_mm
+    a1, b1, c1 = plane_in_corrected_frame(*theta[:2], theta[2] - theta[0] * xc - theta[1] * yc,
+                                          rx, ry)
+    np.testing.assert_allclose(out.mean, p @ [a1, b1, c1 + a1 * xc + b1 * yc] + form, atol=1e-12)
+    assert abs(a1) < 1e-9 and abs(b1) < 1e-9
+    # the covariance through the map's Jacobian: within 1e-3 of the old one (a 1 deg rotation)
+    np.testing.assert_allclose(out.cov, cov, atol=1e-3 * np.abs(cov).max())
+    assert not np.allclose(out.cov, cov, rtol=0, atol=1e-12)
+
+
+def test_the_simulated_plate_in_a_corrected_frame_is_level():
+    """simulation.frame_correction_deg: the tilt's own correction leaves a level plate (no
+    form) at height c / sqrt(1 + a^2 + b^2); no key: the nominal plate, unchanged."""
+    a, b, c = 0.0140, 0.0019, 0.2
+    rx, ry = tilt_correction_deg(a, b)
+    plain = {"seed": 1, "effects": {"tilt": {"a": a, "b": b, "c": c}}}
+    level = SimulatedCell.from_cell(sim_cell(simulation={
+        **plain, "frame_correction_deg": {"rx_deg": rx, "ry_deg": ry}}))
+    x, y = np.meshgrid(np.linspace(-225, 225, 9), np.linspace(-185, 185, 9))
+    np.testing.assert_allclose(level.surface_mm(x, y), c / np.sqrt(1 + a * a + b * b), atol=1e-9)
+    nominal = SimulatedCell.from_cell(sim_cell(simulation=plain))
+    np.testing.assert_allclose(nominal.surface_mm(x, y), a * x + b * y + c, atol=1e-12)
+
+
+@pytest.mark.parametrize("value, says", [
+    ({"rx_deg": 20, "ry_deg": 0}, "rx_deg"), ({"rx_deg": 0, "ry_deg": float("nan")}, "ry_deg"),
+    ({"rx_deg": 0, "rz_deg": 1}, "rz_deg"), ("0.1,0.2", "frame_correction_deg")])
+def test_frame_correction_key_is_validated(value, says):
+    with pytest.raises(ConfigError) as e:
+        sim_cell(simulation={"frame_correction_deg": value})
+    assert says in str(e.value) and "frame_correction_deg" in str(e.value)
+
+
+def test_the_corrected_example_cell_is_the_simulated_cell_with_the_correction():
+    corrected, plain = load_yaml(ROOT / "configs" / "sim-cell-corrected.yaml"), load_yaml(SIM_CELL)
+    fc = corrected["simulation"].pop("frame_correction_deg")
+    assert corrected["simulation"].pop("seed") == RECHECK_SEED
+    plain["simulation"].pop("seed")
+    assert corrected.pop("name") != plain.pop("name")
+    assert corrected == plain
+    assert set(fc) == {"rx_deg", "ry_deg"}
+
+
+@pytest.fixture(scope="module")
+def first_map(tmp_path_factory):
+    """The simulated cell mapped from scratch (configs/sim-cell.yaml)."""
+    out = tmp_path_factory.mktemp("recheck") / "first"
+    result = session.run(sim_cell(), out, progress=False)
+    assert result["stopped_because"] == "mean_std_bound"
+    return out, result
+
+
+def _corrected(rx, ry):
+    return sim_cell(simulation={"seed": RECHECK_SEED,
+                                "frame_correction_deg": {"rx_deg": rx, "ry_deg": ry}})
+
+
+def _true_tilt(cell):
+    """The least-squares tilt of the simulated truth in the robot's (corrected) frame."""
+    plan = survey_plan(cell)
+    x, y = plan.eval_xy.T
+    return plane_tilt(x, y, SimulatedCell.from_cell(cell).surface_mm(x, y))
+
+
+def test_recheck_after_the_proposed_correction(first_map, tmp_path):
+    """Acceptance: at most 10 touches, and the tilt after correction within its 95 % interval
+    of zero. Over re-check seeds 2-9 (measured once): 10 touches each, 7 of 8 within 1.96 std
+    of zero (seed 5: rx at 2.4 std); the true residual tilt is the first map's own error,
+    rx -0.0008 deg, about 1 std of the re-check. Always true: the truth lies in the interval."""
+    out, first = first_map
+    t0 = first["tilt"]
+    cell = _corrected(t0["rx_deg"], t0["ry_deg"])
+    r = session.run(cell, tmp_path / "recheck", prior_from=out, progress=False)
+    assert r["stopped_because"] == "mean_std_bound" and r["touches"] <= 10
+    t = r["tilt"]
+    for k in ("rx", "ry"):
+        assert abs(t[f"{k}_deg"]) <= 1.96 * t[f"{k}_std_deg"], (k, t)
+        assert abs(t[f"{k}_deg"] - _true_tilt(cell)[f"{k}_deg"]) <= 1.96 * t[f"{k}_std_deg"]
+    assert r["truth"]["coverage95"] >= 0.9
+    saved = json.loads((tmp_path / "recheck" / "result.json").read_text())["prior_from"]
+    assert saved == {"run": str(out), "assumed": "proposed",
+                     "correction_deg": {"rx": t0["rx_deg"], "ry": t0["ry_deg"]}}
+    assert abs(t0["rx_deg"]) > 50 * t["rx_std_deg"]  # the first map's tilt was far from zero
+
+
+def test_recheck_assuming_no_correction_on_a_corrected_plate_stops_and_says_why(first_map, tmp_path):
+    """The belief left in the nominal frame is millimetres off the corrected plate: the gate
+    flags the readings, their retakes confirm them, and after 3 such readings the re-check stops
+    as prior_disagrees_with_readings (before: it stopped on its bound, true RMS error 180 um,
+    its band covering 3 % of the plate). It is not a result, and the message says what to do."""
+    out, first = first_map
+    cell = _corrected(first["tilt"]["rx_deg"], first["tilt"]["ry_deg"])
+    r = session.run(cell, tmp_path / "none", prior_from=out, correction_applied="none",
+                    progress=False)
+    assert r["stopped_because"] == session.PRIOR_DISAGREES and r["touches"] <= 10
+    assert r["truth"]["rms_error_mm"] > 0.05  # the map it would have given is wrong
+    why = r["prior_from"]["disagreement"]
+    assert "none" in why and "--correction-applied" in why and "3 readings" in why
+    assert r["prior_from"]["assumed"] == "none"
+
+
+def test_recheck_assuming_the_proposed_correction_on_an_uncorrected_plate_stops(first_map,
+                                                                              tmp_path):
+    """The other mistake: the frame was not corrected, the default assumes it was."""
+    out, _ = first_map
+    r = session.run(sim_cell(simulation={"seed": RECHECK_SEED}), tmp_path / "p", prior_from=out,
+                    progress=False)
+    assert r["stopped_because"] == session.PRIOR_DISAGREES and r["touches"] <= 10
+    assert "(proposed: rx +0.1" in r["prior_from"]["disagreement"]
+
+
+def test_cli_measured_correction_printed_first_and_recorded(first_map, tmp_path, capsys):
+    """--correction-applied RX,RY: a measured correction (here 0.11, -0.80 applied, not the
+    proposed one); the first line says what was assumed; the re-check finds the remaining
+    tilt (the truth within its interval)."""
+    out, _ = first_map
+    cell_file = tmp_path / "corrected.yaml"
+    data = load_yaml(SIM_CELL)
+    data["simulation"].update(seed=RECHECK_SEED, frame_correction_deg={"rx_deg": 0.11, "ry_deg": -0.80})
+    cell_file.write_text(yaml.safe_dump(data))
+    rc = main(["run", "--robot", str(cell_file), "--out", str(tmp_path / "m"), "--prior-from",
+               str(out), "--correction-applied", "0.11,-0.80", "--no-progress"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert text.splitlines()[0] == (f"re-check from {out}: correction assumed applied (measured): "
+                                    "rx +0.1100 deg, ry -0.8000 deg")
+    r = json.loads((tmp_path / "m" / "result.json").read_text())
+    assert r["prior_from"]["assumed"] == "measured" and r["touches"] <= 10
+    true = _true_tilt(sim_cell(simulation=data["simulation"]))
+    assert abs(true["ry_deg"]) > 0.001  # -0.80 is not the plate's own correction
+    for k in ("rx", "ry"):
+        assert abs(r["tilt"][f"{k}_deg"] - true[f"{k}_deg"]) <= 1.96 * r["tilt"][f"{k}_std_deg"]
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--correction-applied", "0.1"], "RX,RY"),
+    (["--correction-applied", "a,b"], "RX,RY"),
+    (["--correction-applied", "nan,0"], "within +-10 deg"),
+    (["--correction-applied", "12,0"], "within +-10 deg")])
+def test_cli_bad_correction_is_refused_naming_the_option(argv, says, tmp_path, capsys):
+    rc = main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "x"), "--prior-from",
+               str(tmp_path), *argv, "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc != 0 and "--correction-applied" in err and says in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()
+
+
+def test_cli_correction_needs_prior_from_and_proposed_needs_a_result(tmp_path, capsys):
+    rc = main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "x"),
+               "--correction-applied", "none", "--no-progress"])
+    assert rc != 0 and "needs --prior-from" in capsys.readouterr().err
+    rc = main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "x"), "--prior-from",
+               str(tmp_path), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc != 0 and "result.json" in err and "--correction-applied" in err
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_contradicted_recheck_does_not_advise_resume():
+    """--resume would repeat the same contradiction: the summary and the page say what to do."""
+    from adaptive_cal.report.status import missing, next_step
+
+    r = {"stopped_because": "prior_disagrees_with_readings", "touches": 7, "bound": {},
+         "posterior": {"mean_std_mm": 0.003, "max_std_mm": 0.009}}
+    assert "contradict" in missing(r)
+    advice = next_step(r, "adaptive-cal run --resume runs/x")
+    assert "--resume" not in advice and "--correction-applied" in advice
+    r["stopped_because"] = "interrupted"
+    assert next_step(r, "adaptive-cal run --resume runs/x") == "Continue with adaptive-cal run --resume runs/x"
