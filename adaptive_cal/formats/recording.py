@@ -239,12 +239,17 @@ def _header(cells: list[str], where: str) -> list[str]:
 def repair_cut_row(path: str | os.PathLike) -> str | None:
     """Repair a recording whose last line lacks its newline (a crash mid-write): a complete
     row (every field, the required ones numbers) gets its newline; anything else is cut off.
-    Returns the text of the row cut off, None when none was. Earlier rows are never touched."""
+    Returns the text of the row cut off, None when none was. Earlier rows are never touched,
+    and a file that is not a recording with a header before its last line is left as it is
+    (the reader then says what is wrong with it)."""
     path = Path(path)
     data = path.read_bytes() if path.exists() else b""
     if not data or data.endswith(b"\n"):
         return None
     start = data.rfind(b"\n") + 1
+    before = data[:start].decode("utf-8", "replace").lstrip("\ufeff")
+    if not before.startswith(MAGIC) or _header_line(before) is None:
+        return None
     tail = data[start:].decode("utf-8", "replace")
     if _complete_row(data[:start].decode("utf-8", "replace"), tail):
         with open(path, "ab") as f:
@@ -259,9 +264,13 @@ def repair_cut_row(path: str | os.PathLike) -> str | None:
     return tail
 
 
+def _header_line(text: str) -> str | None:
+    return next((l for l in text.splitlines() if l.strip() and not l.startswith("#")), None)
+
+
 def _complete_row(before: str, line: str) -> bool:
     """Whether ``line`` is a whole data row under the header found in ``before``."""
-    header = next((l for l in before.splitlines() if l.strip() and not l.startswith("#")), None)
+    header = _header_line(before)
     if header is None or line.startswith("#"):
         return False
     names = [h.strip() for h in header.split(",")]
