@@ -20,7 +20,8 @@ import numpy as np
 
 from adaptive_cal.analysis import flatness as fl
 from adaptive_cal.analysis.flatness_answer import entry
-from adaptive_cal.formats.recording import Recording, read_recording, surface_height_mm
+from adaptive_cal.formats.recording import (Recording, RecordingError, read_recording,
+                                           surface_height_mm)
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, PriorModel, fit_hyper
 from adaptive_cal.gaussian.spline import Surface, default_knots
@@ -88,6 +89,10 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
     x, y, z = heights(rec)
     if len(z) < 4:
         raise ValueError(f"{path}: {len(z)} usable touches; flatness needs at least 4")
+    if np.linalg.matrix_rank(np.c_[x - x.mean(), y - y.mean()], tol=1e-6) < 2:
+        raise RecordingError(f"{path}: the {len(z)} fused touches lie on one line or at one "
+                             "point (columns x_mm, y_mm): a plane's tilt and flatness need "
+                             "touches spanning an area")
     values = fl.figures(x, y, z)
     sampled, hyper = repeat_samples(x, y, z, rng, n)
     rx, ry = fl.average_ranges_mm(x, y, z)

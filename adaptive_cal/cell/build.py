@@ -8,7 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from adaptive_cal.cell.schema import Cell
+from adaptive_cal.cell.consistency import derived_box_mm
+from adaptive_cal.cell.schema import Cell, Workspace
 from adaptive_cal.gaussian.prior import Hyper, PriorModel
 from adaptive_cal.gaussian.spline import Surface, default_knots, embedding, refined
 from adaptive_cal.planning.plan import SurveyPlan
@@ -17,6 +18,17 @@ from adaptive_cal.planning.stopping import AtLeast, MaxStdBelow, MeanStdBelow, S
 
 EVAL_POINTS = 41  # the evaluation grid over the plate is EVAL_POINTS x EVAL_POINTS
 GROW_CAP = 160  # a model grows (knots refined once) only up to this many coefficients
+
+
+def workspace(cell: Cell) -> Workspace | None:
+    """The box every target must lie in: the cell file's ``workspace``, or for a simulated
+    cell without one the box derived from its workplane and stroke
+    (``cell.consistency.derived_box_mm``). The planner (z range) and the probe cycle's safety
+    check both read it from here."""
+    if cell.workspace is not None or cell.robot.adapter != "sim":
+        return cell.workspace
+    x, y, z = derived_box_mm(cell)
+    return Workspace(x_mm=x, y_mm=y, z_mm=z)
 
 
 def knots_for(cell: Cell) -> tuple[np.ndarray, np.ndarray]:
@@ -132,12 +144,12 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
     gx, gy = np.meshgrid(np.linspace(*wp.x_mm, eval_points), np.linspace(*wp.y_mm, eval_points),
                          indexing="ij")
     exy = np.stack([gx.ravel(), gy.ravel()], 1)
-    plan = cell.plan
+    plan, box = cell.plan, workspace(cell)
     return SurveyPlan(
         model=model, candidates=cand, gram=model.surface.gram(), eval_xy=exy,
         eval_rows=model.surface.basis(exy[:, 0], exy[:, 1]),
         usable_mm=tuple(cell.probe.usable_mm), zero_mm=cell.probe.zero_mm,
-        z_range_mm=tuple(cell.workspace.z_mm) if cell.workspace is not None else None,
+        z_range_mm=tuple(box.z_mm) if box is not None else None,
         allows=wp.allows, bounds_mm=inner, plate_mm=(tuple(wp.x_mm), tuple(wp.y_mm)),
         gate_sigma=cell.model.gate_sigma, learn=cell.model.learn_hyper,
         hyper_after=plan.hyper_after, hyper_every=plan.hyper_every, criterion=criterion(cell),

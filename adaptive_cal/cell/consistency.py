@@ -8,6 +8,17 @@ Each error names the keys and their values.
 from __future__ import annotations
 
 
+def derived_box_mm(cell) -> tuple[tuple[float, float], tuple[float, float], tuple[float, float]]:
+    """The workspace box (x, y, z in mm) of a simulated cell that gives none, derived from the
+    workplane and the probe's stroke: x, y span the workplane; z allows a surface up to one
+    stroke off the nominal plane read anywhere in the stroke, so z = h + zero - reading lies in
+    [zero - 2 stroke, zero + stroke], raised to the travel height when that is higher.
+    A real cell must give its own box (``check_cell``)."""
+    wp, p = cell.workplane, cell.probe
+    z = (p.zero_mm - 2.0 * p.stroke_mm, max(p.zero_mm + p.stroke_mm, cell.robot.safe_height_mm))
+    return tuple(wp.x_mm), tuple(wp.y_mm), z
+
+
 def check_cell(cell) -> None:
     """Raise ValueError naming the keys when the blocks of ``cell`` contradict each other."""
     r, p, ws, wp = cell.robot, cell.probe, cell.workspace, cell.workplane

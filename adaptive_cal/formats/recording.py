@@ -114,81 +114,142 @@ def _number(text: str, *, where: str, blank_ok: bool = False) -> float:
     return value
 
 
+#: Limits of a readable recording: a cell's positions lie within 10 m, a probe's indication
+#: within 1 m, and a survey's touches number thousands (MAX_ROWS touches at 3 s each are 17 h).
+#: Beyond them a value is a typo or a unit error, and a file is not a recording this tool can
+#: analyse in memory: refused with the line, not turned into numbers.
+MAX_ABS_POSITION_MM = 1e4
+MAX_ABS_READING_MM = 1e3
+MAX_T_S = 1e8
+MAX_ROWS = 20_000
+MAX_BYTES = 64 * 2**20
+_LIMITS = {"x_mm": MAX_ABS_POSITION_MM, "y_mm": MAX_ABS_POSITION_MM, "z_mm": MAX_ABS_POSITION_MM,
+           "reading_mm": MAX_ABS_READING_MM, "t_s": MAX_T_S, "seq": 1e15}
+
+
+def _limited(text: str, column: str, where: str, blank_ok: bool = False) -> float:
+    value = _number(text, where=where, blank_ok=blank_ok)
+    limit = _LIMITS.get(column)
+    if limit is not None and abs(value) > limit:
+        raise RecordingError(f"{where}: {text.strip()!r} is beyond +-{limit:g} (a typo or a unit "
+                             "error?)")
+    return value
+
+
 def read_recording(path: str | os.PathLike) -> Recording:
-    """Read and validate a v1 recording; errors name the line number and the column."""
+    """Read and validate a v1 recording; errors name the line number and the column.
+
+    A byte-order mark (a spreadsheet's UTF-8) and CR / CRLF line ends are accepted. Values
+    beyond the physical limits above, a header naming a column twice, more than ``MAX_ROWS``
+    rows or ``MAX_BYTES`` bytes are refused with the line."""
     path = Path(path)
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        size = path.stat().st_size
     except FileNotFoundError:
         raise RecordingError(f"{path}: no such file") from None
-    except UnicodeDecodeError as e:
-        raise RecordingError(f"{path}: not UTF-8 text ({e})") from None
-    if not lines or lines[0].strip() != MAGIC:
-        raise RecordingError(f"{path}:1: first line must be {MAGIC!r}")
+    if path.is_dir():
+        raise RecordingError(f"{path}: a folder, not a recording")
+    if size > MAX_BYTES:
+        raise RecordingError(f"{path}: {size / 2**20:.0f} MiB; a recording this tool reads holds at "
+                             f"most {MAX_ROWS} rows ({MAX_BYTES // 2**20} MiB): split it by round")
     meta: dict[str, str] = {}
     header: list[str] | None = None
-    rows: list[tuple[int, list[str]]] = []
-    for lineno, line in enumerate(lines, start=1):
-        if line.startswith("#"):
-            key, sep, value = line[1:].partition(":")
-            if sep and lineno > 1:
-                meta[key.strip()] = value.strip()
-            continue
-        if not line.strip():
-            continue
-        cells = [c.strip() for c in line.split(",")]
-        if header is None:
-            header = cells
-            missing = [c for c in REQUIRED if c not in header]
-            if missing:
-                raise RecordingError(f"{path}:{lineno}: header lacks column(s) {', '.join(missing)}")
-            continue
-        if len(cells) != len(header):
-            raise RecordingError(
-                f"{path}:{lineno}: {len(cells)} fields, the header has {len(header)}")
-        rows.append((lineno, cells))
-    if header is None:
-        raise RecordingError(f"{path}: no header line")
-    col = {name: i for i, name in enumerate(header)}
-    numeric_extra = [c for c in header if c not in REQUIRED and c != "flags"]
-    data = {c: [] for c in REQUIRED}
-    extra: dict[str, list[float]] = {c: [] for c in numeric_extra}
+    col: dict[str, int] = {}
+    numeric_extra: list[str] = []
+    data: dict[str, list[float]] = {c: [] for c in REQUIRED}
+    extra: dict[str, list[float]] = {}
     flags: list[frozenset[str]] = []
     prev_seq = -math.inf
-    for lineno, cells in rows:
-        for c in REQUIRED:
-            where = f"{path}:{lineno}: column {c}"
-            data[c].append(_number(cells[col[c]], where=where, blank_ok=(c == "t_s")))
-        seq = data["seq"][-1]
-        if seq != int(seq) or seq < 0:
-            raise RecordingError(f"{path}:{lineno}: column seq: {cells[col['seq']]!r} is not a "
-                                 "non-negative integer")
-        if seq <= prev_seq:
-            raise RecordingError(f"{path}:{lineno}: column seq: {int(seq)} does not increase "
-                                 f"(previous {int(prev_seq)})")
-        prev_seq = seq
-        for c in numeric_extra:
-            try:
-                extra[c].append(_number(cells[col[c]], where="", blank_ok=True))
-            except RecordingError:
-                extra[c].append(math.nan)  # unknown optional text columns are ignored
-        if "flags" in col:
-            flags.append(frozenset(f for f in cells[col["flags"]].split(";") if f))
+    lineno = 0
+    try:
+        with open(path, encoding="utf-8-sig", newline=None) as f:
+            for lineno, line in enumerate(f, start=1):
+                line = line.rstrip("\n")
+                if lineno == 1:
+                    if line.strip() != MAGIC:
+                        raise RecordingError(f"{path}:1: first line must be {MAGIC!r}")
+                    continue
+                if line.startswith("#"):
+                    key, sep, value = line[1:].partition(":")
+                    if sep:
+                        meta[key.strip()] = value.strip()
+                        if key.strip() == "probe_zero_mm":
+                            _limited(value, "reading_mm", f"{path}:{lineno}: probe_zero_mm")
+                    continue
+                if not line.strip():
+                    continue
+                cells = [c.strip() for c in line.split(",")]
+                if header is None:
+                    header = _header(cells, f"{path}:{lineno}")
+                    col = {name: i for i, name in enumerate(header)}
+                    numeric_extra = [c for c in header if c not in REQUIRED and c != "flags"]
+                    extra = {c: [] for c in numeric_extra}
+                    continue
+                if len(cells) != len(header):
+                    raise RecordingError(
+                        f"{path}:{lineno}: {len(cells)} fields, the header has {len(header)}")
+                if len(flags if "flags" in col else data["seq"]) >= MAX_ROWS:
+                    raise RecordingError(f"{path}:{lineno}: more than {MAX_ROWS} rows; a recording "
+                                         "this tool reads holds at most that many: split it by round")
+                for c in REQUIRED:
+                    where = f"{path}:{lineno}: column {c}"
+                    data[c].append(_limited(cells[col[c]], c, where, blank_ok=(c == "t_s")))
+                if data["t_s"][-1] < 0:
+                    raise RecordingError(f"{path}:{lineno}: column t_s: {cells[col['t_s']]!r} is "
+                                         "negative (seconds since the start of the run)")
+                seq = data["seq"][-1]
+                if seq != int(seq) or seq < 0:
+                    raise RecordingError(f"{path}:{lineno}: column seq: {cells[col['seq']]!r} is "
+                                         "not a non-negative integer")
+                if seq <= prev_seq:
+                    raise RecordingError(f"{path}:{lineno}: column seq: {int(seq)} does not "
+                                         f"increase (previous {int(prev_seq)})")
+                prev_seq = seq
+                for c in numeric_extra:
+                    try:
+                        extra[c].append(_number(cells[col[c]], where="", blank_ok=True))
+                    except RecordingError:
+                        extra[c].append(math.nan)  # unknown optional text columns are ignored
+                if "flags" in col:
+                    flags.append(frozenset(f for f in cells[col["flags"]].split(";") if f))
+    except UnicodeDecodeError as e:
+        raise RecordingError(f"{path}:{lineno + 1}: not UTF-8 text ({e.reason} at byte "
+                             f"{e.start} of the line)") from None
+    if lineno == 0:
+        raise RecordingError(f"{path}:1: empty file; first line must be {MAGIC!r}")
+    if header is None:
+        raise RecordingError(f"{path}: no header line")
     arrays = {c: np.asarray(v, float) for c, v in data.items()}
-    return Recording(arrays["seq"].astype(int), arrays["t_s"], arrays["x_mm"], arrays["y_mm"],
-                     arrays["z_mm"], arrays["reading_mm"], tuple(flags),
+    return Recording(arrays["seq"].astype(np.int64), arrays["t_s"], arrays["x_mm"],
+                     arrays["y_mm"], arrays["z_mm"], arrays["reading_mm"], tuple(flags),
                      {c: np.asarray(v, float) for c, v in extra.items()}, meta, str(path))
+
+
+def _header(cells: list[str], where: str) -> list[str]:
+    """The header's column names: every required one, none twice (which would be read?)."""
+    missing = [c for c in REQUIRED if c not in cells]
+    if missing:
+        raise RecordingError(f"{where}: header lacks column(s) {', '.join(missing)}")
+    twice = sorted({c for c in cells if cells.count(c) > 1})
+    if twice:
+        raise RecordingError(f"{where}: header names column(s) {', '.join(twice)} more than once")
+    return cells
 
 
 def repair_cut_row(path: str | os.PathLike) -> str | None:
     """Repair a recording whose last line lacks its newline (a crash mid-write): a complete
     row (every field, the required ones numbers) gets its newline; anything else is cut off.
-    Returns the text of the row cut off, None when none was. Earlier rows are never touched."""
+    Returns the text of the row cut off, None when none was. Earlier rows are never touched,
+    and a file that is not a recording with a header before its last line is left as it is
+    (the reader then says what is wrong with it)."""
     path = Path(path)
     data = path.read_bytes() if path.exists() else b""
     if not data or data.endswith(b"\n"):
         return None
     start = data.rfind(b"\n") + 1
+    before = data[:start].decode("utf-8", "replace").lstrip("\ufeff")
+    if not before.startswith(MAGIC) or _header_line(before) is None:
+        return None
     tail = data[start:].decode("utf-8", "replace")
     if _complete_row(data[:start].decode("utf-8", "replace"), tail):
         with open(path, "ab") as f:
@@ -203,9 +264,13 @@ def repair_cut_row(path: str | os.PathLike) -> str | None:
     return tail
 
 
+def _header_line(text: str) -> str | None:
+    return next((l for l in text.splitlines() if l.strip() and not l.startswith("#")), None)
+
+
 def _complete_row(before: str, line: str) -> bool:
     """Whether ``line`` is a whole data row under the header found in ``before``."""
-    header = next((l for l in before.splitlines() if l.strip() and not l.startswith("#")), None)
+    header = _header_line(before)
     if header is None or line.startswith("#"):
         return False
     names = [h.strip() for h in header.split(",")]
@@ -235,8 +300,8 @@ class RecordingWriter:
         self.columns = self.COLUMNS + tuple(extra_columns)
         exists = self.path.exists() and self.path.stat().st_size > 0
         if exists:
-            header = next(l for l in self.path.read_text(encoding="utf-8").splitlines()
-                          if l and not l.startswith("#"))
+            header = next((l for l in self.path.read_text(encoding="utf-8").splitlines()
+                           if l.strip() and not l.startswith("#")), "")
             if tuple(h.strip() for h in header.split(",")) != self.columns:
                 raise RecordingError(f"{self.path}: cannot append, its header {header!r} differs "
                                      f"from {','.join(self.columns)!r}")

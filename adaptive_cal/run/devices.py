@@ -6,6 +6,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
+from adaptive_cal.cell.build import workspace
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.hardware.base import AdapterError, Motion, ProbeCycle, ProbeDevice
 
@@ -24,9 +25,10 @@ def safety_check(cell: Cell) -> Callable[[float, float, float], bool]:
     """The one function that decides whether a target may be sent.
 
     x, y must lie inside the workplane less its edge margin and
-    outside every keep-out; with a ``workspace`` box the target must also lie inside it.
+    outside every keep-out; with a ``workspace`` box (the cell file's, or the one derived for
+    a simulated cell, ``cell.build.workspace``) the target must also lie inside it.
     """
-    wp, ws = cell.workplane, cell.workspace
+    wp, ws = cell.workplane, workspace(cell)
 
     def allowed(x: float, y: float, z: float) -> bool:
         if not wp.allows(x, y):

@@ -86,8 +86,10 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     result = result_of(cell, plan, state, out / "recording.csv", stopped_because, rng=rng,
                        truth=truth)
     status = sv.status(plan, state)
-    write_json(out / "result.json", result)  # atomic; NaN / inf as null
+    # the figures first: result.json, written last, marks the results complete (a kill while
+    # drawing leaves the old result.json, so --resume does not take the run as finished)
     write_figures(cell, plan, state, out, history or [status], true_rms_mm)
+    write_json(out / "result.json", result)  # atomic; NaN / inf as null
     return finite_json(result)
 
 
@@ -130,10 +132,12 @@ def _save(fig, path: Path) -> None:
 
 
 def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> None:
-    """The belief and its spline, for ``--prior-from`` in a later run (replaced whole)."""
+    """The belief and its spline, for ``--prior-from`` in a later run (replaced whole), with
+    the touches and fused readings it holds (never more than the recording's rows)."""
     s = plan.model.surface
     arrays = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
-              "knots_y": s.sy.knots, "hyper": np.array(state.hyper)}
+              "knots_y": s.sy.knots, "hyper": np.array(state.hyper),
+              "touches": np.array(state.touches), "fused": np.array(state.fused)}
     replace_atomically(path, lambda f: np.savez(f, **arrays), binary=True)
 
 

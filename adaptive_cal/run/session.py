@@ -225,9 +225,9 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                           f"dropped: {cut[:80]!r}", stacklevel=2)
         state, start_t, next_seq = replay(plan, state, paths.recording)
         done = plan.stop(sv.status(plan, state))
-        if done and (paths.out / "result.json").exists():  # finished: nothing to do or rewrite
-            return {**json.loads((paths.out / "result.json").read_text(encoding="utf-8")),
-                    "already_finished": done}
+        saved = _saved_result(paths.out)
+        if done and saved is not None and saved.get("touches") == state.touches:
+            return {**saved, "already_finished": done}  # finished: nothing to do or rewrite
     start_touch = state.touches
     seq_offset = next_seq - start_touch  # new rows continue from the last seq + 1
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
@@ -285,6 +285,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     state = loop.state
     result = None
     if error is None or state.touches:
+        save_belief(plan, state, paths.out / "belief.npz")  # before result.json, the last file
         result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
                                rng=np.random.default_rng(RESULTS_SEED), history=history.statuses,
                                truth=truth, true_rms_mm=true_rms.rms_mm if true_rms else None)
@@ -293,10 +294,17 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                 carried = {**carried, "disagreement": _disagreement(carried, surprises)}
             result = {**result, "prior_from": carried}
             write_json(paths.out / "result.json", result)
-        save_belief(plan, state, paths.out / "belief.npz")
     if error is not None:
         raise error
     return result
+
+
+def _saved_result(out: Path) -> dict | None:
+    """result.json, when it and belief.npz exist (result.json is written last: it marks the
+    results complete), else None."""
+    if not (out / "result.json").exists() or not (out / "belief.npz").exists():
+        return None
+    return json.loads((out / "result.json").read_text(encoding="utf-8"))
 
 
 def _progress(enabled: bool, cell: Cell, initial: int):

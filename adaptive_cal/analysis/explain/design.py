@@ -111,8 +111,10 @@ class Design:
 
 def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
     wp = cell.workplane
-    if len(rec) < MIN_ROWS_PER_ROUND:
-        raise RecordingError(f"{label}: {len(rec)} rows; explain needs at least "
+    fused = rec.select(rec.fused)
+    if len(fused) < MIN_ROWS_PER_ROUND:
+        raise RecordingError(f"{label}: {len(rec)} rows, {len(fused)} of them fused (the column "
+                             f"flags marks the others gated or rejected); explain needs at least "
                              f"{MIN_ROWS_PER_ROUND} per recording (tilt, one effect and the noise)")
     for c, lo, hi in (("x_mm", *wp.x_mm), ("y_mm", *wp.y_mm)):
         values = getattr(rec, c)
@@ -122,7 +124,7 @@ def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
             raise RecordingError(
                 f"{label}: touch seq {int(rec.seq[i])}: column {c} = {values[i]:g} lies outside "
                 f"the workplane {c} [{lo:g}, {hi:g}] of the cell file ({bad.size} such touches)")
-    if np.ptp(rec.x_mm) <= 0 or np.ptp(rec.y_mm) <= 0:
+    if np.ptp(fused.x_mm) <= 0 or np.ptp(fused.y_mm) <= 0:
         raise RecordingError(f"{label}: all touches share one x or one y: the tilt cannot be "
                              "calibrated (columns x_mm, y_mm)")
 
