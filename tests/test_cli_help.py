@@ -63,7 +63,7 @@ def test_options_with_a_unit_name_it(name, option, unit, capsys):
 
 def test_report_help(capsys):
     text = _help(["report"], capsys)
-    assert "DIR" in text and "(default: DIR/report.html)" in text and "(default: None)" not in text
+    assert "DIR" in text and "(default: DIR/report.html" in text and "(default: None)" not in text
 
 
 def _fails(argv, capsys, *expected):
