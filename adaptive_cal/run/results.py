@@ -99,8 +99,9 @@ def model_block(state: sv.SurveyState, status) -> dict:
     should not be trusted (``planning.adequacy``)."""
     if state.adequacy is None:
         return {"adequate": status.adequate, "checks": {}, "unresolved_rms_mm": 0.0,
-                "where": [], "summary": "not checked (too few fused readings, or nothing "
-                "learned)" if not status.adequate else "not checked (nothing learned)"}
+                "where": [], "summary": "model not checked yet (too few fused readings for "
+                "its self-checks)" if not status.adequate else "model not checked (the "
+                "hyper-parameters are not learned: fixed, or carried by --prior-from)"}
     return state.adequacy.as_dict()
 
 
