@@ -106,11 +106,18 @@ def stop_rule(cell: Cell, coefficients: int, *, informed_prior: bool = False) ->
     rule: StopRule = TouchBudget(s.max_touches)
     if bounds:
         bound = bounds[0] if len(bounds) == 1 else bounds[0] | bounds[1]
-        guard = (cell.model.learn_hyper and not informed_prior
-                 and cell.probe.noise_range_mm is None)
-        least = s.min_touches if s.min_touches is not None else (coefficients if guard else 0)
-        rule = (bound & AtLeast(least)) | rule
+        rule = (bound & AtLeast(touch_floor(cell, coefficients, informed_prior=informed_prior))
+                ) | rule
     return rule
+
+
+def touch_floor(cell: Cell, coefficients: int, *, informed_prior: bool = False) -> int:
+    """Touches before a bound may stop the run (``stop_rule``): plan.stop.min_touches, else the
+    number of coefficients while the hyper-parameters are learned without a stated noise range
+    and without an earlier belief, else 0."""
+    s = cell.plan.stop
+    guard = cell.model.learn_hyper and not informed_prior and cell.probe.noise_range_mm is None
+    return s.min_touches if s.min_touches is not None else (coefficients if guard else 0)
 
 
 def criterion(cell: Cell) -> str:

@@ -29,7 +29,8 @@ RECORDING_MAGIC = "# adaptive-cal recording v1"  # formats.recording.MAGIC (kept
 RECORDING_FORMAT = (
     "A recording is a UTF-8 CSV: first line '# adaptive-cal recording v1', more '#' lines of "
     "metadata, one header line with the columns seq, t_s, x_mm, y_mm, z_mm, reading_mm (more "
-    "may follow), then one row per touch. The format: docs/recording.md")
+    "may follow), then one row per touch; or a plain table whose first line names x_mm, y_mm "
+    "and reading_mm or height_mm. The format: docs/recording.md")
 
 
 def _first_line(path: Path) -> str:
@@ -53,7 +54,9 @@ def check_recording(path: str) -> None:
     if line.startswith("# adaptive-cal recording") and line != RECORDING_MAGIC:
         raise UserError(f"{p}: {line!r} is a recording version this adaptive-cal does not read. "
                         + RECORDING_FORMAT)
-    if line != RECORDING_MAGIC:
+    from adaptive_cal.formats.table import table_columns
+
+    if line != RECORDING_MAGIC and table_columns(line) is None:
         raise UserError(f"{p} is not an adaptive-cal recording (its first line is {line[:60]!r}). "
                         + RECORDING_FORMAT)
 

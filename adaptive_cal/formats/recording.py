@@ -28,6 +28,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from adaptive_cal.formats.table import read_table
+
 MAGIC = "# adaptive-cal recording v1"
 REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
 NOT_FUSED = frozenset({"gated", "rejected"})
@@ -114,10 +116,9 @@ def _number(text: str, *, where: str, blank_ok: bool = False) -> float:
     return value
 
 
-#: Limits of a readable recording: a cell's positions lie within 10 m, a probe's indication
-#: within 1 m, and a survey's touches number thousands (MAX_ROWS touches at 3 s each are 17 h).
-#: Beyond them a value is a typo or a unit error, and a file is not a recording this tool can
-#: analyse in memory: refused with the line, not turned into numbers.
+#: Limits of a readable recording: positions within 10 m, indications within 1 m, MAX_ROWS
+#: touches (17 h at 3 s each). Beyond them a value is a typo or a unit error and a file is not
+#: one this tool can analyse in memory: refused with the line, not turned into numbers.
 MAX_ABS_POSITION_MM = 1e4
 MAX_ABS_READING_MM = 1e3
 MAX_T_S = 1e8
@@ -166,8 +167,11 @@ def read_recording(path: str | os.PathLike) -> Recording:
             for lineno, line in enumerate(f, start=1):
                 line = line.rstrip("\n")
                 if lineno == 1:
-                    if line.strip() != MAGIC:
-                        raise RecordingError(f"{path}:1: first line must be {MAGIC!r}")
+                    if line.strip() != MAGIC:  # a plain table of x, y, reading (formats.table)?
+                        if (table := read_table(path, line)) is None:
+                            raise RecordingError(f"{path}:1: first line must be {MAGIC!r}"
+                                                 " (or a table's x_mm,y_mm,reading_mm)")
+                        return Recording(**table)
                     continue
                 if line.startswith("#"):
                     key, sep, value = line[1:].partition(":")

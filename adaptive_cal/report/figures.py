@@ -135,12 +135,15 @@ def surface_figure(x_grid_mm, y_grid_mm, mean_mm, std_mm, touches_xy_mm,
 
 
 def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
-                       bound_max_mm=None, true_rms_mm=None) -> Figure:
+                       bound_max_mm=None, true_rms_mm=None, refits=(), floor_touches=0) -> Figure:
     """Posterior std against touches: RMS/mean std and max std over the plate (um, log y).
 
     Bounds (stopping thresholds) are dashed horizontal lines in the colour of their curve;
     ``true_rms_mm`` (n,), the RMS of (posterior mean - true surface) when a simulated cell knows
-    the truth, is drawn as a dotted curve.
+    the truth, is drawn as a dotted curve. ``refits``: touch counts at which the
+    hyper-parameters were refitted (thin grey lines: the std may jump there, when the learned
+    form amplitude or noise changes); ``floor_touches``: no bound stops the run before this many
+    touches (a shaded band).
     """
     touches = np.asarray(touches, dtype=np.float64)
     fig = Figure(figsize=(7.0, 4.5), layout="constrained")
@@ -156,6 +159,12 @@ def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
     if true_rms_mm is not None:
         ax.plot(touches, np.asarray(true_rms_mm) * UM_PER_MM, ":", color="black",
                 label="true RMS error (simulated)")
+    for i, t in enumerate(refits):
+        ax.axvline(t, color="0.6", linewidth=0.7,
+                   label="hyper-parameters refitted (std may jump)" if i == 0 else None)
+    if floor_touches:
+        ax.axvspan(0, floor_touches, color="0.92", zorder=0,
+                   label=f"touch floor: no bound stops before {floor_touches} touches")
     ax.set_yscale("log")
     ax.set_xlabel("touches")
     ax.set_ylabel("posterior std (um)")

@@ -180,10 +180,16 @@ def run_loop(plan: SurveyPlan, state: sv.SurveyState, cycle: ProbeCycle, **optio
 
 
 class History:
-    """A hook keeping the status before the first touch and after each touch."""
+    """A hook keeping the status before the first touch and after each touch, and the touch
+    counts at which the hyper-parameters were refitted (the std may jump there)."""
 
-    def __init__(self, first: Status):
+    def __init__(self, first: Status, fitted_at: int = 0):
         self.statuses: list[Status] = [first]
+        self.refits: list[int] = []
+        self._fitted_at = fitted_at
 
     def __call__(self, step: Step) -> None:
         self.statuses.append(step.status)
+        if step.state.fitted_at != self._fitted_at:
+            self._fitted_at = step.state.fitted_at
+            self.refits.append(step.status.touches)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptive_cal.cell.build import plan_model
+from adaptive_cal.cell.build import plan_model, touch_floor
 from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
@@ -76,7 +76,7 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
 
 def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path,
                   stopped_because: str, *, rng: np.random.Generator, history=None, truth=None,
-                  true_rms_mm=None) -> dict:
+                  true_rms_mm=None, refits=()) -> dict:
     """result.json, surface.png and convergence.png in ``out``, each replaced whole (a temporary
     file moved over the old one); returns the result dict (non-finite numbers as None).
     ``rng`` draws the posterior samples of the intervals; ``history``: the status before the
@@ -88,7 +88,7 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     status = sv.status(plan, state)
     # the figures first: result.json, written last, marks the results complete (a kill while
     # drawing leaves the old result.json, so --resume does not take the run as finished)
-    write_figures(cell, plan, state, out, history or [status], true_rms_mm)
+    write_figures(cell, plan, state, out, history or [status], true_rms_mm, refits)
     write_json(out / "result.json", result)  # atomic; NaN / inf as null
     return finite_json(result)
 
@@ -106,9 +106,10 @@ def model_block(state: sv.SurveyState, status) -> dict:
 
 
 def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path, history,
-                  true_rms_mm=None) -> None:
+                  true_rms_mm=None, refits=()) -> None:
     """surface.png (mean and std maps, touches numbered by seq) and convergence.png (std against
-    touches; ``true_rms_mm`` per history entry when the truth is known)."""
+    touches; ``true_rms_mm`` per history entry when the truth is known; the refits (touch
+    counts) and the touch floor of the stop rule marked)."""
     from adaptive_cal.report import figures as plots
 
     wp = cell.workplane
@@ -124,7 +125,9 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
                                    np.array([s.mean_std_mm for s in h]),
                                    np.array([s.max_std_mm for s in h]),
                                    bound_mean_mm=stop.mean_std_mm, bound_max_mm=stop.max_std_mm,
-                                   true_rms_mm=true_rms_mm)
+                                   true_rms_mm=true_rms_mm, refits=refits,
+                                   floor_touches=touch_floor(cell, plan.model.form_surface.size,
+                                                             informed_prior=state.prior is not None))
     _save(fig, out / "convergence.png")
 
 

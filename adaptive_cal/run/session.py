@@ -234,7 +234,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                                                "probe_zero_mm": str(cell.probe.zero_mm)}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
     truth = opened.simulated.surface_mm if opened.simulated is not None else None
-    history = History(sv.status(plan, state))
+    history = History(sv.status(plan, state), state.fitted_at)
     hooks = [history]
     true_rms = TrueError(plan, state, truth) if truth is not None else None
     if true_rms is not None:
@@ -288,6 +288,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         save_belief(plan, state, paths.out / "belief.npz")  # before result.json, the last file
         result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
                                rng=np.random.default_rng(RESULTS_SEED), history=history.statuses,
+                               refits=history.refits,
                                truth=truth, true_rms_mm=true_rms.rms_mm if true_rms else None)
         if carried is not None:
             if stopped == PRIOR_DISAGREES:
