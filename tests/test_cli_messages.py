@@ -44,11 +44,15 @@ def test_a_recording_given_as_the_cell_file(tmp_path):
 
 def test_flatness_on_another_csv_says_what_a_recording_is(tmp_path):
     mine = tmp_path / "mine.csv"
-    mine.write_text("x,y,z\n0,0,0.01\n10,0,0.02\n")
+    mine.write_text("pos_a,pos_b,value\n0,0,0.01\n10,0,0.02\n")
     p = _cli("flatness", mine)
-    _fails(p, "mine.csv is not an adaptive-cal recording (its first line is 'x,y,z')",
+    _fails(p, "mine.csv is not an adaptive-cal recording (its first line is 'pos_a,pos_b,value')",
            "'# adaptive-cal recording v1'", "seq, t_s, x_mm, y_mm, z_mm, reading_mm",
+           "a plain table whose first line names x_mm, y_mm and reading_mm or height_mm",
            "docs/recording.md")
+    # a table that names x, y and a height is read as one (formats/table.py)
+    mine.write_text("x,y,z\n0,0,0.01\n10,0,0.02\n")
+    _fails(_cli("flatness", mine), "2 usable touches; flatness needs at least 4")
     assert (ROOT / "docs" / "recording.md").exists()
     _fails(_cli("flatness", tmp_path), "is a folder; give the recording file inside it")
 
