@@ -15,7 +15,7 @@ each record has the touches, robot time and travel at the strategy's own stop si
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -31,7 +31,7 @@ from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, run_loop
 from adaptive_cal.run.truth import state_truth_error
 from adaptive_cal.study.config import Study
-from adaptive_cal.study.designs import (Evaluator, grid_points, grid_sizes, learned_belief, level_tilt_mm,
+from adaptive_cal.study.designs import (Evaluator, grid_points, grid_sizes, level_tilt_mm,
                       paper_points, random_points)
 from adaptive_cal.study.plates import Plate, heights_at, truth
 
@@ -145,20 +145,33 @@ def _points(state: sv.SurveyState) -> list:
 
 # -- fixed designs, learned estimator -------------------------------------------------------------
 class _Learner:
-    """Beliefs of growing designs under the learned estimator (hyper-parameters carried)."""
+    """Beliefs of growing designs under the planner's own estimator: its survey plan, the
+    hyper-parameters learned (and carried from one checkpoint to the next), the self-checks,
+    the model's growth and the unresolved structure in the stds -- only the design differs."""
 
     def __init__(self, ctx: Context):
-        self.ctx, self.hyper = ctx, ctx.model.hyper0
+        self.ctx, self.plan, self.truth = ctx, survey_plan(ctx.cell), truth(ctx.cell)
+        self.hyper = self.plan.model.hyper0
 
     def figures(self, xy, heights) -> dict:
-        ctx = self.ctx
-        rows = ctx.model.surface.basis(xy[:, 0], xy[:, 1])
-        if len(xy) >= ctx.cell.plan.hyper_after:
-            belief, self.hyper = learned_belief(ctx.model, rows, heights, self.hyper)
+        """The four figures of ``Evaluator`` (stds with the unresolved structure) and
+        ``adequate``: the self-checks pass."""
+        plan = self.plan
+        state = sv.start(plan, hyper=self.hyper)
+        rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])
+        state = replace(state, rows=rows, heights_mm=np.asarray(heights, float),
+                        touches=len(xy))
+        if sv.learns(plan, state) and len(xy) >= plan.hyper_after:
+            state = sv.refit(plan, state)
+            self.hyper = state.hyper
         else:
-            belief = bl.condition(ctx.model.belief(self.hyper), rows, heights,
-                                  self.hyper.noise_std_mm**2)
-        return ctx.evaluator(belief, ctx.truth_eval)
+            state = replace(state, belief=bl.condition(state.belief, rows, state.heights_mm,
+                                                       state.noise_var))
+        status = sv.status(plan, state)
+        err = state_truth_error(plan, state, self.truth)
+        return {"mean_std_mm": status.mean_std_mm, "true_rms_mm": err["rms_error_mm"],
+                "true_max_mm": err["max_error_mm"], "coverage95": err["coverage95"],
+                "adequate": status.adequate}
 
 
 def _sequence(ctx: Context, name: str, xy: np.ndarray, checkpoints: list[int],
@@ -260,7 +273,7 @@ def run_grid(ctx: Context, target_true: float) -> dict:
         xy = grid_points(ctx.cell, nx, ny)
         fig = learner.figures(xy, heights_at(ctx.cell, xy))
         trajectory.append([len(xy), fig["mean_std_mm"], fig["true_rms_mm"]])
-        if stop is None and fig["mean_std_mm"] <= bound.mean_std_mm:
+        if stop is None and fig["mean_std_mm"] <= bound.mean_std_mm and fig["adequate"]:
             stop, final, best_xy = len(xy), fig, xy
         if fig["true_rms_mm"] <= target_true and true_xy is None:
             true_xy = xy
@@ -284,4 +297,4 @@ def run_random(ctx: Context, target_true: float) -> dict:
     checkpoints = list(range(plan.hyper_after, bound.max_touches + 1, plan.hyper_every))
     return _sequence(ctx, "random", xy, checkpoints,
                      lambda n, fig, h: "mean_std_bound" if fig["mean_std_mm"] <= bound.mean_std_mm
-                     else None, target_true)
+                     and fig["adequate"] else None, target_true)
