@@ -158,7 +158,7 @@ def judge(plan: SurveyPlan, state: SurveyState, x_mm: float, y_mm: float, z_mm: 
     row = _row(plan, x_mm, y_mm)
     unlearned = learns(plan, state) and not state.hyper_points
     pred = predictive(plan, state.belief, state.hyper, state.rows, state.heights_mm,
-                      state.weights, row, unlearned)
+                      state.fused_weights, row, unlearned)
     lo, hi = plan.usable_mm
     return gate_judge(pred, height, state.noise_var, plan.gate_sigma, state.retake, x_mm, y_mm,
                       z_mm, stroke_mm=hi - lo)
@@ -174,7 +174,7 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
     h = _row(plan, told.x_mm, told.y_mm)
     state = replace(state, rows=np.vstack([state.rows, h[None]]),
                     heights_mm=np.append(state.heights_mm, told.height_mm),
-                    weights=np.append(state.weights, told.weight))
+                    weights=np.append(state.fused_weights, told.weight))
     n = state.fused
     if learns(plan, state) and n >= plan.hyper_after and n - state.fitted_at >= plan.hyper_every:
         return refit(plan, state)
