@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from adaptive_cal.cell.build import plan_model, survey_plan
+from adaptive_cal.cell.build import plan_model, survey_plan, touch_floor
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.effects.frame import plane_in_corrected_frame
 from adaptive_cal.formats.recording import RecordingWriter, read_recording, repair_cut_row
@@ -241,7 +241,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         hooks.append(true_rms)
     bar = _progress(progress, cell, start_touch)
     if bar is not None:
-        hooks.append(lambda step: _update(bar, cell, step.status))
+        floor = touch_floor(cell, plan.model.form_surface.size, informed_prior=prior is not None)
+        hooks.append(lambda step: _update(bar, cell, step.status, floor))
 
     surprises = []  # seqs of readings confirmed by their retake far from the belief
 
@@ -317,12 +318,19 @@ def _progress(enabled: bool, cell: Cell, initial: int):
                 desc="touches", dynamic_ncols=True)
 
 
-def _update(bar, cell: Cell, s) -> None:
-    """The bar's text: each std with its bound and unit, e.g. ``mean std 3.9 um / bound 4.0 um``."""
-    stop, parts = cell.plan.stop, []
+def _update(bar, cell: Cell, s, floor: int = 0) -> None:
+    """The bar's text: each std with its bound and unit, e.g. ``mean std 3.9 um / bound 4.0 um``,
+    and why the run goes on when a bound is met (the touch floor, or a model the self-checks
+    call inadequate)."""
+    stop, parts, met = cell.plan.stop, [], False
     for what, value, bound in (("mean std", s.mean_std_mm, stop.mean_std_mm),
                                ("max std", s.max_std_mm, stop.max_std_mm)):
         parts.append(f"{what} {value * 1e3:.1f} um"
                      + (f" / bound {bound * 1e3:.1f} um" if bound else ""))
+        met = met or (bound is not None and value <= bound)
+    if met and s.touches < floor:
+        parts.append(f"bound met, going on to the touch floor of {floor}")
+    elif met and not s.adequate:
+        parts.append("bound met, going on: the model's self-checks fail")
     bar.set_postfix_str(", ".join(parts), refresh=False)
     bar.update(1)
