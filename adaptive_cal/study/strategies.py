@@ -16,6 +16,7 @@ each record has the touches, robot time and travel at the strategy's own stop si
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
@@ -47,13 +48,16 @@ class Context:
     evaluator: Evaluator
     truth_eval: np.ndarray
     eval_xy: np.ndarray
+    plan: SurveyPlan  # the cell's survey plan (the fixed designs' estimator, ``_Learner``)
+    truth_mm: Callable  # the plate's true height (mm) at x, y (mm)
 
     @classmethod
     def create(cls, study: Study, plate: Plate, cell: Cell) -> "Context":
         plan = survey_plan(cell)
         ev = Evaluator(plan.eval_rows, plan.gram, plan.model.surface.area_mm2)
-        t = truth(cell)(plan.eval_xy[:, 0], plan.eval_xy[:, 1])
-        return cls(study, plate, cell, plan.model, ev, t, plan.eval_xy)
+        truth_mm = truth(cell)
+        t = truth_mm(plan.eval_xy[:, 0], plan.eval_xy[:, 1])
+        return cls(study, plate, cell, plan.model, ev, t, plan.eval_xy, plan, truth_mm)
 
     def robot(self, xy) -> tuple[float, float]:
         """(robot time in s, travel in mm) of touching ``xy`` in order from the plate centre."""
@@ -150,7 +154,7 @@ class _Learner:
     the model's growth and the unresolved structure in the stds -- only the design differs."""
 
     def __init__(self, ctx: Context):
-        self.ctx, self.plan, self.truth = ctx, survey_plan(ctx.cell), truth(ctx.cell)
+        self.ctx, self.plan, self.truth = ctx, ctx.plan, ctx.truth_mm
         self.hyper = self.plan.model.hyper0
 
     def figures(self, xy, heights) -> dict:
