@@ -125,16 +125,13 @@ def _copy_cell(out: Path, cell_path: Path) -> None:
         return
     import yaml
 
-    from adaptive_cal.cell.files import load_yaml
-    from adaptive_cal.formats.heightmap import beside
+    from adaptive_cal.cell.schema import load_yaml, resolve_files
 
     data = load_yaml(cell_path)
-    sim = data.get("simulation") if isinstance(data, dict) else None
-    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str):
-        data["simulation"] = {**sim, "surface_file": str(Path(beside(sim["surface_file"],
-                                                                      cell_path)).resolve())}
+    resolved = resolve_files(data, cell_path)  # the map named relative to the cell file
+    if resolved is not data:
         text = (f"# copied from {cell_path} by adaptive-cal run; simulation.surface_file made "
-                "absolute\n" + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
+                "absolute\n" + yaml.safe_dump(resolved, sort_keys=False, allow_unicode=True))
         (out / "cell.yaml").write_text(text, encoding="utf-8")
         return
     shutil.copyfile(cell_path, out / "cell.yaml")
