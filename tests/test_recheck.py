@@ -11,10 +11,11 @@ from adaptive_cal.analysis.flatness import plane_tilt, tilt_correction_deg
 from adaptive_cal.cell.build import prior_model, survey_plan
 from adaptive_cal.cell.schema import ConfigError, load_yaml
 from adaptive_cal.cli import main
+from adaptive_cal.formats.recording import read_recording
 from adaptive_cal.effects.frame import (height_in_corrected_frame, plane_in_corrected_frame,
                                         rotation)
 from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.run import session
+from adaptive_cal.run import recheck, session
 from adaptive_cal.simulation.cell import SimulatedCell
 
 from helpers import ROOT, SIM_CELL, sim_cell
@@ -75,7 +76,7 @@ def test_corrected_belief_moves_the_plane_exactly_and_keeps_the_form():
     theta = np.array([0.014, 0.0019, 0.2])  # slopes and height at the plate centre
     rx, ry = tilt_correction_deg(0.014, 0.0019)
     cov = model.belief(model.hyper0).cov
-    out = session.corrected_belief(model, bl.Belief(p @ theta + form, cov), rx, ry)
+    out = recheck.corrected_belief(model, bl.Belief(p @ theta + form, cov), rx, ry)
     xc, yc = model.centre_mm
     a1, b1, c1 = plane_in_corrected_frame(*theta[:2], theta[2] - theta[0] * xc - theta[1] * yc,
                                           rx, ry)
@@ -245,3 +246,45 @@ def test_a_contradicted_recheck_does_not_advise_resume():
     assert "--resume" not in advice and "--correction-applied" in advice
     r["stopped_because"] = "interrupted"
     assert next_step(r, "adaptive-cal run --resume runs/x") == "Continue with adaptive-cal run --resume runs/x"
+
+
+def test_a_resumed_recheck_continues_from_the_recorded_prior(first_map, tmp_path):
+    """--resume of an interrupted re-check needs neither --prior-from nor --correction-applied:
+    the run folder records both at its start (recheck.PRIOR_RECORD). Resumed without them it
+    finishes as the uninterrupted re-check does and result.json names the same prior; a
+    different --prior-from or correction on resume is refused before any touch."""
+    out, first = first_map
+    t0 = first["tilt"]
+    cell = _corrected(t0["rx_deg"], t0["ry_deg"])
+    run_dir = tmp_path / "cut"
+    measured = (t0["rx_deg"], t0["ry_deg"])
+    r = session.run(cell, run_dir, prior_from=out, correction_applied=measured, progress=False,
+                    max_new_touches=2)
+    assert r["stopped_because"] == "interrupted" and r["touches"] == 2
+    record = json.loads((run_dir / recheck.PRIOR_RECORD).read_text())
+    assert record == {"run": str(out.resolve()), "correction_applied": list(measured)}
+    for prior, corr in ((tmp_path, measured), (out, "proposed")):
+        with pytest.raises(ValueError, match="resume it without --prior-from"):
+            session.run(cell, run_dir, resume=True, prior_from=prior, correction_applied=corr,
+                        progress=False)
+    assert len(read_recording(run_dir / "recording.csv")) == 2  # nothing was touched
+    done = session.run(cell, run_dir, resume=True, progress=False)
+    assert done["stopped_because"] == "mean_std_bound" and 2 < done["touches"] <= 10
+    assert done["prior_from"] == {"run": str(out.resolve()), "assumed": "measured",
+                                  "correction_deg": {"rx": measured[0], "ry": measured[1]}}
+
+
+def test_cli_resume_of_a_recheck_says_what_it_continues(first_map, tmp_path, capsys):
+    out, first = first_map
+    cell = _corrected(first["tilt"]["rx_deg"], first["tilt"]["ry_deg"])
+    session.run(cell, tmp_path / "r", prior_from=out, progress=False, max_new_touches=1)
+    data = load_yaml(SIM_CELL)
+    data["simulation"].update(seed=RECHECK_SEED, frame_correction_deg={
+        "rx_deg": first["tilt"]["rx_deg"], "ry_deg": first["tilt"]["ry_deg"]})
+    (tmp_path / "r" / "cell.yaml").write_text(yaml.safe_dump(data))
+    rc = main(["run", "--resume", str(tmp_path / "r"), "--no-progress"])
+    printed = capsys.readouterr().out
+    assert rc == 0 and f"resuming the re-check from {out.resolve()}" in printed
+    rc = main(["run", "--resume", str(tmp_path / "r"), "--prior-from", str(tmp_path),
+               "--no-progress"])
+    assert rc != 0 and "resume it without --prior-from" in capsys.readouterr().err

@@ -29,7 +29,7 @@ def add_arguments(p) -> None:
 def command(args) -> int:
     from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.hardware.base import AdapterError
-    from adaptive_cal.run import session
+    from adaptive_cal.run import recheck, session
 
     if args.robot:
         check_cell_file(args.robot)
@@ -63,9 +63,16 @@ def command(args) -> int:
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
         created = (folders, before)
     correction = _correction(args)
+    if args.resume:
+        try:
+            was, c = recheck.saved_prior(out, True, args.prior_from, correction)
+        except ValueError as e:
+            raise UserError(str(e)) from None
+        if was is not None and not args.prior_from:
+            print(f"resuming the re-check from {was} (correction assumed applied: {c})")
     if args.prior_from:
         try:
-            c = session.applied_correction(Path(args.prior_from), correction)
+            c = recheck.applied_correction(Path(args.prior_from), correction)
         except ValueError as e:
             raise UserError(str(e)) from None
         print(f"re-check from {args.prior_from}: correction assumed applied ({c['assumed']}): "

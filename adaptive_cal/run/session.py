@@ -9,7 +9,6 @@ every touch and ``--resume`` continues it: no touch repeated, none lost.
 from __future__ import annotations
 
 import json
-import math
 import signal
 import warnings
 from contextlib import contextmanager
@@ -19,19 +18,18 @@ from typing import Callable
 
 import numpy as np
 
-from adaptive_cal.cell.build import plan_model, survey_plan, touch_floor
+from adaptive_cal.cell.build import survey_plan, touch_floor
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.effects.frame import plane_in_corrected_frame
 from adaptive_cal.formats.recording import RecordingWriter, read_recording, repair_cut_row
-from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock, write_json
 from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, History, Row, SurveyLoop
-from adaptive_cal.run.results import read_belief, save_belief, write_results
+from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_RECORD, PRIOR_SURPRISES,
+                                      disagreement, load_prior, saved_prior)
+from adaptive_cal.run.results import save_belief, write_results
 from adaptive_cal.run.truth import TrueError
 
 RESULTS_SEED = 0  # the posterior samples behind result.json's intervals
@@ -60,102 +58,6 @@ def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path
     t = rec.t_s[np.isfinite(rec.t_s)]
     next_seq = int(rec.seq[-1]) + 1 if len(rec) else 0
     return sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0, next_seq
-
-
-CORRECTION_RANGE_DEG = 10.0  # as simulation.frame_correction_deg
-# a re-check (--prior-from) stops after this many readings the gate flagged and their retakes
-# confirmed (flag "surprise"): the plate is not where the earlier belief, moved by the
-# correction assumed applied, puts it
-PRIOR_SURPRISES = 3
-PRIOR_DISAGREES = "prior_disagrees_with_readings"
-
-
-def applied_correction(run_dir: Path, correction: str | tuple[float, float] = "proposed") -> dict:
-    """The user-frame correction assumed applied since the run in ``run_dir``: ``"proposed"``
-    (its result.json tilt, rx_deg / ry_deg), ``"none"`` (not applied: its belief is used as is)
-    or (rx, ry) in deg (a measured applied correction). Returns the record result.json keeps:
-    {"run": ..., "correction_deg": {"rx": .., "ry": ..}, "assumed": proposed | none | measured}."""
-    run_dir = Path(run_dir)
-    if correction == "none":
-        rx, ry, assumed = 0.0, 0.0, "none"
-    elif correction == "proposed":
-        path = run_dir / "result.json"
-        try:
-            tilt = json.loads(path.read_text(encoding="utf-8"))["tilt"]
-            rx, ry = float(tilt["rx_deg"]), float(tilt["ry_deg"])
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            raise ValueError(f"{path}: no proposed tilt correction (tilt rx_deg, ry_deg) to "
-                             f"assume applied ({type(e).__name__}: {e}); pass the applied one "
-                             "as --correction-applied RX,RY (deg), or none") from None
-        assumed = "proposed"
-    elif isinstance(correction, str) or len(correction) != 2:
-        raise ValueError(f"correction {correction!r}: expected 'proposed', 'none' or (rx, ry) in deg")
-    else:
-        rx, ry = (float(v) for v in correction)
-        assumed = "measured"
-    if not all(math.isfinite(v) and abs(v) <= CORRECTION_RANGE_DEG for v in (rx, ry)):
-        raise ValueError(f"correction rx {rx} deg, ry {ry} deg: each must be finite and within "
-                         f"+-{CORRECTION_RANGE_DEG:g} deg")
-    return {"run": str(run_dir), "correction_deg": {"rx": rx, "ry": ry}, "assumed": assumed}
-
-
-def corrected_belief(model, belief: bl.Belief, rx_deg: float, ry_deg: float) -> bl.Belief:
-    """The belief in the user frame corrected by rotx(rx) roty(ry) (``effects.frame``: about the
-    frame's origin). The mean's plane theta = (s_x, s_y, c at the plate centre), its least-squares
-    plane in coefficient space (theta = P^+ m, P = model.tilt_basis; exact when the mean is a
-    plane), is replaced by the same plane seen in the corrected frame, exactly
-    (``plane_in_corrected_frame``); the form is kept (its change is second order: below 1e-4 of
-    the form height for a 1 deg correction). The covariance goes through the map's Jacobian
-    A = I + P (J - I) P^+, J the plane map's 3 x 3 Jacobian (central differences)."""
-    p = model.tilt_basis
-    pinv = np.linalg.pinv(p)
-    xc, yc = model.centre_mm
-
-    def mapped(theta):
-        sx, sy, c = theta
-        a, b, c0 = plane_in_corrected_frame(sx, sy, c - sx * xc - sy * yc, rx_deg, ry_deg)
-        return np.array([a, b, c0 + a * xc + b * yc])
-
-    theta = pinv @ belief.mean
-    steps = np.array([1e-6, 1e-6, 1e-6])
-    jac = np.column_stack([(mapped(theta + h) - mapped(theta - h)) / (2 * h[i])
-                           for i, h in enumerate(np.diag(steps))])
-    a = np.eye(len(belief.mean)) + p @ (jac - np.eye(3)) @ pinv
-    cov = a @ belief.cov @ a.T
-    return bl.Belief(belief.mean + p @ (mapped(theta) - theta), 0.5 * (cov + cov.T))
-
-
-def load_prior(run_dir: Path, cell: Cell, correction: str | tuple[float, float] = "proposed"
-               ) -> tuple[bl.Belief, Hyper, dict]:
-    """An earlier run's belief, moved into the user frame corrected since (``correction``, see
-    ``applied_correction``; default: the correction that run proposed), then widened by the
-    drift allowance d = plan.drift_std_mm: the plate may have moved rigidly since (offset std
-    d, slopes std d over half the plate diagonal) and its form may have changed by a quarter of
-    that (form std d / 4, same length scale). A routine re-check then needs a handful of
-    touches. Returns the belief, the hyper-parameters and the ``applied_correction`` record."""
-    earlier, hyper = read_belief(run_dir, cell)
-    info = applied_correction(run_dir, correction)
-    model = plan_model(cell)
-    if info["assumed"] != "none":
-        earlier = corrected_belief(model, earlier, info["correction_deg"]["rx"],
-                                   info["correction_deg"]["ry"])
-    d = cell.plan.drift_std_mm
-    wp = cell.workplane
-    half = 0.5 * math.hypot(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
-    drift = type(model)(model.surface, d / half, d, model.centre_mm, hyper)
-    extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
-    return bl.widen(earlier, extra), hyper, info
-
-
-def _disagreement(carried: dict, surprises: list[int]) -> str:
-    """Why a re-check stopped early, and what to do, in one sentence for the terminal."""
-    c = carried["correction_deg"]
-    return (f"the plate is not where the earlier run's belief puts it in the frame assumed "
-            f"({carried['assumed']}: rx {c['rx']:+.4f} deg, ry {c['ry']:+.4f} deg): "
-            f"{len(surprises)} readings (seq {', '.join(map(str, surprises))}) were confirmed by "
-            "their retake far outside its band. Not a result: give the correction that was "
-            "really applied (--correction-applied proposed | none | RX,RY), or map from scratch "
-            "without --prior-from")
 
 
 @contextmanager
@@ -213,8 +115,12 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                               "another --out")
     if resume and not paths.recording.exists():
         raise FileNotFoundError(f"{paths.recording}: nothing to resume")
+    prior_from, correction_applied = saved_prior(paths.out, resume, prior_from, correction_applied)
     prior, hyper, carried = (load_prior(Path(prior_from), cell, correction_applied)
                              if prior_from else (None, None, None))
+    if carried is not None and not resume:  # so --resume continues the re-check without both flags
+        write_json(paths.out / PRIOR_RECORD, {"run": str(Path(prior_from).resolve()),
+                                              "correction_applied": correction_applied})
     plan = survey_plan(cell, informed_prior=prior is not None)
     state = sv.start(plan, prior=prior, hyper=hyper)
     start_t, next_seq = 0.0, 0
@@ -293,7 +199,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                                truth=truth, true_rms_mm=true_rms.rms_mm if true_rms else None)
         if carried is not None:
             if stopped == PRIOR_DISAGREES:
-                carried = {**carried, "disagreement": _disagreement(carried, surprises)}
+                carried = {**carried, "disagreement": disagreement(carried, surprises)}
             result = {**result, "prior_from": carried}
             write_json(paths.out / "result.json", result)
     if error is not None:
