@@ -56,6 +56,7 @@ def run_one(job: tuple[dict, int]) -> dict:
             "params_std": chosen["params_std"] if chosen else None,
             "log_bayes_factor": chosen["log_bayes_factor"] if chosen else None,
             "left_out": [e["effect"] for e in f["left_out"]],
+            "candidates": {c["effect"]: c["log_bayes_factor"] for c in f["candidates"]},
             "suspect_readings": f["suspect_readings"],
             "suspects_found": [_key(s) for s in f["suspect_readings"]],
             "unexplained_axis": (f.get("unexplained") or {}).get("axis"),
