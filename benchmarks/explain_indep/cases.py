@@ -70,8 +70,9 @@ def build(spec: dict, seed: int) -> Case:
     key = spec_key(spec)
     rng = np.random.default_rng([seed, *key.encode()])
     design = spec["design"]
-    if design == "mixed":
-        design = str(rng.choice(["s_path", "raster", "random", "edge"]))
+    if design == "mixed":  # a design on which every effect of the case is visible
+        design = str(rng.choice([d for d in ("s_path", "raster", "random", "edge")
+                                 if not any((e, d) in INVISIBLE for e in spec["effects"])]))
     rounds = spec["rounds"] or int(rng.integers(2, 4))
     effects = [f"form:{FORM_KINDS[spec['i'] % 3]}" if e == "form" else e for e in spec["effects"]]
     return generate(spec["family"], tuple(effects), spec["sigma"], design, rng,

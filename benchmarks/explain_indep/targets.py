@@ -74,8 +74,12 @@ def report(records: list[dict], threshold: float) -> list[str]:
         k, n = _share(recs, lambda r: r["verdict"] in LIBRARY)
         lo, hi = wilson(k, n)
         unexp = sum(r["verdict"] == "unexplained" for r in recs)
+        strong = sum(r["verdict"] in LIBRARY and r["probability"] >= 0.5 for r in recs)
+        named = f"{strong} at p >= 0.5: " + ", ".join(f"{r['verdict']} p {r['probability']:.2f}" for r in recs
+                          if r["verdict"] in LIBRARY)
         out.append(_line(f"false positives {fam}", f"{k}/{n} = {k / max(n, 1):.1%} "
-                         f"[{lo:.1%}, {hi:.1%}]; unexplained {unexp}", k / max(n, 1) <= 0.05,
+                         f"[{lo:.1%}, {hi:.1%}]; unexplained {unexp}"
+                         + (f"; named: {named}" if named else ""), k / max(n, 1) <= 0.05,
                          "<= 5 %"))
     spikes = [r for r in ok if r["family"] == "null_spike"]
     if spikes:
@@ -113,8 +117,10 @@ def report(records: list[dict], threshold: float) -> list[str]:
         cell = [r for r in lo4 if truth_names(r)[0] == eff]
         k, n = _share(cell, right)
         bound = np.mean([power_bound(4.0, eff, threshold) for _ in cell])
-        out.append(_line(f"4 sigma {eff}", f"right {k}/{n} = {k / n:.1%}, power bound "
-                         f"{bound:.1%}", None, "report beside the bound"))
+        det = sum((r.get("candidates") or {}).get(eff, -np.inf) > threshold for r in cell)
+        out.append(_line(f"4 sigma {eff}", f"right {k}/{n} = {k / n:.1%}; its log BF > "
+                         f"{threshold:g} in {det}/{n}; power bound {bound:.1%}", None,
+                         "report beside the bound"))
     warm = [r for r in ok if r["family"] == "warmup"]
     if warm:
         k, n = _share(warm, lambda r: r["verdict"] == "thermal_drift")
@@ -167,6 +173,12 @@ def calibration(ok: list[dict]) -> list[str]:
         name = f"verdicts at p in [{lo:g}, {min(hi, 1):g}{']' if hi > 1 else ')'}"
         out.append(_line(name, text, None if target is None else wrong / max(n, 1) <= target,
                          f"<= {target:.0%} wrong" if target is not None else "-"))
+        lib = [r for r in cell if r["verdict"] in LIBRARY or r["verdict"] == "none"]
+        out.append(f"        of them naming a library effect or none: "
+                   f"{sum(not right(r) for r in lib)}/{len(lib)} wrong")
+        if lo >= 0.9:
+            out += [f"        wrong: {r['key']} -> {r['verdict']} p {r['probability']:.3f}"
+                    for r in cell if not right(r)]
     hits: dict[str, list[bool]] = {}
     for r in ok:
         if r["family"] not in ("single", "warmup", "rounds_shared_form") or not right(r):
@@ -178,10 +190,14 @@ def calibration(ok: list[dict]) -> list[str]:
                 continue
             est, sd = float(params[name]), float(stds.get(name, 0.0))
             hits.setdefault(f"{truth['effect']}.{name}", []).append(
-                abs(est - truth[name]) <= 2.0 * sd)
+                (abs(est - truth[name]) <= 2.0 * sd, (est - truth[name]) / sd if sd > 0
+                 else np.inf * np.sign(est - truth[name]), (est - truth[name]) / truth[name]))
     for key in sorted(hits):
-        h = hits[key]
-        share = float(np.mean(h))
-        out.append(_line(f"2-sd interval covers {key}", f"{sum(h)}/{len(h)} = {share:.1%}",
+        h = np.array(hits[key], float)
+        share = float(np.mean(h[:, 0]))
+        out.append(_line(f"2-sd interval covers {key}", f"{int(h[:, 0].sum())}/{len(h)} = "
+                         f"{share:.1%}; median (est - truth) / sd {np.median(h[:, 1]):+.2f}"
+                         + ("" if key.endswith(("x_mm", "y_mm")) else
+                            f", median (est - truth) / truth {np.median(h[:, 2]):+.1%}"),
                          0.90 <= share <= 0.98, "90-98 %"))
     return out
