@@ -41,7 +41,7 @@ DESIGNS = ("s_path", "random")
 PROJECT_KINDS = ("none", "form", "arm_sag", "reversal", "local_defect", "thermal_drift",
                  "probe_gain")
 BINS = ((0.0, 0.5), (0.5, 0.9), (0.9, 0.99), (0.99, 1.01))
-EXPECT = {"null": "none", "bow": "form"}  # the verdict a kind should get (default: its name)
+EXPECT = {"null": "none", "bow": "form", "form_rounds": "form"}  # the verdict a kind should get (default: its name)
 # parameters whose truth the generators know (the effect table's names)
 CHECKED = {"form": ("pv_mm",), "arm_sag": ("sag_mm_at_1m", "p"), "reversal": ("span_mm",),
            "local_defect": ("height_mm",), "thermal_drift": ("rate_mm_per_s",),
@@ -52,7 +52,10 @@ def _row(kind: str, sigma: float, design: str, findings: dict, truth: dict) -> d
     expect = EXPECT.get(kind, kind)
     out = {"kind": kind, "sigma": sigma, "design": design, "verdict": findings["verdict"],
            "p": float(findings["verdict_probability"]), "right": findings["verdict"] == expect,
-           "checks": []}
+           "checks": [], "ambiguous_with": findings["ambiguous_with"],
+           "verdict_not_identifiable": [e.get("inside_span_of", e["aliased_with"]) for e in
+                                        findings["not_identifiable"]
+                                        if e["effect"] == findings["verdict"]]}
     if not out["right"] or expect == "none":
         return out
     entry = next(e for e in findings["left_out"] if e["effect"] == expect)
@@ -84,6 +87,16 @@ def open_runs(n: int, seed: int, tmp: Path) -> list[dict]:
                     cell_path, rec_path = gen.write(tmp, case)
                     f = explain([read_recording(rec_path)], load_cell(cell_path)).findings
                     out.append(_row(kind, sigma, design, f, gen.pattern_truth(kind, case)))
+    for sigma in (6.0, 10.0):  # three rounds sharing one form: never arm_sag without ambiguity
+        for s in range(n):
+            recs = []
+            for r in range(3):
+                case = gen.recording("form", np.random.default_rng([seed, 50, int(sigma), s, r]),
+                                     sigma, shape_rng=np.random.default_rng([seed, 51, s]))
+                cell_path, rec_path = gen.write(tmp, case, name=f"r{r}.csv")
+                recs.append(read_recording(rec_path))
+            f = explain(recs, load_cell(cell_path)).findings
+            out.append(_row("form_rounds", sigma, "s_path x 3 rounds", f, {}))
     return out
 
 
@@ -149,6 +162,13 @@ def main() -> None:
         print(f"== generator {gname}: {len(sel)} recordings")
         print("\n".join(reliability(sel)))
         print("\n".join(coverage(sel)))
+        listed = [r for r in sel if r["verdict_not_identifiable"] and not r["ambiguous_with"]]
+        print(f"verdict listed as not identifiable with no ambiguous_with: {len(listed)} "
+              f"(of {sum(r['verdict'] not in ('none', 'unexplained') for r in sel)} named)")
+        rounds = [r for r in sel if r["kind"] == "form_rounds"]
+        if rounds:
+            print(f"rounds sharing a form: {sum(r['right'] for r in rounds)} of {len(rounds)} form, "
+                  f"arm_sag without form in ambiguous_with: {sum(r['verdict'] == 'arm_sag' and 'form' not in r['ambiguous_with'] for r in rounds)}")
         wrong_sure = [r for r in sel if not r["right"] and r["p"] >= 0.9]
         for r in wrong_sure[:12]:
             print(f"  wrong at p {r['p']:.3f}: {r['kind']} {r['sigma']:g} sigma {r['design']} "

@@ -104,15 +104,17 @@ def pattern(kind: str, rng: np.random.Generator, x, y) -> tuple[np.ndarray, dict
     if kind == "bow":  # a bow along x or y (or both), no twist: the reference cell's shape
         w = rng.normal(size=2)
         return w[0] * u * u + w[1] * v * v, {"weights": [float(w[0]), float(w[1]), 0.0]}
-    if kind == "local_defect":  # cosine bell, radius 25-60 mm, reaching two touches
-        radius = float(rng.uniform(25.0, 60.0))
-        for _ in range(1000):  # a bump two touches see well (a bump one touch sees is a spike)
+    if kind == "local_defect":  # cosine bell, radius 25-60 mm
+        for _ in range(1000):  # a bump two touches see well: at least two carry a quarter of
+            # its height and none more than half of its sum of squares (one touch: a spike)
+            radius = float(rng.uniform(25.0, 60.0))
             cx = float(rng.uniform(x.min() + 0.5 * radius, x.max() - 0.5 * radius))
             cy = float(rng.uniform(y.min() + 0.5 * radius, y.max() - 0.5 * radius))
             d = np.hypot(x - cx, y - cy) / radius
-            if np.count_nonzero(d < 0.6) >= 2:
+            bell = np.where(d < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(d, 1.0))), 0.0)
+            w2 = bell * bell
+            if np.count_nonzero(bell >= 0.25) >= 2 and w2.max() <= 0.5 * w2.sum():
                 break
-        bell = np.where(d < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(d, 1.0))), 0.0)
         return bell, {"x_mm": cx, "y_mm": cy, "radius_mm": radius}
     if kind == "thermal_drift":  # a linear drift: reading change rate x t
         return TOUCH_S * np.arange(x.size), {}
