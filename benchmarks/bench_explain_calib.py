@@ -35,16 +35,18 @@ from adaptive_cal.analysis.explain import explain  # noqa: E402
 from adaptive_cal.cell.schema import load_cell  # noqa: E402
 from adaptive_cal.formats.recording import read_recording  # noqa: E402
 
-OPEN_KINDS = ("null", "form", "bow", "arm_sag", "reversal", "local_defect", "thermal_drift")
+OPEN_KINDS = ("null", "form", "bow", "arm_sag", "reversal", "local_defect", "thermal_drift",
+              "warmup")
 SIGMAS = (4.0, 6.0, 10.0)
 DESIGNS = ("s_path", "random")
 PROJECT_KINDS = ("none", "form", "arm_sag", "reversal", "local_defect", "thermal_drift",
                  "probe_gain")
 BINS = ((0.0, 0.5), (0.5, 0.9), (0.9, 0.99), (0.99, 1.01))
-EXPECT = {"null": "none", "bow": "form", "form_rounds": "form"}  # the verdict a kind should get (default: its name)
+EXPECT = {"null": "none", "bow": "form", "form_rounds": "form", "warmup": "thermal_drift"}  # the verdict a kind should get (default: its name)
 # parameters whose truth the generators know (the effect table's names)
 CHECKED = {"form": ("pv_mm",), "arm_sag": ("sag_mm_at_1m", "p"), "reversal": ("span_mm",),
-           "local_defect": ("height_mm",), "thermal_drift": ("rate_mm_per_s",),
+           "local_defect": ("height_mm",),
+           "thermal_drift": ("rate_mm_per_s", "amplitude_mm", "tau_s"),
            "probe_gain": ("gain",)}
 
 

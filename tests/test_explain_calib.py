@@ -130,3 +130,12 @@ def test_verdict_probability_gives_back_the_occam_part_only_where_a_runner_up_fi
     assert robust[1] < plain[1]  # form (index 2 of none, sag, form) fits as well: odds tempered
     gap = cs[0].log_bf - cs[1].log_bf
     assert np.log(robust[1] / robust[2]) == pytest.approx(max(gap - 2.0, 0.0), abs=0.7)
+
+
+def test_a_named_bump_is_not_also_listed_as_not_identifiable(tmp_path):
+    """Issue 15 item 5: the verdict is never in ``not_identifiable`` where nothing is
+    ``ambiguous_with`` it (before: local_defect's coverage note listed it on random designs)."""
+    rng = np.random.default_rng([0, 5, 10, 1, 0])
+    f = _findings(tmp_path, gen.recording("local_defect", rng, 10.0, xy=gen.random_path(rng)))
+    assert f["verdict"] == "local_defect" and f["ambiguous_with"] == []
+    assert all(e["effect"] != "local_defect" for e in f["not_identifiable"])

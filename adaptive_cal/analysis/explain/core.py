@@ -191,6 +191,16 @@ def _screened(design: Design):
     return scored, ctx, cands, suspects
 
 
+def _separated(entries: list[dict], verdict: str, ambiguous: list[str]) -> list[dict]:
+    """The verdict is never listed as not identifiable where the data separated it (nothing is
+    ``ambiguous_with`` it): a named bump is not also "not identifiable" for the design's
+    coverage (a smaller one may still sit between touches; the coverage note stays for bumps
+    when local_defect is not the verdict)."""
+    if ambiguous:
+        return entries
+    return [e for e in entries if e["effect"] != verdict or e.get("not_testable")]
+
+
 def explain_design(design: Design, *, threshold: float = THRESHOLD,
                    rng: np.random.Generator | int = 0, identifiability: bool = True) -> Explanation:
     """Run the whole analysis on a built design (see ``explain`` for recordings and a cell).
@@ -245,8 +255,8 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         "suspect_readings": suspects,
         "readings": {"total": design.n + len(suspects), "used": design.n,
                      "suspect": len(suspects)},
-        "not_identifiable": (not_identifiable(ctx, sigma, verdict=verdict, ambiguous=tuple(
-            ambiguous)) if identifiability else []),
+        "not_identifiable": (_separated(not_identifiable(ctx, sigma, verdict=verdict, ambiguous=tuple(
+            ambiguous)), verdict, ambiguous) if identifiability else []),
         "mismatch": locate(ctx),
         "fit": {"rms_before_mm": rms(before), "rms_after_mm": rms(after),
                 "cv_rms_before_mm": rms(loo0), "cv_rms_after_mm": rms(loo1),
