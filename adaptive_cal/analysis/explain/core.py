@@ -4,7 +4,9 @@ The verdict is the candidate with the largest evidence (the most probable effect
 decision) when its log Bayes factor against ``none`` exceeds ``THRESHOLD`` (calibrated on null
 recordings, benchmarks/bench_explain.py); otherwise ``none``. A tool that names the wrong physics
 with confidence is worse than none, so the findings say how sure they are: ``verdict_probability``
-(posterior probability of the verdict: none has prior 1/2, the candidates share the other half) and
+(posterior probability of the verdict: none has prior 1/2, the candidates share the other half;
+``verdict_probabilities`` gives back to a runner-up that fits as well the part of the lead that is
+only its prior's Occam factor, up to ``OCCAM_NATS``) and
 ``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
 plate design arm_sag and form are the usual pair).
 
