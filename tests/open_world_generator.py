@@ -28,6 +28,9 @@ BASE = (-700.0, -100.0)
 TOUCH_S = 4.0
 NX, NY = 16, 8
 KINDS = ("null", "form", "arm_sag", "reversal", "ripple", "backlash_y")
+# added for the calibration benchmark (benchmarks/bench_explain_calib.py); the kinds above keep
+# their output: the new branches draw from the generator only when they are asked for
+CALIBRATION_KINDS = ("bow", "local_defect", "thermal_drift", "warmup")
 
 CELL_YAML = f"""name: open-world generator cell
 workplane:
@@ -98,15 +101,75 @@ def pattern(kind: str, rng: np.random.Generator, x, y) -> tuple[np.ndarray, dict
         return np.sin(2 * np.pi * x / 50.0 + phase), {"wavelength_mm": 50.0}
     if kind == "backlash_y":
         return 0.5 * arrival(y), {}
+    if kind == "bow":  # a bow along x or y (or both), no twist: the reference cell's shape
+        w = rng.normal(size=2)
+        return w[0] * u * u + w[1] * v * v, {"weights": [float(w[0]), float(w[1]), 0.0]}
+    if kind == "local_defect":  # cosine bell, radius 25-60 mm
+        for _ in range(1000):  # a bump two touches see well: at least two carry a quarter of
+            # its height and none more than half of its sum of squares (one touch: a spike)
+            radius = float(rng.uniform(25.0, 60.0))
+            cx = float(rng.uniform(x.min() + 0.5 * radius, x.max() - 0.5 * radius))
+            cy = float(rng.uniform(y.min() + 0.5 * radius, y.max() - 0.5 * radius))
+            d = np.hypot(x - cx, y - cy) / radius
+            bell = np.where(d < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(d, 1.0))), 0.0)
+            w2 = bell * bell
+            if np.count_nonzero(bell >= 0.25) >= 2 and w2.max() <= 0.5 * w2.sum():
+                break
+        return bell, {"x_mm": cx, "y_mm": cy, "radius_mm": radius}
+    if kind == "thermal_drift":  # a linear drift: reading change rate x t
+        return TOUCH_S * np.arange(x.size), {}
+    if kind == "warmup":  # an exponential approach, time constant a tenth to a half of the run
+        run = TOUCH_S * max(x.size - 1, 1)
+        tau = float(rng.uniform(0.1, 0.5)) * run
+        return -np.expm1(-TOUCH_S * np.arange(x.size) / tau), {"tau_s": tau}
     return np.zeros_like(x), {}
 
 
+def pattern_truth(kind: str, case: dict) -> dict:
+    """The parameters of a case in DESIGN.md's effect table (names, units and signs), from the
+    drawn shape and its scale: form pv_mm over the workplane, arm_sag sag_mm_at_1m and p,
+    reversal span_mm, local_defect height_mm (and centre, radius), thermal_drift rate_mm_per_s
+    or amplitude_mm and tau_s."""
+    s, t = case["scale_mm"], case["truth"]
+    if kind in ("form", "bow"):
+        g = np.linspace(-1.0, 1.0, 201)
+        u, v = np.meshgrid(g, g, indexing="ij")
+        w = t["weights"]
+        h = s * (w[0] * u * u + w[1] * v * v + w[2] * u * v)
+        return {"pv_mm": float(h.max() - h.min())}
+    if kind == "arm_sag":
+        return {"sag_mm_at_1m": s, "p": t["p"]}
+    if kind == "reversal":
+        return {"span_mm": s}
+    if kind == "local_defect":
+        return {"height_mm": s, **t}
+    if kind == "thermal_drift":
+        return {"rate_mm_per_s": s}
+    if kind == "warmup":
+        return {"amplitude_mm": s, "tau_s": t["tau_s"]}
+    return {}
+
+
+def random_path(rng: np.random.Generator, n: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """n touches uniform over the workplane (10 mm in from its edge), taken in a greedy
+    nearest-neighbour order from the first."""
+    x = rng.uniform(X_RANGE[0] + 10, X_RANGE[1] - 10, n)
+    y = rng.uniform(Y_RANGE[0] + 10, Y_RANGE[1] - 10, n)
+    order, left = [0], list(range(1, n))
+    while left:
+        j = min(left, key=lambda i: (x[i] - x[order[-1]]) ** 2 + (y[i] - y[order[-1]]) ** 2)
+        order.append(j), left.remove(j)
+    return x[order], y[order]
+
+
 def recording(kind: str, rng: np.random.Generator, sigma: float = 10.0,
-              columns: bool | None = None, shape_rng: np.random.Generator | None = None) -> dict:
+              columns: bool | None = None, shape_rng: np.random.Generator | None = None,
+              xy: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """One recording: readings, design and truth. ``columns``: the column-wise serpentine
-    (default: only for backlash_y)."""
+    (default: only for backlash_y); ``xy``: the touches in the order taken, instead of a grid."""
     columns = (kind == "backlash_y") if columns is None else columns
-    x, y = grid_path(columns)
+    x, y = grid_path(columns) if xy is None else (np.asarray(xy[0], float),
+                                                   np.asarray(xy[1], float))
     n = x.size
     h = rng.normal(0, 1e-4) * x + rng.normal(0, 1e-4) * y + rng.normal(0, 0.1)
     shape, truth = pattern(kind, shape_rng or rng, x, y)  # shape_rng: rounds sharing one shape

@@ -4,7 +4,9 @@ The verdict is the candidate with the largest evidence (the most probable effect
 decision) when its log Bayes factor against ``none`` exceeds ``THRESHOLD`` (calibrated on null
 recordings, benchmarks/bench_explain.py); otherwise ``none``. A tool that names the wrong physics
 with confidence is worse than none, so the findings say how sure they are: ``verdict_probability``
-(posterior probability of the verdict: none has prior 1/2, the candidates share the other half) and
+(posterior probability of the verdict: none has prior 1/2, the candidates share the other half;
+``verdict_probabilities`` gives back to a runner-up that fits as well the part of the lead that is
+only its prior's Occam factor, up to ``OCCAM_NATS``) and
 ``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
 plate design arm_sag and form are the usual pair).
 
@@ -13,14 +15,15 @@ Readings that disagree with every probable model are suspect readings (``suspect
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.recording import Recording, RecordingError
-from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
+from adaptive_cal.analysis.explain.candidates import (Candidate, Context, averaged,
+                                                      score_candidates)
 from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design, build_design
 from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
 from adaptive_cal.analysis.explain.identify import not_identifiable
@@ -30,6 +33,7 @@ from adaptive_cal.analysis.explain.spans import covering
 from adaptive_cal.analysis.explain.structure import residual_structure
 from adaptive_cal.analysis.explain.suspects import SUSPECT, model_terms, suspect_probability
 
+Z95 = 1.959963984540054  # the normal 97.5 % quantile
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
 AMBIGUOUS = 1.0  # runner-ups within this many nats of the verdict are reported as ambiguous_with
 
@@ -47,10 +51,13 @@ class Explanation:
     residual_after: np.ndarray
 
 
-def effect_params(cand: Candidate, design: Design) -> tuple[dict, dict]:
+def effect_params(cand: Candidate, design: Design, *, intervals_95: bool = False):
     """Parameters and standard deviations in the effect table's names and signs.
 
-    Shared effects give numbers; effects fitted per round give one number per round.
+    Shared effects give numbers; effects fitted per round give one number per round. The sds
+    are calibrated (``intervals``): a searched effect's are averaged over its grid (form's pv_mm
+    keeps its delta-method sd; its interval is clipped at zero). ``intervals_95``: also return the
+    95 % intervals (name -> [low, high], per round a list of them) as a third value.
     """
     effect = effects.get(cand.effect)
     names = cand.names
@@ -58,23 +65,31 @@ def effect_params(cand: Candidate, design: Design) -> tuple[dict, dict]:
     blocks = 1 if cand.sharing == "shared" else design.rounds
     mean = cand.mean.reshape(blocks, k)
     std = np.sqrt(np.diag(cand.cov)).reshape(blocks, k)
-    params, stds = [], []
+    params, stds, ivs = [], [], []
     for b in range(blocks):
+        cov = cand.cov[b * k:(b + 1) * k, b * k:(b + 1) * k]
+        iv = {n: [float(m - Z95 * sd), float(m + Z95 * sd)] for n, m, sd in zip(names, mean[b], std[b])}
         if effect.derive is not None:  # form: pv_mm from the shape coefficients
             p, grads = effect.derive(mean[b], design.geometry)
-            cov = cand.cov[b * k:(b + 1) * k, b * k:(b + 1) * k]
             s = {n: float(np.sqrt(g @ cov @ g)) for n, g in grads.items()}
+            iv.update({n: [max(p[n] - Z95 * s[n], 0.0), p[n] + Z95 * s[n]] for n in grads})
         else:
             p, s = {}, {}
         p.update({n: float(v) for n, v in zip(names, mean[b])})
         s.update({n: float(v) for n, v in zip(names, std[b])})
+        s.update(cand.param_std)
+        iv.update(cand.interval_95)
         p.update(cand.fixed)
         s.update({n: cand.nonlinear_std.get(n, 0.0) for n in cand.fixed})
-        params.append(p), stds.append(s)
+        iv.update({n: [p[n] - Z95 * s[n], p[n] + Z95 * s[n]] for n in cand.fixed})
+        params.append(p), stds.append(s), ivs.append(iv)
     if blocks == 1:
-        return params[0], stds[0]
-    return ({n: [p[n] for p in params] for n in params[0]},
-            {n: [s[n] for s in stds] for n in stds[0]})
+        out = params[0], stds[0], ivs[0]
+    else:
+        out = ({n: [p[n] for p in params] for n in params[0]},
+               {n: [s[n] for s in stds] for n in stds[0]},
+               {n: [i[n] for i in ivs] for n in ivs[0]})
+    return out if intervals_95 else out[:2]
 
 
 def _summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
@@ -110,6 +125,28 @@ def model_probabilities(cands: list[Candidate]) -> np.ndarray:
     """Posterior over none and the candidates: none has prior 1/2, the candidates share the rest."""
     logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
     return np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
+
+
+OCCAM_NATS = 2.0  # the part of an evidence lead that is prior, not fit, is trusted only beyond this
+
+
+def verdict_probabilities(ctx: Context, cands: list[Candidate]) -> np.ndarray:
+    """``model_probabilities`` made robust to the effects' priors: where a runner-up fits the data
+    about as well as the best candidate (its residual sum of squares, at the posterior mean, is at
+    most the best's plus 2 v x its evidence deficit), the deficit is the Occam factor of its
+    prior (more parameters, a wider prior), not the data's word, and it is the least certain
+    part of the answer: up to ``OCCAM_NATS`` of that prior part is given back to the runner-up
+    (prior odds known within a factor e^2). sag inside form's span, a bow named arm_sag at
+    p 0.976 for its one parameter: the probability falls below 0.9."""
+    if not cands:
+        return model_probabilities(cands)
+    rss = np.array([float(np.sum((ctx.yt - ctx.project(c.columns) @ c.mean) ** 2)) for c in cands])
+    lbf = np.array([c.log_bf for c in cands])
+    b = int(np.argmax(lbf))
+    v = cands[b].noise_var
+    fit_gap = np.maximum(rss - rss[b], 0.0) / (2.0 * v)
+    lift = np.clip(lbf[b] - lbf - fit_gap, 0.0, OCCAM_NATS)
+    return model_probabilities([replace(c, log_bf=float(l)) for c, l in zip(cands, lbf + lift)])
 
 
 def _scored(design: Design) -> tuple[Design, Context, list[Candidate]]:
@@ -156,6 +193,16 @@ def _screened(design: Design):
     return scored, ctx, cands, suspects
 
 
+def _separated(entries: list[dict], verdict: str, ambiguous: list[str]) -> list[dict]:
+    """The verdict is never listed as not identifiable where the data separated it (nothing is
+    ``ambiguous_with`` it): a named bump is not also "not identifiable" for the design's
+    coverage (a smaller one may still sit between touches; the coverage note stays for bumps
+    when local_defect is not the verdict)."""
+    if ambiguous:
+        return entries
+    return [e for e in entries if e["effect"] != verdict or e.get("not_testable")]
+
+
 def explain_design(design: Design, *, threshold: float = THRESHOLD,
                    rng: np.random.Generator | int = 0, identifiability: bool = True) -> Explanation:
     """Run the whole analysis on a built design (see ``explain`` for recordings and a cell).
@@ -164,6 +211,8 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     change (the CLI's ``--seed``).
     """
     design, ctx, cands, suspects = _screened(design)
+    # the named candidates' sds and intervals averaged over their searched grids
+    cands = [averaged(ctx, c) if c.log_bf > threshold else c for c in cands]
     sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
     best = cands[0] if cands else None
     winner = best if best and best.log_bf > threshold else None
@@ -176,8 +225,9 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     for c in cands:
         if c.log_bf <= threshold:
             continue
-        params, stds = effect_params(c, design)
+        params, stds, iv95 = effect_params(c, design, intervals_95=True)
         left_out.append({"effect": c.effect, "params": params, "params_std": stds,
+                         "parameter_interval_95": iv95,
                          "log_bayes_factor": float(c.log_bf), "summary": _summary(c, params, stds, design),
                          "sharing": c.sharing})
     before = ctx.yt
@@ -193,7 +243,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     else:
         after, loo1 = before, loo0
     rms = lambda r: float(np.sqrt(np.mean(r ** 2)))
-    prob = model_probabilities(cands)
+    prob = verdict_probabilities(ctx, cands)
     ambiguous = [c.effect for c in cands if winner is not None and c is not winner
                  and c.log_bf > threshold and winner.log_bf - c.log_bf < AMBIGUOUS]
     ambiguous += [n for n in covering(ctx, winner, cands, threshold) if n not in ambiguous]
@@ -207,8 +257,8 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         "suspect_readings": suspects,
         "readings": {"total": design.n + len(suspects), "used": design.n,
                      "suspect": len(suspects)},
-        "not_identifiable": (not_identifiable(ctx, sigma, verdict=verdict, ambiguous=tuple(
-            ambiguous)) if identifiability else []),
+        "not_identifiable": (_separated(not_identifiable(ctx, sigma, verdict=verdict, ambiguous=tuple(
+            ambiguous)), verdict, ambiguous) if identifiability else []),
         "mismatch": locate(ctx),
         "fit": {"rms_before_mm": rms(before), "rms_after_mm": rms(after),
                 "cv_rms_before_mm": rms(loo0), "cv_rms_after_mm": rms(loo1),
