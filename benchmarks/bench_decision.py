@@ -3,12 +3,20 @@
 * ours: ``planner.variance_drop`` (one jit-compiled (N x K)(K x 2K) product) + argmax, and the
   whole ``ask()`` (planning.ask) (stroke check and gradient refinement included);
 * numpy: the same closed form in plain numpy (``planner.variance_drop_numpy``);
-* BoTorch: ``qNegIntegratedPosteriorVariance`` (256 integration points) maximised by
-  ``optimize_acqf`` (5 restarts, raw samples = the candidate count) on a GPyTorch exact GP whose
-  kernel is our spline prior k(p, p') = h(p)^T C0 h(p') with the same fixed noise -- the same
-  posterior as our belief -- and, on our candidate set, ``optimize_acqf_discrete``.
+* BoTorch: ``qNegIntegratedPosteriorVariance`` (256 scrambled Sobol integration points)
+  maximised by ``optimize_acqf`` (5 restarts) at its customary 256 raw samples and at raw
+  samples = the candidate count, on a GPyTorch exact GP whose kernel is our spline prior
+  k(p, p') = h(p)^T C0 h(p') with the same fixed noise -- the same posterior as our belief
+  (checked) -- on BoTorch's customary unit-square inputs; and, on our candidate set,
+  ``optimize_acqf_discrete``.
 
 Each choice is scored by the exact integrated variance J = trace(Q C') it leaves.
+
+Sequential: from the same 5 readings of the seeded simulated plate, each method chooses its
+touches in turn (readings from the same truth and noise stream, the belief / GP updated after
+each); J after every touch and the decision seconds; the time each method needs to reach the J
+ours (scoring + argmax) reaches after ``--touches`` touches, and its ratio to ours.
+
 Then: how our decision time grows with the coefficients (8 x 6 .. 24 x 20) and candidates.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_decision.py [--quick] [--no-botorch]
