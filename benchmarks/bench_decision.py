@@ -467,7 +467,7 @@ def print_sequential(seq: dict) -> None:
         print(f"| {SEQ_NAMES[name]} | {m['median_decision_s'] * 1e3:.1f} | "
               f"{'-' if j is None else f'{j:.6g}'} | "
               f"{reached} | "
-              f"{'-' if t is None else f'{t:.3f}'} | {'-' if r is None else f'{r:.0f}'} | "
+              f"{'-' if t is None else f'{t:.3f}'} | {'-' if r is None else f'{r:.2g}' if r < 10 else f'{r:.0f}'} | "
               f"{m['robot_time_s']:.0f} |")
     if "botorch_current_estimate" in seq:
         e = seq["botorch_current_estimate"]
