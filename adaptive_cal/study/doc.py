@@ -154,7 +154,16 @@ def targets_section(summary: dict, results: Path) -> str:
     dec = results / "decision.json"
     if dec.exists():
         d = json.loads(dec.read_text())
-        if "botorch_s" in d:
+        if "fair_ratio_vs_botorch" in d:
+            q = d["sequential"]
+            ok = d["fair_ratio_vs_botorch"] >= 100
+            lines.append(f"* decision latency >= 100 x lower than BoTorch at equal or smaller "
+                         f"integrated variance: {d['fair_ratio_vs_botorch']:.0f} x in decision "
+                         f"time to the same J ({q['J_target']:.6g} mm^4) over a {q['touches']}-touch "
+                         "sequence at BoTorch's customary settings; one decision "
+                         f"{d['speedup_vs_botorch_customary']:.0f} x, BoTorch's J "
+                         f"{d['botorch_customary_J']:.6g} against {d['ours_J']:.6g} mm^4 ({mark(ok)})")
+        elif "botorch_s" in d:
             ok = d["speedup_vs_botorch"] >= 100 and d["ours_J"] <= d["botorch_J"] * (1 + 1e-9)
             lines.append(f"* decision latency >= 100 x lower than BoTorch at equal or smaller "
                          f"integrated variance: {d['speedup_vs_botorch']:.0f} x (scoring), "
@@ -191,12 +200,16 @@ def benchmarks_section(results: Path) -> str:
         for name, t, j in (("ours: variance_drop + argmax (jit)", "ours_score_s", "ours_J"),
                            ("ours: ask (planning.ask, with refinement)", "ours_ask_s", "ours_ask_J"),
                            ("plain numpy, same closed form", "numpy_score_s", "numpy_J"),
-                           ("BoTorch qNIPV, optimize_acqf, 5 restarts, 256 points", "botorch_s",
-                            "botorch_J"),
+                           ("BoTorch qNIPV, optimize_acqf, customary: 256 raw samples, 5 "
+                            "restarts", "botorch_customary_s", "botorch_customary_J"),
+                           ("BoTorch qNIPV, optimize_acqf, raw samples = candidates, 5 restarts",
+                            "botorch_s", "botorch_J"),
                            ("BoTorch qNIPV, optimize_acqf_discrete on our candidates",
                             "botorch_discrete_s", "botorch_discrete_J")):
             if t in d:
                 lines.append(f"| {name} | {d[t] * 1e3:.1f} | {d[j]:.6g} |")
+        if "sequential" in d:
+            lines += ["", *_sequence_lines(d["sequential"])]
         if "scaling" in d:
             lines += ["", "| coefficients | candidates | ours (ms) | numpy (ms) |",
                       "|---|---|---|---|"]
@@ -223,6 +236,34 @@ def benchmarks_section(results: Path) -> str:
                   "workers beat 1 but not a single in-process run here; with more cores or "
                   "machines the workers add up."]
     return "\n".join(lines) + "\n"
+
+
+def _sequence_lines(q: dict) -> list[str]:
+    """bench_decision's sequential comparison: time to reach the same integrated variance."""
+    names = {"ours_score": "ours: variance_drop + argmax (jit)",
+             "ours_ask": "ours: ask (the product: time-aware, ordered for travel)",
+             "ours_ask_j_only": "ours: ask with time_aware off",
+             "botorch_customary": "BoTorch qNIPV, customary (256 raw samples, 5 restarts)"}
+    out = [f"A sequence of touches (the fair comparison): from the same {q['start_readings']} "
+           "readings each method chooses its touches in turn, readings drawn from the same truth "
+           f"and noise stream; target: the J our scoring reaches after {q['touches']} touches, "
+           f"{q['J_target']:.6g} mm^4 (within {q['rtol']:.1%}). BoTorch runs on a GP whose "
+           "kernel is our spline prior (posterior variances agree to "
+           f"{q['gp_posterior_max_rel_diff']:.0e}).", "",
+           "| method | median decision (ms) | touches to the target | decision time to the "
+           "target (s) | x ours | robot time of the touches (s) |", "|---|---|---|---|---|---|"]
+    for key, name in names.items():
+        m = q["methods"].get(key)
+        if m is None or m.get("time_to_target_s") is None:
+            continue
+        out.append(f"| {name} | {m['median_decision_s'] * 1e3:.1f} | {m['touches_to_target']} | "
+                   f"{m['time_to_target_s']:.3f} | {m['ratio_to_ours_score']:.3g} | "
+                   f"{m['robot_time_s']:.0f} |")
+    est = q.get("botorch_current_estimate")
+    if est:
+        out += ["", f"BoTorch with raw samples = the candidate count: about "
+                f"{est['time_to_target_s']:.0f} s to the target (estimated: {est['how']})."]
+    return out
 
 
 def _planner_probe(study: Study, base: dict):
