@@ -5,12 +5,17 @@ The figures against the targets are printed by benchmarks/bench_explain_speed.py
 """
 import numpy as np
 import pytest
+from scipy.special import logsumexp
 
 from adaptive_cal import effects
-from adaptive_cal.analysis.explain.candidates import Context
+from adaptive_cal.analysis.explain.candidates import (DEFECT_MAX_SHARE, DEFECT_MIN_TOUCHES,
+                                                      DEFECT_MIN_WEIGHT, Candidate, Context,
+                                                      nameable_reach, prior_grid, score_effect)
+from adaptive_cal.analysis.explain.evidence import log_evidence_columns_mixture
 from adaptive_cal.analysis.explain.design import build_design
 from adaptive_cal.analysis.explain.identify import _gap_touches
 from adaptive_cal.formats.recording import Recording
+from adaptive_cal.effects.plate import defect_regressor_sparse
 from adaptive_cal.simulation.concealed import WORKPLANE, ZERO_MM, generator_cell, serpentine
 
 
@@ -71,3 +76,116 @@ def test_gap_touches_equal_the_loop(contexts):
         assert fast["touches"] == slow["touches"], name
         assert fast["fill_distance_mm"] == slow["fill_distance_mm"], name
         assert fast["fill_distance_mm"] > 0.0
+
+
+def _nameable_reach_dense(X):
+    """The dense form before issue 15 item 8 (the reference)."""
+    w2 = X * X
+    total = w2.sum(axis=0)
+    lone = w2.max(axis=0, initial=0.0) > DEFECT_MAX_SHARE * np.maximum(total, 1e-300)
+    return np.where(lone, 0, np.count_nonzero(X >= DEFECT_MIN_WEIGHT, axis=0))
+
+
+def _centres_dense(ctx, effect):
+    """``candidates._centres`` before issue 15 item 8 (the reference): dense touches x centres
+    chunks, each projected."""
+    d = ctx.design
+    names = effect.searched
+    taus = prior_grid(effect, names)
+    records, classes = [], 0
+    chunk = max(1, int(min(2_000_000 // max(d.n, 1), 400_000 // taus.size)))
+    for radius in effect.grid(d.features, d.geometry)["radius_mm"]:
+        radius = float(radius)
+        gx, gy = effects.defect_centres(d.geometry, radius)
+        lz = np.empty(gx.size)
+        bt = np.empty(gx.size, int)
+        counts, named = [], []
+        for s in range(0, gx.size, chunk):
+            X = effects.defect_regressor_grid(d.features, gx[s:s + chunk], gy[s:s + chunk], radius)
+            seen = np.flatnonzero(_nameable_reach_dense(X) >= DEFECT_MIN_TOUCHES)
+            lz[s:s + chunk], bt[s:s + chunk] = ctx.log_z0, 0
+            counts.append(np.count_nonzero(X, axis=0))
+            named.append(np.isin(np.arange(X.shape[1]), seen))
+            if seen.size:
+                lz[s + seen], bt[s + seen] = log_evidence_columns_mixture(
+                    ctx.project(X[:, seen]), ctx.yt, taus, ctx.m)
+        ok = np.concatenate(counts) >= DEFECT_MIN_TOUCHES
+        logp = np.full(gx.size, -np.log(gx.size))
+        classes += int(np.count_nonzero(np.concatenate(named)))
+        logp = np.where(ok, logp - np.log(len(effect.grid(d.features, d.geometry)["radius_mm"])),
+                        -np.inf)
+        records.append((radius, gx, gy, lz, bt, logp, np.concatenate(named)))
+    prior_mass = float(logsumexp(np.concatenate([r[5] for r in records])))
+    if not np.isfinite(prior_mass) or not classes:
+        return None
+    total = float(logsumexp(np.concatenate([r[3] + r[5] for r in records])) - prior_mass)
+    logw = np.concatenate([np.where(r[6], r[3] + r[5], -np.inf) for r in records])
+    wts = np.exp(logw - logsumexp(logw))
+    allx = np.concatenate([r[1] for r in records])
+    ally = np.concatenate([r[2] for r in records])
+    allr = np.concatenate([np.full(r[1].size, r[0]) for r in records])
+    best = int(np.argmax(logw))
+    mean = {k: float(wts @ v) for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
+    std = {k: float(np.sqrt(wts @ (v - mean[k]) ** 2))
+           for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
+    fixed = {"x_mm": float(allx[best]), "y_mm": float(ally[best]), "radius_mm": float(allr[best])}
+    X = effect.regressor(d.features, d.geometry, fixed, names)
+    lz_best = max(float(r[3].max()) for r in records)
+    all_tau = np.concatenate([taus[r[4]] for r in records])
+    cand = Candidate(effect.name, total - ctx.log_z0, X, np.array([all_tau[best] ** 2]), names,
+                     fixed=fixed, nonlinear_mean=mean, nonlinear_std=std,
+                     look_elsewhere=lz_best - total, searched=int(classes))
+    return cand.fit_posterior(ctx)
+
+
+def test_sparse_defect_regressor_is_the_dense_one():
+    """The same numbers, entry for entry (exactly), and no stored zeros."""
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-200, 200, 500), rng.uniform(-150, 150, 500)
+    f = effects.Features(x, y, np.arange(500.0), np.zeros(500), np.zeros(500))
+    for radius in (15.0, 30.0, 60.0):
+        gx, gy = effects.defect_centres(generator_cell().geometry, radius)
+        dense = effects.defect_regressor_grid(f, gx, gy, radius)
+        sparse = defect_regressor_sparse(f, gx, gy, radius)
+        assert np.array_equal(sparse.toarray(), dense)
+        assert sparse.nnz == np.count_nonzero(dense) > 0
+        assert np.array_equal(nameable_reach(sparse), _nameable_reach_dense(dense))
+
+
+def _with_bump(recs, seed):
+    """The recordings with a 40 um bump of radius 30 mm near a touch of the first one."""
+    rng = np.random.default_rng(seed)
+    r0 = recs[0]
+    i = rng.integers(len(r0))
+    cx, cy = r0.x_mm[i] + 8.0, r0.y_mm[i] - 5.0
+    out = []
+    for r in recs:
+        bump = effects.local_defect.reading_change(
+            effects.Features(r.x_mm, r.y_mm, r.t_s, np.zeros(len(r)), np.zeros(len(r))),
+            {"x_mm": cx, "y_mm": cy, "height_mm": 0.04, "radius_mm": 30.0}, None)
+        out.append(Recording(r.seq, r.t_s, r.x_mm, r.y_mm, r.z_mm, r.reading_mm + bump,
+                             path=r.path))
+    return out
+
+
+@pytest.mark.parametrize("bump", [False, True])
+def test_centre_search_equals_the_dense_one(bump):
+    """``_centres`` (sparse bells, the projection from |x|^2 - |Q^T x|^2) against the dense
+    chunks it replaces: the same best centre and radius, the same number of nameable centres,
+    evidence and posterior to rounding, with and without a bump, on every design."""
+    cell = generator_cell()
+    for k, (name, recs) in enumerate(_designs().items()):
+        ctx = Context.of(build_design(_with_bump(recs, k) if bump else recs, cell))
+        fast = score_effect(ctx, effects.local_defect)
+        slow = _centres_dense(ctx, effects.local_defect)
+        if slow is None:
+            assert fast is None, name
+            continue
+        assert fast.fixed == slow.fixed and fast.searched == slow.searched, name
+        assert fast.log_bf == pytest.approx(slow.log_bf, rel=1e-9, abs=1e-9), name
+        assert fast.look_elsewhere == pytest.approx(slow.look_elsewhere, rel=1e-9, abs=1e-9)
+        for key in ("x_mm", "y_mm", "radius_mm"):
+            assert fast.nonlinear_mean[key] == pytest.approx(slow.nonlinear_mean[key], abs=1e-6)
+            assert fast.nonlinear_std[key] == pytest.approx(slow.nonlinear_std[key], abs=1e-6)
+        assert np.allclose(fast.mean, slow.mean, rtol=1e-9, atol=1e-12), name
+        assert np.array_equal(fast.prior_var, slow.prior_var), name
