@@ -14,6 +14,7 @@ from adaptive_cal.analysis.explain.candidates import (DEFECT_MAX_SHARE, DEFECT_M
 from adaptive_cal.analysis.explain.evidence import log_evidence_columns_mixture
 from adaptive_cal.analysis.explain.design import build_design
 from adaptive_cal.analysis.explain.identify import _gap_touches
+from adaptive_cal.analysis.explain.locate import where
 from adaptive_cal.formats.recording import Recording
 from adaptive_cal.effects.plate import defect_regressor_sparse
 from adaptive_cal.simulation.concealed import WORKPLANE, ZERO_MM, generator_cell, serpentine
@@ -189,3 +190,56 @@ def test_centre_search_equals_the_dense_one(bump):
             assert fast.nonlinear_std[key] == pytest.approx(slow.nonlinear_std[key], abs=1e-6)
         assert np.allclose(fast.mean, slow.mean, rtol=1e-9, atol=1e-12), name
         assert np.array_equal(fast.prior_var, slow.prior_var), name
+
+
+def _where_dense(ctx, residual, sigma_mm, top=3):
+    """``locate.where`` before issue 15 item 8 (the reference): the kernel at every touch."""
+    d = ctx.design
+    xy = np.unique(np.stack([d.features.x_mm, d.features.y_mm], 1), axis=0)
+    if len(xy) > 2000:
+        xy = xy[np.linspace(0, len(xy) - 1, 2000).astype(int)]
+    dist = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+    np.fill_diagonal(dist, np.inf)
+    h = float(np.median(dist.min(1))) if len(xy) > 1 else 1.0
+    (x0, x1), (y0, y1) = d.geometry.x_range_mm, d.geometry.y_range_mm
+    gx, gy = np.meshgrid(np.linspace(x0, x1, 46), np.linspace(y0, y1, 38), indexing="ij")
+    gx, gy = gx.ravel(), gy.ravel()
+    out = []
+    for s in range(0, gx.size, 400):
+        k = np.exp(-0.5 * ((gx[s:s + 400, None] - d.features.x_mm) ** 2
+                           + (gy[s:s + 400, None] - d.features.y_mm) ** 2) / h ** 2)
+        wsum = k.sum(1)
+        out.append(np.stack([k @ residual / np.maximum(wsum, 1e-300), wsum], 1))
+    sm = np.concatenate(out)
+    value, weight = sm[:, 0], sm[:, 1]
+    score = np.abs(value) * np.sqrt(weight)
+    score[weight < 0.5] = 0.0
+    peaks = []
+    total_ss = float(residual @ residual) or 1.0
+    for _ in range(top):
+        i = int(np.argmax(score))
+        if score[i] <= 0:
+            break
+        near = np.hypot(d.features.x_mm - gx[i], d.features.y_mm - gy[i]) <= 1.5 * h
+        peaks.append({"x_mm": round(float(gx[i]), 1), "y_mm": round(float(gy[i]), 1),
+                      "residual_mm": float(value[i]),
+                      "z": float(value[i] * np.sqrt(weight[i]) / sigma_mm),
+                      "touches": int(near.sum()),
+                      "share_of_residual_ss": float(residual[near] @ residual[near] / total_ss)})
+        score[np.hypot(gx - gx[i], gy - gy[i]) < 3.0 * h] = 0.0
+    return peaks
+
+
+@pytest.mark.parametrize("bump", [False, True])
+def test_where_equals_the_dense_kernel(bump):
+    """The peaks of the smoothed residual: same places, touches and shares, values to 1e-12."""
+    cell = generator_cell()
+    for k, (name, recs) in enumerate(_designs().items()):
+        ctx = Context.of(build_design(_with_bump(recs, k) if bump else recs, cell))
+        fast, slow = where(ctx, ctx.yt, 0.005), _where_dense(ctx, ctx.yt, 0.005)
+        assert len(fast) == len(slow) > 0, name
+        for a, b in zip(fast, slow):
+            assert {k: a[k] for k in ("x_mm", "y_mm", "touches")} == \
+                {k: b[k] for k in ("x_mm", "y_mm", "touches")}, name
+            for key in ("residual_mm", "z", "share_of_residual_ss"):
+                assert a[key] == pytest.approx(b[key], rel=1e-12, abs=1e-15), (name, key)

@@ -151,7 +151,7 @@ def defect_regressor_grid(features: Features, x_mm, y_mm, radius_mm: float) -> n
 
 
 def defect_regressor_sparse(features: Features, x_mm, y_mm, radius_mm: float):
-    """``defect_regressor_grid`` as a sparse (scipy CSC) touches x centres matrix: the same
+    """``defect_regressor_grid`` as a sparse (scipy COO) touches x centres matrix: the same
     values, only the touches inside each bell stored (a k-d tree finds them), so 100,000 touches
     x 16,000 centres cost the bells' few million entries, not the dense product."""
     from scipy import sparse
@@ -161,16 +161,19 @@ def defect_regressor_sparse(features: Features, x_mm, y_mm, radius_mm: float):
     cx, cy = np.asarray(x_mm, float).ravel(), np.asarray(y_mm, float).ravel()
     r = float(radius_mm)
     if fx.size == 0 or cx.size == 0:
-        return sparse.csc_matrix((fx.size, cx.size))
+        return sparse.coo_matrix((fx.size, cx.size))
     pairs = cKDTree(np.stack([cx, cy], 1)).sparse_distance_matrix(
         cKDTree(np.stack([fx, fy], 1)), r * (1.0 + 1e-9) + 1e-12, output_type="ndarray")
-    c, t = pairs["i"], pairs["j"]
+    c, t = np.ascontiguousarray(pairs["i"]), np.ascontiguousarray(pairs["j"])
+    del pairs
     dx, dy = fx[t] - cx[c], fy[t] - cy[c]
     d2 = dx * dx + dy * dy  # as the dense form computes it, so the values are the same
-    inside = d2 < r * r
-    v = 0.5 * (1.0 + np.cos(np.pi * np.sqrt(d2[inside]) / r))
-    t, c, nz = t[inside], c[inside], v != 0.0
-    return sparse.csc_matrix((v[nz], (t[nz], c[nz])), shape=(fx.size, cx.size))
+    del dx, dy
+    keep = d2 < r * r
+    v = 0.5 * (1.0 + np.cos(np.pi * np.sqrt(d2[keep]) / r))
+    t, c = t[keep], c[keep]
+    nz = v != 0.0
+    return sparse.coo_matrix((v[nz], (t[nz], c[nz])), shape=(fx.size, cx.size))
 
 
 def _defect_grid(features: Features, geometry: Geometry) -> dict[str, np.ndarray]:

@@ -193,11 +193,12 @@ def nameable_reach(X) -> np.ndarray:
     X dense or scipy-sparse (the same numbers)."""
     from scipy import sparse
 
-    if sparse.issparse(X):
-        w2 = X.multiply(X)
-        total = np.asarray(w2.sum(axis=0)).ravel()
-        peak = w2.max(axis=0).toarray().ravel() if X.shape[0] else np.zeros(X.shape[1])
-        big = np.asarray((X >= DEFECT_MIN_WEIGHT).sum(axis=0)).ravel()
+    if sparse.issparse(X):  # sums over the stored entries of each column
+        X = X.tocoo()
+        L, c, w2 = X.shape[1], X.col, X.data * X.data
+        total, peak = np.bincount(c, w2, minlength=L), np.zeros(L)
+        np.maximum.at(peak, c, w2)
+        big = np.bincount(c, X.data >= DEFECT_MIN_WEIGHT, minlength=L).astype(int)
     else:
         w2 = X * X
         total, peak = w2.sum(axis=0), w2.max(axis=0, initial=0.0)
@@ -221,16 +222,17 @@ def _centres(ctx: Context, effect: Effect) -> Candidate | None:
         S = defect_regressor_sparse(d.features, gx, gy, radius)  # touches x centres, the bells
         seen = np.flatnonzero(nameable_reach(S) >= DEFECT_MIN_TOUCHES)
         lz, bt = np.full(gx.size, ctx.log_z0), np.zeros(gx.size, int)
-        counts = [np.diff(S.indptr)]
+        col = lambda w: np.bincount(S.col, w, minlength=gx.size)  # a sum over each bell
+        counts = [col(None)]
         named = [np.isin(np.arange(gx.size), seen)]
         if seen.size:
             # |M x|^2 = |x|^2 - |Q^T x|^2 and (M x)^T yt = x^T yt (yt = M y) for every column x
             # at once; the columns enter the evidence only through these and |yt|^2, so a
             # two-row stand-in with the same three numbers gives the same evidence
-            Xs = S[:, seen]
-            b = Xs.T @ ctx.yt
-            QX = np.asarray(Xs.T @ Q)
-            s2 = np.asarray(Xs.multiply(Xs).sum(axis=0)).ravel() - np.einsum("ij,ij->i", QX, QX)
+            b = col(S.data * ctx.yt[S.row])[seen]
+            s2 = col(S.data * S.data)[seen]
+            for j in range(Q.shape[1]):
+                s2 = s2 - col(S.data * Q[S.row, j])[seen] ** 2
             stand_in = np.stack([b / root, np.sqrt(np.maximum(s2 - (b / root) ** 2, 0.0))])
             lz[seen], bt[seen] = log_evidence_columns_mixture(
                 stand_in, np.array([root, 0.0]), taus, ctx.m)
