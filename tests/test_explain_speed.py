@@ -142,12 +142,15 @@ def _centres_dense(ctx, effect):
 def test_sparse_defect_regressor_is_the_dense_one():
     """The same numbers, entry for entry (exactly), and no stored zeros."""
     rng = np.random.default_rng(3)
-    x, y = rng.uniform(-200, 200, 500), rng.uniform(-150, 150, 500)
-    f = effects.Features(x, y, np.arange(500.0), np.zeros(500), np.zeros(500))
+    (x0, x1), (y0, y1) = WORKPLANE["x_mm"], WORKPLANE["y_mm"]
+    x = np.concatenate([rng.uniform(x0, x1, 500), [x0, x1, x0, x1, 0.0, 0.0]])
+    y = np.concatenate([rng.uniform(y0, y1, 500), [y0, y1, y1, y0, 0.0, 0.0]])  # corners, twice
+    n = x.size
+    f = effects.Features(x, y, np.arange(n, dtype=float), np.zeros(n), np.zeros(n))
     for radius in (15.0, 30.0, 60.0):
         gx, gy = effects.defect_centres(generator_cell().geometry, radius)
         dense = effects.defect_regressor_grid(f, gx, gy, radius)
-        sparse = defect_regressor_sparse(f, gx, gy, radius)
+        sparse = defect_regressor_sparse(f, generator_cell().geometry, radius, chunk=97)
         assert np.array_equal(sparse.toarray(), dense)
         assert sparse.nnz == np.count_nonzero(dense) > 0
         assert np.array_equal(nameable_reach(sparse), _nameable_reach_dense(dense))

@@ -219,7 +219,7 @@ def _centres(ctx: Context, effect: Effect) -> Candidate | None:
     for radius in effect.grid(d.features, d.geometry)["radius_mm"]:
         radius = float(radius)
         gx, gy = effects.defect_centres(d.geometry, radius)
-        S = defect_regressor_sparse(d.features, gx, gy, radius)  # touches x centres, the bells
+        S = defect_regressor_sparse(d.features, d.geometry, radius)  # touches x centres, the bells
         seen = np.flatnonzero(nameable_reach(S) >= DEFECT_MIN_TOUCHES)
         lz, bt = np.full(gx.size, ctx.log_z0), np.zeros(gx.size, int)
         col = lambda w: np.bincount(S.col, w, minlength=gx.size)  # a sum over each bell
