@@ -246,3 +246,79 @@ def test_where_equals_the_dense_kernel(bump):
                 {k: b[k] for k in ("x_mm", "y_mm", "touches")}, name
             for key in ("residual_mm", "z", "share_of_residual_ss"):
                 assert a[key] == pytest.approx(b[key], rel=1e-12, abs=1e-15), (name, key)
+
+
+# -- bad input: a clear message, never a ZeroDivisionError or an out-of-memory kill ---------------
+
+def _cli(argv, capsys):
+    from adaptive_cal.cli import main
+
+    code = main(argv)
+    return code, capsys.readouterr().err
+
+
+@pytest.fixture()
+def cell_file(tmp_path):
+    import yaml
+
+    cell = {"name": "bad input", "workplane": {**{k: list(v) for k, v in WORKPLANE.items()},
+                                               "edge_margin_mm": 0},
+            "robot": {"adapter": "sim", "touch_time_s": 4},
+            "probe": {"adapter": "sim", "zero_mm": ZERO_MM},
+            "simulation": {"effects": {}, "unknown": ["tilt"]}}
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(cell))
+    return path
+
+
+def _write(path, rows, flags=""):
+    body = "".join(f"{k},{4 * k},{(k % 9) * 40 - 180.0},{(k // 9) * 30 - 150.0},0,"
+                   f"{ZERO_MM + 1e-3 * (k % 7)},{flags}\n" for k in range(rows))
+    path.write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm,flags\n" + body)
+    return path
+
+
+def test_a_single_row_gets_a_clear_message(tmp_path, cell_file, capsys):
+    rec = _write(tmp_path / "one.csv", 1)
+    code, err = _cli(["explain", "--robot", str(cell_file), str(rec)], capsys)
+    assert code == 2
+    assert "one.csv: 1 rows, 1 of them fused" in err and "at least 8" in err, err
+    assert "Traceback" not in err and "internal error" not in err
+
+
+def test_all_readings_rejected_gets_a_clear_message(tmp_path, cell_file, capsys):
+    rec = _write(tmp_path / "rejected.csv", 40, flags="rejected")
+    code, err = _cli(["explain", "--robot", str(cell_file), str(rec)], capsys)
+    assert code == 2
+    assert "rejected.csv: 40 rows, 0 of them fused" in err and "gated or rejected" in err, err
+    assert "ZeroDivision" not in err and "internal error" not in err
+
+
+def test_a_million_rows_are_refused_with_the_limit(tmp_path, cell_file, capsys):
+    """10**6 rows (about 45 MB, written in blocks): the reader stops at the limit with the line,
+    in seconds and without holding the file; a recording built in memory past the limit gets
+    the same limit from explain."""
+    import time
+
+    from adaptive_cal.analysis.explain import explain
+    from adaptive_cal.formats.recording import MAX_ROWS, RecordingError
+
+    path = tmp_path / "million.csv"
+    with path.open("w") as f:
+        f.write("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm\n")
+        for s in range(0, 10**6, 100_000):
+            f.write("".join(f"{k},,{(k % 1000) * 0.4 - 200.0:.1f},{(k // 1000) * 0.3 - 150.0:.1f},"
+                            f"0,{ZERO_MM}\n" for k in range(s, s + 100_000)))
+    t0 = time.monotonic()
+    code, err = _cli(["explain", "--robot", str(cell_file), str(path), "--json",
+                      str(tmp_path / "out.json")], capsys)
+    assert code == 2
+    assert f"million.csv:{MAX_ROWS + 3}: more than {MAX_ROWS} rows" in err, err
+    assert time.monotonic() - t0 < 30  # about 2 s alone
+    assert not (tmp_path / "out.json").exists()
+    n = MAX_ROWS + 1
+    x = np.resize(np.linspace(-200.0, 200.0, 9), n)
+    y = np.linspace(-150.0, 150.0, n)
+    rec = Recording(np.arange(n), 4.0 * np.arange(n), x, y, np.zeros(n), np.full(n, ZERO_MM))
+    with pytest.raises(RecordingError, match=f"{n} rows in 1 recording.*at most {MAX_ROWS}"):
+        explain([rec], generator_cell())
