@@ -322,3 +322,16 @@ def test_a_million_rows_are_refused_with_the_limit(tmp_path, cell_file, capsys):
     rec = Recording(np.arange(n), 4.0 * np.arange(n), x, y, np.zeros(n), np.full(n, ZERO_MM))
     with pytest.raises(RecordingError, match=f"{n} rows in 1 recording.*at most {MAX_ROWS}"):
         explain([rec], generator_cell())
+
+
+def test_tilt_blocks_equal_the_loop(contexts):
+    """identify._tilt (one scatter) against the per-round loop it replaces: the same matrix."""
+    from adaptive_cal.analysis.explain.identify import _tilt
+
+    for name, ctx in contexts.items():
+        d = ctx.design
+        T = effects.tilt.regressor(d.features, d.geometry)
+        ref = np.zeros((T.shape[0], 3 * d.rounds))
+        for r in range(d.rounds):
+            ref[d.round_index == r, 3 * r:3 * r + 3] = T[d.round_index == r]
+        assert np.array_equal(_tilt(d.features, d.round_index, d.rounds, d.geometry), ref), name

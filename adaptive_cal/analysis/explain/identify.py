@@ -70,8 +70,7 @@ def representative(ctx: Context, name: str, features=None, round_index=None) -> 
 def _tilt(features, round_index, rounds, geometry) -> np.ndarray:
     T = effects.tilt.regressor(features, geometry)
     out = np.zeros((T.shape[0], 3 * rounds))
-    for r in range(rounds):
-        out[round_index == r, 3 * r:3 * r + 3] = T[round_index == r]
+    out[np.arange(T.shape[0])[:, None], 3 * np.asarray(round_index)[:, None] + np.arange(3)] = T
     return out
 
 
