@@ -155,7 +155,7 @@ def defect_regressor_grid(features: Features, x_mm, y_mm, radius_mm: float) -> n
 
 
 def defect_regressor_sparse(features: Features, geometry: Geometry, radius_mm: float,
-                            chunk: int = 20_000):
+                            chunk: int = 4096):
     """``defect_regressor_grid`` at every centre of ``defect_centres(geometry, radius_mm)``, as a
     sparse (scipy COO) touches x centres matrix with only the touches inside each bell stored:
     the same values, computed the same way, for the few centres near each touch (a window of

@@ -69,6 +69,8 @@ def representative(ctx: Context, name: str, features=None, round_index=None) -> 
 
 def _tilt(features, round_index, rounds, geometry) -> np.ndarray:
     T = effects.tilt.regressor(features, geometry)
+    if rounds == 1:
+        return np.array(T, float)
     out = np.zeros((T.shape[0], 3 * rounds))
     out[np.arange(T.shape[0])[:, None], 3 * np.asarray(round_index)[:, None] + np.arange(3)] = T
     return out
