@@ -335,3 +335,46 @@ def test_tilt_blocks_equal_the_loop(contexts):
         for r in range(d.rounds):
             ref[d.round_index == r, 3 * r:3 * r + 3] = T[d.round_index == r]
         assert np.array_equal(_tilt(d.features, d.round_index, d.rounds, d.geometry), ref), name
+
+
+# -- start-up: explain --json loads neither JAX, matplotlib, scipy.stats nor filterpy -------------
+
+def test_explain_json_loads_nothing_it_does_not_use(tmp_path, cell_file):
+    """40 rows through ``adaptive-cal explain --json`` in a fresh interpreter: JAX, matplotlib,
+    scipy.stats and filterpy (about 1.5 s of the start-up before) stay unloaded, and JAX still
+    comes up in float64 when a command does load it."""
+    import json
+    import subprocess
+    import sys
+
+    rec = _write(tmp_path / "rec.csv", 40)
+    probe = (
+        "import json, sys\nfrom adaptive_cal.cli import main\n"
+        f"code = main(['explain', '--robot', {str(cell_file)!r}, {str(rec)!r}, '--json', "
+        f"{str(tmp_path / 'out.json')!r}])\n"
+        "heavy = sorted(m for m in ('jax', 'matplotlib', 'scipy.stats', 'filterpy') "
+        "if m in sys.modules)\n"
+        "import jax\n"
+        "print(json.dumps([code, heavy, bool(jax.config.jax_enable_x64)]), file=sys.stderr)\n")
+    p = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert json.loads(p.stderr.strip().splitlines()[-1]) == [0, [], True], p.stderr[-2000:]
+    assert json.loads((tmp_path / "out.json").read_text())["readings"]["total"] == 40
+
+
+def test_special_functions_equal_scipy_stats():
+    """The densities and tail probabilities explain now takes from scipy.special are
+    scipy.stats' own (exactly, on this scipy), edge cases included."""
+    from scipy import special, stats
+
+    from adaptive_cal.analysis.explain.suspects import LOG_SQRT_2PI, t_logpdf
+
+    rng = np.random.default_rng(11)
+    x, df = 10 * rng.standard_normal(5000), rng.uniform(1.0, 5000.0, 5000)
+    assert np.allclose(t_logpdf(x, df), stats.t.logpdf(x, df), rtol=1e-13, atol=0)
+    s = rng.uniform(1e-4, 1.0, 5000)
+    assert np.allclose(-(x / s) ** 2 / 2.0 - LOG_SQRT_2PI - np.log(s),
+                       stats.norm.logpdf(x, scale=s), rtol=1e-13, atol=0)
+    for F, q, d in [(0.0, 3, 10), (2.5, 3, 10), (40.0, 7, 3993), (np.inf, 2, 5)]:
+        assert special.fdtrc(q, d, F) == stats.f.sf(F, q, d)
+    for v, m in [(0.0, 5), (3.0, 5), (1e5, 40), (37.5, 37)]:
+        assert special.chdtrc(m, v) == stats.chi2.sf(v, m)
