@@ -17,7 +17,6 @@ from adaptive_cal.cell.consistency import check_cell
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
 from adaptive_cal.cell.simulation import FrameCorrection, Simulation  # noqa: F401 (re-exported)
 from adaptive_cal.formats.heightmap import beside, check_map
-from adaptive_cal.gaussian.belief import Z95
 from adaptive_cal.hardware.hses.config import HsesConfig
 from adaptive_cal.hardware.manual.config import ManualConfig
 from adaptive_cal.hardware.modbus.config import ModbusConfig
@@ -181,6 +180,8 @@ class Probe(Block):
 
     def noise_prior(self) -> tuple[float, float | None]:
         """(centre mm, log-std) of the prior on the reading noise; log-std None: the weak default."""
+        from adaptive_cal.gaussian.belief import Z95  # here: belief loads filterpy and scipy.stats
+
         if self.noise_range_mm is None:
             return self.noise_std_mm, None
         lo, hi = self.noise_range_mm

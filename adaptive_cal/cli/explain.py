@@ -48,7 +48,6 @@ def command(args) -> int:
     from adaptive_cal.analysis.explain import explain
     from adaptive_cal.analysis.explain.summary import write_cell
     from adaptive_cal.formats.recording import read_recording
-    from adaptive_cal.report.explain_figures import figures
 
     cell = load_cell(args.robot)
     recordings = [read_recording(p) for p in args.recordings]
@@ -57,6 +56,8 @@ def command(args) -> int:
         path = write_cell(result, load_yaml(args.robot), args.robot, args.out)
         result.findings["model"] = str(path) if path else None
         if not args.no_figures:
+            from adaptive_cal.report.explain_figures import figures  # matplotlib: only here
+
             result.findings["figures"] = [str(p) for p in figures(result, args.out)]
     _print(result.findings)
     if args.json:

@@ -121,15 +121,19 @@ def _defect(f, p, g):
     return p["height_mm"] * np.where(d < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(d, 1.0))), 0.0)
 
 
-def defect_centres(geometry: Geometry, radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """Centres searched for a defect of this radius: spacing radius / 4 over the workplane (fine
-    enough that a bump centred between two touches, both inside its half-height contour, is
-    on the grid)."""
+def _centre_axes(geometry: Geometry, radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
     (x0, x1), (y0, y1) = geometry.x_range_mm, geometry.y_range_mm
     step = radius_mm / 4.0
     xs = np.linspace(x0, x1, max(2, int(np.ceil((x1 - x0) / step)) + 1))
     ys = np.linspace(y0, y1, max(2, int(np.ceil((y1 - y0) / step)) + 1))
-    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    return xs, ys
+
+
+def defect_centres(geometry: Geometry, radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centres searched for a defect of this radius: spacing radius / 4 over the workplane (fine
+    enough that a bump centred between two touches, both inside its half-height contour, is
+    on the grid)."""
+    gx, gy = np.meshgrid(*_centre_axes(geometry, radius_mm), indexing="ij")
     return gx.ravel(), gy.ravel()
 
 
@@ -148,6 +152,41 @@ def defect_regressor_grid(features: Features, x_mm, y_mm, radius_mm: float) -> n
     out = np.zeros(d2.shape)
     out[inside] = 0.5 * (1.0 + np.cos(np.pi * np.sqrt(d2[inside]) / r))
     return out
+
+
+def defect_regressor_sparse(features: Features, geometry: Geometry, radius_mm: float,
+                            chunk: int = 4096):
+    """``defect_regressor_grid`` at every centre of ``defect_centres(geometry, radius_mm)``, as a
+    sparse (scipy COO) touches x centres matrix with only the touches inside each bell stored:
+    the same values, computed the same way, for the few centres near each touch (a window of
+    the centre grid), so 100,000 touches cost the bells' few million entries."""
+    from scipy import sparse
+
+    xs, ys = _centre_axes(geometry, radius_mm)
+    fx, fy = np.asarray(features.x_mm, float), np.asarray(features.y_mm, float)
+    r = float(radius_mm)
+    rows, cols, vals = [], [], []
+
+    def window(f, axis):  # per touch: the centre indices that can lie within r, and f - centre
+        step = (axis[-1] - axis[0]) / (axis.size - 1)
+        lo = np.floor((f - r - axis[0]) / step).astype(int) - 1
+        idx = lo[:, None] + np.arange(int(np.ceil(2.0 * r / step)) + 4)[None, :]
+        ok = (idx >= 0) & (idx < axis.size)
+        diff = f[:, None] - axis[np.clip(idx, 0, axis.size - 1)]
+        return idx, np.where(ok, diff * diff, np.inf)
+
+    for s in range(0, fx.size, chunk):
+        ix, dx2 = window(fx[s:s + chunk], xs)
+        iy, dy2 = window(fy[s:s + chunk], ys)
+        d2 = dx2[:, :, None] + dy2[:, None, :]  # as the dense form computes it: the same values
+        t, a, b = np.nonzero(d2 < r * r)
+        v = 0.5 * (1.0 + np.cos(np.pi * np.sqrt(d2[t, a, b]) / r))
+        nz = v != 0.0
+        rows.append(s + t[nz]), cols.append(ix[t, a][nz] * ys.size + iy[t, b][nz])
+        vals.append(v[nz])
+    cat = lambda parts, dtype: np.concatenate(parts) if parts else np.zeros(0, dtype)
+    return sparse.coo_matrix((cat(vals, float), (cat(rows, int), cat(cols, int))),
+                             shape=(fx.size, xs.size * ys.size))
 
 
 def _defect_grid(features: Features, geometry: Geometry) -> dict[str, np.ndarray]:

@@ -117,12 +117,12 @@ def _number(text: str, *, where: str, blank_ok: bool = False) -> float:
 
 
 #: Limits of a readable recording: positions within 10 m, indications within 1 m, MAX_ROWS
-#: touches (17 h at 3 s each). Beyond them a value is a typo or a unit error and a file is not
-#: one this tool can analyse in memory: refused with the line, not turned into numbers.
+#: touches (a week at 3 s each; explain: under a minute). Beyond them a value is a typo or a
+#: unit error, or a file this tool cannot analyse in memory: refused with the line.
 MAX_ABS_POSITION_MM = 1e4
 MAX_ABS_READING_MM = 1e3
 MAX_T_S = 1e8
-MAX_ROWS = 20_000
+MAX_ROWS = 200_000
 MAX_BYTES = 64 * 2**20
 _LIMITS = {"x_mm": MAX_ABS_POSITION_MM, "y_mm": MAX_ABS_POSITION_MM, "z_mm": MAX_ABS_POSITION_MM,
            "reading_mm": MAX_ABS_READING_MM, "t_s": MAX_T_S, "seq": 1e15}

@@ -194,38 +194,57 @@ def _searched(ctx: Context, effect: Effect, names: tuple[str, ...]) -> Candidate
     return cand.fit_posterior(ctx)
 
 
-def nameable_reach(X: np.ndarray) -> np.ndarray:
+def nameable_reach(X) -> np.ndarray:
     """Touches that carry a bump (column of X: the bell's weight at each touch), or 0 where one
     touch carries more than DEFECT_MAX_SHARE of the bump's information: a hypothesis that rests
-    on one reading is an outlier, not a defect (a spike, with a second touch at the bump's edge)."""
-    w2 = X * X
-    total = w2.sum(axis=0)
-    lone = w2.max(axis=0, initial=0.0) > DEFECT_MAX_SHARE * np.maximum(total, 1e-300)
-    return np.where(lone, 0, np.count_nonzero(X >= DEFECT_MIN_WEIGHT, axis=0))
+    on one reading is an outlier, not a defect (a spike, with a second touch at the bump's edge).
+    X dense or scipy-sparse (the same numbers)."""
+    from scipy import sparse
+
+    if sparse.issparse(X):  # sums over the stored entries of each column
+        X = X.tocoo()
+        L, c, w2 = X.shape[1], X.col, X.data * X.data
+        total, peak = np.bincount(c, w2, minlength=L), np.zeros(L)
+        np.maximum.at(peak, c, w2)
+        big = np.bincount(c, X.data >= DEFECT_MIN_WEIGHT, minlength=L).astype(int)
+    else:
+        w2 = X * X
+        total, peak = w2.sum(axis=0), w2.max(axis=0, initial=0.0)
+        big = np.count_nonzero(X >= DEFECT_MIN_WEIGHT, axis=0)
+    lone = peak > DEFECT_MAX_SHARE * np.maximum(total, 1e-300)
+    return np.where(lone, 0, big)
 
 
 def _centres(ctx: Context, effect: Effect) -> Candidate | None:
     """A bump: radius on the effect's grid, centre uniform over ``effects.defect_centres``."""
+    from adaptive_cal.effects.plate import defect_regressor_sparse
+
     d = ctx.design
     names = effect.searched
     taus = prior_grid(effect, names)
     records, classes = [], 0
-    chunk = max(1, int(min(2_000_000 // max(d.n, 1), 400_000 // taus.size)))
+    Q, root = ctx.project.basis, float(np.sqrt(max(float(ctx.yt @ ctx.yt), 1e-300)))
     for radius in effect.grid(d.features, d.geometry)["radius_mm"]:
         radius = float(radius)
         gx, gy = effects.defect_centres(d.geometry, radius)
-        lz = np.empty(gx.size)
-        bt = np.empty(gx.size, int)
-        counts, named = [], []
-        for s in range(0, gx.size, chunk):
-            X = effects.defect_regressor_grid(d.features, gx[s:s + chunk], gy[s:s + chunk], radius)
-            seen = np.flatnonzero(nameable_reach(X) >= DEFECT_MIN_TOUCHES)
-            lz[s:s + chunk], bt[s:s + chunk] = ctx.log_z0, 0
-            counts.append(np.count_nonzero(X, axis=0))
-            named.append(np.isin(np.arange(X.shape[1]), seen))
-            if seen.size:
-                lz[s + seen], bt[s + seen] = log_evidence_columns_mixture(
-                    ctx.project(X[:, seen]), ctx.yt, taus, ctx.m)
+        S = defect_regressor_sparse(d.features, d.geometry, radius)  # touches x centres, the bells
+        seen = np.flatnonzero(nameable_reach(S) >= DEFECT_MIN_TOUCHES)
+        lz, bt = np.full(gx.size, ctx.log_z0), np.zeros(gx.size, int)
+        col = lambda w: np.bincount(S.col, w, minlength=gx.size)  # a sum over each bell
+        counts = [col(None)]
+        named = [np.isin(np.arange(gx.size), seen)]
+        if seen.size:
+            # |M x|^2 = |x|^2 - |Q^T x|^2 and (M x)^T yt = x^T yt (yt = M y) for every column x
+            # at once; the columns enter the evidence only through these and |yt|^2, so a
+            # two-row stand-in with the same three numbers gives the same evidence
+            b = col(S.data * ctx.yt[S.row])[seen]
+            s2 = col(S.data * S.data)[seen]
+            for j in range(Q.shape[1]):
+                s2 = s2 - col(S.data * Q[S.row, j])[seen] ** 2
+            stand_in = np.stack([b / root, np.sqrt(np.maximum(s2 - (b / root) ** 2, 0.0))])
+            for j in range(0, seen.size, 256):  # blocks that stay in cache: 3 x faster, same values
+                lz[seen[j:j + 256]], bt[seen[j:j + 256]] = log_evidence_columns_mixture(
+                    stand_in[:, j:j + 256], np.array([root, 0.0]), taus, ctx.m)
         # the prior: uniform over the grid of centres, conditioned on the bump reaching at least
         # DEFECT_MIN_TOUCHES touches (a bump no two touches see is not a hypothesis about these
         # data). Where one touch would carry it (``nameable_reach``) it cannot be told from an

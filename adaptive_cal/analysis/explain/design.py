@@ -13,7 +13,7 @@ import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, ConfigError, Simulation
-from adaptive_cal.formats.recording import Recording, RecordingError
+from adaptive_cal.formats.recording import MAX_ROWS, Recording, RecordingError
 
 MIN_ROWS_PER_ROUND = 8  # tilt (3) + an effect with up to 4 parameters + a noise estimate
 
@@ -142,6 +142,10 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
             raise ConfigError(f"simulation.unknown: {name!r} has nonlinear parameters "
                               f"{effect.nonlinear}; explain calibrates only effects "
                               "linear in their parameters (give them in simulation.effects)")
+    total = sum(len(rec) for rec in recordings)
+    if total > MAX_ROWS:  # the reader's limit, also for recordings built in memory
+        raise RecordingError(f"{total} rows in {len(recordings)} recording(s); explain takes at "
+                             f"most {MAX_ROWS} rows at once: split the recordings by round")
     cols = {k: [] for k in ("x", "y", "t", "d", "z", "r", "seq", "read")}
     known = []
     for i, rec in enumerate(recordings):

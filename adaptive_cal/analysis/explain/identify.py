@@ -69,9 +69,10 @@ def representative(ctx: Context, name: str, features=None, round_index=None) -> 
 
 def _tilt(features, round_index, rounds, geometry) -> np.ndarray:
     T = effects.tilt.regressor(features, geometry)
+    if rounds == 1:
+        return np.array(T, float)
     out = np.zeros((T.shape[0], 3 * rounds))
-    for r in range(rounds):
-        out[round_index == r, 3 * r:3 * r + 3] = T[round_index == r]
+    out[np.arange(T.shape[0])[:, None], 3 * np.asarray(round_index)[:, None] + np.arange(3)] = T
     return out
 
 
@@ -163,19 +164,32 @@ def suggest_touches(ctx: Context, name: str, partners: list[str], dz_mm: float =
             "touches": touches, "canonical_correlation_after": round(cc, 4)}
 
 
+def nearest_distance(gx, gy, px, py, neighbours: int = 8) -> np.ndarray:
+    """min over the points (px, py) of hypot(g - p) for every g, as the plain broadcast computes
+    it, without the len(g) x len(p) matrix: a k-d tree proposes the ``neighbours`` nearest
+    distinct points and the exact hypot of those is taken (the same minimum unless more than
+    ``neighbours`` distinct points lie within rounding of one distance)."""
+    from scipy.spatial import cKDTree
+
+    pts = np.unique(np.stack([np.asarray(px, float), np.asarray(py, float)], 1), axis=0)
+    k = min(neighbours, len(pts))
+    _, j = cKDTree(pts).query(np.stack([gx, gy], 1), k=k)
+    j = j.reshape(len(gx), k)
+    return np.min(np.hypot(gx[:, None] - pts[j, 0], gy[:, None] - pts[j, 1]), 1)
+
+
 def _gap_touches(ctx: Context, count: int = 4) -> dict:
     """Touches at the centres of the largest empty circles of the design (greedy maximin)."""
     d = ctx.design
     gx, gy = effects.defect_centres(d.geometry, 10.0)
-    px, py = list(d.features.x_mm), list(d.features.y_mm)
+    dist = nearest_distance(gx, gy, d.features.x_mm, d.features.y_mm)
     touches, fill0 = [], None
+    z_mm, n0 = float(np.median(d.z_mm)), int((d.round_index == d.rounds - 1).sum())
     for k in range(count):
-        dist = np.min(np.hypot(gx[:, None] - np.asarray(px), gy[:, None] - np.asarray(py)), 1)
         i = int(np.argmax(dist))
         fill0 = float(dist[i]) if fill0 is None else fill0
-        touches.append({"x_mm": float(gx[i]), "y_mm": float(gy[i]), "z_mm": float(np.median(d.z_mm)),
-                        "order": int((d.round_index == d.rounds - 1).sum()) + k})
-        px.append(gx[i]), py.append(gy[i])
+        touches.append({"x_mm": float(gx[i]), "y_mm": float(gy[i]), "z_mm": z_mm, "order": n0 + k})
+        dist = np.minimum(dist, np.hypot(gx - gx[i], gy - gy[i]))  # the new touch is a point too
     return {"description": f"fill distance {fill0:.0f} mm: a defect of smaller radius between "
             "touches reaches no touch; touches at the centres of the largest gaps",
             "touches": touches, "fill_distance_mm": fill0}

@@ -17,7 +17,6 @@ the data fit them as well, the verdict is preferred for its fewer parameters onl
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from adaptive_cal.analysis.explain.evidence import Projector
 
@@ -57,6 +56,8 @@ def covering(ctx, winner, cands, threshold: float) -> list[str]:
     directions (beyond the winner) the data do not support at ``EXTRA_P``."""
     if winner is None:
         return []
+    from scipy import stats  # here, not at the top: loading it is half of explain's start-up
+
     W = ctx.project(winner.columns)
     out = []
     for c in cands:

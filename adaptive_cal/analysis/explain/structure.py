@@ -23,7 +23,7 @@ structure left is still reported (``structure_after_model``).
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from adaptive_cal.analysis.explain.candidates import Candidate, Context
 from adaptive_cal.analysis.explain.evidence import Projector
@@ -89,7 +89,7 @@ def _axis_test(P: Projector, r: np.ndarray, m: int, X: np.ndarray) -> dict:
     rss1 = max(float(r @ r) - explained, 1e-300)
     s2 = rss1 / (m - q)
     F = (explained / q) / s2
-    return {"p_value": float(stats.f.sf(F, q, m - q)), "excess_mm2": max(explained - q * s2, 0.0),
+    return {"p_value": float(special.fdtrc(q, m - q, max(F, 0.0))), "excess_mm2": max(explained - q * s2, 0.0),
             "q": q}
 
 
@@ -107,7 +107,7 @@ def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate |
     tests = {name: _axis_test(P, r, m, X) for name, X in _bases(ctx).items()}
     rss = float(r @ r)
     if noise_mm > 0:
-        tests["noise"] = {"p_value": float(stats.chi2.sf(rss / noise_mm ** 2, m)),
+        tests["noise"] = {"p_value": float(special.chdtrc(m, max(rss / noise_mm ** 2, 0.0))),
                           "excess_mm2": max(rss - m * noise_mm ** 2, 0.0), "q": 0,
                           "stated_noise_mm": noise_mm,
                           "residual_rms_mm": float(np.sqrt(rss / m))}
