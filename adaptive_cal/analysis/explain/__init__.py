@@ -2,7 +2,8 @@
 model it and show the fit improve (issue 4; docs/explain.md).
 
 Modules: design (features, nominal, nuisance), evidence (marginal likelihood, LOO), candidates
-(effect library scored by evidence), suspects (readings that disagree with every model),
+(effect library scored by evidence), intervals and averaging (a searched effect's
+parameters averaged over its refined grid: calibrated intervals), suspects (readings that disagree with every model),
 locate (mismatch by axis), structure (structure left after the library: the
 ``unexplained`` verdict), spans (directional identifiability), identify (aliasing and suggested
 touches), rounds (flatness change vs noise), core (the pipeline), summary (the explained cell

@@ -22,8 +22,8 @@ import numpy as np
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.recording import Recording, RecordingError
-from adaptive_cal.analysis.explain.candidates import (Candidate, Context, averaged,
-                                                      score_candidates)
+from adaptive_cal.analysis.explain.averaging import averaged
+from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
 from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design, build_design
 from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
 from adaptive_cal.analysis.explain.identify import not_identifiable

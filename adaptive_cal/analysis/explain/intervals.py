@@ -30,8 +30,7 @@ and downward by the prior's shrinkage; which wins depends on the design and the 
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
-from scipy.special import logsumexp
+from scipy.special import logsumexp, ndtr
 
 from adaptive_cal.analysis.explain.evidence import log_evidence_spectral
 
@@ -64,7 +63,7 @@ def mixture_quantiles(w: np.ndarray, mean: np.ndarray, sd: np.ndarray,
         lo, hi = lo0, hi0
         for _ in range(80):
             mid = 0.5 * (lo + hi)
-            if float(w @ stats.norm.cdf((mid - mean) / sd)) < target:
+            if float(w @ ndtr((mid - mean) / sd)) < target:
                 lo = mid
             else:
                 hi = mid

@@ -1,0 +1,68 @@
+"""A searched candidate's parameters averaged over what its search did not pin down (issue 15,
+item 2): the grid's cells refined around the likely points, each weighted by its evidence
+(``intervals``), instead of held at the best grid point.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from adaptive_cal import effects
+from adaptive_cal.analysis.explain import intervals
+from adaptive_cal.analysis.explain.candidates import (DEFECT_MIN_TOUCHES, Candidate, Context,
+                                                      nameable_reach)
+
+
+def averaged(ctx: Context, cand: Candidate) -> Candidate:
+    """A searched candidate at the best point of its refined grid, with sds and 95 % intervals
+    averaged over the grid's posterior (``intervals``) instead of held at the best point: its
+    search grid's cells split (along arm_sag's p, the warm-up's tau_s, a bump's radius and
+    centre), each point weighted by its evidence. The log Bayes factor stays the search's."""
+    if cand.support is None:
+        return cand
+    d = ctx.design
+    effect = effects.get(cand.effect)
+    sup = cand.support
+    keep = intervals.pruned(sup["log_w"])
+    values = {k: np.asarray(v, float)[keep] for k, v in sup["values"].items()}
+    steps = None
+    if "x_mm" in values:  # a bump: refined along the radius and the centre
+        key = "radius_mm"
+        steps = {}
+        for k, i in (("x_mm", 0), ("y_mm", 1)):
+            step = {r: float(np.diff(np.unique(effects.defect_centres(d.geometry, r)[i]))[:1].sum())
+                    for r in np.unique(values["radius_mm"])}
+            steps[k] = np.array([step[r] for r in values["radius_mm"]])
+
+        def column_of(v, sl):
+            x, y, r = v["x_mm"][sl], v["y_mm"][sl], v["radius_mm"][sl]
+            X = np.zeros((d.n, x.size))
+            for radius in np.unique(r):
+                at = r == radius
+                X[:, at] = effects.defect_regressor_grid(d.features, x[at], y[at], float(radius))
+            return X
+
+        def admissible(X):  # the search's own rule: a bump one touch carries is not named
+            return nameable_reach(X) >= DEFECT_MIN_TOUCHES
+    else:
+        (key,) = values
+        admissible = None
+
+        def column_of(v, sl):
+            return np.column_stack([effect.regressor(d.features, d.geometry, {key: float(u)},
+                                                     cand.names)[:, 0] for u in v[key][sl]])
+    vals, logw, mean, var, cells = intervals.refined_posterior(
+        ctx, column_of, {key: np.asarray(sup["values"][key], float)}, values,
+        sup["log_w"][keep], np.asarray(sup["tau"])[keep], key, admissible, steps)
+    if not np.isfinite(logw).any():
+        return replace(cand, support=None)  # no refined point is nameable: held at the search's
+    best = int(np.argmax(logw))
+    fixed = {k: float(v[best]) for k, v in vals.items()}
+    refit = replace(cand, columns=column_of({k: v[best:best + 1] for k, v in vals.items()},
+                                            slice(None)), fixed=fixed, support=None)
+    refit = refit.fit_posterior(ctx)
+    (name,) = cand.names
+    sd, iv = intervals.linear_summary(logw, mean, var, float(refit.mean[0]), name)
+    nl = intervals.nonlinear_std(vals, logw, fixed, cells)
+    return replace(refit, nonlinear_std=nl, param_std=sd, interval_95=iv)
