@@ -378,3 +378,25 @@ def test_special_functions_equal_scipy_stats():
         assert special.fdtrc(q, d, F) == stats.f.sf(F, q, d)
     for v, m in [(0.0, 5), (3.0, 5), (1e5, 40), (37.5, 37)]:
         assert special.chdtrc(m, v) == stats.chi2.sf(v, m)
+
+
+def test_a_plain_table_takes_as_many_rows_as_a_recording():
+    """formats.table reads plain x,y,reading files as recordings: the same row limit."""
+    from adaptive_cal.formats import recording, table
+
+    assert table.MAX_ROWS == recording.MAX_ROWS
+
+
+def test_direction_along_y_text_names_only_the_arrivals_the_design_has():
+    """A raster never arrives moving -y: the text must not print the mean of nothing (nan)."""
+    import types
+
+    from adaptive_cal.analysis.explain.structure import _detail
+
+    y = np.repeat(np.arange(4.0), 5)  # a raster: rows in +y order, touches along x
+    d = types.SimpleNamespace(features=types.SimpleNamespace(y_mm=y), round_index=np.zeros(20, int))
+    r = np.where(y > 0, 0.004, 0.0)  # the last move along y is +y from the second row on
+    text = _detail("direction along y", {"structure_rms_mm": 0.002, "p_value_corrected": 1e-4},
+                   r, types.SimpleNamespace(design=d))
+    assert "nan" not in text and "moving -y" not in text
+    assert "+4.0 um arriving moving +y" in text and "+0.0 um arriving without moving along y" in text, text
