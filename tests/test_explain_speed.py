@@ -387,6 +387,7 @@ def test_a_plain_table_takes_as_many_rows_as_a_recording():
     assert table.MAX_ROWS == recording.MAX_ROWS
 
 
+@pytest.mark.filterwarnings("error")
 def test_direction_along_y_text_names_only_the_arrivals_the_design_has():
     """A raster never arrives moving -y: the text must not print the mean of nothing (nan)."""
     import types

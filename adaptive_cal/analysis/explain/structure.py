@@ -147,10 +147,10 @@ def _detail(name: str, t: dict, r: np.ndarray, ctx: Context) -> str:
                 f"model, the probe's stated noise is {1e3 * t['stated_noise_mm']:.1f} um: {what}")
     if name == "direction along y":
         dy = arrival(d.features.y_mm, d.round_index)
-        groups = [(f"{1e3 * r[m].mean():+.1f} um arriving {label}", m.sum())
-                  for label, m in (("moving +y", dy > 0), ("moving -y", dy < 0),
-                                   ("without moving along y", dy == 0))]
-        said = ", ".join(text for text, n in groups if n)  # a raster never arrives moving -y
+        said = ", ".join(f"{1e3 * r[m].mean():+.1f} um arriving {label}"
+                         for label, m in (("moving +y", dy > 0), ("moving -y", dy < 0),
+                                          ("without moving along y", dy == 0))
+                         if m.any())  # a raster never arrives moving -y
         return (f"the residual averages {said} (no library effect acts along y's direction): "
                 f"{what}")
     if name.startswith("position along"):
