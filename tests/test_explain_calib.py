@@ -139,3 +139,18 @@ def test_a_named_bump_is_not_also_listed_as_not_identifiable(tmp_path):
     f = _findings(tmp_path, gen.recording("local_defect", rng, 10.0, xy=gen.random_path(rng)))
     assert f["verdict"] == "local_defect" and f["ambiguous_with"] == []
     assert all(e["effect"] != "local_defect" for e in f["not_identifiable"])
+
+
+def test_unexplained_probability_is_the_p_value_calibration_bound():
+    """Sellke, Bayarri & Berger (2001): P(structure | p) <= 1 / (1 - e p ln p) for p < 1/e, prior
+    odds 1. Values checked by hand; monotone in p; 1 at p = 0, 1/2 from p = 1/e on."""
+    from adaptive_cal.analysis.explain.structure import structure_probability
+
+    assert structure_probability(0.01) == pytest.approx(1 / (1 + 0.01 * np.e * np.log(100)))
+    assert structure_probability(0.01) == pytest.approx(0.88875, abs=1e-5)
+    assert structure_probability(1e-3) == pytest.approx(0.98156, abs=1e-5)
+    assert structure_probability(0.0) == 1.0 and structure_probability(0.5) == 0.5
+    ps = np.logspace(-12, np.log10(1 / np.e), 200)
+    values = [structure_probability(p) for p in ps]
+    assert all(a >= b for a, b in zip(values, values[1:]))
+    assert values[-1] == pytest.approx(0.5, abs=1e-6)

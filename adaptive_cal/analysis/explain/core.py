@@ -30,7 +30,7 @@ from adaptive_cal.analysis.explain.identify import not_identifiable
 from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
 from adaptive_cal.analysis.explain.spans import covering
-from adaptive_cal.analysis.explain.structure import residual_structure
+from adaptive_cal.analysis.explain.structure import residual_structure, structure_probability
 from adaptive_cal.analysis.explain.suspects import SUSPECT, model_terms, suspect_probability
 
 Z95 = 1.959963984540054  # the normal 97.5 % quantile
@@ -250,7 +250,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     verdict = "unexplained" if unexplained else (winner.effect if winner else "none")
     findings = {
         "verdict": verdict,
-        "verdict_probability": (1.0 - structure["finding"]["p_value"] if unexplained else
+        "verdict_probability": (structure_probability(structure["finding"]["p_value"]) if unexplained else
                                 float(prob[1 + cands.index(winner)] if winner else prob[0])),
         "ambiguous_with": ambiguous,
         "left_out": left_out,
