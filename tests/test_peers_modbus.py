@@ -87,9 +87,13 @@ class TkPlc:
         self.server.start()
         self.thread = threading.Thread(target=self.scan, daemon=True)
         self.thread.start()
-        t = time.monotonic()
-        while self.server._sock is None and time.monotonic() - t < 5:
-            time.sleep(0.01)
+        t = time.monotonic()  # the server thread binds and listens on its own: wait until it accepts
+        while time.monotonic() - t < 10:
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
+                break
+            except OSError:
+                time.sleep(0.02)
 
     def mm(self, d):
         lo, hi = self.slave.get_values("d", 0x1000 + d, 2)
