@@ -5,16 +5,16 @@ The figures against the targets are printed by benchmarks/bench_explain_speed.py
 """
 import numpy as np
 import pytest
-from scipy.special import logsumexp
 
 from adaptive_cal import effects
 from adaptive_cal.analysis.explain.candidates import (DEFECT_MAX_SHARE, DEFECT_MIN_TOUCHES,
-                                                      DEFECT_MIN_WEIGHT, Candidate, Context,
-                                                      nameable_reach, prior_grid, score_effect)
+                                                      DEFECT_MIN_WEIGHT, Context, bump_candidate,
+                                                      bump_record, nameable_reach, prior_grid,
+                                                      score_effect)
 from adaptive_cal.analysis.explain.evidence import log_evidence_columns_mixture
 from adaptive_cal.analysis.explain.design import build_design
 from adaptive_cal.analysis.explain.identify import _gap_touches
-from adaptive_cal.analysis.explain.locate import where
+from adaptive_cal.analysis.explain.locate import peaks, smoothing_grid, where
 from adaptive_cal.formats.recording import Recording
 from adaptive_cal.effects.plate import defect_regressor_sparse
 from adaptive_cal.simulation.concealed import WORKPLANE, ZERO_MM, generator_cell, serpentine
@@ -89,13 +89,14 @@ def _nameable_reach_dense(X):
 
 def _centres_dense(ctx, effect):
     """``candidates._centres`` before issue 15 item 8 (the reference): dense touches x centres
-    chunks, each projected."""
+    chunks, each projected; the prior and the candidate from the evidences are the shared
+    ``bump_record`` / ``bump_candidate``."""
     d = ctx.design
-    names = effect.searched
-    taus = prior_grid(effect, names)
+    taus = prior_grid(effect, effect.searched)
     records, classes = [], 0
+    radii = effect.grid(d.features, d.geometry)["radius_mm"]
     chunk = max(1, int(min(2_000_000 // max(d.n, 1), 400_000 // taus.size)))
-    for radius in effect.grid(d.features, d.geometry)["radius_mm"]:
+    for radius in radii:
         radius = float(radius)
         gx, gy = effects.defect_centres(d.geometry, radius)
         lz = np.empty(gx.size)
@@ -110,33 +111,11 @@ def _centres_dense(ctx, effect):
             if seen.size:
                 lz[s + seen], bt[s + seen] = log_evidence_columns_mixture(
                     ctx.project(X[:, seen]), ctx.yt, taus, ctx.m)
-        ok = np.concatenate(counts) >= DEFECT_MIN_TOUCHES
-        logp = np.full(gx.size, -np.log(gx.size))
-        classes += int(np.count_nonzero(np.concatenate(named)))
-        logp = np.where(ok, logp - np.log(len(effect.grid(d.features, d.geometry)["radius_mm"])),
-                        -np.inf)
-        records.append((radius, gx, gy, lz, bt, logp, np.concatenate(named)))
-    prior_mass = float(logsumexp(np.concatenate([r[5] for r in records])))
-    if not np.isfinite(prior_mass) or not classes:
-        return None
-    total = float(logsumexp(np.concatenate([r[3] + r[5] for r in records])) - prior_mass)
-    logw = np.concatenate([np.where(r[6], r[3] + r[5], -np.inf) for r in records])
-    wts = np.exp(logw - logsumexp(logw))
-    allx = np.concatenate([r[1] for r in records])
-    ally = np.concatenate([r[2] for r in records])
-    allr = np.concatenate([np.full(r[1].size, r[0]) for r in records])
-    best = int(np.argmax(logw))
-    mean = {k: float(wts @ v) for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
-    std = {k: float(np.sqrt(wts @ (v - mean[k]) ** 2))
-           for k, v in (("x_mm", allx), ("y_mm", ally), ("radius_mm", allr))}
-    fixed = {"x_mm": float(allx[best]), "y_mm": float(ally[best]), "radius_mm": float(allr[best])}
-    X = effect.regressor(d.features, d.geometry, fixed, names)
-    lz_best = max(float(r[3].max()) for r in records)
-    all_tau = np.concatenate([taus[r[4]] for r in records])
-    cand = Candidate(effect.name, total - ctx.log_z0, X, np.array([all_tau[best] ** 2]), names,
-                     fixed=fixed, nonlinear_mean=mean, nonlinear_std=std,
-                     look_elsewhere=lz_best - total, searched=int(classes))
-    return cand.fit_posterior(ctx)
+        named = np.concatenate(named)
+        classes += int(np.count_nonzero(named))
+        records.append(bump_record(radius, gx, gy, lz, bt, np.concatenate(counts), named,
+                                   len(radii)))
+    return bump_candidate(ctx, effect, records, classes, taus)
 
 
 def test_sparse_defect_regressor_is_the_dense_one():
@@ -196,17 +175,10 @@ def test_centre_search_equals_the_dense_one(bump):
 
 
 def _where_dense(ctx, residual, sigma_mm, top=3):
-    """``locate.where`` before issue 15 item 8 (the reference): the kernel at every touch."""
+    """``locate.where`` before issue 15 item 8 (the reference): the kernel at every touch, on the
+    shared grid and bandwidth (``smoothing_grid``) and peak picking (``peaks``)."""
     d = ctx.design
-    xy = np.unique(np.stack([d.features.x_mm, d.features.y_mm], 1), axis=0)
-    if len(xy) > 2000:
-        xy = xy[np.linspace(0, len(xy) - 1, 2000).astype(int)]
-    dist = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-    np.fill_diagonal(dist, np.inf)
-    h = float(np.median(dist.min(1))) if len(xy) > 1 else 1.0
-    (x0, x1), (y0, y1) = d.geometry.x_range_mm, d.geometry.y_range_mm
-    gx, gy = np.meshgrid(np.linspace(x0, x1, 46), np.linspace(y0, y1, 38), indexing="ij")
-    gx, gy = gx.ravel(), gy.ravel()
+    gx, gy, h = smoothing_grid(d)
     out = []
     for s in range(0, gx.size, 400):
         k = np.exp(-0.5 * ((gx[s:s + 400, None] - d.features.x_mm) ** 2
@@ -214,23 +186,7 @@ def _where_dense(ctx, residual, sigma_mm, top=3):
         wsum = k.sum(1)
         out.append(np.stack([k @ residual / np.maximum(wsum, 1e-300), wsum], 1))
     sm = np.concatenate(out)
-    value, weight = sm[:, 0], sm[:, 1]
-    score = np.abs(value) * np.sqrt(weight)
-    score[weight < 0.5] = 0.0
-    peaks = []
-    total_ss = float(residual @ residual) or 1.0
-    for _ in range(top):
-        i = int(np.argmax(score))
-        if score[i] <= 0:
-            break
-        near = np.hypot(d.features.x_mm - gx[i], d.features.y_mm - gy[i]) <= 1.5 * h
-        peaks.append({"x_mm": round(float(gx[i]), 1), "y_mm": round(float(gy[i]), 1),
-                      "residual_mm": float(value[i]),
-                      "z": float(value[i] * np.sqrt(weight[i]) / sigma_mm),
-                      "touches": int(near.sum()),
-                      "share_of_residual_ss": float(residual[near] @ residual[near] / total_ss)})
-        score[np.hypot(gx - gx[i], gy - gy[i]) < 3.0 * h] = 0.0
-    return peaks
+    return peaks(d, gx, gy, h, sm[:, 0], sm[:, 1], residual, sigma_mm, top)
 
 
 @pytest.mark.parametrize("bump", [False, True])

@@ -214,46 +214,22 @@ def nameable_reach(X) -> np.ndarray:
     return np.where(lone, 0, big)
 
 
-def _centres(ctx: Context, effect: Effect) -> Candidate | None:
-    """A bump: radius on the effect's grid, centre uniform over ``effects.defect_centres``."""
-    from adaptive_cal.effects.plate import defect_regressor_sparse
+def bump_record(radius: float, gx, gy, lz, bt, counts, named, n_radii: int) -> tuple:
+    """One radius of the bump search with its prior: uniform over the grid of centres and the
+    radii, conditioned on the bump reaching at least DEFECT_MIN_TOUCHES touches (``counts``); a
+    centre not ``named`` (one touch carries it) keeps the likelihood of none and is never named.
+    (radius, gx, gy, log evidence, best tau index, log prior, named)."""
+    logp = np.where(counts >= DEFECT_MIN_TOUCHES, -np.log(gx.size) - np.log(n_radii), -np.inf)
+    return radius, gx, gy, lz, bt, logp, named
 
+
+def bump_candidate(ctx: Context, effect: Effect, records: list[tuple], classes: int,
+                   taus: np.ndarray) -> Candidate | None:
+    """The bump candidate from the search's ``bump_record``s: its evidence averaged over the
+    nameable (radius, centre) prior, held at the most probable one, with the grid posterior as
+    ``support`` (for ``averaging``)."""
     d = ctx.design
     names = effect.searched
-    taus = prior_grid(effect, names)
-    records, classes = [], 0
-    Q, root = ctx.project.basis, float(np.sqrt(max(float(ctx.yt @ ctx.yt), 1e-300)))
-    for radius in effect.grid(d.features, d.geometry)["radius_mm"]:
-        radius = float(radius)
-        gx, gy = effects.defect_centres(d.geometry, radius)
-        S = defect_regressor_sparse(d.features, d.geometry, radius)  # touches x centres, the bells
-        seen = np.flatnonzero(nameable_reach(S) >= DEFECT_MIN_TOUCHES)
-        lz, bt = np.full(gx.size, ctx.log_z0), np.zeros(gx.size, int)
-        col = lambda w: np.bincount(S.col, w, minlength=gx.size)  # a sum over each bell
-        counts = [col(None)]
-        named = [np.isin(np.arange(gx.size), seen)]
-        if seen.size:
-            # |M x|^2 = |x|^2 - |Q^T x|^2 and (M x)^T yt = x^T yt (yt = M y) for every column x
-            # at once; the columns enter the evidence only through these and |yt|^2, so a
-            # two-row stand-in with the same three numbers gives the same evidence
-            b = col(S.data * ctx.yt[S.row])[seen]
-            s2 = col(S.data * S.data)[seen]
-            for j in range(Q.shape[1]):
-                s2 = s2 - col(S.data * Q[S.row, j])[seen] ** 2
-            stand_in = np.stack([b / root, np.sqrt(np.maximum(s2 - (b / root) ** 2, 0.0))])
-            for j in range(0, seen.size, 256):  # blocks that stay in cache: 3 x faster, same values
-                lz[seen[j:j + 256]], bt[seen[j:j + 256]] = log_evidence_columns_mixture(
-                    stand_in[:, j:j + 256], np.array([root, 0.0]), taus, ctx.m)
-        # the prior: uniform over the grid of centres, conditioned on the bump reaching at least
-        # DEFECT_MIN_TOUCHES touches (a bump no two touches see is not a hypothesis about these
-        # data). Where one touch would carry it (``nameable_reach``) it cannot be told from an
-        # outlier: such a bump explains nothing (the likelihood of none) and is never named.
-        ok = np.concatenate(counts) >= DEFECT_MIN_TOUCHES
-        logp = np.full(gx.size, -np.log(gx.size))
-        classes += int(np.count_nonzero(np.concatenate(named)))
-        logp = np.where(ok, logp - np.log(len(effect.grid(d.features, d.geometry)["radius_mm"])),
-                        -np.inf)
-        records.append((radius, gx, gy, lz, bt, logp, np.concatenate(named)))
     prior_mass = float(logsumexp(np.concatenate([r[5] for r in records])))
     if not np.isfinite(prior_mass) or not classes:
         return None  # no bump of the searched radii is nameable on this design
@@ -278,6 +254,45 @@ def _centres(ctx: Context, effect: Effect) -> Candidate | None:
                      support={"values": {"x_mm": allx, "y_mm": ally, "radius_mm": allr},
                               "log_w": logw, "tau": all_tau})
     return cand.fit_posterior(ctx)
+
+
+def _centres(ctx: Context, effect: Effect) -> Candidate | None:
+    """A bump: radius on the effect's grid, centre uniform over ``effects.defect_centres``."""
+    from adaptive_cal.effects.plate import defect_regressor_sparse
+
+    d = ctx.design
+    names = effect.searched
+    taus = prior_grid(effect, names)
+    records, classes = [], 0
+    n_radii = len(effect.grid(d.features, d.geometry)["radius_mm"])
+    Q, root = ctx.project.basis, float(np.sqrt(max(float(ctx.yt @ ctx.yt), 1e-300)))
+    for radius in effect.grid(d.features, d.geometry)["radius_mm"]:
+        radius = float(radius)
+        gx, gy = effects.defect_centres(d.geometry, radius)
+        S = defect_regressor_sparse(d.features, d.geometry, radius)  # touches x centres, the bells
+        seen = np.flatnonzero(nameable_reach(S) >= DEFECT_MIN_TOUCHES)
+        lz, bt = np.full(gx.size, ctx.log_z0), np.zeros(gx.size, int)
+        col = lambda w: np.bincount(S.col, w, minlength=gx.size)  # a sum over each bell
+        counts, named = col(None), np.isin(np.arange(gx.size), seen)
+        if seen.size:
+            # |M x|^2 = |x|^2 - |Q^T x|^2 and (M x)^T yt = x^T yt (yt = M y) for every column x
+            # at once; the columns enter the evidence only through these and |yt|^2, so a
+            # two-row stand-in with the same three numbers gives the same evidence
+            b = col(S.data * ctx.yt[S.row])[seen]
+            s2 = col(S.data * S.data)[seen]
+            for j in range(Q.shape[1]):
+                s2 = s2 - col(S.data * Q[S.row, j])[seen] ** 2
+            stand_in = np.stack([b / root, np.sqrt(np.maximum(s2 - (b / root) ** 2, 0.0))])
+            for j in range(0, seen.size, 256):  # blocks that stay in cache: 3 x faster, same values
+                lz[seen[j:j + 256]], bt[seen[j:j + 256]] = log_evidence_columns_mixture(
+                    stand_in[:, j:j + 256], np.array([root, 0.0]), taus, ctx.m)
+        # the prior: uniform over the grid of centres, conditioned on the bump reaching at least
+        # DEFECT_MIN_TOUCHES touches (a bump no two touches see is not a hypothesis about these
+        # data). Where one touch would carry it (``nameable_reach``) it cannot be told from an
+        # outlier: such a bump explains nothing (the likelihood of none) and is never named.
+        records.append(bump_record(radius, gx, gy, lz, bt, counts, named, n_radii))
+        classes += int(np.count_nonzero(named))
+    return bump_candidate(ctx, effect, records, classes, taus)
 
 
 def score_effect(ctx: Context, effect: Effect) -> Candidate | None:

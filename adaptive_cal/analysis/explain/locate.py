@@ -80,9 +80,9 @@ def f_test(ctx: Context, X: np.ndarray, given: np.ndarray | None = None) -> dict
             "explained_rms_mm": float(np.sqrt(explained / ctx.design.n)), "real": bool(p < ALPHA)}
 
 
-def where(ctx: Context, residual: np.ndarray, sigma_mm: float, top: int = 3) -> list[dict]:
-    """Peaks of the kernel-smoothed residual (bandwidth: median nearest-touch distance)."""
-    d = ctx.design
+def smoothing_grid(d) -> tuple[np.ndarray, np.ndarray, float]:
+    """The grid ``where`` smooths the residual on (46 x 38 points over the plate) and the
+    bandwidth h: the median nearest-touch distance (over at most 2,000 distinct positions)."""
     xy = np.unique(np.stack([d.features.x_mm, d.features.y_mm], 1), axis=0)
     if len(xy) > 2000:
         xy = xy[np.linspace(0, len(xy) - 1, 2000).astype(int)]
@@ -91,7 +91,35 @@ def where(ctx: Context, residual: np.ndarray, sigma_mm: float, top: int = 3) -> 
     h = float(np.median(dist.min(1))) if len(xy) > 1 else 1.0
     (x0, x1), (y0, y1) = d.geometry.x_range_mm, d.geometry.y_range_mm
     gx, gy = np.meshgrid(np.linspace(x0, x1, 46), np.linspace(y0, y1, 38), indexing="ij")
-    gx, gy = gx.ravel(), gy.ravel()
+    return gx.ravel(), gy.ravel(), h
+
+
+def peaks(d, gx, gy, h: float, value: np.ndarray, weight: np.ndarray, residual: np.ndarray,
+          sigma_mm: float, top: int = 3) -> list[dict]:
+    """The ``top`` peaks of the smoothed residual (``value``, kernel ``weight`` per grid point),
+    each with the touches within 1.5 h and their share of the residual sum of squares."""
+    score = np.abs(value) * np.sqrt(weight)  # z-like: mean residual x sqrt(effective touches)
+    score[weight < 0.5] = 0.0  # no touch nearby: nothing to say
+    out = []
+    total_ss = float(residual @ residual) or 1.0
+    for _ in range(top):
+        i = int(np.argmax(score))
+        if score[i] <= 0:
+            break
+        near = np.hypot(d.features.x_mm - gx[i], d.features.y_mm - gy[i]) <= 1.5 * h
+        out.append({"x_mm": round(float(gx[i]), 1), "y_mm": round(float(gy[i]), 1),
+                    "residual_mm": float(value[i]),
+                    "z": float(value[i] * np.sqrt(weight[i]) / sigma_mm),
+                    "touches": int(near.sum()),
+                    "share_of_residual_ss": float(residual[near] @ residual[near] / total_ss)})
+        score[np.hypot(gx - gx[i], gy - gy[i]) < 3.0 * h] = 0.0
+    return out
+
+
+def where(ctx: Context, residual: np.ndarray, sigma_mm: float, top: int = 3) -> list[dict]:
+    """Peaks of the kernel-smoothed residual (bandwidth: median nearest-touch distance)."""
+    d = ctx.design
+    gx, gy, h = smoothing_grid(d)
     # the kernel beyond KERNEL_REACH bandwidths is below the rounding of the weights that count
     # (a grid point counts from weight 0.5): only the touches within it enter each sum
     from scipy.spatial import cKDTree
@@ -104,22 +132,7 @@ def where(ctx: Context, residual: np.ndarray, sigma_mm: float, top: int = 3) -> 
                / h ** 2)
     weight = np.bincount(g, k, minlength=gx.size)
     value = np.bincount(g, k * residual[t], minlength=gx.size) / np.maximum(weight, 1e-300)
-    score = np.abs(value) * np.sqrt(weight)  # z-like: mean residual x sqrt(effective touches)
-    score[weight < 0.5] = 0.0  # no touch nearby: nothing to say
-    peaks = []
-    total_ss = float(residual @ residual) or 1.0
-    for _ in range(top):
-        i = int(np.argmax(score))
-        if score[i] <= 0:
-            break
-        near = np.hypot(d.features.x_mm - gx[i], d.features.y_mm - gy[i]) <= 1.5 * h
-        peaks.append({"x_mm": round(float(gx[i]), 1), "y_mm": round(float(gy[i]), 1),
-                      "residual_mm": float(value[i]),
-                      "z": float(value[i] * np.sqrt(weight[i]) / sigma_mm),
-                      "touches": int(near.sum()),
-                      "share_of_residual_ss": float(residual[near] @ residual[near] / total_ss)})
-        score[np.hypot(gx - gx[i], gy - gy[i]) < 3.0 * h] = 0.0
-    return peaks
+    return peaks(d, gx, gy, h, value, weight, residual, sigma_mm, top)
 
 
 def locate(ctx: Context) -> dict:
