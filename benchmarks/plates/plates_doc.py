@@ -64,22 +64,30 @@ on top of the study's 5 um Gaussian noise; the Student-t part is written in the 
 """
 
 
+def _bars(ax, x, families: list, summary: dict, key: str) -> dict:
+    """One bar per strategy and family of ``summary``'s ``key`` (NaN where a strategy did not
+    run); returns each drawn strategy's rows (bar offsets follow STRATEGY_COLOURS' order)."""
+    drawn = {}
+    for k, s in enumerate(STRATEGY_COLOURS):
+        rows = [summary[f].get(s) for f in families]
+        if not any(rows):
+            continue
+        ax.bar(x + (k - 1) * 0.27, [r[key] if r else np.nan for r in rows], 0.27,
+               color=STRATEGY_COLOURS[s], label=s)
+        drawn[k] = rows
+    return drawn
+
+
 def figures(docs: Path, summary: dict) -> list[str]:
     families = list(summary)
     x = np.arange(len(families))
     names = []
     fig = Figure(figsize=(8, 3.4), constrained_layout=True)
     ax1, ax2 = fig.subplots(1, 2)
-    for k, s in enumerate(STRATEGY_COLOURS):
-        rows = [summary[f].get(s) for f in families]
-        if not any(rows):
-            continue
-        mean = [r["coverage95_mean"] if r else np.nan for r in rows]
-        lo = [r["coverage95_min"] if r else np.nan for r in rows]
-        ax1.bar(x + (k - 1) * 0.27, mean, 0.27, color=STRATEGY_COLOURS[s], label=s)
-        ax1.plot(x + (k - 1) * 0.27, lo, "k_", ms=8)
-        ax2.bar(x + (k - 1) * 0.27, [r["true_rms_um"] if r else np.nan for r in rows], 0.27,
-                color=STRATEGY_COLOURS[s], label=s)
+    for k, rows in _bars(ax1, x, families, summary, "coverage95_mean").items():
+        ax1.plot(x + (k - 1) * 0.27, [r["coverage95_min"] if r else np.nan for r in rows], "k_",
+                 ms=8)
+    _bars(ax2, x, families, summary, "true_rms_um")
     ax1.axhspan(0.90, 0.98, color="0.85", zorder=0)
     ax1.set(xticks=x, ylabel="coverage95 (mean; bar: min)", ylim=(0, 1.02))
     ax1.set_xticklabels(families, rotation=30)
@@ -91,14 +99,8 @@ def figures(docs: Path, summary: dict) -> list[str]:
     names.append("plates-coverage.png")
     fig = Figure(figsize=(8, 3.4), constrained_layout=True)
     ax1, ax2 = fig.subplots(1, 2)
-    for k, s in enumerate(STRATEGY_COLOURS):
-        rows = [summary[f].get(s) for f in families]
-        if not any(rows):
-            continue
-        ax1.bar(x + (k - 1) * 0.27, [r["touches"] if r else np.nan for r in rows], 0.27,
-                color=STRATEGY_COLOURS[s], label=s)
-        ax2.bar(x + (k - 1) * 0.27, [r["robot_time_s"] if r else np.nan for r in rows], 0.27,
-                color=STRATEGY_COLOURS[s], label=s)
+    _bars(ax1, x, families, summary, "touches")
+    _bars(ax2, x, families, summary, "robot_time_s")
     for ax, lab in ((ax1, "touches at own stop"), (ax2, "robot time at own stop (s)")):
         ax.set(xticks=x, ylabel=lab)
         ax.set_xticklabels(families, rotation=30)
