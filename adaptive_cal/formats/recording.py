@@ -28,7 +28,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from adaptive_cal.formats.table import read_table
+from adaptive_cal.formats.table import MAX_ROWS, read_table
 
 MAGIC = "# adaptive-cal recording v1"
 REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
@@ -121,8 +121,7 @@ def _number(text: str, *, where: str, blank_ok: bool = False) -> float:
 #: unit error, or a file this tool cannot analyse in memory: refused with the line.
 MAX_ABS_POSITION_MM = 1e4
 MAX_ABS_READING_MM = 1e3
-MAX_T_S = 1e8
-MAX_ROWS = 200_000
+MAX_T_S = 1e8  # MAX_ROWS is formats.table's: a plain table is read as a recording
 MAX_BYTES = 64 * 2**20
 _LIMITS = {"x_mm": MAX_ABS_POSITION_MM, "y_mm": MAX_ABS_POSITION_MM, "z_mm": MAX_ABS_POSITION_MM,
            "reading_mm": MAX_ABS_READING_MM, "t_s": MAX_T_S, "seq": 1e15}

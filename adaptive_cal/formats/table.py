@@ -21,7 +21,7 @@ X_NAMES = ("x_mm", "x")
 Y_NAMES = ("y_mm", "y")
 VALUE_NAMES = ("reading_mm", "reading", "height_mm", "height", "z_mm", "z")
 Z_NAMES = ("z_mm", "z")
-MAX_ROWS = 200_000  # as formats.recording.MAX_ROWS (which imports this module)
+MAX_ROWS = 200_000  # rows of a table or a recording (formats.recording uses this one)
 LIMIT_MM = 1e4  # no coordinate or reading of a plate this tool reads lies beyond 10 m
 
 
