@@ -6,6 +6,7 @@ recordings are written as text and read back with ``load_cell`` and ``read_recor
 ``explain`` runs in-process. A case that raises is recorded with its error; the run goes on.
 
     python benchmarks/bench_explain_indep.py [--quick] [--n 10] [--seed 0] [--workers 2]
+        [--only null_student_t,single/form/6]   # a subset of the case keys (targets print on it)
     python benchmarks/bench_explain_indep.py --from benchmarks/results/explain-indep-DATE.json
 
 Writes benchmarks/results/explain-indep-<date>[-quick].json (every case and the printed lines).
@@ -91,6 +92,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None, help="results JSON (default: dated)")
+    ap.add_argument("--only", default="",
+                    help="comma-separated parts of case keys to run (e.g. null_student_t,single/form/6)")
     ap.add_argument("--from", dest="source", type=Path, default=None,
                     help="print the targets of an earlier results JSON, run nothing")
     args = ap.parse_args(argv)
@@ -101,6 +104,11 @@ def main(argv: list[str] | None = None) -> None:
         return
     n = 3 if args.quick else args.n
     specs = cases.table(n)
+    if args.only:
+        parts = [p for p in args.only.split(",") if p]
+        specs = [s for s in specs if any(p in cases.spec_key(s) for p in parts)]
+        if not specs:
+            ap.error(f"--only {args.only!r} matches no case key (e.g. null_gauss/none/0/mixed/...)")
     print(f"{len(specs)} recordings, {args.workers} workers, seed {args.seed}", flush=True)
     t0 = time.perf_counter()
     jobs = [(s, args.seed) for s in specs]
