@@ -7,8 +7,10 @@ with confidence is worse than none, so the findings say how sure they are: ``ver
 (posterior probability of the verdict: none has prior 1/2, the candidates share the other half;
 ``verdict_probabilities`` gives back to a runner-up that fits as well the part of the lead that is
 only its prior's Occam factor, up to ``OCCAM_NATS``) and
-``ambiguous_with`` (candidates within ``AMBIGUOUS`` nats of the verdict -- on a single-round
-plate design arm_sag and form are the usual pair).
+``ambiguous_with`` (candidates whose posterior odds against the verdict, in those same
+probabilities, are at least 1 : 9, i.e. within ``AMBIGUOUS`` = ln 9 nats -- on a plate design
+with the robot base along x, arm_sag and a bow are the usual pair: sag with p near 1 is a bow
+across the reach, ``benchmarks/explain_separability.py``).
 
 Readings that disagree with every probable model are suspect readings (``suspects``): listed in
 ``suspect_readings``, counted in ``readings`` and kept out of everything else (``_screened``).
@@ -35,7 +37,12 @@ from adaptive_cal.analysis.explain.suspects import SUSPECT, model_terms, suspect
 
 Z95 = 1.959963984540054  # the normal 97.5 % quantile
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
-AMBIGUOUS = 1.0  # runner-ups within this many nats of the verdict are reported as ambiguous_with
+# A runner-up is ``ambiguous_with`` the verdict while the two's posterior odds (the probabilities
+# explain reports, ``verdict_probabilities``) are below 9 : 1 -- the verdict's probability
+# against that runner-up alone below 0.9, the lowest class the calibration calls sure (at most
+# 10 % wrong at 0.9-0.99). So a verdict given below 0.9 because of a runner-up always names it,
+# and a verdict at >= 0.9 never lists one (every other candidate then holds <= 0.1 <= p / 9).
+AMBIGUOUS = float(np.log(9.0))  # nats of posterior log odds, verdict over runner-up
 
 
 @dataclass
@@ -149,6 +156,20 @@ def verdict_probabilities(ctx: Context, cands: list[Candidate]) -> np.ndarray:
     return model_probabilities([replace(c, log_bf=float(l)) for c, l in zip(cands, lbf + lift)])
 
 
+def ambiguous_runner_ups(cands: list[Candidate], prob: np.ndarray, winner: Candidate | None,
+                         threshold: float = THRESHOLD) -> list[str]:
+    """Candidates above the threshold whose probability (``prob``: none first, then ``cands``,
+    as ``verdict_probabilities`` gives them) is at least the verdict's / e^AMBIGUOUS (odds 1 : 9),
+    most probable first: the verdict is not sure against any of them alone."""
+    if winner is None:
+        return []
+    pw = float(prob[1 + cands.index(winner)])
+    out = [(float(prob[1 + i]), c.effect) for i, c in enumerate(cands)
+           if c is not winner and c.log_bf > threshold
+           and np.log(pw) - np.log(max(float(prob[1 + i]), 1e-300)) < AMBIGUOUS]
+    return [name for _, name in sorted(out, key=lambda t: -t[0])]
+
+
 def _scored(design: Design) -> tuple[Design, Context, list[Candidate]]:
     """Calibrate (tilt, offsets, unknowns), then score every testable candidate."""
     ctx = Context.of(design)
@@ -244,8 +265,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         after, loo1 = before, loo0
     rms = lambda r: float(np.sqrt(np.mean(r ** 2)))
     prob = verdict_probabilities(ctx, cands)
-    ambiguous = [c.effect for c in cands if winner is not None and c is not winner
-                 and c.log_bf > threshold and winner.log_bf - c.log_bf < AMBIGUOUS]
+    ambiguous = ambiguous_runner_ups(cands, prob, winner, threshold)
     ambiguous += [n for n in covering(ctx, winner, cands, threshold) if n not in ambiguous]
     verdict = "unexplained" if unexplained else (winner.effect if winner else "none")
     findings = {
@@ -299,4 +319,4 @@ def belief_rows(effect: str, params: dict, features: effects.Features,
 
 
 __all__ = ["explain", "explain_design", "Explanation", "belief_rows", "effect_params",
-           "THRESHOLD", "AMBIGUOUS"]
+           "ambiguous_runner_ups", "THRESHOLD", "AMBIGUOUS"]
