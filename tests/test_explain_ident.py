@@ -72,3 +72,57 @@ def test_a_bow_across_the_reach_names_the_pair_whenever_it_is_not_sure(tmp_path)
             named = {f["verdict"], *f["ambiguous_with"]}
             assert {"form", "arm_sag"} <= named, (seed, f["verdict_probability"], f["candidates"])
     assert unsure >= 4  # the pair is really not separable here: the answers are unsure
+
+
+def _brute_log_z(X, y, prior_std):
+    """log of mean over tau of integral N(y; 0, v I + tau^2 X X^T) dsigma / sigma, by a dense
+    quadrature in w = log v (dsigma / sigma = dw / 2): the oracle of the spectral evidence."""
+    from scipy.special import logsumexp
+
+    n = y.size
+    w = np.log(y @ y / n) + np.linspace(-16.0, 12.0, 6001)
+
+    def logpdf(C):
+        return -0.5 * (n * np.log(2 * np.pi) + np.linalg.slogdet(C)[1] + y @ np.linalg.solve(C, y))
+
+    out = []
+    for tau in prior_std:
+        C0 = tau ** 2 * X @ X.T
+        lp = np.array([logpdf(C0 + np.exp(wi) * np.eye(n)) for wi in w])
+        out.append(logsumexp(lp) + np.log(w[1] - w[0]) + np.log(0.5))
+    return float(logsumexp(out) - np.log(len(out)))
+
+
+def test_presence_evidence_is_the_mean_over_the_sets_of_present_shapes():
+    from itertools import combinations
+    from scipy.special import logsumexp
+    from adaptive_cal.analysis.explain.evidence import log_evidence_presence
+
+    rng = np.random.default_rng(15)
+    X = rng.normal(size=(9, 3))
+    y = 0.8 * X[:, 1] + 0.3 * rng.normal(size=9)
+    taus = np.array([0.1, 0.5, 2.0])
+    sets = [S for r in (1, 2, 3) for S in combinations(range(3), r)]
+    oracle = float(logsumexp([_brute_log_z(X[:, list(S)], y, taus) for S in sets]) - np.log(7))
+    assert log_evidence_presence(X, y, taus, 9, [0, 1, 2]) == pytest.approx(oracle, abs=1e-4)
+
+
+def test_presence_evidence_saves_the_occam_factor_of_absent_shapes_only():
+    """One shape present: the presence prior beats the all-present one by about the absent
+    shapes' Occam factor less ln 15; all four present: it pays ln 15 (the full set's share)."""
+    from adaptive_cal.analysis.explain.evidence import log_evidence_mixture, log_evidence_presence
+
+    rng = np.random.default_rng(16)
+    X = rng.normal(size=(400, 4))
+    taus = np.geomspace(1e-3, 1.0, 13)
+    e = 0.01 * rng.normal(size=400)
+    one = 0.05 * X[:, 0] + e
+    full, _, _ = log_evidence_mixture(X, one, taus, 400)
+    alone, _, _ = log_evidence_mixture(X[:, :1], one, taus, 400)
+    pres = log_evidence_presence(X, one, taus, 400, [0, 1, 2, 3])
+    assert alone - np.log(15) < pres < alone  # the one-shape set dominates, at its 1/15 share
+    assert pres - full > 3.0  # three absent shapes at lam tau^2 / v ~ 10^4: ~4.6 nats each
+    every = X @ np.array([0.05, -0.04, 0.03, 0.06]) + e
+    full, _, _ = log_evidence_mixture(X, every, taus, 400)
+    pres = log_evidence_presence(X, every, taus, 400, [0, 1, 2, 3])
+    assert pres == pytest.approx(full - np.log(15), abs=0.05)
