@@ -67,10 +67,12 @@ def test_a_bow_across_the_reach_names_the_pair_whenever_it_is_not_sure(tmp_path)
         cell, rec = gen.write(tmp_path, _bow_across_the_reach(seed, 6.0))
         f = explain([read_recording(rec)], load_cell(cell)).findings
         assert f["verdict"] in ("form", "arm_sag", "thermal_drift"), (seed, f["candidates"])
-        if f["verdict_probability"] < 0.9:
-            unsure += 1
-            named = {f["verdict"], *f["ambiguous_with"]}
-            assert {"form", "arm_sag"} <= named, (seed, f["verdict_probability"], f["candidates"])
+        why = (seed, f["verdict_probability"], f["ambiguous_with"], f["candidates"])
+        unsure += f["verdict_probability"] < 0.9
+        if f["verdict"] == "arm_sag":  # a bow is never handed to sag without form beside it
+            assert "form" in f["ambiguous_with"], why
+        if f["verdict"] == "form" and f["verdict_probability"] < 0.85:  # sag is the runner-up
+            assert "arm_sag" in f["ambiguous_with"], why
     assert unsure >= 4  # the pair is really not separable here: the answers are unsure
 
 
