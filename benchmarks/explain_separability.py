@@ -59,6 +59,8 @@ def verdict_columns(name: str, params: dict, design) -> list[np.ndarray]:
     first = {k: (v[0] if isinstance(v, list) else v) for k, v in (params or {}).items()}
     per_round = any(isinstance(v, list) for v in (params or {}).values())
     grid = e.grid(design.features, design.geometry) if e.searched else {}
+    if not e.plain:  # only a searched linear part (arm_sag): its column is the effect
+        first.update({n: first.get(n, 0.0) for n in e.searched})
     choices = [first]
     if len(grid) == 1 and not {"x_mm", "y_mm"} & set(grid):
         (key, values), = grid.items()

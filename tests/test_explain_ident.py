@@ -128,3 +128,29 @@ def test_presence_evidence_saves_the_occam_factor_of_absent_shapes_only():
     full, _, _ = log_evidence_mixture(X, every, taus, 400)
     pres = log_evidence_presence(X, every, taus, 400, [0, 1, 2, 3])
     assert pres == pytest.approx(full - np.log(15), abs=0.05)
+
+
+def _separation(truth: dict, verdict: str, params: dict, key: str, seed: int = 7):
+    import sys
+    from conftest import ROOT
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from explain_separability import separation
+
+    rec = {"key": key, "truth": {"effects": [truth]}, "verdict": verdict, "params": params,
+           "candidates": {}}
+    return separation(rec, seed)
+
+
+def test_separability_oracle_sag_p2_is_inside_form_and_a_bow_is_not_inside_sag():
+    """(r / 1 m)^2 = (x^2 + y^2 + linear) / 1e6 lies exactly in the tilt + form span (bow_x,
+    bow_y): cc 1, sep 0. A bow across the reach is near sag's p = 1 but not in it: cc < 1, and
+    sep is a likelihood ratio, so it grows with the square of the bow's size."""
+    key = "single/arm_sag/6/s_path/standard/gauss/0"
+    s = _separation({"effect": "arm_sag", "p": 2.0, "sag_mm_at_1m": 0.5}, "form", {}, key)
+    assert s["cc"] == pytest.approx(1.0, abs=1e-9) and s["sep_nats"] < 1e-6
+    bow = {"effect": "form", "weights_mm": [0.0, 0.02, 0.0]}
+    s1 = _separation(bow, "arm_sag", {"p": 2.0}, key)
+    s2 = _separation({**bow, "weights_mm": [0.0, 0.04, 0.0]}, "arm_sag", {"p": 2.0}, key)
+    assert 0.8 < s1["cc"] < 0.999 and s2["cc"] == pytest.approx(s1["cc"], abs=1e-9)
+    assert s2["sep_nats"] == pytest.approx(4.0 * s1["sep_nats"], rel=1e-9) and s1["sep_nats"] > 0.5
