@@ -40,8 +40,9 @@ THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (doc
 # A runner-up is ``ambiguous_with`` the verdict while the two's posterior odds (the probabilities
 # explain reports, ``verdict_probabilities``) are below 9 : 1 -- the verdict's probability
 # against that runner-up alone below 0.9, the lowest class the calibration calls sure (at most
-# 10 % wrong at 0.9-0.99). So a verdict given below 0.9 because of a runner-up always names it,
-# and a verdict at >= 0.9 never lists one (every other candidate then holds <= 0.1 <= p / 9).
+# 10 % wrong at 0.9-0.99). So a verdict given below 0.9 because of a runner-up always names it;
+# at >= 0.9 this rule lists none (every other candidate holds <= 0.1 <= p / 9), only ``covering``
+# may (a span that holds the verdict's signature and fits as well).
 AMBIGUOUS = float(np.log(9.0))  # nats of posterior log odds, verdict over runner-up
 
 
