@@ -154,3 +154,60 @@ def test_unexplained_probability_is_the_p_value_calibration_bound():
     values = [structure_probability(p) for p in ps]
     assert all(a >= b for a, b in zip(values, values[1:]))
     assert values[-1] == pytest.approx(0.5, abs=1e-6)
+
+
+def _dense_log_evidence(Zt, zt, tau2, v_grid):
+    """Oracle: log p(z | tau) with p(sigma) ~ 1/sigma, by the dense Gaussian density on a fine
+    grid of log v (no spectral shortcut), up to the constant every tau shares; and the v that
+    maximises p(z | tau, v) on that grid."""
+    m = zt.size
+    logp = np.array([stats.multivariate_normal(np.zeros(m), v * np.eye(m) + tau2 * Zt @ Zt.T,
+                                               allow_singular=True).logpdf(zt) for v in v_grid])
+    dw = np.log(v_grid[1] / v_grid[0])
+    return float(np.log(np.sum(np.exp(logp - logp.max())) * dw / 2) + logp.max()), v_grid[
+        int(np.argmax(logp - 0.5 * np.log(v_grid)))]
+
+
+def test_scale_averaged_posterior_against_a_dense_oracle():
+    """A plain candidate's posterior averaged over its prior scale tau: the weights from the
+    dense evidence of each tau (a direct Gaussian density integrated over the noise on a grid),
+    each tau's posterior given the noise at its mode, the mixture's mean and covariance."""
+    from types import SimpleNamespace
+    from adaptive_cal.analysis.explain.averaging import scale_averaged
+    from adaptive_cal.analysis.explain.candidates import Candidate, prior_grid
+    from adaptive_cal.analysis.explain.evidence import Projector
+    from adaptive_cal import effects
+    rng = np.random.default_rng(5)
+    n = 24
+    x, y = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    N = np.column_stack([x, y, np.ones(n)])
+    X = np.column_stack([x * x, y * y, x * y, x * x * y * y])
+    yv = N @ [0.01, -0.02, 0.3] + X @ [0.0, 0.0, 0.05, 0.0] + 0.01 * rng.standard_normal(n)
+    proj = Projector.of(N)
+    yt = proj(yv)
+    ctx = SimpleNamespace(project=proj, yt=yt, m=n - 3)
+    names = ("bow_x", "bow_y", "twist", "warp")
+    taus = prior_grid(effects.get("form"), names)
+    # the oracle, in the complement of the nuisance (z = Q^T y, Z = Q^T X)
+    q, _ = np.linalg.qr(N, mode="complete")
+    Q = q[:, 3:]
+    zt, Zt = Q.T @ yv, Q.T @ X
+    v_grid = np.geomspace(1e-6, 1e-2, 801)
+    lz, means, covs = [], [], []
+    for tau in taus:
+        z, v = _dense_log_evidence(Zt, zt, tau ** 2, v_grid)
+        P = Zt.T @ Zt / v + np.eye(4) / tau ** 2
+        C = np.linalg.inv(P)
+        lz.append(z), means.append(C @ Zt.T @ zt / v), covs.append(C)
+    w = np.exp(np.array(lz) - max(lz))
+    w /= w.sum()
+    mean = w @ np.array(means)
+    dev = np.array(means) - mean
+    cov = np.einsum("t,tij->ij", w, np.array(covs)) + np.einsum("t,ti,tj->ij", w, dev, dev)
+    best = taus[int(np.argmax(lz))]  # the candidate as scored: held at the most probable tau
+    cand = Candidate("form", 1.0, X, np.full(4, best ** 2), names).fit_posterior(ctx)
+    got = scale_averaged(ctx, cand)
+    assert got.mean == pytest.approx(mean, rel=0.02, abs=2e-4)
+    assert np.sqrt(np.diag(got.cov)) == pytest.approx(np.sqrt(np.diag(cov)), rel=0.03)
+    assert not np.allclose(got.mean, cand.mean, rtol=1e-3)  # not the best tau's posterior
+    assert got.log_bf == cand.log_bf and got.columns is cand.columns
