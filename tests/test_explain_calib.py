@@ -57,6 +57,28 @@ def test_cell_variance_of_a_uniform_grid():
     assert intervals.cell_var(np.array([1.0, 2.0, 3.0])) == pytest.approx(np.full(3, 1 / 12))
 
 
+def test_two_sd_holds_the_normal_two_sd_mass():
+    """The equivalent-normal sd: one normal on the reported value gives its sd; a uniform of
+    half-width a gives 0.9545 a / 2; two narrow modes at -d and +d seen from +d give d; and
+    in every case value +- 2 s holds 95.45 % of the mixture (scipy's cdf)."""
+    assert intervals.two_sd_normal([1.0], [3.0], [0.7], 3.0) == pytest.approx(0.7, rel=1e-9)
+    a = 6.0
+    assert intervals.two_sd_uniform([1.0], [1.0], [a * a / 3], 1.0) == pytest.approx(
+        (stats.norm.cdf(2) - stats.norm.cdf(-2)) * a / 2, rel=1e-9)
+    assert intervals.two_sd_normal([0.5, 0.5], [-4.0, 4.0], [1e-3, 1e-3], 4.0) == pytest.approx(
+        4.0, abs=0.01)
+    w, m, sd = np.array([0.2, 0.5, 0.3]), np.array([-1.0, 0.5, 3.0]), np.array([0.3, 1.0, 2.0])
+    s = intervals.two_sd_normal(w, m, sd, 0.4)
+    held = w @ (stats.norm.cdf((0.4 + 2 * s - m) / sd) - stats.norm.cdf((0.4 - 2 * s - m) / sd))
+    assert held == pytest.approx(0.9544997, abs=1e-7)
+    c, v = np.array([0.0, 2.0, 5.0]), np.array([1.0, 0.0, 3.0])  # a point mass at 2
+    s = intervals.two_sd_uniform(w, c, v, 1.0)
+    h = np.sqrt(3 * v)
+    lo, hi = np.clip(1.0 - 2 * s, c - h, c + h), np.clip(1.0 + 2 * s, c - h, c + h)
+    inside = np.where(h > 0, (hi - lo) / np.where(h > 0, 2 * h, 1), np.abs(c - 1.0) <= 2 * s)
+    assert w @ inside == pytest.approx(0.9544997, abs=1e-7)
+
+
 def test_sag_between_grid_exponents_is_covered(tmp_path):
     """p = 1.75 and 2.25 lie between the grid's exponents: the reported sag and p are refined,
     and their 2-sd intervals cover the truth (before: held at the best grid point, 75 %)."""
