@@ -53,7 +53,9 @@ def averaged(ctx: Context, cand: Candidate) -> Candidate:
     """A searched candidate at the best point of its refined grid, with sds and 95 % intervals
     averaged over the grid's posterior (``intervals``) instead of held at the best point: its
     search grid's cells split (along arm_sag's p, the warm-up's tau_s, a bump's radius and
-    centre), each point weighted by its evidence. The log Bayes factor stays the search's."""
+    centre), each point weighted by its evidence. The log Bayes factor stays the search's. A
+    plain candidate (no search): its posterior averaged over its prior scale
+    (``scale_averaged``)."""
     if cand.support is None:
         return cand if cand.fixed or cand.mean is None else scale_averaged(ctx, cand)
     d = ctx.design
