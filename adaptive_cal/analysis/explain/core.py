@@ -63,9 +63,11 @@ def effect_params(cand: Candidate, design: Design, *, intervals_95: bool = False
     """Parameters and standard deviations in the effect table's names and signs.
 
     Shared effects give numbers; effects fitted per round give one number per round. The sds
-    are calibrated (``intervals``): a searched effect's are averaged over its grid (form's pv_mm
-    keeps its delta-method sd; its interval is clipped at zero). ``intervals_95``: also return the
-    95 % intervals (name -> [low, high], per round a list of them) as a third value.
+    are calibrated (``averaging``): a searched effect's are equivalent-normal sds of its refined
+    grid posterior (``intervals``); a plain effect's come from its posterior averaged over the
+    prior scale, and form's pv_mm from that posterior by the delta method (its interval clipped
+    at zero). ``intervals_95``: also return the 95 % intervals (name -> [low, high], per round a
+    list of them) as a third value.
     """
     effect = effects.get(cand.effect)
     names = cand.names
