@@ -26,6 +26,7 @@ from adaptive_cal.analysis.explain.averaging import averaged
 from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
 from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design, build_design
 from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
+from adaptive_cal.analysis.explain.heavy import heavy_tailed
 from adaptive_cal.analysis.explain.identify import not_identifiable
 from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
@@ -190,6 +191,7 @@ def _screened(design: Design):
                  "residual_mm": res, "probability": prob,
                  **({"round": int(design.round_index[i])} if design.rounds > 1 else {})}
                 for i, prob, res in sorted(found)]
+    cands, _ = heavy_tailed(ctx, cands, model_probabilities(cands))
     return scored, ctx, cands, suspects
 
 
