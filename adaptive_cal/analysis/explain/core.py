@@ -191,7 +191,7 @@ def _screened(design: Design):
                  "residual_mm": res, "probability": prob,
                  **({"round": int(design.round_index[i])} if design.rounds > 1 else {})}
                 for i, prob, res in sorted(found)]
-    cands, _ = heavy_tailed(ctx, cands, model_probabilities(cands))
+    cands, _ = heavy_tailed(ctx, cands, np.array([res for _, _, res in found]))
     return scored, ctx, cands, suspects
 
 

@@ -35,12 +35,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.special import logsumexp
 
 from adaptive_cal.analysis.explain.suspects import LOG_SQRT_2PI, model_terms, t_logpdf
 
 NU_GRID = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.0, 20.0, 50.0)  # Student-t dof tried; inf = Gaussian
-ALPHA = 0.01  # the Gaussian is rejected for a heavy tail at this level
-CRITICAL_NATS = 0.5 * 5.411894431054  # chi^2_1 quantile at 2 ALPHA (boundary: 50:50 mixture), halved
+GAUSSIAN_PRIOR = 0.5  # prior probability of Gaussian noise; the rest spread over NU_GRID
 EM_STEPS = 60
 
 
@@ -75,30 +75,53 @@ def t_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, nu: float) -> fl
     return float(np.sum(t_logpdf(r / s, nu)) - y.size * np.log(s))
 
 
-def tail_dof(D: np.ndarray, y: np.ndarray, penalty: np.ndarray) -> tuple[float, float]:
-    """(nu, log likelihood ratio t vs Gaussian) of the readings under one model; nu = inf when
-    the ratio stays below ``CRITICAL_NATS`` (the Gaussian is kept)."""
-    base = gaussian_loglik(D, y, penalty)
-    ll = np.array([t_loglik(D, y, penalty, nu) for nu in NU_GRID])
-    best = int(np.argmax(ll))
-    gain = float(ll[best] - base)
-    return (NU_GRID[best] if gain > CRITICAL_NATS else float("inf")), gain
+def tail_gains(residual: np.ndarray) -> np.ndarray:
+    """l_nu - l_N per nu in ``NU_GRID`` of residuals held fixed (the scale fitted: EM)."""
+    r = np.asarray(residual, float)
+    n = r.size
+    s2n = max(float(r @ r) / n, 1e-300)
+    base = -n * (LOG_SQRT_2PI + 0.5 * np.log(s2n) + 0.5)
+    out = []
+    for nu in NU_GRID:
+        s2 = s2n
+        for _ in range(EM_STEPS):
+            s2_new = max(float(np.sum((nu + 1.0) / (nu + r * r / s2) * r * r)) / n, 1e-300)
+            done = abs(s2_new - s2) <= 1e-10 * s2
+            s2 = s2_new
+            if done:
+                break
+        out.append(float(np.sum(t_logpdf(r / np.sqrt(s2), nu))) - 0.5 * n * np.log(s2) - base)
+    return np.array(out)
 
 
-def heavy_tailed(ctx, cands: list, probabilities: np.ndarray) -> tuple[list, dict]:
+def noise_dof(gain: np.ndarray) -> float:
+    """The most probable noise model given the gains l_nu - l_N: the Gaussian (inf) with prior
+    ``GAUSSIAN_PRIOR``, each nu of ``NU_GRID`` with the rest shared evenly. With prior 1/2 the
+    Gaussian is kept unless a t gains more than log(len(NU_GRID)) = 2.2 nats (the prior's
+    Occam factor)."""
+    logp = np.log((1.0 - GAUSSIAN_PRIOR) / len(NU_GRID)) + np.asarray(gain)
+    best = int(np.argmax(logp))
+    return NU_GRID[best] if logp[best] > np.log(GAUSSIAN_PRIOR) else float("inf")
+
+
+def heavy_tailed(ctx, cands: list, set_aside: np.ndarray = np.zeros(0)) -> tuple[list, dict]:
     """The candidates with log BFs corrected to the recording's Student-t noise (module
-    docstring), best first, and the noise finding {nu, log_lr_vs_gaussian, judged_under}.
-
-    ``probabilities``: posterior of none and the candidates (the most probable one's residuals
-    judge the noise)."""
+    docstring), best first, and the noise finding {nu (None: Gaussian), log_lr_vs_gaussian,
+    judged_under}. The noise is judged on the residuals of the most probable model, with the
+    readings already ``set_aside`` as suspects (their leave-one-out residuals): a suspect is a
+    tail reading, and a recording that has them is evidence of heavy tails."""
     terms = model_terms(ctx.nuisance, cands)
     y = ctx.design.target
-    judge = int(np.argmax(probabilities))
-    nu, gain = tail_dof(terms[judge][0], y, terms[judge][1])
-    noise = {"nu": None if np.isinf(nu) else nu, "log_lr_vs_gaussian": gain,
+    judge = int(np.argmax([0.0] + [c.log_bf - np.log(len(cands)) for c in cands]))  # none: 1/2
+    D, P = terms[judge]
+    gain = tail_gains(np.concatenate([_fit(D, y, P, np.ones(y.size)), set_aside]))
+    nu = noise_dof(gain)
+    noise = {"nu": None if np.isinf(nu) else nu, "log_lr_vs_gaussian": float(gain.max()),
              "judged_under": "none" if judge == 0 else cands[judge - 1].effect}
     if np.isinf(nu):
         return cands, noise
     delta = [t_loglik(D, y, P, nu) - gaussian_loglik(D, y, P) for D, P in terms]
-    out = [replace(c, log_bf=float(c.log_bf + d - delta[0])) for c, d in zip(cands, delta[1:])]
+    # the effect must beat none under both noise models the data allow: never raised
+    out = [replace(c, log_bf=float(c.log_bf + min(d - delta[0], 0.0))) for c, d in zip(cands, delta[1:])]
     return sorted(out, key=lambda c: -c.log_bf), noise
+
