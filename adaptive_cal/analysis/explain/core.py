@@ -166,7 +166,9 @@ def _screened(design: Design):
     """Score, judge every reading against every model (``suspects``), set the most probable
     suspect aside and score again, until no reading is a suspect: the suspects are kept out of
     the evidence, the verdict and the refit. One at a time, so a spike does not make its
-    neighbour look bad through a bump fitted to the spike."""
+    neighbour look bad through a bump fitted to the spike. Then ``heavy``: where the residuals
+    (the suspects' included) say the noise is heavy-tailed, every log BF is lowered to what it is
+    against a heavy-tailed none."""
     keep = np.ones(design.n, bool)
     found: list[tuple[int, float, float]] = []
     while True:
