@@ -28,6 +28,7 @@ from adaptive_cal.analysis.explain.averaging import averaged
 from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
 from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design, build_design
 from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
+from adaptive_cal.analysis.explain.heavy import heavy_tailed
 from adaptive_cal.analysis.explain.identify import not_identifiable
 from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
@@ -189,7 +190,9 @@ def _screened(design: Design):
     """Score, judge every reading against every model (``suspects``), set the most probable
     suspect aside and score again, until no reading is a suspect: the suspects are kept out of
     the evidence, the verdict and the refit. One at a time, so a spike does not make its
-    neighbour look bad through a bump fitted to the spike."""
+    neighbour look bad through a bump fitted to the spike. Then ``heavy``: where the residuals
+    (the suspects' included) say the noise is heavy-tailed, every log BF is lowered to what it is
+    against a heavy-tailed none."""
     keep = np.ones(design.n, bool)
     found: list[tuple[int, float, float]] = []
     while True:
@@ -214,6 +217,7 @@ def _screened(design: Design):
                  "residual_mm": res, "probability": prob,
                  **({"round": int(design.round_index[i])} if design.rounds > 1 else {})}
                 for i, prob, res in sorted(found)]
+    cands, _ = heavy_tailed(ctx, cands, np.array([res for _, _, res in found]))
     return scored, ctx, cands, suspects
 
 
