@@ -175,3 +175,54 @@ def test_one_touch_bump_is_not_nameable():
                   [0.29, 0.6, 0.5, 0.0],
                   [0.0, 0.0, 0.5, 0.0]])
     assert list(nameable_reach(X)) == [0, 2, 3, 0]
+
+
+def test_apart_defers_only_suspects_inside_the_fitted_bump():
+    """One pass sets aside every suspect outside the bump's reach and, inside it, only the most
+    probable; readings below SUSPECT never."""
+    from adaptive_cal.analysis.explain.suspects import apart
+
+    p = np.array([0.9, 0.2, 0.99, 0.7, 0.6, 0.51, 0.49])
+    in_bump = np.array([True, False, False, True, True, False, False])
+    assert apart(p, in_bump).tolist() == [0, 2, 5]
+    assert apart(p, np.zeros(7, bool)).tolist() == [0, 2, 3, 4, 5]
+    assert apart(np.zeros(3), np.ones(3, bool)).size == 0
+
+
+def _one_at_a_time(design):
+    """The reference: the most probable suspect set aside per pass (the screening before the
+    batched passes), from the same public pieces."""
+    from adaptive_cal.analysis.explain.core import _scored, model_probabilities
+    from adaptive_cal.analysis.explain.suspects import model_terms
+
+    keep = np.ones(design.n, bool)
+    while True:
+        scored, ctx, cands = _scored(design.select(keep))
+        p, _ = suspect_probability(model_terms(ctx.nuisance, cands), scored.target,
+                                   model_probabilities(cands), design.noise_floor_mm)
+        j = int(np.argmax(p))
+        if p[j] < SUSPECT or np.count_nonzero(~keep) >= 0.2 * design.n:
+            return set(design.seq[~keep].tolist())
+        keep[np.flatnonzero(keep)[j]] = False
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_batched_passes_set_aside_what_one_at_a_time_does(seed):
+    """Oracle: on 300 random touches with Student-t (3 dof) noise and two spikes, the batched
+    screening lists the same readings as setting aside one suspect per full rescoring."""
+    from adaptive_cal.analysis.explain.core import _screened
+    from adaptive_cal.analysis.explain.design import build_design
+    from adaptive_cal.formats.recording import Recording
+    from adaptive_cal.simulation.concealed import WORKPLANE, ZERO_MM, generator_cell
+
+    rng = np.random.default_rng([509, seed])
+    n = 300
+    x, y = rng.uniform(*WORKPLANE["x_mm"], n), rng.uniform(*WORKPLANE["y_mm"], n)
+    z = ZERO_MM + 0.003 * x - 0.002 * y + 0.1 + 0.005 / np.sqrt(3) * rng.standard_t(3, n)
+    z[[10, 200]] += [0.06, -0.05]
+    rec = Recording(np.arange(n), 4.0 * np.arange(n), x, y, np.zeros(n),
+                    np.round(z / 1e-4) * 1e-4, path="t3.csv")
+    design = build_design([rec], generator_cell())
+    batched = {s["seq"] for s in _screened(design)[3]}
+    assert {10, 200} <= batched
+    assert batched == _one_at_a_time(design)

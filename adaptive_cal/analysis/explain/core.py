@@ -34,7 +34,7 @@ from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
 from adaptive_cal.analysis.explain.spans import covering
 from adaptive_cal.analysis.explain.structure import residual_structure, structure_probability
-from adaptive_cal.analysis.explain.suspects import SUSPECT, model_terms, suspect_probability
+from adaptive_cal.analysis.explain.suspects import apart, model_terms, suspect_probability
 
 Z95 = 1.959963984540054  # the normal 97.5 % quantile
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
@@ -188,9 +188,10 @@ MAX_SUSPECT_SHARE = 0.2  # isolated bad readings, not a bad recording: at most t
 
 def _screened(design: Design):
     """Score, judge every reading against every model (``suspects``), set the most probable
-    suspect aside and score again, until no reading is a suspect: the suspects are kept out of
-    the evidence, the verdict and the refit. One at a time, so a spike does not make its
-    neighbour look bad through a bump fitted to the spike. Then ``heavy``: where the residuals
+    suspects aside and score again, until no reading is a suspect: the suspects are kept out of
+    the evidence, the verdict and the refit. Inside the fitted bump's reach only the most
+    probable suspect goes in a pass (``suspects.apart``), so a spike does not make its neighbour
+    look bad through a bump fitted to the spike. Then ``heavy``: where the residuals
     (the suspects' included) say the noise is heavy-tailed, every log BF is lowered to what it is
     against a heavy-tailed none."""
     keep = np.ones(design.n, bool)
@@ -199,12 +200,15 @@ def _screened(design: Design):
         scored, ctx, cands = _scored(design.select(keep))
         p, loo = suspect_probability(model_terms(ctx.nuisance, cands), scored.target,
                                      model_probabilities(cands), design.noise_floor_mm)
-        j = int(np.argmax(p)) if p.size else 0
-        if not p.size or p[j] < SUSPECT or len(found) >= MAX_SUSPECT_SHARE * design.n:
+        room = int(np.ceil(MAX_SUSPECT_SHARE * design.n)) - len(found)
+        bump = [np.any(c.columns != 0, axis=1) for c in cands if c.effect == "local_defect"]
+        batch = apart(p, bump[0] if bump else np.zeros(p.size, bool))
+        batch = batch[np.argsort(-p[batch], kind="stable")][:max(room, 0)]
+        if not len(batch):
             break
-        i = int(np.flatnonzero(keep)[j])
-        found.append((i, float(p[j]), float(loo[j])))
-        keep[i] = False
+        rows = np.flatnonzero(keep)
+        found += [(int(rows[j]), float(p[j]), float(loo[j])) for j in batch]
+        keep[rows[batch]] = False
         for r, path in enumerate(design.paths):
             left = int(np.count_nonzero(keep & (design.round_index == r)))
             if left < MIN_ROWS_PER_ROUND:

@@ -38,6 +38,21 @@ SUSPECT = 0.5  # listed (and kept out of the evidence) at this posterior probabi
 ITERATIONS = 4
 
 
+def apart(p: np.ndarray, in_bump: np.ndarray) -> np.ndarray:
+    """Indices of the suspects (P >= ``SUSPECT``) set aside together in one pass, most probable
+    first: every suspect outside the fitted bump's reach (``in_bump``: rows the local_defect
+    candidate's column touches), and of those inside it only the most probable. The bump's
+    centre was chosen with the spike in the data, so it can make the spike's neighbours look bad;
+    they wait for the next pass, which searches the bump again without the spike. Elsewhere
+    ``suspect_probability`` already judges each reading with the others' suspects left out of
+    the fit, so they go together: a heavy-tailed recording with hundreds of suspects takes a few
+    passes, not hundreds of full rescorings."""
+    idx = np.flatnonzero(p >= SUSPECT)
+    idx = idx[np.argsort(-p[idx], kind="stable")]
+    inside = idx[in_bump[idx]]
+    return np.sort(np.concatenate([idx[~in_bump[idx]], inside[:1]]))
+
+
 def predictive(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, keep: np.ndarray):
     """Leave-one-out predictive of every reading from the readings kept (the others out).
 
