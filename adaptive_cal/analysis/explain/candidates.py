@@ -9,7 +9,8 @@ The ranges and the search grids are the effects' own (``adaptive_cal.effects``; 
 docs/explain.md is ``effects.markdown_table()``). How an effect is scored follows from its shape:
 
 - only linear parameters (form, reversal, probe_gain, a linear thermal_drift): the scale mixture,
-  shared and per round;
+  shared and per round; an effect made of several kinds of shape (form: bow, twist, warp) with
+  each kind present or not, the non-empty sets equally likely (``log_evidence_presence``);
 - one linear parameter whose column needs a nonlinear one (arm_sag's p, the warm-up's tau_s):
   the mixture for each value of the effect's search grid, averaged over the grid (uniform);
 - a centre and a radius (local_defect): radius uniform on its grid, centre uniform over a grid
@@ -40,7 +41,7 @@ from adaptive_cal import effects
 from adaptive_cal.effects import Effect
 from adaptive_cal.analysis.explain.design import Design
 from adaptive_cal.analysis.explain.evidence import (Projector, log_evidence, log_evidence_columns_mixture,
-                       log_evidence_mixture, posterior)
+                       log_evidence_mixture, log_evidence_presence, posterior)
 
 TAU_PER_DECADE = 4
 DEFECT_MIN_TOUCHES = 2  # a bump that reaches one touch is an outlier, not a nameable defect
@@ -155,7 +156,11 @@ def _plain(ctx: Context, effect: Effect, names: tuple[str, ...]) -> Candidate:
     taus = prior_grid(effect, names)
 
     def score(cols):
-        lz, best, _ = log_evidence_mixture(ctx.project(cols), ctx.yt, taus, ctx.m)
+        Xt = ctx.project(cols)
+        lz, best, _ = log_evidence_mixture(Xt, ctx.yt, taus, ctx.m)
+        if len(names) > 1:  # kinds of shape (form: bow, twist, warp), each present or not
+            kinds = np.arange(cols.shape[1]) % len(names)  # per-round copies share a kind
+            lz = log_evidence_presence(Xt, ctx.yt, taus, ctx.m, kinds)
         return lz, taus[best] ** 2 * np.ones(cols.shape[1])
 
     lz_s, var_s = score(X)
