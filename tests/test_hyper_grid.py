@@ -76,21 +76,3 @@ def test_refit_mixes_the_grid_at_few_readings():
     mean = sum(w * bl.condition(plan.model.belief(h), rows, y, h.noise_std_mm**2).mean
                for h, w in pts)
     assert np.allclose(state.belief.mean, mean, atol=1e-9)
-
-
-def test_refit_keeps_the_laplace_points_once_readings_outnumber_the_form():
-    from dataclasses import replace
-
-    from adaptive_cal.planning import survey as sv
-
-    from adaptive_cal.gaussian.prior import fit_hyper
-    from adaptive_cal.planning.hyper_grid import grid_points
-
-    plan = _plan()
-    n = plan.model.form_surface.size + 2
-    rows, y = _readings(plan, n, 3)
-    y = y + 0.008 * np.random.default_rng(103).standard_normal(n)  # noisier: a broad posterior
-    # the grid would resolve this posterior (so the test sees the survey's gate, not the grid's)
-    assert grid_points(plan.model, rows, y, None, None, fit_hyper(plan.model, rows, y)) is not None
-    state = sv.refit(plan, replace(sv.start(plan), rows=rows, heights_mm=y))
-    assert len(state.hyper_points) <= 7

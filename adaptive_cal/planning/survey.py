@@ -232,9 +232,7 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
         extra, w = extra_cov(plan, state), state.fused_weights
         belief, points = learned_belief(plan.model, state.rows, state.heights_mm,
                                         start=state.hyper, weights=w, extra=extra)
-        few = state.fused < plan.model.form_surface.size  # fewer readings than form coefficients
-        grid = grid_points(plan.model, state.rows, state.heights_mm, w, extra,
-                           points[0][0]) if few else None
+        grid = grid_points(plan.model, state.rows, state.heights_mm, w, extra, points[0][0])
         if grid is not None:  # few readings: the posterior on a grid, not its Laplace points
             points = grid
             belief = bl.mixture([bl.condition(plan.model.belief(h, extra), state.rows,
