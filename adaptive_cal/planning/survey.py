@@ -32,7 +32,6 @@ from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, learned_belief
 from adaptive_cal.planning.adequacy import Adequacy, assess
 from adaptive_cal.planning.gate import Retake, Told, flagged_p, judge as gate_judge, pending_after
-from adaptive_cal.planning.hyper_grid import grid_points
 from adaptive_cal.planning.robust import InvalidReading, check_touch, predictive  # noqa: F401
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
@@ -221,23 +220,15 @@ def extra_cov(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
 def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     """Re-fit the hyper-parameters to every fused reading and rebuild the belief: the
     posterior under each weighted hyper-parameter point, moment-matched (so the belief
-    carries the hyper-parameter uncertainty; the points are those of
-    ``planning.hyper_grid.grid_points`` while the grid resolves the posterior -- few
-    readings -- else the Laplace sigma points); the MAP's noise serves later fusions. Then the
+    carries the hyper-parameter uncertainty); the MAP's noise serves later fusions. Then the
     self-checks (``check``). A plan that can grow (``plan.growth``) checks the coarse model
     first: where it is inadequate, the prior takes the unresolved variance found there as
     finer structure on the refined knots, and the belief is rebuilt from the fused readings
     (exact: the batch posterior under the grown prior); where it is adequate, that is 0."""
     def fitted(state):
-        extra, w = extra_cov(plan, state), state.fused_weights
         belief, points = learned_belief(plan.model, state.rows, state.heights_mm,
-                                        start=state.hyper, weights=w, extra=extra)
-        grid = grid_points(plan.model, state.rows, state.heights_mm, w, extra, points[0][0])
-        if grid is not None:  # few readings: the posterior on a grid, not its Laplace points
-            points = grid
-            belief = bl.mixture([bl.condition(plan.model.belief(h, extra), state.rows,
-                                              state.heights_mm, h.noise_std_mm**2 / w)
-                                 for h, _ in grid], [p for _, p in grid])
+                                        start=state.hyper, weights=state.fused_weights,
+                                        extra=extra_cov(plan, state))
         return replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
                        fitted_at=state.fused)
 
