@@ -22,6 +22,15 @@ Unresolved variance at a point: the projection variance of the learned form ther
 region's s_k^2 = max(0, mean_k(e_i^2 - q_i - r_p)) (unbiased for an extra white term), kept
 only where a check 1-4 fails (else 0): the bands and the stop statistic add it
 (``planning.survey.status``), and the stop never fires while a check fails.
+
+The map beyond the reachable box (the edge margin no touch can reach, ``reach_mm``) is an
+extrapolation that no check can test: ``extrapolated`` names it (result.json, the summary)
+instead of adding a variance for it. A variance derived from the form prior would be the
+Taylor remainder of its curvature over the margin d, sqrt(3) s_f / l^2 * d^2 / 2: for d = 10 mm
+and the forms learned on realistic plates (s_f 15-30 um, l 150-350 mm) 0.02-0.1 um, while
+edge roll-off (non-stationary, where lapping and clamping act) put 11-16 um RMS of error there
+(benchmarks/bench_plates.py, edge family): no number from the touches or from the stationary
+prior bounds it, so the claim there is marked, not widened.
 """
 from __future__ import annotations
 
@@ -53,6 +62,8 @@ class Adequacy:
     surface: object = None  # the spline, for the learned form's projection variance
     form: tuple[float, float] = (0.0, 1.0)  # learned (s_f mm, l mm)
     form_var_mm2: float = 0.0  # its plate mean
+    plate_mm: tuple | None = None  # ((x0, x1), (y0, y1)) the workplane
+    reach_mm: tuple | None = None  # ((x0, x1), (y0, y1)) the box touches can reach
 
     def unresolved_var_mm2(self, x_mm, y_mm) -> np.ndarray:
         """s_u^2 (mm^2) at points (x, y): the projection variance of the learned form there
@@ -85,8 +96,32 @@ class Adequacy:
                         "readings": int(self.readings[i, j])})
         return sorted(out, key=lambda w: -w["unresolved_rms_mm"])
 
+    def extrapolated(self) -> dict | None:
+        """The part of the workplane outside the reachable box, or None when touches reach the
+        whole plate: ``margin_mm`` [left, right, bottom, top] (how far the map extrapolates
+        beyond the last point a touch can reach), ``share`` of the plate's area, and a line."""
+        if self.plate_mm is None or self.reach_mm is None:
+            return None
+        (x0, x1), (y0, y1) = self.plate_mm
+        (a0, a1), (b0, b1) = self.reach_mm
+        margin = [max(0.0, a0 - x0), max(0.0, x1 - a1), max(0.0, b0 - y0), max(0.0, y1 - b1)]
+        inner = max(0.0, min(a1, x1) - max(a0, x0)) * max(0.0, min(b1, y1) - max(b0, y0))
+        share = 1.0 - inner / ((x1 - x0) * (y1 - y0))
+        if share <= 0.0:
+            return None
+        text = (f"the map within {max(margin):.0f} mm of the workplane's edge "
+                f"({100 * share:.0f} % of the plate) is extrapolated: no touch can reach it "
+                "and no check tests it")
+        return {"margin_mm": margin, "share": share, "text": text}
+
     def summary(self) -> str:
-        """One line: adequate, or why not and where the map should not be trusted."""
+        """One line: adequate, or why not and where the map should not be trusted (the
+        unresolved structure, then the unreachable margin)."""
+        out = self._summary()
+        ext = self.extrapolated()
+        return out if ext is None else f"{out}; {ext['text']}"
+
+    def _summary(self) -> str:
         if self.adequate and self.unresolved_rms_mm < NEGLIGIBLE_MM:
             return "model adequate: the readings agree with the spline and the probe's noise"
         failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
@@ -103,7 +138,8 @@ class Adequacy:
     def as_dict(self) -> dict:
         return {"adequate": self.adequate, "checks": self.checks,
                 "unresolved_rms_mm": self.unresolved_rms_mm, "where": self.where(),
-                "finer_than_mm": self.knot_spacing_mm, "summary": self.summary()}
+                "finer_than_mm": self.knot_spacing_mm, "extrapolated": self.extrapolated(),
+                "summary": self.summary()}
 
 
 def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
@@ -116,15 +152,16 @@ def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
 
 
 def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
-           regions: tuple[int, int] = (3, 3), form_surface=None, suspect: bool = False
-           ) -> Adequacy:
+           regions: tuple[int, int] = (3, 3), form_surface=None, suspect: bool = False,
+           reach_mm=None) -> Adequacy:
     """Checks of the readings (heights y at basis ``rows`` of ``surface``) against the Gaussian
     ``prior`` belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the
     probe's stated span [lo, hi] or None; ``regions``: the grid the plate is split into;
     ``form_surface``: the spline the form can follow (default ``surface``); ``suspect``: the
     plate is known to have structure finer than the coarse knots (a grown model): then the
     learned noise beyond the span's centre sqrt(lo hi) counts as unresolved structure, not as
-    probe noise (the readings alone cannot split the two)."""
+    probe noise (the readings alone cannot split the two); ``reach_mm``: the box touches can
+    reach (the workplane less its edge margin), for ``Adequacy.extrapolated``."""
     form_surface = form_surface or surface
     n = len(readings)
     noise_std_mm = hyper.noise_std_mm
@@ -195,4 +232,6 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
         var[thin] = max(0.0, float(excess.mean()))  # too few readings: the plate's mean
         if not global_fail:
             var[~flagged & ~thin] = 0.0
-    return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var)
+    return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var,
+                    plate_mm=tuple(map(tuple, plate_mm)),
+                    reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)))

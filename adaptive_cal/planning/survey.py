@@ -133,7 +133,7 @@ def check(plan: SurveyPlan, state: SurveyState, *, coarse: bool = False) -> Adeq
     form = plan.model.form_surface if extra is None else plan.model.surface
     return assess(plan.model.surface, plan.plate_mm, state.rows, state.heights_mm, prior,
                   state.hyper, plan.noise_range_mm, plan.adequacy_regions, form_surface=form,
-                  suspect=extra is not None)
+                  suspect=extra is not None, reach_mm=plan.bounds_mm)
 
 
 def stop_reason(plan: SurveyPlan, state: SurveyState) -> str | None:
