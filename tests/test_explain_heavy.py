@@ -101,7 +101,8 @@ def test_student_t_nulls_are_not_burrs(monkeypatch):
     counts = {}
     for label in ("gaussian", "heavy"):
         if label == "gaussian":
-            monkeypatch.setattr(core, "heavy_tailed", lambda ctx, c, s=None: (c, None))
+            gaussian = {"nu": None, "log_lr_vs_gaussian": 0.0, "judged_under": "none"}
+            monkeypatch.setattr(core, "heavy_tailed", lambda ctx, c, s=None: (c, gaussian))
         else:
             monkeypatch.undo()
         named = 0
@@ -130,3 +131,24 @@ def test_gaussian_bumps_keep_their_name(tmp_path):
         f = explain([read_recording(p) for p in recs], load_cell(cell), identifiability=False).findings
         named += f["verdict"] == "local_defect"
     assert named >= 17, named
+
+
+def test_out_json_says_how_the_noise_was_judged():
+    """readings.noise in the findings: Student-t (3 dof) readings judged heavy-tailed with a
+    finite dof and a positive likelihood ratio; Gaussian readings judged Gaussian."""
+    from adaptive_cal.analysis.explain import explain
+    from adaptive_cal.formats.recording import Recording
+    from adaptive_cal.simulation.concealed import WORKPLANE, ZERO_MM, generator_cell
+
+    rng = np.random.default_rng(77)
+    n = 400
+    x, y = rng.uniform(*WORKPLANE["x_mm"], n), rng.uniform(*WORKPLANE["y_mm"], n)
+    plane = ZERO_MM + 0.003 * x - 0.002 * y + 0.1
+    out = {}
+    for kind, e in (("t", rng.standard_t(3, n) / np.sqrt(3)), ("g", rng.standard_normal(n))):
+        rec = Recording(np.arange(n), 4.0 * np.arange(n), x, y, np.zeros(n),
+                        np.round((plane + 0.005 * e) / 1e-4) * 1e-4, path=f"{kind}.csv")
+        out[kind] = explain([rec], generator_cell(), identifiability=False).findings["readings"]["noise"]
+    assert out["t"]["distribution"] == "student_t" and 1.0 <= out["t"]["dof"] <= 10.0
+    assert out["t"]["log_lr_vs_gaussian"] > np.log(9)
+    assert out["g"]["distribution"] == "gaussian" and out["g"]["dof"] is None

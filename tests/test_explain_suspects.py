@@ -46,8 +46,10 @@ def test_single_spike_is_a_suspect_not_a_defect(tmp_path, cheng_cell):
             x = hit[0]
             assert set(x) == {"seq", "x_mm", "y_mm", "residual_mm", "probability"}
             assert (x["x_mm"], x["y_mm"]) == (case["x"][x["seq"]], case["y"][x["seq"]])
-            assert f["readings"] == {"total": 40, "used": 40 - len(f["suspect_readings"]),
-                                     "suspect": len(f["suspect_readings"])}
+            counts = {k: f["readings"][k] for k in ("total", "used", "suspect")}
+            assert counts == {"total": 40, "used": 40 - len(f["suspect_readings"]),
+                              "suspect": len(f["suspect_readings"])}
+            assert set(f["readings"]) == {"total", "used", "suspect", "noise"}
     assert defects <= 2 and physics <= 5, (defects, physics)
     assert caught >= 45, caught
 
@@ -226,3 +228,22 @@ def test_batched_passes_set_aside_what_one_at_a_time_does(seed):
     batched = {s["seq"] for s in _screened(design)[3]}
     assert {10, 200} <= batched
     assert batched == _one_at_a_time(design)
+
+
+def test_terminal_lists_suspects_and_heavy_tails():
+    """The CLI's text names each suspect reading (seq, place, residual in um) and says when the
+    noise was judged heavy-tailed; nothing when there is neither."""
+    from adaptive_cal.cli.explain_text import readings_lines
+
+    report = {"suspect_readings": [{"seq": 7, "x_mm": -12.5, "y_mm": 40.0, "residual_mm": 0.0614,
+                                    "probability": 0.998}],
+              "readings": {"total": 40, "used": 39, "suspect": 1,
+                           "noise": {"distribution": "student_t", "dof": 3.0,
+                                     "log_lr_vs_gaussian": 6.25, "judged_under": "none"}}}
+    text = readings_lines(report)
+    assert text[0] == "suspect readings, set aside (not physics): 1 of 40"
+    assert "seq 7 at x -12.5, y 40 mm: residual +61.4 um, P(gross error) 1.00" in text[1]
+    assert "Student-t, 3 dof" in text[2] and "6.2 against Gaussian" in text[2]
+    report["suspect_readings"] = []
+    report["readings"]["noise"] = {"distribution": "gaussian", "dof": None}
+    assert readings_lines(report) == []

@@ -55,9 +55,30 @@ def touches_lines(touches: list[dict]) -> list[str]:
     return [w.replace("\u00a0", " ") for w in wrapped]
 
 
+def readings_lines(report: dict, shown: int = 5) -> list[str]:
+    """The suspect readings set aside (the first ``shown``) and a heavy-tailed noise judgement."""
+    sus, readings = report.get("suspect_readings") or [], report.get("readings") or {}
+    out = []
+    if sus:
+        out.append(f"suspect readings, set aside (not physics): {len(sus)} of "
+                   f"{readings.get('total', '?')}")
+        out.extend(f"  seq {s['seq']} at x {s['x_mm']:g}, y {s['y_mm']:g} mm: residual "
+                   f"{1e3 * s['residual_mm']:+.1f} um, P(gross error) {s['probability']:.2f}"
+                   for s in sus[:shown])
+        if len(sus) > shown:
+            out.append(f"  ... and {len(sus) - shown} more (suspect_readings in --json)")
+    noise = readings.get("noise") or {}
+    if noise.get("distribution") == "student_t":
+        out.append(f"reading noise: heavy-tailed (Student-t, {noise['dof']:g} dof; log likelihood "
+                   f"ratio {noise['log_lr_vs_gaussian']:.1f} against Gaussian): every effect "
+                   "is judged against heavy-tailed noise")
+    return out
+
+
 def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
     fit, amb = report["fit"], report.get("ambiguous_with") or []
-    kind = "1 - p of the structure test" if report["verdict"] == "unexplained" else "probability"
+    kind = ("probability, bounded from the structure test's p-value" if report["verdict"] ==
+            "unexplained" else "probability")
     out = [f"verdict: {report['verdict']} ({kind} {report['verdict_probability']:.2f}"
            + (f"; cannot be told apart from {', '.join(amb)} on this design" if amb else "") + ")"]
     u = report.get("unexplained")
@@ -69,6 +90,7 @@ def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
                    f"{1e3 * w['residual_mm']:+.1f} um" for w in u["where"])
     for e in report["left_out"]:
         out.append(left_out_line(e, units.get(e["effect"], {})))
+    out.extend(readings_lines(report))
     for e in report["not_identifiable"]:
         if e.get("not_testable"):
             out.append(f"  not testable: {e['effect']}: {e['why'].removeprefix('not testable: ')}")

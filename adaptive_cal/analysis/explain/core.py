@@ -221,8 +221,8 @@ def _screened(design: Design):
                  "residual_mm": res, "probability": prob,
                  **({"round": int(design.round_index[i])} if design.rounds > 1 else {})}
                 for i, prob, res in sorted(found)]
-    cands, _ = heavy_tailed(ctx, cands, np.array([res for _, _, res in found]))
-    return scored, ctx, cands, suspects
+    cands, noise = heavy_tailed(ctx, cands, np.array([res for _, _, res in found]))
+    return scored, ctx, cands, suspects, noise
 
 
 def _separated(entries: list[dict], verdict: str, ambiguous: list[str]) -> list[dict]:
@@ -242,7 +242,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     ``rng``: a Generator, or the seed of one, for the bootstrap of the round-to-round flatness
     change (the CLI's ``--seed``).
     """
-    design, ctx, cands, suspects = _screened(design)
+    design, ctx, cands, suspects, noise = _screened(design)
     # the named candidates' sds and intervals averaged over their searched grids
     cands = [averaged(ctx, c) if c.log_bf > threshold else c for c in cands]
     sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
@@ -287,7 +287,10 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         "left_out": left_out,
         "suspect_readings": suspects,
         "readings": {"total": design.n + len(suspects), "used": design.n,
-                     "suspect": len(suspects)},
+                     "suspect": len(suspects), "noise": {
+                         "distribution": "gaussian" if noise["nu"] is None else "student_t",
+                         "dof": noise["nu"], "log_lr_vs_gaussian": noise["log_lr_vs_gaussian"],
+                         "judged_under": noise["judged_under"]}},
         "not_identifiable": (_separated(not_identifiable(ctx, sigma, verdict=verdict, ambiguous=tuple(
             ambiguous)), verdict, ambiguous) if identifiability else []),
         "mismatch": locate(ctx),

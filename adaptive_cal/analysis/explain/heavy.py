@@ -40,7 +40,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.special import logsumexp
 
 from adaptive_cal.analysis.explain.suspects import LOG_SQRT_2PI, model_terms, t_logpdf
 
@@ -127,6 +126,7 @@ def heavy_tailed(ctx, cands: list, set_aside: np.ndarray = np.zeros(0)) -> tuple
         return cands, noise
     delta = [t_loglik(D, y, P, nu) - gaussian_loglik(D, y, P) for D, P in terms]
     # the effect must beat none under both noise models the data allow: never raised
-    out = [replace(c, log_bf=float(c.log_bf + min(d - delta[0], 0.0))) for c, d in zip(cands, delta[1:])]
+    out = [replace(c, log_bf=float(c.log_bf + min(d - delta[0], 0.0)))
+           for c, d in zip(cands, delta[1:])]
     return sorted(out, key=lambda c: -c.log_bf), noise
 
