@@ -8,7 +8,8 @@ Figures, each against its target (PASS / MISS):
   wall time of the whole process, Python start-up included: target 2 s;
 - 4,000 and 100,000 rows in-process (``explain``, identifiability included): targets 2 s and
   60 s; each size runs in its own process so its peak resident memory
-  (``resource.getrusage``, ru_maxrss) is its own.
+  (``resource.getrusage``, ru_maxrss) is its own; also 4,000 rows of Student-t noise and
+  100,000 rows with a named defect and with Student-t noise (``random_recording``'s kinds).
 
 The recordings: touches at uniformly random positions on the generator's plain cell (a tilted
 plate, 5 um Gaussian noise, no effect; ``simulation.concealed.generator_cell``), seeded.
@@ -31,8 +32,15 @@ TARGETS_S = {"cli_40": 2.0, "inprocess_4000": 2.0, "inprocess_100000": 60.0}
 MEMORY_TARGET_MB = 4096.0  # "a few GB at most" on a 24 GB machine
 
 
-def random_recording(n: int, seed: int = 0):
-    """n touches at random positions on the generator's plain cell, and the cell."""
+KINDS = ("plain", "defect", "student_t")
+
+
+def random_recording(n: int, seed: int = 0, kind: str = "plain"):
+    """n touches at random positions on the generator's plain cell, and the cell. ``kind``:
+    ``plain`` (Gaussian noise, no effect), ``defect`` (plus a 30 um bump of radius 40 mm: the
+    bump search and the grid averaging run on the dense columns of a named defect) or
+    ``student_t`` (3-dof noise of the same sd: about 1 % of the readings become suspects, set
+    aside in passes)."""
     import numpy as np
 
     from adaptive_cal.formats.recording import Recording
@@ -42,17 +50,22 @@ def random_recording(n: int, seed: int = 0):
     x = rng.uniform(*WORKPLANE["x_mm"], n)
     y = rng.uniform(*WORKPLANE["y_mm"], n)
     t = 4.0 * np.arange(n)
-    reading = ZERO_MM + 0.003 * x - 0.002 * y + 0.1 + 0.005 * rng.standard_normal(n)
+    noise = (rng.standard_t(3, n) / np.sqrt(3.0) if kind == "student_t"
+             else rng.standard_normal(n))
+    reading = ZERO_MM + 0.003 * x - 0.002 * y + 0.1 + 0.005 * noise
+    if kind == "defect":
+        r = np.hypot(x - 50.0, y - 40.0) / 40.0
+        reading -= 0.03 * np.where(r < 1.0, 0.5 * (1.0 + np.cos(np.pi * r)), 0.0)
     reading = np.round(reading / 1e-4) * 1e-4
     rec = Recording(np.arange(n), t, x, y, np.zeros(n), reading, path=f"random-{n}")
     return rec, generator_cell()
 
 
-def one(n: int) -> dict:
+def one(n: int, kind: str = "plain") -> dict:
     """Time explain on n rows in this process; its peak resident memory."""
     from adaptive_cal.analysis.explain import explain
 
-    rec, cell = random_recording(n)
+    rec, cell = random_recording(n, kind=kind)
     t0 = time.perf_counter()
     e = explain([rec], cell)
     seconds = time.perf_counter() - t0
@@ -61,11 +74,12 @@ def one(n: int) -> dict:
             "verdict": e.findings["verdict"]}
 
 
-def _child(python: str, n: int, timeout_s: float) -> dict:
+def _child(python: str, n: int, timeout_s: float, kind: str = "plain") -> dict:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1")}
+    extra = [] if kind == "plain" else ["--kind", kind]  # a baseline may predate --kind
     try:
-        out = subprocess.run([python, __file__, "--one", str(n)], capture_output=True, text=True,
-                             timeout=timeout_s, env=env, cwd=tempfile.gettempdir())
+        out = subprocess.run([python, __file__, "--one", str(n), *extra], capture_output=True,
+                             text=True, timeout=timeout_s, env=env, cwd=tempfile.gettempdir())
     except subprocess.TimeoutExpired:
         return {"rows": n, "seconds": float("inf"), "error": f"over {timeout_s:.0f} s"}
     if out.returncode != 0:
@@ -119,11 +133,12 @@ def _line(label: str, r: dict, target: float) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--kind", choices=KINDS, default="plain", help=argparse.SUPPRESS)
     ap.add_argument("--skip-100k", action="store_true", help="leave out the 100,000-row run")
     ap.add_argument("--baseline", metavar="PYTHON", help="also time 4,000 rows with this Python")
     args = ap.parse_args(argv)
     if args.one:
-        print(json.dumps(one(args.one)))
+        print(json.dumps(one(args.one, args.kind)))
         return 0
     print("explain speed (issue 15, item 8); plain cell, random positions, no effect; load "
           "average %.1f on %d cores (shared cores stretch every figure)"
@@ -132,9 +147,14 @@ def main(argv=None) -> int:
     print(_line("40 rows, CLI (wall)", r, TARGETS_S["cli_40"]))
     r4 = _child(sys.executable, 4000, 600)
     print(_line("4,000 rows, in-process", r4, TARGETS_S["inprocess_4000"]))
+    r = _child(sys.executable, 4000, 600, "student_t")
+    print(_line("4,000 rows, Student-t noise", r, TARGETS_S["inprocess_4000"]))
     if not args.skip_100k:
-        r = _child(sys.executable, 100_000, 900)
-        print(_line("100,000 rows, in-process", r, TARGETS_S["inprocess_100000"]))
+        for kind, label in (("plain", "100,000 rows, in-process"),
+                            ("defect", "100,000 rows, a named defect"),
+                            ("student_t", "100,000 rows, Student-t noise")):
+            r = _child(sys.executable, 100_000, 900, kind)
+            print(_line(label, r, TARGETS_S["inprocess_100000"]))
     if args.baseline:
         r = _child(args.baseline, 4000, 900)
         print(_line("4,000 rows, baseline Python", r, TARGETS_S["inprocess_4000"]))
