@@ -302,10 +302,6 @@ def _centres(ctx: Context, effect: Effect) -> Candidate | None:
 
 def score_effect(ctx: Context, effect: Effect) -> Candidate | None:
     """The candidate of one effect, scored the way its shape asks (module docstring)."""
-    return _scored_effect(ctx, effect)
-
-
-def _scored_effect(ctx: Context, effect: Effect) -> Candidate | None:
     if {"x_mm", "y_mm"} <= set(effect.nonlinear):
         return _centres(ctx, effect)
     plain = _plain(ctx, effect, effect.plain) if effect.plain else None

@@ -62,40 +62,39 @@ def gaussian_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray) -> float:
     return -y.size * (LOG_SQRT_2PI + 0.5 * np.log(s2) + 0.5)
 
 
-def t_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, nu: float) -> float:
-    """max log likelihood under Student-t noise of ``nu`` dof (EM in the module docstring)."""
-    w = np.ones(y.size)
-    r = _fit(D, y, penalty, w)
-    s2 = max(float(r @ r) / y.size, 1e-300)
+def _em(r: np.ndarray, nu: float, refit=None) -> tuple[np.ndarray, float]:
+    """EM for Student-t noise of ``nu`` dof (module docstring): the scale s^2 of residuals r and,
+    with ``refit`` (weights -> residuals of the weighted fit), the fit too. (r, s^2)."""
+    s2 = max(float(r @ r) / r.size, 1e-300)
     for _ in range(EM_STEPS):
         w = (nu + 1.0) / (nu + r * r / s2)
-        r = _fit(D, y, penalty, w)
-        s2_new = max(float(np.sum(w * r * r)) / y.size, 1e-300)
+        if refit is not None:
+            r = refit(w)
+        s2_new = max(float(np.sum(w * r * r)) / r.size, 1e-300)
         done = abs(s2_new - s2) <= 1e-10 * s2
         s2 = s2_new
         if done:
             break
-    s = np.sqrt(s2)
-    return float(np.sum(t_logpdf(r / s, nu)) - y.size * np.log(s))
+    return r, s2
+
+
+def _t_loglik_at(r: np.ndarray, s2: float, nu: float) -> float:
+    """Student-t log likelihood of residuals r at scale s^2."""
+    return float(np.sum(t_logpdf(r / np.sqrt(s2), nu))) - 0.5 * r.size * np.log(s2)
+
+
+def t_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, nu: float) -> float:
+    """max log likelihood under Student-t noise of ``nu`` dof (EM in the module docstring)."""
+    r, s2 = _em(_fit(D, y, penalty, np.ones(y.size)), nu, lambda w: _fit(D, y, penalty, w))
+    return _t_loglik_at(r, s2, nu)
 
 
 def tail_gains(residual: np.ndarray) -> np.ndarray:
     """l_nu - l_N per nu in ``NU_GRID`` of residuals held fixed (the scale fitted: EM)."""
     r = np.asarray(residual, float)
-    n = r.size
-    s2n = max(float(r @ r) / n, 1e-300)
-    base = -n * (LOG_SQRT_2PI + 0.5 * np.log(s2n) + 0.5)
-    out = []
-    for nu in NU_GRID:
-        s2 = s2n
-        for _ in range(EM_STEPS):
-            s2_new = max(float(np.sum((nu + 1.0) / (nu + r * r / s2) * r * r)) / n, 1e-300)
-            done = abs(s2_new - s2) <= 1e-10 * s2
-            s2 = s2_new
-            if done:
-                break
-        out.append(float(np.sum(t_logpdf(r / np.sqrt(s2), nu))) - 0.5 * n * np.log(s2) - base)
-    return np.array(out)
+    s2n = max(float(r @ r) / r.size, 1e-300)
+    base = -r.size * (LOG_SQRT_2PI + 0.5 * np.log(s2n) + 0.5)
+    return np.array([_t_loglik_at(r, _em(r, nu)[1], nu) - base for nu in NU_GRID])
 
 
 def noise_dof(gain: np.ndarray) -> float:

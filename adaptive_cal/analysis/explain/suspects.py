@@ -39,8 +39,8 @@ ITERATIONS = 4
 
 
 def apart(p: np.ndarray, in_bump: np.ndarray) -> np.ndarray:
-    """Indices of the suspects (P >= ``SUSPECT``) set aside together in one pass, most probable
-    first: every suspect outside the fitted bump's reach (``in_bump``: rows the local_defect
+    """Indices (in order) of the suspects (P >= ``SUSPECT``) set aside together in one pass:
+    every suspect outside the fitted bump's reach (``in_bump``: rows the local_defect
     candidate's column touches), and of those inside it only the most probable. The bump's
     centre was chosen with the spike in the data, so it can make the spike's neighbours look bad;
     they wait for the next pass, which searches the bump again without the spike. Elsewhere
