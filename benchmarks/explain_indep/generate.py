@@ -28,9 +28,10 @@ corners included); ``arm_sag`` s (r / 1 m)^p, r the horizontal distance from the
 from {1.5, 2, 2.5}; ``reversal`` span / 2 x the direction of arrival along x (the sign of the
 last non-zero x move; the first touch arrives moving +x); ``thermal_drift`` linear rate x t, or
 the warm-up A (1 - exp(-t / tau_s)), tau_s a third of the run; ``local_defect`` a parabolic cap
-h (1 - (d / R)^2) for d < R (its own profile, not explain's), centred between a touch and its
-nearest neighbour so that it reaches both. Out of the library: ``backlash_y`` +-b/2 by the
-direction of arrival along y; ``ripple`` A sin(2 pi x / 50 mm + phase).
+h (1 - (d / R)^2) for d < R (its own profile, not explain's), centred between a touch and one
+of its 4 nearest neighbours (drawn at random: along a row or across rows) so that it reaches
+both. Out of the library: ``backlash_y`` +-b/2 by the direction of arrival along y; ``ripple``
+A sin(2 pi x / 50 mm + phase).
 Bad readings (nulls): Student-t (3 dof) noise scaled to sd ``noise_mm``; 1-3 gross outliers of
 +-(15-50) sd; one spike of +-(6-10) sd.
 
@@ -54,6 +55,7 @@ PLATES = {"standard": ((-225.0, 225.0), (-185.0, 185.0)),
 DESIGNS = ("s_path", "raster", "columns", "random", "edge")
 NX, NY = 12, 6
 MARGIN = 10.0
+DEFECT_NEIGHBOURS = 4  # a bump lies between a touch and one of its 4 nearest (both axes on a grid)
 
 
 @dataclass
@@ -159,11 +161,13 @@ def form_pv(w, plate) -> float:
 
 
 def defect_place(x, y, rng) -> tuple[float, float, float]:
-    """Centre and radius of a bump reaching a touch and its nearest neighbour."""
+    """Centre and radius of a bump reaching a touch and one of its ``DEFECT_NEIGHBOURS`` nearest
+    neighbours (drawn at random). A burr sits anywhere: on a grid design the nearest neighbour
+    alone is always along the row, which put every bump's centre on a touch row."""
     i = int(rng.integers(x.size))
     d = np.hypot(x - x[i], y - y[i])
     d[i] = np.inf
-    j = int(np.argmin(d))
+    j = int(rng.choice(np.argsort(d, kind="stable")[:DEFECT_NEIGHBOURS]))
     f = rng.uniform(0.3, 0.7)
     cx, cy = x[i] + f * (x[j] - x[i]), y[i] + f * (y[j] - y[i])
     radius = float(np.clip(rng.uniform(1.3, 2.0) * d[j] * max(f, 1 - f), 15.0, 90.0))
