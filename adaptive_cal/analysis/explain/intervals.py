@@ -26,6 +26,15 @@ before overstated flat posteriors (a uniform of half-width a about the value: RM
 normal, a warm-up's amplitude has a tail toward tau_s beyond the run. The log Bayes factor stays
 the search's (the refinement only places the answer).
 
+The warm-up's amplitude is already summarised this way, and its 2-sd interval still holds the
+truth more often than 95 % on the independent benchmark (seed 0, n 10: 45/45; median |z| 0.31
+against a normal's 0.67), whose truth is always tau_s = run / 3, in the middle of the prior and
+never in the tail toward long tau_s (a warm-up that is a line, its amplitude growing with tau_s)
+that widens the mixture. Drawn from the search's own prior instead (tau_s log-uniform over run /
+32 .. 4 run; seed 7, 86 named warm-ups), the same sds cover 94.2 % (median |z| 0.64): 100 % at
+tau_s 40-200 s, 78 % beyond 200 s. The sd is what the posterior says; a narrower one would
+under-cover the long warm-ups further.
+
 Form's pv_mm (max minus min of the fitted surface over the workplane) keeps the delta method,
 now on the posterior averaged over the prior scale tau (``averaging.scale_averaged``): drawing
 the coefficients' posterior and taking pv's quantiles gave the same coverage on the independent
