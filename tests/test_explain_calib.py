@@ -47,7 +47,8 @@ def test_mixture_quantiles_against_the_normal_and_the_mixture_cdf():
 def test_refine_splits_each_cell_in_the_space_the_grid_is_uniform_in():
     parent, kid, cells = intervals.refine(np.array([1.0, 1.5, 2.0, 2.5, 3.0]), np.array([2.0, 1.0]))
     assert kid[parent == 0] == pytest.approx([1.8125, 1.9375, 2.0625, 2.1875])
-    assert kid[parent == 1] == pytest.approx([1.0625, 1.1875])  # the end cell: inside the grid
+    # the end cell mirrors its one neighbour: the same width as every other point's
+    assert kid[parent == 1] == pytest.approx([0.8125, 0.9375, 1.0625, 1.1875])
     assert cells[parent == 0] == pytest.approx(np.full(4, 0.125 ** 2 / 12))
     _, kid, _ = intervals.refine(np.array([15.0, 30.0, 60.0]), np.array([30.0]))
     assert kid == pytest.approx(30.0 * 2.0 ** np.array([-0.375, -0.125, 0.125, 0.375]))
