@@ -211,23 +211,21 @@ def mixed_log_bf(log_z_with: dict, log_z_without: dict, log_gross: float) -> dic
 def screened(design: Design):
     """Score, judge every reading against every model, set the suspects aside and score again,
     until no reading is a suspect (``core._screened``). Inside the fitted bump's reach only the
-    most probable suspect is judged in a pass (``apart``), and with the bump's centre and radius
-    integrated out (``integrated_log_odds``, the models scored without it): below even odds it
-    stays evidence (held, judged once). Such a reading's state is integrated out of every
-    candidate's evidence at the end (``mixed_log_bf``): a bump whose top touch is a gross error
-    with probability 0.6 is not reduced to none. Returns (design, context, candidates,
-    [(row, probability, leave-one-out residual) of the suspects])."""
+    most probable suspect is judged in a pass (``apart``), once those outside it are set aside,
+    and with the bump's centre and radius integrated out (``integrated_log_odds``: the models
+    scored without it, which is the next pass's scoring when it goes): below even odds it stays
+    evidence (held, judged once). Its state is integrated out of every candidate's evidence
+    (``mixed_log_bf``, the difference to the branch taken carried to the end): a bump whose top
+    touch is a gross error with probability 0.6 is not reduced to none. Returns (design,
+    context, candidates, [(row, probability, leave-one-out residual) of the suspects])."""
     keep, held = np.ones(design.n, bool), np.zeros(design.n, bool)
     found: list[tuple[int, float, float]] = []
-    judged: dict[int, float] = {}  # row -> log g(y_i)
+    offset: dict[str, float] = {}  # mixed_log_bf less the branch taken, per candidate
     memo: dict[bytes, tuple] = {}
 
-    def score(k: np.ndarray, row: int | None = None, state: bool = False):
-        if row is not None:
-            k = k.copy()
-            k[row] = state
+    def score(k: np.ndarray):
         if k.tobytes() not in memo:
-            memo.clear() if len(memo) >= 4 else None
+            memo.clear() if len(memo) >= 2 else None
             memo[k.tobytes()] = scored(design.select(k))
         return memo[k.tobytes()]
 
@@ -242,21 +240,27 @@ def screened(design: Design):
         in_bump = bump[0] if bump else np.zeros(p.size, bool)
         batch = apart(p, in_bump)
         batch = batch[np.argsort(-p[batch], kind="stable")][:max(room, 0)]
+        if np.any(~in_bump[batch]):
+            batch = batch[~in_bump[batch]]  # the one inside waits for a pass without these
         rows, newly = np.flatnonzero(keep), False
-        for j in batch[in_bump[batch]]:  # at most one
+        for j in batch[in_bump[batch]]:  # at most one, alone
             best = int(np.argmax(w))
             v = np.exp(ctx.w0) if best == 0 else cands[best - 1].noise_var
             lg = gross_log_density(loo[j], max(v, design.noise_floor_mm ** 2))
-            judged[int(rows[j])] = lg
-            _, ctx_out, cands_out = score(keep, rows[j])
-            odds = integrated_log_odds(ctx.log_marginal(cands), ctx_out.log_marginal(cands_out), lg)
-            p[j] = 1.0 / (1.0 + np.exp(-odds))
+            trial = keep.copy()
+            trial[rows[j]] = False
+            _, ctx_out, cands_out = score(trial)
+            lz_in, lz_out = ctx.log_marginal(cands), ctx_out.log_marginal(cands_out)
+            p[j] = 1.0 / (1.0 + np.exp(-integrated_log_odds(lz_in, lz_out, lg)))
+            branch = {c.effect: c.log_bf for c in (cands if p[j] < SUSPECT else cands_out)}
+            for name, v in mixed_log_bf(lz_in, lz_out, lg).items():
+                offset[name] = offset.get(name, 0.0) + v - branch.get(name, v)
             if p[j] < SUSPECT:
                 held[rows[j]], newly = True, True
                 batch = batch[batch != j]
         if not len(batch):
             if newly:
-                continue  # the next suspect inside the bump, if any
+                continue  # the next suspect inside the bump, if any (this scoring again)
             break
         found += [(int(rows[j]), float(p[j]), float(loo[j])) for j in batch]
         keep[rows[batch]] = False
@@ -267,13 +271,6 @@ def screened(design: Design):
                     f"{path}: {len(found)} readings disagree with every model (suspect); "
                     f"{left} are left in this recording and explain needs at least "
                     f"{MIN_ROWS_PER_ROUND}: check the probe and the recording")
-    offset: dict[str, float] = {}
-    for row, lg in judged.items():
-        (_, c_in, k_in), (_, c_out, k_out) = score(keep, row, True), score(keep, row, False)
-        branch = {c.effect: c.log_bf for c in (k_in if keep[row] else k_out)}
-        for name, v in mixed_log_bf(c_in.log_marginal(k_in), c_out.log_marginal(k_out), lg).items():
-            offset[name] = offset.get(name, 0.0) + v - branch.get(name, v)
     cands = sorted((replace(c, log_bf=c.log_bf + offset.get(c.effect, 0.0)) for c in cands),
                    key=lambda c: -c.log_bf)
     return d, ctx, cands, found
-
