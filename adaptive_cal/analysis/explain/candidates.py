@@ -114,6 +114,13 @@ class Context:
     def null_residual(self) -> np.ndarray:
         return self.yt
 
+    def log_marginal(self, cands: list["Candidate"]) -> dict[str, float]:
+        """log p(y | M) of none and of each candidate (by effect name), with the flat nuisance's
+        factor |N^T N|^(-1/2) (``evidence``): Bayes factors drop it, a comparison of the same
+        models with and without a reading (``suspects.integrated_log_odds``) needs it."""
+        base = self.log_z0 - 0.5 * float(np.linalg.slogdet(self.nuisance.T @ self.nuisance)[1])
+        return {"none": base, **{c.effect: base + c.log_bf for c in cands}}
+
 
 @dataclass(frozen=True)
 class Candidate:

@@ -23,10 +23,10 @@ import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.formats.recording import Recording, RecordingError
+from adaptive_cal.formats.recording import Recording
 from adaptive_cal.analysis.explain.averaging import averaged
-from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
-from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design, build_design
+from adaptive_cal.analysis.explain.candidates import Candidate, Context
+from adaptive_cal.analysis.explain.design import Design, build_design
 from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
 from adaptive_cal.analysis.explain.heavy import heavy_tailed
 from adaptive_cal.analysis.explain.identify import not_identifiable
@@ -34,7 +34,7 @@ from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
 from adaptive_cal.analysis.explain.spans import covering
 from adaptive_cal.analysis.explain.structure import residual_structure, structure_probability
-from adaptive_cal.analysis.explain.suspects import apart, model_terms, suspect_probability
+from adaptive_cal.analysis.explain.suspects import model_probabilities, screened, scored
 
 Z95 = 1.959963984540054  # the normal 97.5 % quantile
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
@@ -132,12 +132,6 @@ def _calibration(ctx: Context, sigma: float) -> list[dict]:
     return out
 
 
-def model_probabilities(cands: list[Candidate]) -> np.ndarray:
-    """Posterior over none and the candidates: none has prior 1/2, the candidates share the rest."""
-    logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
-    return np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
-
-
 OCCAM_NATS = 2.0  # the part of an evidence lead that is prior, not fit, is trusted only beyond this
 
 
@@ -174,55 +168,26 @@ def ambiguous_runner_ups(cands: list[Candidate], prob: np.ndarray, winner: Candi
     return [name for _, name in sorted(out, key=lambda t: -t[0])]
 
 
-def _scored(design: Design) -> tuple[Design, Context, list[Candidate]]:
-    """Calibrate (tilt, offsets, unknowns), then score every testable candidate."""
-    ctx = Context.of(design)
-    calibrated = design.features.ideal_reading_mm + (design.target - ctx.yt)
-    design = design.with_ideal_reading(calibrated)  # probe_gain sees the calibrated indication
-    ctx = Context.of(design)
-    return design, ctx, score_candidates(ctx, design.untestable)
-
-
-MAX_SUSPECT_SHARE = 0.2  # isolated bad readings, not a bad recording: at most this share is set aside
+_scored = scored  # calibrate, then score every testable candidate (``suspects.scored``)
 
 
 def _screened(design: Design):
-    """Score, judge every reading against every model (``suspects``), set the most probable
-    suspects aside and score again, until no reading is a suspect: the suspects are kept out of
-    the evidence, the verdict and the refit. Inside the fitted bump's reach only the most
-    probable suspect goes in a pass (``suspects.apart``), so a spike does not make its neighbour
-    look bad through a bump fitted to the spike. Then ``heavy``: where the residuals
-    (the suspects' included) say the noise is heavy-tailed, every log BF is lowered to what it is
-    against a heavy-tailed none."""
-    keep = np.ones(design.n, bool)
-    found: list[tuple[int, float, float]] = []
-    while True:
-        scored, ctx, cands = _scored(design.select(keep))
-        p, loo = suspect_probability(model_terms(ctx.nuisance, cands), scored.target,
-                                     model_probabilities(cands), design.noise_floor_mm)
-        room = int(np.ceil(MAX_SUSPECT_SHARE * design.n)) - len(found)
-        bump = [np.any(c.columns != 0, axis=1) for c in cands if c.effect == "local_defect"]
-        batch = apart(p, bump[0] if bump else np.zeros(p.size, bool))
-        batch = batch[np.argsort(-p[batch], kind="stable")][:max(room, 0)]
-        if not len(batch):
-            break
-        rows = np.flatnonzero(keep)
-        found += [(int(rows[j]), float(p[j]), float(loo[j])) for j in batch]
-        keep[rows[batch]] = False
-        for r, path in enumerate(design.paths):
-            left = int(np.count_nonzero(keep & (design.round_index == r)))
-            if left < MIN_ROWS_PER_ROUND:
-                raise RecordingError(
-                    f"{path}: {len(found)} readings disagree with every model (suspect); "
-                    f"{left} are left in this recording and explain needs at least "
-                    f"{MIN_ROWS_PER_ROUND}: check the probe and the recording")
+    """Score, judge every reading against every model (``suspects.screened``), set the most
+    probable suspects aside and score again, until no reading is a suspect: the suspects are
+    kept out of the evidence, the verdict and the refit. Inside the fitted bump's reach only the
+    most probable suspect goes in a pass (``suspects.apart``), so a spike does not make its
+    neighbour look bad through a bump fitted to the spike, and it is judged with the bump's
+    centre and radius integrated out, its state integrated out of the evidence. Then ``heavy``:
+    where the residuals (the suspects' included) say the noise is heavy-tailed, every log BF is
+    lowered to what it is against a heavy-tailed none."""
+    scored_design, ctx, cands, found = screened(design)
     f = design.features
     suspects = [{"seq": int(design.seq[i]), "x_mm": float(f.x_mm[i]), "y_mm": float(f.y_mm[i]),
                  "residual_mm": res, "probability": prob,
                  **({"round": int(design.round_index[i])} if design.rounds > 1 else {})}
                 for i, prob, res in sorted(found)]
     cands, noise = heavy_tailed(ctx, cands, np.array([res for _, _, res in found]))
-    return scored, ctx, cands, suspects, noise
+    return scored_design, ctx, cands, suspects, noise
 
 
 def _separated(entries: list[dict], verdict: str, ambiguous: list[str]) -> list[dict]:

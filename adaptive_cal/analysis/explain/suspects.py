@@ -23,19 +23,32 @@ local_defect model (its predictive from the neighbours carries the bump), so it 
 evidence; a lone spike disagrees with every model, since a bump that one touch carries is not
 a local_defect hypothesis (``candidates.nameable_reach``). The judgement is iterated a few times so one suspect neither
 inflates the noise nor tilts the fit another is judged against.
+
+The screen (``screened``): score, judge, set the suspects aside, score again. A suspect inside
+the fitted bump's reach is judged once more with every model's nonlinear parameters integrated
+out (``integrated_log_odds``: the models scored with and without it), since the bump above is
+held at the grid point fitted with the reading in; and its state, good or gross, is integrated
+out of every candidate's evidence (``mixed_log_bf``): a burr's top touch that is a gross error
+with probability 0.6 leaves the bump 0.4 of its weight, where setting it aside left none.
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 from scipy import special
 
+from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
+from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design
 from adaptive_cal.analysis.explain.evidence import prior_precision
+from adaptive_cal.formats.recording import RecordingError
 
 RATE = 0.005  # prior share of gross errors among the fused readings (the loop's gate and retake
 #               already set most aside: rows flagged gated or rejected never reach explain)
 SCALE = 20.0  # a gross error's standard deviation in noise sds
 SUSPECT = 0.5  # listed (and kept out of the evidence) at this posterior probability or above
 ITERATIONS = 4
+MAX_SUSPECT_SHARE = 0.2  # isolated bad readings, not a bad recording: at most this share is set aside
 
 
 def apart(p: np.ndarray, in_bump: np.ndarray) -> np.ndarray:
@@ -138,3 +151,126 @@ def model_terms(nuisance: np.ndarray, candidates) -> list[tuple[np.ndarray, np.n
         pen[k0:, k0:] = c.noise_var * prior_precision(c.prior_var)
         out.append((np.hstack([nuisance, c.columns]), pen))
     return out
+
+
+def model_probabilities(cands: list[Candidate]) -> np.ndarray:
+    """Posterior over none and the candidates: none has prior 1/2, the candidates share the rest."""
+    logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
+    return np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
+
+
+def scored(design: Design) -> tuple[Design, Context, list[Candidate]]:
+    """Calibrate (tilt, offsets, unknowns), then score every testable candidate."""
+    ctx = Context.of(design)
+    calibrated = design.features.ideal_reading_mm + (design.target - ctx.yt)
+    design = design.with_ideal_reading(calibrated)  # probe_gain sees the calibrated indication
+    ctx = Context.of(design)
+    return design, ctx, score_candidates(ctx, design.untestable)
+
+
+def gross_log_density(residual: float, noise_var: float) -> float:
+    """log g(y_i): a gross error's density at the reading's leave-one-out residual,
+    N(e_i; 0, (1 + SCALE^2) v)."""
+    v = (1.0 + SCALE ** 2) * max(float(noise_var), 1e-30)
+    return float(-0.5 * float(residual) ** 2 / v - 0.5 * np.log(2.0 * np.pi * v))
+
+
+def _total(log_z: dict[str, float]) -> float:
+    """log sum_M pi_M p(y | M): none 1/2, the candidates sharing the other half."""
+    k = max(len(log_z) - 1, 1)
+    return float(special.logsumexp([v - np.log(2.0) - (0.0 if name == "none" else np.log(k))
+                                    for name, v in log_z.items()]))
+
+
+def integrated_log_odds(log_z_with: dict, log_z_without: dict, log_gross: float) -> float:
+    """log odds that reading i is a gross error with every model's nonlinear parameters (a
+    bump's centre and radius) and the noise integrated out: the exact posterior of the joint
+    (model, reading good or gross) from the models' evidence with and without the reading,
+
+        sum_M pi_M p(y_-i | M) RATE g(y_i)  :  sum_M pi_M p(y | M) (1 - RATE)
+
+    (``Context.log_marginal``; g: ``gross_log_density``). ``suspect_probability`` holds each
+    candidate at the grid point fitted with the reading in: for a bump that two touches carry
+    that point is a compromise (grid radii, its bell against the burr's profile) that may fit the
+    top touch worst, while bumps elsewhere on the grid that fit the others predict it."""
+    return (_total(log_z_without) + log_gross + np.log(RATE)
+            - _total(log_z_with) - float(np.log1p(-RATE)))
+
+
+def mixed_log_bf(log_z_with: dict, log_z_without: dict, log_gross: float) -> dict[str, float]:
+    """Each candidate's log BF against none with reading i's state (good, or gross with prior
+    RATE) integrated out: log [p(y | M) (1 - RATE) + p(y_-i | M) RATE g(y_i)] less none's. A
+    reading that is a gross error with probability 0.6 keeps 0.4 of its weight as evidence,
+    instead of none when it is set aside."""
+    good, bad = float(np.log1p(-RATE)), float(np.log(RATE)) + log_gross
+    mix = {k: float(np.logaddexp(v + good, log_z_without[k] + bad))
+           for k, v in log_z_with.items() if k in log_z_without}
+    return {k: v - mix["none"] for k, v in mix.items() if k != "none"}
+
+
+def screened(design: Design):
+    """Score, judge every reading against every model, set the suspects aside and score again,
+    until no reading is a suspect (``core._screened``). Inside the fitted bump's reach only the
+    most probable suspect is judged in a pass (``apart``), once those outside it are set aside,
+    and with the bump's centre and radius integrated out (``integrated_log_odds``: the models
+    scored without it, which is the next pass's scoring when it goes): below even odds it stays
+    evidence (held, judged once). Its state is integrated out of every candidate's evidence
+    (``mixed_log_bf``, the difference to the branch taken carried to the end): a bump whose top
+    touch is a gross error with probability 0.6 is not reduced to none. Returns (design,
+    context, candidates, [(row, probability, leave-one-out residual) of the suspects])."""
+    keep, held = np.ones(design.n, bool), np.zeros(design.n, bool)
+    found: list[tuple[int, float, float]] = []
+    offset: dict[str, float] = {}  # mixed_log_bf less the branch taken, per candidate
+    memo: dict[bytes, tuple] = {}
+
+    def score(k: np.ndarray):
+        if k.tobytes() not in memo:
+            memo.clear() if len(memo) >= 2 else None
+            memo[k.tobytes()] = scored(design.select(k))
+        return memo[k.tobytes()]
+
+    while True:
+        d, ctx, cands = score(keep)
+        w = model_probabilities(cands)
+        p, loo = suspect_probability(model_terms(ctx.nuisance, cands), d.target, w,
+                                     design.noise_floor_mm)
+        p = np.where(held[keep], 0.0, p)
+        room = int(np.ceil(MAX_SUSPECT_SHARE * design.n)) - len(found)
+        bump = [np.any(c.columns != 0, axis=1) for c in cands if c.effect == "local_defect"]
+        in_bump = bump[0] if bump else np.zeros(p.size, bool)
+        batch = apart(p, in_bump)
+        batch = batch[np.argsort(-p[batch], kind="stable")][:max(room, 0)]
+        if np.any(~in_bump[batch]):
+            batch = batch[~in_bump[batch]]  # the one inside waits for a pass without these
+        rows, newly = np.flatnonzero(keep), False
+        for j in batch[in_bump[batch]]:  # at most one, alone
+            best = int(np.argmax(w))
+            v = np.exp(ctx.w0) if best == 0 else cands[best - 1].noise_var
+            lg = gross_log_density(loo[j], max(v, design.noise_floor_mm ** 2))
+            trial = keep.copy()
+            trial[rows[j]] = False
+            _, ctx_out, cands_out = score(trial)
+            lz_in, lz_out = ctx.log_marginal(cands), ctx_out.log_marginal(cands_out)
+            p[j] = 1.0 / (1.0 + np.exp(-integrated_log_odds(lz_in, lz_out, lg)))
+            branch = {c.effect: c.log_bf for c in (cands if p[j] < SUSPECT else cands_out)}
+            for name, v in mixed_log_bf(lz_in, lz_out, lg).items():
+                offset[name] = offset.get(name, 0.0) + v - branch.get(name, v)
+            if p[j] < SUSPECT:
+                held[rows[j]], newly = True, True
+                batch = batch[batch != j]
+        if not len(batch):
+            if newly:
+                continue  # the next suspect inside the bump, if any (this scoring again)
+            break
+        found += [(int(rows[j]), float(p[j]), float(loo[j])) for j in batch]
+        keep[rows[batch]] = False
+        for r, path in enumerate(design.paths):
+            left = int(np.count_nonzero(keep & (design.round_index == r)))
+            if left < MIN_ROWS_PER_ROUND:
+                raise RecordingError(
+                    f"{path}: {len(found)} readings disagree with every model (suspect); "
+                    f"{left} are left in this recording and explain needs at least "
+                    f"{MIN_ROWS_PER_ROUND}: check the probe and the recording")
+    cands = sorted((replace(c, log_bf=c.log_bf + offset.get(c.effect, 0.0)) for c in cands),
+                   key=lambda c: -c.log_bf)
+    return d, ctx, cands, found
