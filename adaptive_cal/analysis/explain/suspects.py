@@ -225,7 +225,8 @@ def screened(design: Design):
 
     def score(k: np.ndarray):
         if k.tobytes() not in memo:
-            memo.clear() if len(memo) >= 2 else None
+            if len(memo) >= 2:  # the current pass and one trial without a reading
+                memo.clear()
             memo[k.tobytes()] = scored(design.select(k))
         return memo[k.tobytes()]
 
@@ -245,16 +246,16 @@ def screened(design: Design):
         rows, newly = np.flatnonzero(keep), False
         for j in batch[in_bump[batch]]:  # at most one, alone
             best = int(np.argmax(w))
-            v = np.exp(ctx.w0) if best == 0 else cands[best - 1].noise_var
-            lg = gross_log_density(loo[j], max(v, design.noise_floor_mm ** 2))
+            var = np.exp(ctx.w0) if best == 0 else cands[best - 1].noise_var
+            lg = gross_log_density(loo[j], max(var, design.noise_floor_mm ** 2))
             trial = keep.copy()
             trial[rows[j]] = False
             _, ctx_out, cands_out = score(trial)
             lz_in, lz_out = ctx.log_marginal(cands), ctx_out.log_marginal(cands_out)
             p[j] = 1.0 / (1.0 + np.exp(-integrated_log_odds(lz_in, lz_out, lg)))
             branch = {c.effect: c.log_bf for c in (cands if p[j] < SUSPECT else cands_out)}
-            for name, v in mixed_log_bf(lz_in, lz_out, lg).items():
-                offset[name] = offset.get(name, 0.0) + v - branch.get(name, v)
+            for name, lbf in mixed_log_bf(lz_in, lz_out, lg).items():
+                offset[name] = offset.get(name, 0.0) + lbf - branch.get(name, lbf)
             if p[j] < SUSPECT:
                 held[rows[j]], newly = True, True
                 batch = batch[batch != j]
