@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.results:
         explain = {c["key"]: c["verdict"] for c in json.loads(args.results.read_text())["cases"]}
     rng = np.random.default_rng(12345)
-    right, prob, confusion, by = 0, [], Counter(), Counter()
+    right, prob, top, confusion, by = 0, [], [], Counter(), Counter()
     ex_right = ex_n = 0
     for spec in specs:
         case = C.build(spec, args.seed)
@@ -120,6 +120,7 @@ def main(argv: list[str] | None = None) -> None:
         best = names[int(np.argmax(v))]
         right += best == truth
         prob.append(float(post[names.index(truth)]))
+        top.append(float(post.max()))
         by[(truth, spec["design"], best == truth)] += 1
         if best != truth:
             confusion[(truth, best)] += 1
@@ -128,11 +129,11 @@ def main(argv: list[str] | None = None) -> None:
             ex_n += 1
             ex_right += explain[key] == truth
     n = len(specs)
-    p = np.array(prob)
+    p, q = np.array(prob), np.array(top)
     print(f"ideal observer (knows the generator), single effects at {sorted(sigmas)} sigma, "
           f"seed {args.seed}, n {args.n}: {right}/{n} = {100 * right / n:.1f} % right "
-          f"(expected rate, mean posterior of the truth: {100 * p.mean():.1f} % "
-          f"+- {100 * p.std() / np.sqrt(n):.1f} %)")
+          f"(its expected rate, the mean of its largest posterior: {100 * q.mean():.1f} %; "
+          f"mean posterior of the truth {100 * p.mean():.1f} %)")
     for (t, b), c in confusion.most_common():
         print(f"  {t} -> {b}: {c}")
     for eff in EFFECTS:
