@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -21,6 +22,7 @@ from adaptive_cal.formats.recording import read_recording  # noqa: E402
 def test_generator_imports_nothing_from_adaptive_cal():
     files = sorted((ROOT / "benchmarks" / "explain_indep").glob("*.py"))
     assert len(files) >= 3
+    files.append(ROOT / "benchmarks" / "explain_ceiling.py")  # the generator's ideal observer
     for path in files:
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             names = []
@@ -89,3 +91,21 @@ def test_seeded_null_and_ten_sigma_twist(tmp_path):
     entry = next(e for e in f["left_out"] if e["effect"] == "form")
     pv = twist.truth["effects"][0]["pv_mm"]
     assert abs(entry["params"]["pv_mm"] - pv) < 0.5 * pv
+
+
+def test_the_ideal_observer_names_a_clear_effect_and_averages_exactly():
+    """benchmarks/explain_ceiling.py: at 10 sigma a reversal on the S-path is unmistakable to the
+    generator's own Bayes classifier; its log-mean-exp agrees with the direct mean."""
+    import explain_ceiling as ceiling
+    from explain_indep import cases
+    v = np.array([-3.0, 0.5, 2.0, 700.0])
+    assert ceiling._logmeanexp(v[:3]) == pytest.approx(np.log(np.mean(np.exp(v[:3]))), rel=1e-12)
+    assert np.isfinite(ceiling._logmeanexp(v))  # no overflow at exp(700)
+    spec = next(s for s in cases.table(1) if s["family"] == "single" and
+                s["effects"] == ["reversal"] and s["sigma"] == 10.0 and s["design"] == "s_path")
+    case = cases.build(spec, 0)
+    lm = ceiling.log_marginals(case, 10.0, np.random.default_rng(0), 200)
+    names = list(lm)
+    post = np.exp(np.array([lm[n] for n in names]) - max(lm.values()))
+    post /= post.sum()
+    assert names[int(np.argmax(post))] == "reversal" and post.max() > 0.99
