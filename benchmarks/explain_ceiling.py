@@ -51,40 +51,43 @@ def _directions(patterns: list[np.ndarray], M: np.ndarray) -> np.ndarray:
     return np.vstack([P, -P])
 
 
-def effect_directions(case, rng: np.random.Generator, draws: int) -> dict[str, np.ndarray]:
-    """Each effect's pattern directions on this case's touches, drawn as the generator draws."""
+def effect_directions(case, M: np.ndarray, rng: np.random.Generator,
+                      draws: int) -> dict[str, np.ndarray]:
+    """Each effect's pattern directions on this case's touches (``M``: the tilt's residual
+    maker), made by the generator's own ``pattern`` and drawn as the generator draws."""
     r = case.rounds[0]
-    x, y, t = r["x"], r["y"], r["t"]
-    A = np.stack([x, y, np.ones_like(x)], 1)
-    M = np.eye(x.size) - A @ np.linalg.pinv(A)
+    one = [r]
+    # ``pattern`` pins a draw through ``shared`` but evaluates setdefault's default all the same:
+    # the pinned patterns get a generator of their own, so ``rng`` draws only the mixed forms
+    # and the bumps
+    pinned = np.random.default_rng(0)
+
+    def pat(effect, gen=pinned, **shared):
+        return G.pattern(effect, gen, one, case.plate, shared)[0][0]
+
     form = {}
     for kind, w_list in (("bow", [np.array([1.0, 0, 0]), np.array([0, 1.0, 0])]),
                          ("twist", [np.array([0, 0, 1.0])]),
                          ("mixed", list(rng.normal(size=(draws, 3))))):
-        form[kind] = _directions([G.form_shape(w, x, y, case.plate) for w in w_list], M)
-    sag = _directions([(np.hypot(x - G.BASE[0], y - G.BASE[1]) / 1000.0) ** p
-                       for p in (1.5, 2.0, 2.5)], M)
-    rev = _directions([0.5 * G.arrival(x)], M)
-    drift = _directions([t.astype(float)], M) if np.linalg.norm(M @ t) > 1e-9 * np.linalg.norm(t) else None
-    bumps = []
-    for _ in range(draws):
-        cx, cy, rad = G.defect_place(x, y, rng)
-        bumps.append(np.clip(1.0 - (np.hypot(x - cx, y - cy) / rad) ** 2, 0.0, None))
-    out = {"form": form, "arm_sag": sag, "reversal": rev, "local_defect": _directions(bumps, M)}
-    if drift is not None:
-        out["thermal_drift"] = drift
+        form[kind] = _directions([G.form_shape(w, r["x"], r["y"], case.plate) for w in w_list], M)
+    out = {"form": form,
+           "arm_sag": _directions([pat("arm_sag", p=p) for p in (1.5, 2.0, 2.5)], M),
+           "reversal": _directions([pat("reversal")], M),
+           "local_defect": _directions([pat("local_defect", rng) for _ in range(draws)], M)}
+    t = pat("thermal_drift")
+    if np.linalg.norm(M @ t) > 1e-9 * np.linalg.norm(t):  # else a plane (a raster): no drift
+        out["thermal_drift"] = _directions([t], M)
     return out
 
 
 def log_marginals(case, k: float, rng, draws: int) -> dict[str, float]:
     r = case.rounds[0]
-    x, yv = r["x"], r["reading"]
-    A = np.stack([x, r["y"], np.ones_like(x)], 1)
-    My = yv - A @ np.linalg.lstsq(A, yv, rcond=None)[0]
+    A = np.stack([r["x"], r["y"], np.ones_like(r["x"])], 1)
+    M = np.eye(A.shape[0]) - A @ np.linalg.pinv(A)
+    My = M @ r["reading"]
     s = case.noise_mm
-    dirs = effect_directions(case, rng, draws)
     out = {}
-    for name, D in dirs.items():
+    for name, D in effect_directions(case, M, rng, draws).items():
         if name == "form":  # bow, twist, mixed: a third each, as cases.build draws them
             parts = [_logmeanexp(k * (U @ My) / s) for U in D.values()]
             out[name] = _logmeanexp(np.array(parts))
