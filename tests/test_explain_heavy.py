@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy import optimize, stats
 
-from adaptive_cal.analysis.explain import core, explain
+from adaptive_cal.analysis.explain import core, explain, suspects
 from adaptive_cal.analysis.explain.heavy import (NU_GRID, gaussian_loglik, heavy_tailed,
                                                  noise_dof, t_loglik, tail_gains)
 from adaptive_cal.analysis.explain.design import build_design
@@ -86,7 +86,7 @@ def test_heavy_tails_never_raise_a_log_bf_and_judge_under_the_best_model(tmp_pat
     case = gen.generate("null", (), 0.0, "random", rng, noise="student_t")
     cell, recs = gen.write(case, tmp_path)
     design = build_design([read_recording(p) for p in recs], load_cell(cell))
-    scored, ctx, cands = core._scored(design)
+    scored, ctx, cands = suspects.scored(design)
     out, noise = heavy_tailed(ctx, cands)
     before = {c.effect: c.log_bf for c in cands}
     assert all(c.log_bf <= before[c.effect] + 1e-12 for c in out)

@@ -194,8 +194,8 @@ def test_apart_defers_only_suspects_inside_the_fitted_bump():
 def _one_at_a_time(design):
     """The reference: the most probable suspect set aside per pass (the screening before the
     batched passes), from the same public pieces."""
-    from adaptive_cal.analysis.explain.core import _scored, model_probabilities
-    from adaptive_cal.analysis.explain.suspects import model_terms
+    from adaptive_cal.analysis.explain.suspects import model_probabilities, model_terms
+    from adaptive_cal.analysis.explain.suspects import scored as _scored
 
     keep = np.ones(design.n, bool)
     while True:

@@ -34,7 +34,7 @@ from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
 from adaptive_cal.analysis.explain.spans import covering
 from adaptive_cal.analysis.explain.structure import residual_structure, structure_probability
-from adaptive_cal.analysis.explain.suspects import model_probabilities, screened, scored
+from adaptive_cal.analysis.explain.suspects import model_probabilities, screened
 
 Z95 = 1.959963984540054  # the normal 97.5 % quantile
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
@@ -166,9 +166,6 @@ def ambiguous_runner_ups(cands: list[Candidate], prob: np.ndarray, winner: Candi
            if c is not winner and c.log_bf > threshold
            and np.log(pw) - np.log(max(float(prob[1 + i]), 1e-300)) < AMBIGUOUS]
     return [name for _, name in sorted(out, key=lambda t: -t[0])]
-
-
-_scored = scored  # calibrate, then score every testable candidate (``suspects.scored``)
 
 
 def _screened(design: Design):
