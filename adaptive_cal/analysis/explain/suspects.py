@@ -153,9 +153,14 @@ def model_terms(nuisance: np.ndarray, candidates) -> list[tuple[np.ndarray, np.n
     return out
 
 
+def log_model_prior(k: int) -> np.ndarray:
+    """log prior of none (1/2), then of each of ``k`` candidates (sharing the other half)."""
+    return np.concatenate([[-np.log(2.0)], np.full(k, -np.log(2.0) - np.log(max(k, 1)))])
+
+
 def model_probabilities(cands: list[Candidate]) -> np.ndarray:
-    """Posterior over none and the candidates: none has prior 1/2, the candidates share the rest."""
-    logp = np.array([0.0] + [c.log_bf - np.log(max(len(cands), 1)) for c in cands])
+    """Posterior over none and the candidates (``log_model_prior``)."""
+    logp = log_model_prior(len(cands)) + np.array([0.0] + [c.log_bf for c in cands])
     return np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
 
 
@@ -176,10 +181,9 @@ def gross_log_density(residual: float, noise_var: float) -> float:
 
 
 def _total(log_z: dict[str, float]) -> float:
-    """log sum_M pi_M p(y | M): none 1/2, the candidates sharing the other half."""
-    k = max(len(log_z) - 1, 1)
-    return float(special.logsumexp([v - np.log(2.0) - (0.0 if name == "none" else np.log(k))
-                                    for name, v in log_z.items()]))
+    """log sum_M pi_M p(y | M), pi the prior of ``log_model_prior``."""
+    z = [log_z["none"]] + [v for name, v in log_z.items() if name != "none"]
+    return float(special.logsumexp(np.array(z) + log_model_prior(len(z) - 1)))
 
 
 def integrated_log_odds(log_z_with: dict, log_z_without: dict, log_gross: float) -> float:
