@@ -295,9 +295,8 @@ def _centres(ctx: Context, effect: Effect) -> Candidate | None:
             for j in range(Q.shape[1]):
                 s2 = s2 - col(S.data * Q[S.row, j])[seen] ** 2
             stand_in = np.stack([b / root, np.sqrt(np.maximum(s2 - (b / root) ** 2, 0.0))])
-            for j in range(0, seen.size, 256):  # blocks that stay in cache: 3 x faster, same values
-                lz[seen[j:j + 256]], bt[seen[j:j + 256]] = log_evidence_columns_mixture(
-                    stand_in[:, j:j + 256], np.array([root, 0.0]), taus, ctx.m)
+            lz[seen], bt[seen] = log_evidence_columns_mixture(  # in chunks that stay in cache
+                stand_in, np.array([root, 0.0]), taus, ctx.m)
         # the prior: uniform over the grid of centres, conditioned on the bump reaching at least
         # DEFECT_MIN_TOUCHES touches (a bump no two touches see is not a hypothesis about these
         # data). Where one touch would carry it (``nameable_reach``) it cannot be told from an

@@ -186,6 +186,81 @@ def log_evidence_presence(Xt: np.ndarray, yt: np.ndarray, prior_std: np.ndarray,
     return float(logsumexp(lz) - np.log(len(lz)))
 
 
+def _logsumexp_last(a: np.ndarray) -> np.ndarray:
+    """``scipy.special.logsumexp(a, axis=-1)`` for finite real ``a``, step for step (the same
+    numbers to the last bit: the maximal terms counted apart, log1p of the rest's sum over their
+    count), without scipy's second exponential of the whole array for the non-finite case and its
+    array-API copies (a third of the bump search's time)."""
+    top = a.max(axis=-1, keepdims=True)
+    at_top = a == top
+    count = at_top.sum(axis=-1, keepdims=True, dtype=a.dtype)
+    rest = np.exp(np.where(at_top, -np.inf, a) - top).sum(axis=-1, keepdims=True)
+    rest = np.where(rest == 0, rest, rest / count)
+    return (np.log1p(rest) + np.log(count) + top)[..., 0]
+
+
+def _spectral1(lam, c2, rest, m, w, v):
+    """``_spectral`` of one-column models (k = 1), the same operations in the same order (so the
+    same numbers), without the k axis: lam, c2, rest (...), w and v = e^w broadcasting against
+    them with a trailing grid axis."""
+    a = v + lam[..., None]
+    out = np.log(a)
+    out *= 0.5
+    g = (-0.5 * m * LOG2PI - 0.5 * (m - 1) * w) - out
+    out = rest[..., None] / v
+    out += c2[..., None] / a
+    out *= 0.5
+    g -= out
+    return g
+
+
+def _derivs1(lam, c2, rest, m, w):
+    """``_derivs`` of one-column models (k = 1): the same operations in the same order."""
+    v = np.exp(w)
+    a = v + lam
+    a2 = a ** 2
+    d1 = (-0.5 * (m - 1) - 0.5 * (v / a) + 0.5 * rest / v + 0.5 * (c2 * v / a2))
+    d2 = (-0.5 * (v * lam / a2) - 0.5 * rest / v + 0.5 * (c2 * v * (lam - v) / a ** 3))
+    return d1, d2
+
+
+CHUNK = 512  # one-column models per pass: their grids of 73 values (0.3 MB each) stay in L2 cache
+
+
+def log_evidence_spectral1(lam, c2, yy, m) -> tuple[np.ndarray, np.ndarray]:
+    """``log_evidence_spectral`` of many one-column models: lam, c2 of shape (...) (not
+    (..., 1)); the same steps and the same numbers (tests/test_explain_speed.py), about three
+    times as fast: the coarse grid's e^w computed once for every model, the k axis and its sums
+    dropped, ``_logsumexp_last``, and the grids evaluated ``CHUNK`` models at a time (each
+    model's numbers are its own, so the chunks change none of them)."""
+    lam, c2 = np.broadcast_arrays(np.asarray(lam, float), np.asarray(c2, float))
+    shape = lam.shape
+    lam, c2 = lam.reshape(-1), c2.reshape(-1)
+    yy = float(yy)
+    rest = np.maximum(yy - c2, 1e-12 * np.asarray(yy, float))
+    w0 = np.log(max(yy / m, 1e-300))
+    coarse = w0 + np.linspace(-14.0, 4.0, 61)
+    v_coarse = np.exp(coarse)
+    chunks = [slice(j, j + CHUNK) for j in range(0, lam.size, CHUNK)]
+    w = np.empty(lam.size)
+    for c in chunks:
+        w[c] = coarse[np.argmax(_spectral1(lam[c], c2[c], rest[c], m, coarse, v_coarse), axis=-1)]
+    for _ in range(12):  # Newton, steps clipped to the coarse spacing
+        d1, d2 = _derivs1(lam, c2, rest, m, w)
+        step = np.where(d2 < 0, -d1 / np.where(d2 < 0, d2, -1.0), np.sign(d1) * 0.3)
+        w = w + np.clip(step, -0.3, 0.3)
+    _, d2 = _derivs1(lam, c2, rest, m, w)
+    sd = 1.0 / np.sqrt(np.maximum(-d2, 1e-2))
+    t = np.linspace(-9.0, 9.0, 73)
+    log_z = np.empty(lam.size)
+    for c in chunks:
+        grid = w[c, None] + sd[c, None] * t
+        log_z[c] = _logsumexp_last(_spectral1(lam[c], c2[c], rest[c], m, grid, np.exp(grid)))
+    dt = (t[1] - t[0]) * sd
+    log_z = log_z + np.log(dt) + np.log(0.5)  # dsigma/sigma = dw / 2
+    return log_z.reshape(shape), w.reshape(shape)
+
+
 def log_evidence_columns_mixture(Xt: np.ndarray, yt: np.ndarray, prior_std: np.ndarray, m: int):
     """``log_evidence_mixture`` for many one-column models at once: (log Z (L,), best tau (L,))."""
     s = np.einsum("ij,ij->j", Xt, Xt)
@@ -193,9 +268,8 @@ def log_evidence_columns_mixture(Xt: np.ndarray, yt: np.ndarray, prior_std: np.n
     small = s <= 1e-300
     c2 = np.where(small, 0.0, b ** 2 / np.where(small, 1.0, s))
     tau2 = np.asarray(prior_std, float) ** 2
-    lam = s[:, None, None] * tau2[None, :, None]  # (L, T, 1)
-    lz, _ = log_evidence_spectral(lam, np.broadcast_to(c2[:, None, None], lam.shape),
-                                  float(yt @ yt), m)
+    lam = s[:, None] * tau2[None, :]  # (L, T): one column per model
+    lz, _ = log_evidence_spectral1(lam, np.broadcast_to(c2[:, None], lam.shape), float(yt @ yt), m)
     return logsumexp(lz, axis=1) - np.log(tau2.size), np.argmax(lz, axis=1)
 
 
