@@ -69,3 +69,23 @@ def test_columns_mixture_is_the_per_model_evidence():
         assert lz[j] == pytest.approx(logsumexp(per_tau) - np.log(taus.size), rel=1e-12, abs=1e-9)
         if j:  # the zero column: every tau ties
             assert best[j] == int(np.argmax(per_tau))
+
+
+@pytest.mark.parametrize("m", [2, 5, 60, 4000])
+def test_coarse_window_finds_the_whole_grids_argmax(m):
+    """``_coarse_start1`` evaluates a window of 8 grid points where its slope bounds confine the
+    argmax (c2 small against the rest) and the whole grid elsewhere: both give the argmax of
+    the whole grid, evaluated the straightforward way (``_spectral`` with its k axis)."""
+    rng = np.random.default_rng(m)
+    L = 400
+    lam = rng.uniform(0.0, 3.0, L) ** 6
+    yy = 10.0
+    c2 = np.concatenate([rng.uniform(0.0, 1e-3, L // 2), rng.uniform(0.0, 12.0, L // 2)])
+    rest = np.maximum(yy - c2, 1e-12 * yy)
+    coarse = np.log(yy / m) + np.linspace(-14.0, 4.0, 61)
+    g = evidence._spectral(lam[:, None], c2[:, None], yy, m,
+                           np.broadcast_to(coarse, (L, coarse.size)))
+    want = coarse[np.argmax(g, axis=-1)]
+    got = evidence._coarse_start1(lam, c2, rest, m, coarse, np.exp(coarse))
+    np.testing.assert_array_equal(got, want)
+    assert len(np.unique(np.argmax(g, axis=-1))) > 3  # the argmax moves about the grid
