@@ -187,10 +187,8 @@ def log_evidence_presence(Xt: np.ndarray, yt: np.ndarray, prior_std: np.ndarray,
 
 
 def _logsumexp_last(a: np.ndarray) -> np.ndarray:
-    """``scipy.special.logsumexp(a, axis=-1)`` for finite real ``a``, step for step (the same
-    numbers to the last bit: the maximal terms counted apart, log1p of the rest's sum over their
-    count), without scipy's second exponential of the whole array for the non-finite case and its
-    array-API copies (a third of the bump search's time)."""
+    """``scipy.special.logsumexp(a, axis=-1)`` of finite ``a``, step for step (the same bits),
+    without its second exponential of the whole array (for non-finite input) and its copies."""
     top = a.max(axis=-1, keepdims=True)
     at_top = a == top
     count = np.count_nonzero(at_top, axis=-1).astype(a.dtype)[..., None]
@@ -202,9 +200,8 @@ def _logsumexp_last(a: np.ndarray) -> np.ndarray:
 
 
 def _spectral1(lam, c2, rest, m, w, v):
-    """``_spectral`` of one-column models (k = 1), the same operations in the same order (so the
-    same numbers), without the k axis: lam, c2, rest (...), w and v = e^w broadcasting against
-    them with a trailing grid axis."""
+    """``_spectral`` of one-column models, the same operations in the same order, without the k
+    axis: lam, c2, rest (...); w and v = e^w broadcast against them on a trailing grid axis."""
     a = np.add(v, lam[..., None])
     g = np.log(a)
     g *= 0.5
@@ -218,8 +215,7 @@ def _spectral1(lam, c2, rest, m, w, v):
 
 
 def _derivs1(lam, c2, rest, m, w):
-    """``_derivs`` of one-column models (k = 1): the same operations in the same order (the
-    terms both derivatives share computed once)."""
+    """``_derivs`` of one-column models: the same operations in the same order."""
     v = np.exp(w)
     a = v + lam
     a2 = a ** 2
@@ -231,8 +227,7 @@ def _derivs1(lam, c2, rest, m, w):
 
 
 def _newton1(lam, c2, rest, m, w):
-    """``log_evidence_spectral``'s Newton steps from the coarse grid's best w, and the posterior
-    sd of w there, for one-column models."""
+    """``log_evidence_spectral``'s Newton steps from w, and the sd of w at the mode."""
     for _ in range(12):  # Newton, steps clipped to the coarse spacing
         d1, d2 = _derivs1(lam, c2, rest, m, w)
         step = np.where(d2 < 0, -d1 / np.where(d2 < 0, d2, -1.0), np.sign(d1) * 0.3)
@@ -242,8 +237,6 @@ def _newton1(lam, c2, rest, m, w):
 
 
 CHUNK = 512  # one-column models per pass: their grids of 73 values (0.3 MB each) stay in L2 cache
-
-
 WINDOW = 8  # coarse grid points evaluated where the bounds below confine the argmax
 
 
@@ -254,25 +247,20 @@ def _coarse_start1(lam, c2, rest, m, coarse, v_coarse) -> np.ndarray:
         d/dw log p(z | v) = -h - v / 2(v + lam) + rest / 2v + c2 v / 2(v + lam)^2
 
     lies between -h - 1/2 + rest / 2v and -h + (rest + c2) / 2v (lam, c2 >= 0): the integrand
-    rises below v = rest / m and falls above v = (rest + c2) / (m - 1). 0.9 (three grid steps)
-    beyond either bound its slope exceeds 0.26 h, so each grid step out there changes it by more
-    than 0.08 h (0.04 at m = 2), far above its round-off: every grid point more than 0.9 outside
-    the bounds is strictly below the window's edge. Where the window spans at most ``WINDOW``
-    points (nearly every bump centre: c2 << rest) only those are evaluated, with the grid's own
-    values, so the argmax is the full grid's, first occurrence included; elsewhere the whole
-    grid is."""
-    w = np.empty(lam.size)
-    narrow = np.zeros(lam.size, bool)
-    step = (coarse[-1] - coarse[0]) / (coarse.size - 1)
+    rises below v = rest / m, falls above v = (rest + c2) / (m - 1). 0.9 (3 grid steps) beyond
+    either bound its slope exceeds 0.26 h: each grid step there changes it by over 0.08 h (0.04
+    at m = 2), far above round-off, so no grid point out there can tie the window's edge. Where
+    the window spans at most ``WINDOW`` points (c2 << rest: nearly every bump centre) only those
+    are evaluated, at the grid's own values: the whole grid's argmax, first occurrence too."""
+    w, narrow = np.empty(lam.size), np.zeros(lam.size, bool)
+    step, last = (coarse[-1] - coarse[0]) / (coarse.size - 1), coarse.size - 1
     if m > 1:
         with np.errstate(divide="ignore", invalid="ignore"):
             lo = (np.log(rest / m) - 0.9 - coarse[0]) / step
             hi = (np.log((rest + c2) / (m - 1)) + 0.9 - coarse[0]) / step
         narrow = ~np.isnan(lo) & ~np.isnan(hi)
-        j_lo = np.clip(np.floor(np.where(narrow, lo, 0.0)), 0, coarse.size - 1).astype(int)
-        j_hi = np.clip(np.ceil(np.where(narrow, hi, 0.0)), 0, coarse.size - 1).astype(int)
-        narrow &= j_hi - j_lo < WINDOW
-    last = coarse.size - 1
+        j_lo = np.clip(np.floor(np.where(narrow, lo, 0.0)), 0, last).astype(int)
+        narrow &= np.clip(np.ceil(np.where(narrow, hi, 0.0)), 0, last) - j_lo < WINDOW
     idx = np.flatnonzero(narrow)
     for j in range(0, idx.size, 8 * CHUNK):  # grids of 8 points: as many values as 512 x 61
         c = idx[j:j + 8 * CHUNK]
@@ -287,28 +275,20 @@ def _coarse_start1(lam, c2, rest, m, coarse, v_coarse) -> np.ndarray:
 
 
 def log_evidence_spectral1(lam, c2, yy, m) -> tuple[np.ndarray, np.ndarray]:
-    """``log_evidence_spectral`` of many one-column models: lam, c2 of shape (...) (not
-    (..., 1)); the same steps and the same numbers (tests/test_explain_speed.py), about three
-    times as fast: the coarse grid's e^w computed once for every model, the k axis and its sums
-    dropped, ``_logsumexp_last``, and the grids evaluated ``CHUNK`` models at a time (each
-    model's numbers are its own, so the chunks change none of them)."""
+    """``log_evidence_spectral`` of one-column models, lam and c2 (...) not (..., 1): the same
+    bits (tests/test_explain_speed_exact.py), 4 x as fast: ``_coarse_start1``, no k axis, e^w of
+    the coarse grid once, ``_logsumexp_last``, grids ``CHUNK`` models at a time (L2 cache)."""
     lam, c2 = np.broadcast_arrays(np.asarray(lam, float), np.asarray(c2, float))
-    shape = lam.shape
-    lam, c2 = lam.reshape(-1), c2.reshape(-1)
-    yy = float(yy)
+    shape, lam, c2, yy = lam.shape, lam.reshape(-1), c2.reshape(-1), float(yy)
     rest = np.maximum(yy - c2, 1e-12 * np.asarray(yy, float))
-    w0 = np.log(max(yy / m, 1e-300))
-    coarse = w0 + np.linspace(-14.0, 4.0, 61)
-    v_coarse = np.exp(coarse)
-    chunks = [slice(j, j + CHUNK) for j in range(0, lam.size, CHUNK)]
-    w = _coarse_start1(lam, c2, rest, m, coarse, v_coarse)
-    sd = np.empty(lam.size)
+    coarse = np.log(max(yy / m, 1e-300)) + np.linspace(-14.0, 4.0, 61)
+    w, sd = _coarse_start1(lam, c2, rest, m, coarse, np.exp(coarse)), np.empty(lam.size)
     for j in range(0, lam.size, 8 * CHUNK):  # 8 x as many: vectors of 32 kB, not a grid each
         c = slice(j, j + 8 * CHUNK)
         w[c], sd[c] = _newton1(lam[c], c2[c], rest[c], m, w[c])
     t = np.linspace(-9.0, 9.0, 73)
     log_z = np.empty(lam.size)
-    for c in chunks:
+    for c in [slice(j, j + CHUNK) for j in range(0, lam.size, CHUNK)]:
         grid = w[c, None] + sd[c, None] * t
         log_z[c] = _logsumexp_last(_spectral1(lam[c], c2[c], rest[c], m, grid, np.exp(grid)))
     dt = (t[1] - t[0]) * sd
