@@ -149,3 +149,23 @@ def test_explain_fast_paths_give_the_straightforward_answer(monkeypatch):
     straight = explain([rec], cell).findings
     assert json.dumps(fast, sort_keys=True, default=float) == json.dumps(
         straight, sort_keys=True, default=float)
+
+
+@pytest.mark.parametrize("layout", ["random", "grid", "two"])
+def test_nearest_other_is_the_dense_minimum(layout):
+    """``locate``'s bandwidth: the k-d tree's candidates give the dense hypot matrix's row
+    minima bit for bit, on random positions and on a grid (4 neighbours tie at one distance)."""
+    from adaptive_cal.analysis.explain.locate import nearest_other
+
+    rng = np.random.default_rng(4)
+    if layout == "random":
+        xy = rng.uniform(0.0, 300.0, (2000, 2))
+    elif layout == "grid":
+        gx, gy = np.meshgrid(np.arange(30) * 10.0 + 3.3, np.arange(20) * 10.0 - 1.7)
+        xy = np.stack([gx.ravel(), gy.ravel()], 1)
+    else:
+        xy = np.array([[0.0, 0.0], [3.0, 4.0]])
+    xy = np.unique(xy, axis=0)
+    dense = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+    np.fill_diagonal(dense, np.inf)
+    np.testing.assert_array_equal(nearest_other(xy), dense.min(1))
