@@ -122,6 +122,10 @@ def test_kept_bells_are_the_bells_of_the_rows_kept():
         for a in ("row", "col", "data"):  # entry for entry, in the same order
             np.testing.assert_array_equal(getattr(got, a), getattr(want, a))
     assert set(built) == {10.0, 40.0}
+    whole = kept_bells(design, np.ones(design.n, bool), built)(40.0)  # the first pass: no cut
+    want = defect_regressor_sparse(design.features, design.geometry, 40.0)
+    for a in ("row", "col", "data"):
+        np.testing.assert_array_equal(getattr(whole, a), getattr(want, a))
 
 
 def _straight_spectral1(lam, c2, yy, m):

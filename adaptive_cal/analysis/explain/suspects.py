@@ -189,6 +189,8 @@ def kept_bells(design: Design, keep: np.ndarray, built: dict):
         if radius not in built:
             built[radius] = defect_regressor_sparse(design.features, design.geometry, radius)
         S = built[radius]
+        if keep.all():
+            return S
         on = keep[S.row]
         return sparse.coo_matrix((S.data[on], (index[S.row[on]], S.col[on])),
                                  shape=(int(np.count_nonzero(keep)), S.shape[1]))
