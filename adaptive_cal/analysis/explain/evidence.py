@@ -186,6 +186,121 @@ def log_evidence_presence(Xt: np.ndarray, yt: np.ndarray, prior_std: np.ndarray,
     return float(logsumexp(lz) - np.log(len(lz)))
 
 
+def _logsumexp_last(a: np.ndarray) -> np.ndarray:
+    """``scipy.special.logsumexp(a, axis=-1)`` of finite ``a``, step for step (the same bits),
+    without its second exponential of the whole array (for non-finite input) and its copies."""
+    top = a.max(axis=-1, keepdims=True)
+    at_top = a == top
+    count = np.count_nonzero(at_top, axis=-1).astype(a.dtype)[..., None]
+    x = np.subtract(a, top)
+    np.copyto(x, -np.inf, where=at_top)  # scipy's where(at_top, -inf, a) - top, in place
+    rest = np.exp(x, out=x).sum(axis=-1, keepdims=True)
+    rest = np.where(rest == 0, rest, rest / count)
+    return (np.log1p(rest) + np.log(count) + top)[..., 0]
+
+
+def _spectral1(lam, c2, rest, m, w, v):
+    """``_spectral`` of one-column models, the same operations in the same order, without the k
+    axis: lam, c2, rest (...); w and v = e^w broadcast against them on a trailing grid axis."""
+    a = np.add(v, lam[..., None])
+    g = np.log(a)
+    g *= 0.5
+    np.subtract(-0.5 * m * LOG2PI - 0.5 * (m - 1) * w, g, out=g)
+    np.divide(c2[..., None], a, out=a)
+    out = np.divide(rest[..., None], v)
+    out += a
+    out *= 0.5
+    g -= out
+    return g
+
+
+def _derivs1(lam, c2, rest, m, w):
+    """``_derivs`` of one-column models: the same operations in the same order."""
+    v = np.exp(w)
+    a = v + lam
+    a2 = a ** 2
+    r = 0.5 * rest / v
+    cv = c2 * v
+    d1 = (-0.5 * (m - 1) - 0.5 * (v / a) + r + 0.5 * (cv / a2))
+    d2 = (-0.5 * (v * lam / a2) - r + 0.5 * (cv * (lam - v) / a ** 3))
+    return d1, d2
+
+
+def _newton1(lam, c2, rest, m, w):
+    """``log_evidence_spectral``'s Newton steps from w, and the sd of w at the mode. A step that
+    leaves w unchanged to the bit is a fixed point (the next steps start from the same w), so
+    that model's remaining steps are skipped (most models: after 5 of the 12)."""
+    w, idx, on = np.array(w, float), np.arange(w.size), (lam, c2, rest, np.array(w, float))
+    for _ in range(12):  # Newton, steps clipped to the coarse spacing
+        d1, d2 = _derivs1(*on[:3], m, on[3])
+        step = np.where(d2 < 0, -d1 / np.where(d2 < 0, d2, -1.0), np.sign(d1) * 0.3)
+        new = on[3] + np.clip(step, -0.3, 0.3)
+        w[idx], moved = new, new != on[3]
+        idx, on = idx[moved], tuple(a[moved] for a in on[:3]) + (new[moved],)
+    _, d2 = _derivs1(lam, c2, rest, m, w)
+    return w, 1.0 / np.sqrt(np.maximum(-d2, 1e-2))
+
+
+CHUNK = 512  # one-column models per pass: their grids of 73 values (0.3 MB each) stay in L2 cache
+WINDOW = 8  # coarse grid points evaluated where the bounds below confine the argmax
+
+
+def _coarse_start1(lam, c2, rest, m, coarse, v_coarse) -> np.ndarray:
+    """The coarse grid's best w (``log_evidence_spectral``'s Newton start) of one-column models,
+    evaluating the grid only where its argmax can be. With h = (m - 1) / 2 and v = e^w,
+
+        d/dw log p(z | v) = -h - v / 2(v + lam) + rest / 2v + c2 v / 2(v + lam)^2
+
+    lies between -h - 1/2 + rest / 2v and -h + (rest + c2) / 2v (lam, c2 >= 0): the integrand
+    rises below v = rest / m, falls above v = (rest + c2) / (m - 1). 0.9 (3 grid steps) beyond
+    either bound its slope exceeds 0.26 h: each grid step there changes it by over 0.08 h (0.04
+    at m = 2), far above round-off, so no grid point out there can tie the window's edge. Where
+    the window spans at most ``WINDOW`` points (c2 << rest: nearly every bump centre) only those
+    are evaluated, at the grid's own values: the whole grid's argmax, first occurrence too."""
+    w, narrow = np.empty(lam.size), np.zeros(lam.size, bool)
+    step, last = (coarse[-1] - coarse[0]) / (coarse.size - 1), coarse.size - 1
+    if m > 1:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lo = (np.log(rest / m) - 0.9 - coarse[0]) / step
+            hi = (np.log((rest + c2) / (m - 1)) + 0.9 - coarse[0]) / step
+        narrow = ~np.isnan(lo) & ~np.isnan(hi)
+        j_lo = np.clip(np.floor(np.where(narrow, lo, 0.0)), 0, last).astype(int)
+        narrow &= np.clip(np.ceil(np.where(narrow, hi, 0.0)), 0, last) - j_lo < WINDOW
+    idx = np.flatnonzero(narrow)
+    for j in range(0, idx.size, 8 * CHUNK):  # grids of 8 points: as many values as 512 x 61
+        c = idx[j:j + 8 * CHUNK]
+        J = np.minimum(j_lo[c, None] + np.arange(WINDOW), last)
+        g = _spectral1(lam[c], c2[c], rest[c], m, coarse[J], v_coarse[J])
+        w[c] = coarse[np.minimum(j_lo[c] + np.argmax(g, axis=-1), last)]
+    idx = np.flatnonzero(~narrow)
+    for j in range(0, idx.size, CHUNK):
+        c = idx[j:j + CHUNK]
+        w[c] = coarse[np.argmax(_spectral1(lam[c], c2[c], rest[c], m, coarse, v_coarse), axis=-1)]
+    return w
+
+
+def log_evidence_spectral1(lam, c2, yy, m) -> tuple[np.ndarray, np.ndarray]:
+    """``log_evidence_spectral`` of one-column models, lam and c2 (...) not (..., 1): the same
+    bits (tests/test_explain_speed_exact.py), 4 x as fast: ``_coarse_start1``, no k axis, e^w of
+    the coarse grid once, ``_logsumexp_last``, grids ``CHUNK`` models at a time (L2 cache)."""
+    lam, c2 = np.broadcast_arrays(np.asarray(lam, float), np.asarray(c2, float))
+    shape, lam, c2, yy = lam.shape, lam.reshape(-1), c2.reshape(-1), float(yy)
+    rest = np.maximum(yy - c2, 1e-12 * np.asarray(yy, float))
+    coarse = np.log(max(yy / m, 1e-300)) + np.linspace(-14.0, 4.0, 61)
+    w, sd = _coarse_start1(lam, c2, rest, m, coarse, np.exp(coarse)), np.empty(lam.size)
+    for j in range(0, lam.size, 8 * CHUNK):  # 8 x as many: vectors of 32 kB, not a grid each
+        c = slice(j, j + 8 * CHUNK)
+        w[c], sd[c] = _newton1(lam[c], c2[c], rest[c], m, w[c])
+    t = np.linspace(-9.0, 9.0, 73)
+    log_z = np.empty(lam.size)
+    for c in [slice(j, j + CHUNK) for j in range(0, lam.size, CHUNK)]:
+        grid = w[c, None] + sd[c, None] * t
+        log_z[c] = _logsumexp_last(_spectral1(lam[c], c2[c], rest[c], m, grid, np.exp(grid)))
+    dt = (t[1] - t[0]) * sd
+    log_z = log_z + np.log(dt) + np.log(0.5)  # dsigma/sigma = dw / 2
+    return log_z.reshape(shape), w.reshape(shape)
+
+
 def log_evidence_columns_mixture(Xt: np.ndarray, yt: np.ndarray, prior_std: np.ndarray, m: int):
     """``log_evidence_mixture`` for many one-column models at once: (log Z (L,), best tau (L,))."""
     s = np.einsum("ij,ij->j", Xt, Xt)
@@ -193,9 +308,8 @@ def log_evidence_columns_mixture(Xt: np.ndarray, yt: np.ndarray, prior_std: np.n
     small = s <= 1e-300
     c2 = np.where(small, 0.0, b ** 2 / np.where(small, 1.0, s))
     tau2 = np.asarray(prior_std, float) ** 2
-    lam = s[:, None, None] * tau2[None, :, None]  # (L, T, 1)
-    lz, _ = log_evidence_spectral(lam, np.broadcast_to(c2[:, None, None], lam.shape),
-                                  float(yt @ yt), m)
+    lam = s[:, None] * tau2[None, :]  # (L, T): one column per model
+    lz, _ = log_evidence_spectral1(lam, np.broadcast_to(c2[:, None], lam.shape), float(yt @ yt), m)
     return logsumexp(lz, axis=1) - np.log(tau2.size), np.argmax(lz, axis=1)
 
 

@@ -80,15 +80,27 @@ def f_test(ctx: Context, X: np.ndarray, given: np.ndarray | None = None) -> dict
             "explained_rms_mm": float(np.sqrt(explained / ctx.design.n)), "real": bool(p < ALPHA)}
 
 
+def nearest_other(xy: np.ndarray, neighbours: int = 8) -> np.ndarray:
+    """Distance from each of the distinct points ``xy`` to the nearest other, as the dense
+    hypot matrix (diagonal set to inf) gives it: a k-d tree proposes the ``neighbours`` nearest
+    others and their exact hypot is taken (the same minimum unless more than ``neighbours``
+    points lie within rounding of one distance), without the n x n matrix."""
+    from scipy.spatial import cKDTree
+
+    k = min(neighbours + 1, len(xy))
+    _, j = cKDTree(xy).query(xy, k=k)
+    dist = np.hypot(xy[:, None, 0] - xy[j, 0], xy[:, None, 1] - xy[j, 1])
+    dist[j == np.arange(len(xy))[:, None]] = np.inf  # the point itself
+    return dist.min(1)
+
+
 def smoothing_grid(d) -> tuple[np.ndarray, np.ndarray, float]:
     """The grid ``where`` smooths the residual on (46 x 38 points over the plate) and the
     bandwidth h: the median nearest-touch distance (over at most 2,000 distinct positions)."""
     xy = np.unique(np.stack([d.features.x_mm, d.features.y_mm], 1), axis=0)
     if len(xy) > 2000:
         xy = xy[np.linspace(0, len(xy) - 1, 2000).astype(int)]
-    dist = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-    np.fill_diagonal(dist, np.inf)
-    h = float(np.median(dist.min(1))) if len(xy) > 1 else 1.0
+    h = float(np.median(nearest_other(xy))) if len(xy) > 1 else 1.0
     (x0, x1), (y0, y1) = d.geometry.x_range_mm, d.geometry.y_range_mm
     gx, gy = np.meshgrid(np.linspace(x0, x1, 46), np.linspace(y0, y1, 38), indexing="ij")
     return gx.ravel(), gy.ravel(), h

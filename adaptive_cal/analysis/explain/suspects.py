@@ -164,13 +164,37 @@ def model_probabilities(cands: list[Candidate]) -> np.ndarray:
     return np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
 
 
-def scored(design: Design) -> tuple[Design, Context, list[Candidate]]:
-    """Calibrate (tilt, offsets, unknowns), then score every testable candidate."""
+def scored(design: Design, bells=None) -> tuple[Design, Context, list[Candidate]]:
+    """Calibrate (tilt, offsets, unknowns), then score every testable candidate (``bells``:
+    ``kept_bells``, or None to build them)."""
     ctx = Context.of(design)
     calibrated = design.features.ideal_reading_mm + (design.target - ctx.yt)
     design = design.with_ideal_reading(calibrated)  # probe_gain sees the calibrated indication
     ctx = Context.of(design)
-    return design, ctx, score_candidates(ctx, design.untestable)
+    return design, ctx, score_candidates(ctx, design.untestable, bells)
+
+
+def kept_bells(design: Design, keep: np.ndarray, built: dict):
+    """radius -> the bump search's bells (``defect_regressor_sparse``) of
+    ``design.select(keep)``, cut from the whole design's (built once per radius, in ``built``):
+    each touch's entries are its own and stored in touch order, so the rows kept give the matrix
+    built on them, entry for entry and in the same order (so the same sums)."""
+    from scipy import sparse
+
+    from adaptive_cal.effects.plate import defect_regressor_sparse
+
+    index = np.cumsum(keep) - 1
+
+    def bells(radius: float):
+        if radius not in built:
+            built[radius] = defect_regressor_sparse(design.features, design.geometry, radius)
+        S = built[radius]
+        if keep.all():
+            return S
+        on = keep[S.row]
+        return sparse.coo_matrix((S.data[on], (index[S.row[on]], S.col[on])),
+                                 shape=(int(np.count_nonzero(keep)), S.shape[1]))
+    return bells
 
 
 def gross_log_density(residual: float, noise_var: float) -> float:
@@ -226,12 +250,13 @@ def screened(design: Design):
     found: list[tuple[int, float, float]] = []
     offset: dict[str, float] = {}  # mixed_log_bf less the branch taken, per candidate
     memo: dict[bytes, tuple] = {}
+    built: dict[float, object] = {}  # the whole design's bells, per radius (``kept_bells``)
 
     def score(k: np.ndarray):
         if k.tobytes() not in memo:
             if len(memo) >= 2:  # the current pass and one trial without a reading
                 memo.clear()
-            memo[k.tobytes()] = scored(design.select(k))
+            memo[k.tobytes()] = scored(design.select(k), kept_bells(design, k, built))
         return memo[k.tobytes()]
 
     while True:
