@@ -17,7 +17,8 @@ import numpy as np
 
 from adaptive_cal.effects.base import AXES, Effect, EffectSet, Features, Geometry, Param
 from adaptive_cal.effects.machine import arm_sag, probe_gain, reversal, thermal_drift
-from adaptive_cal.effects.plate import (defect_centres, defect_regressor_grid, form, form_basis,
+from adaptive_cal.effects.plate import (DEFECT_PROFILES, defect_centres, defect_profile,
+                                        defect_regressor_grid, form, form_basis,
                                         form_height, form_params, form_pv_gradient,
                                         local_defect, tilt)
 
@@ -80,4 +81,5 @@ __all__ = ["AXES", "Effect", "EffectSet", "Features", "Geometry", "Param", "LIBR
            "EFFECT_NAMES", "get", "effect_set", "complete_params", "reading_change",
            "total_change", "split", "markdown_table", "tilt", "form", "thermal_drift", "reversal",
            "arm_sag", "probe_gain", "local_defect", "form_basis", "form_height", "form_params",
-           "form_pv_gradient", "defect_centres", "defect_regressor_grid"]
+           "form_pv_gradient", "defect_centres", "defect_regressor_grid", "DEFECT_PROFILES",
+           "defect_profile"]

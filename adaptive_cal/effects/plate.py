@@ -137,12 +137,38 @@ def defect_centres(geometry: Geometry, radius_mm: float) -> tuple[np.ndarray, np
     return gx.ravel(), gy.ravel()
 
 
-def defect_regressor_grid(features: Features, x_mm, y_mm, radius_mm: float) -> np.ndarray:
+# Profiles a bump may have, unit height at d = 0 and zero from d = 1 (d: distance / radius_mm).
+# The library's forward model is the cosine bell (smooth at its rim); a burr, chip or speck of
+# dirt is not bound to it: a shallow spherical cap (a dome, h << r) is the paraboloid 1 - d^2,
+# flat-topped beside the bell, and a cone 1 - d is peaked. Touches on a bump's flanks fix its
+# half-height width, and the peak height extrapolated from them depends on the profile: for
+# the same flank touches a dome's peak is lower than the bell's and a cone's higher, so a height
+# reported under one profile is biased on the others by about as much as the flanks allow.
+# explain's intervals average over these (``analysis.explain.averaging``); the value it reports
+# stays the bell's, the model the simulator and the cell file use.
+DEFECT_PROFILES = ("cosine_bell", "dome", "cone")
+
+
+def defect_profile(d, profile: str = "cosine_bell") -> np.ndarray:
+    """Unit-height profile at d = distance / radius (d >= 0), 0 from d = 1 (``DEFECT_PROFILES``)."""
+    d = np.minimum(np.asarray(d, float), 1.0)
+    if profile == "cosine_bell":
+        return 0.5 * (1.0 + np.cos(np.pi * d))
+    if profile == "dome":
+        return 1.0 - d * d
+    if profile == "cone":
+        return 1.0 - d
+    raise ValueError(f"unknown bump profile {profile!r}; known: {', '.join(DEFECT_PROFILES)}")
+
+
+def defect_regressor_grid(features: Features, x_mm, y_mm, radius_mm: float,
+                          profile: str = "cosine_bell") -> np.ndarray:
     """local_defect regressor (unit height) for many centres at once: touches x centres.
 
     The forward model (``local_defect.reading_change``) with the centres broadcast against the
     touches; the cosine is taken only inside the bell, where it is not zero (a search grid of
-    thousands of centres over thousands of touches is mostly outside it).
+    thousands of centres over thousands of touches is mostly outside it). ``profile``: another
+    of ``DEFECT_PROFILES`` in the bell's place.
     """
     dx = np.asarray(features.x_mm, float)[:, None] - np.asarray(x_mm, float)[None, :]
     dy = np.asarray(features.y_mm, float)[:, None] - np.asarray(y_mm, float)[None, :]
@@ -150,7 +176,10 @@ def defect_regressor_grid(features: Features, x_mm, y_mm, radius_mm: float) -> n
     r = float(radius_mm)
     inside = d2 < r * r
     out = np.zeros(d2.shape)
-    out[inside] = 0.5 * (1.0 + np.cos(np.pi * np.sqrt(d2[inside]) / r))
+    if profile == "cosine_bell":
+        out[inside] = 0.5 * (1.0 + np.cos(np.pi * np.sqrt(d2[inside]) / r))
+    else:
+        out[inside] = defect_profile(np.sqrt(d2[inside]) / r, profile)
     return out
 
 

@@ -49,11 +49,18 @@ def scale_averaged(ctx: Context, cand: Candidate) -> Candidate:
     return replace(cand, mean=mean, cov=0.5 * (cov + cov.T))
 
 
+PROFILE = "profile"  # a bump's refined children are taken under each of effects.DEFECT_PROFILES
+LIBRARY_PROFILE = effects.DEFECT_PROFILES[0]  # the cosine bell: local_defect's forward model
+
+
 def averaged(ctx: Context, cand: Candidate) -> Candidate:
     """A searched candidate at the best point of its refined grid, with sds and 95 % intervals
     averaged over the grid's posterior (``intervals``) instead of held at the best point: its
     search grid's cells split (along arm_sag's p, the warm-up's tau_s, a bump's radius and
-    centre), each point weighted by its evidence. The log Bayes factor stays the search's. A
+    centre), each point weighted by its evidence. A bump's children are also taken under each
+    profile of ``effects.DEFECT_PROFILES`` (prior 1/3 each: what a burr looks like is not
+    known), so its height's interval carries the profile's part; the reported point is the
+    best child under the library's bell. The log Bayes factor stays the search's. A
     plain candidate (no search): its posterior averaged over its prior scale
     (``scale_averaged``)."""
     if cand.support is None:
@@ -74,10 +81,13 @@ def averaged(ctx: Context, cand: Candidate) -> Candidate:
 
         def column_of(v, sl):
             x, y, r = v["x_mm"][sl], v["y_mm"][sl], v["radius_mm"][sl]
+            shape = v[PROFILE][sl] if PROFILE in v else np.full(x.size, LIBRARY_PROFILE, object)
             X = np.zeros((d.n, x.size))
             for radius in np.unique(r):
-                at = r == radius
-                X[:, at] = effects.defect_regressor_grid(d.features, x[at], y[at], float(radius))
+                for profile in np.unique(shape[r == radius]):
+                    at = (r == radius) & (shape == profile)
+                    X[:, at] = effects.defect_regressor_grid(d.features, x[at], y[at],
+                                                             float(radius), str(profile))
             return X
 
         def admissible(X):  # the search's own rule: a bump one touch carries is not named
@@ -91,10 +101,12 @@ def averaged(ctx: Context, cand: Candidate) -> Candidate:
                                                      cand.names)[:, 0] for u in v[key][sl]])
     vals, logw, mean, var, cells = intervals.refined_posterior(
         ctx, column_of, {key: np.asarray(sup["values"][key], float)}, values,
-        sup["log_w"][keep], np.asarray(sup["tau"])[keep], key, admissible, steps)
-    if not np.isfinite(logw).any():
+        sup["log_w"][keep], np.asarray(sup["tau"])[keep], key, admissible, steps,
+        {PROFILE: effects.DEFECT_PROFILES} if steps is not None else None)
+    own = vals.pop(PROFILE, np.full(logw.size, LIBRARY_PROFILE, object)) == LIBRARY_PROFILE
+    if not np.isfinite(logw[own]).any():
         return replace(cand, support=None)  # no refined point is nameable: held at the search's
-    best = int(np.argmax(logw))
+    best = int(np.argmax(np.where(own, logw, -np.inf)))  # the library's profile: the model it names
     fixed = {k: float(v[best]) for k, v in vals.items()}
     refit = replace(cand, columns=column_of({k: v[best:best + 1] for k, v in vals.items()},
                                             slice(None)), fixed=fixed, support=None)

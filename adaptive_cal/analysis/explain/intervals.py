@@ -164,13 +164,18 @@ def one_column_fits(ctx, columns, count: int, tau: np.ndarray, admissible=None):
 
 
 def refined_posterior(ctx, column_of, grid: dict, values: dict, log_w: np.ndarray,
-                      tau: np.ndarray, key: str, admissible=None, steps: dict | None = None):
+                      tau: np.ndarray, key: str, admissible=None, steps: dict | None = None,
+                      variants: dict | None = None):
     """The grid posterior refined along ``key`` (``refine``) and along each key of ``steps``
     (a uniform grid of that step per kept point: its cell split in two, at +-step / 4): each
     kept point's prior mass split evenly over its children, each child weighted by its own
-    evidence. ``column_of(values, slice)`` builds the regressor of the children. Returns
-    (values per child (all keys), log weight, linear mean, linear variance, cell variance per
-    refined key)."""
+    evidence. ``column_of(values, slice)`` builds the regressor of the children. ``variants``
+    ({name: options}, one key): each child also taken under each option (a bump's profile),
+    its prior mass split evenly over them; ``column_of`` reads the option from
+    ``values[name]`` (absent: the search's own, as for the parents), and ``admissible`` judges
+    each child under its own option (a dome reaches touches a bell of its radius does not).
+    Returns (values per child
+    (all keys), log weight, linear mean, linear variance, cell variance per refined key)."""
     parent, kid, cell = refine(grid[key], values[key])
     vals = {k: np.asarray(v, float)[parent] for k, v in values.items()}
     vals[key] = kid
@@ -182,6 +187,15 @@ def refined_posterior(ctx, column_of, grid: dict, values: dict, log_w: np.ndarra
         vals[k] = vals[k] + np.concatenate([-st, st]) / 4.0
         cells = {n: np.concatenate([c, c]) for n, c in cells.items()}
         cells[k] = np.concatenate([st, st]) ** 2 / 48.0  # a uniform cell of width step / 2
+    n_var = 1
+    if variants:
+        (name, options), = variants.items()
+        n_var = len(options)
+        rep = lambda a: np.tile(a, n_var)  # noqa: E731 -- option-major: child i under each option
+        vals = {n: rep(v) for n, v in vals.items()}
+        vals[name] = np.repeat(np.asarray(options, object), parent.size)
+        cells = {n: rep(c) for n, c in cells.items()}
+        parent = rep(parent)
     kid = vals[key]
     t = np.asarray(tau, float)[parent]
     lz, mean, var = one_column_fits(ctx, lambda sl: column_of(vals, sl), kid.size, t, admissible)
@@ -190,7 +204,7 @@ def refined_posterior(ctx, column_of, grid: dict, values: dict, log_w: np.ndarra
     lzp, _, _ = one_column_fits(ctx, lambda sl: column_of(
         {k: np.asarray(v, float)[sl] for k, v in values.items()}, slice(None)),
         len(values[key]), np.asarray(tau, float))
-    n_kids = np.bincount(parent, minlength=len(values[key]))
+    n_kids = np.bincount(parent, minlength=len(values[key]))  # options included
     logw = log_w[parent] - lzp[parent] - np.log(n_kids[parent]) + lz
     return vals, logw, mean, var, cells
 
