@@ -18,7 +18,7 @@ so its rate bounds every explain-like tool's on these cases (up to the Monte Car
 Imports numpy and benchmarks/explain_indep only (no adaptive_cal).
 
     python benchmarks/explain_ceiling.py --n 30 --seed 0 \
-        [--from benchmarks/results/explain-indep-2026-11-22.json]   # explain's verdicts beside it
+        [--from benchmarks/results/explain-indep-2026-11-23.json]   # explain's verdicts beside it
 """
 from __future__ import annotations
 
