@@ -174,8 +174,8 @@ def refined_posterior(ctx, column_of, grid: dict, values: dict, log_w: np.ndarra
     its prior mass split evenly over them; ``column_of`` reads the option from
     ``values[name]`` (absent: the search's own, as for the parents), and ``admissible`` judges
     each child under its own option (a dome reaches touches a bell of its radius does not).
-    Returns (values per child
-    (all keys), log weight, linear mean, linear variance, cell variance per refined key)."""
+    Returns (values per child (all keys, the option's too), log weight, linear mean, linear
+    variance, cell variance per refined key)."""
     parent, kid, cell = refine(grid[key], values[key])
     vals = {k: np.asarray(v, float)[parent] for k, v in values.items()}
     vals[key] = kid
@@ -187,11 +187,9 @@ def refined_posterior(ctx, column_of, grid: dict, values: dict, log_w: np.ndarra
         vals[k] = vals[k] + np.concatenate([-st, st]) / 4.0
         cells = {n: np.concatenate([c, c]) for n, c in cells.items()}
         cells[k] = np.concatenate([st, st]) ** 2 / 48.0  # a uniform cell of width step / 2
-    n_var = 1
     if variants:
         (name, options), = variants.items()
-        n_var = len(options)
-        rep = lambda a: np.tile(a, n_var)  # noqa: E731 -- option-major: child i under each option
+        rep = lambda a: np.tile(a, len(options))  # noqa: E731 -- option-major blocks
         vals = {n: rep(v) for n, v in vals.items()}
         vals[name] = np.repeat(np.asarray(options, object), parent.size)
         cells = {n: rep(c) for n, c in cells.items()}
