@@ -218,6 +218,64 @@ def test_checks_flag_a_rough_plate_and_say_where():
     assert (MeanStdBelow(1.0) | TouchBudget(st.touches))(st) == "touch_budget"
 
 
+def _unseen_alarms(plan, factor, n, plates, rng):
+    """Checks fired on ``plates`` runs whose readings carry white structure of ``factor`` x the
+    unseen size of a clean run of the same touches (the probe at the span's low end)."""
+    from dataclasses import replace
+
+    from adaptive_cal.planning import survey as sv
+
+    lo = plan.noise_range_mm[0]
+    (x0, x1), (y0, y1) = plan.bounds_mm
+    alarms, sizes = 0, []
+    for _ in range(plates):
+        xy = np.stack([rng.uniform(x0, x1, n), rng.uniform(y0, y1, n)], 1)
+        rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])
+        base = 0.001 * xy[:, 0] - 0.0005 * xy[:, 1] + 0.01 * np.cos(xy[:, 0] / 150.0)
+        clean = sv.refit(plan, replace(sv.start(plan), rows=rows,
+                                       heights_mm=base + lo * rng.standard_normal(n)))
+        u = clean.adequacy.unseen_rms_mm
+        y = base + lo * rng.standard_normal(n) + factor * u * rng.standard_normal(n)
+        alarms += not sv.refit(plan, replace(sv.start(plan), rows=rows,
+                                             heights_mm=y)).adequacy.adequate
+        sizes.append(u)
+    return alarms, float(np.median(sizes))
+
+
+def test_the_unseen_size_is_where_the_checks_begin_to_see_structure():
+    """Monte Carlo: span 3-8 um, the probe at 3 um, 30 random touches on a smooth plate, plus
+    white structure (finer than the touches' spacing). At 0.7 x ``unseen_rms_mm`` the checks
+    never fired in 100 runs, at 1.3 x in 80 of 100; bounds over 40 runs: <= 4 and >= 22
+    (P(X <= 21) < 0.01 % at 0.8). Its size follows the span: about 10.6 um here."""
+    plan = _plan()
+    rng = np.random.default_rng(11)
+    below, size = _unseen_alarms(plan, 0.7, 30, 40, rng)
+    above, _ = _unseen_alarms(plan, 1.3, 30, 40, rng)
+    assert below <= 4 and above >= 22, (below, above)
+    assert 0.008 < size < 0.013  # sqrt(hi^2 - lo^2) = 7.4 um plus what 30 readings miss
+
+
+def test_the_summary_says_what_an_adequate_model_can_hide():
+    """An adequate model names the unseen size with a span, and says it is unbounded without."""
+    from dataclasses import replace
+
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.planning import survey as sv
+    from helpers import sim_cell
+
+    rng = np.random.default_rng(2)
+    for plan in (_plan(), survey_plan(sim_cell(), grow=False)):
+        rows, y = _readings(plan, lambda rows, xy: 0.001 * xy[:, 0], 40, rng, noise_mm=0.004)
+        v = sv.refit(plan, replace(sv.start(plan), rows=rows, heights_mm=y)).adequacy
+        assert v.adequate, v.summary()
+        if plan.noise_range_mm is None:
+            assert v.unseen_rms_mm is None and "no probe.noise_range_mm stated" in v.summary()
+            assert v.as_dict()["unseen_rms_mm"] is None
+        else:
+            assert f"{v.unseen_rms_mm * 1e3:.1f} um RMS would pass" in v.summary()
+            assert v.as_dict()["unseen_rms_mm"] == v.unseen_rms_mm > 0.007
+
+
 def test_status_of_an_adequate_model_is_the_spline_variance():
     from adaptive_cal.planning import survey as sv
 

@@ -23,6 +23,18 @@ region's s_k^2 = max(0, mean_k(e_i^2 - q_i - r_p)) (unbiased for an extra white 
 only where a check 1-4 fails (else 0): the bands and the stop statistic add it
 (``planning.survey.status``), and the stop never fires while a check fails.
 
+What the checks cannot see (``unseen_rms``): structure finer than the touches' spacing looks
+like noise. With a stated span [lo, hi] the probe may be as good as lo, so the learned noise can
+take structure of RMS s with lo^2 + s^2 <= hi^2 unseen; beyond, the noise-span check fires at
+hi (1 + z / sqrt(2 n)), and the leave-one-out check (r_p held at hi^2) at a mean excess of
+(b - 1) / mean(1 / (q_i + hi^2)), b its chi2 bound. The smaller of the two is the size such
+structure reaches before a check sees it: ``Adequacy.unseen_rms_mm``, in result.json and the
+summary. Measured (tests/test_adequacy.py; span 3-8 um, the probe at 3 um, learned noise): at
+that size the checks fire 30 % of the time (30/100 at 30 readings, 23/60 at 80), at 1.3 x it
+80-100 %, at 0.7 x never. Without a span it is not bounded: the learned noise takes all of
+it (a 6 um ripple at 30 mm passed every check after 12 touches, true error 5.3 um against a
+claimed 3.4 um, benchmarks/bench_plates.py).
+
 The map beyond the reachable box (the edge margin no touch can reach, ``reach_mm``) is an
 extrapolation that no check can test: ``extrapolated`` names it (result.json, the summary)
 instead of adding a variance for it. A variance derived from the form prior would be the
@@ -64,6 +76,7 @@ class Adequacy:
     form_var_mm2: float = 0.0  # its plate mean
     plate_mm: tuple | None = None  # ((x0, x1), (y0, y1)) the workplane
     reach_mm: tuple | None = None  # ((x0, x1), (y0, y1)) the box touches can reach
+    unseen_rms_mm: float | None = None  # structure that passes the checks (``unseen_rms``)
 
     def unresolved_var_mm2(self, x_mm, y_mm) -> np.ndarray:
         """s_u^2 (mm^2) at points (x, y): the projection variance of the learned form there
@@ -123,7 +136,13 @@ class Adequacy:
 
     def _summary(self) -> str:
         if self.adequate and self.unresolved_rms_mm < NEGLIGIBLE_MM:
-            return "model adequate: the readings agree with the spline and the probe's noise"
+            head = "model adequate: the readings agree with the spline and the probe's noise"
+            if self.unseen_rms_mm is None:
+                return (f"{head}; structure finer than the touches' spacing cannot be told from "
+                        "that noise (no probe.noise_range_mm stated)")
+            return (f"{head}; structure finer than the touches' spacing up to about "
+                    f"{self.unseen_rms_mm * 1e3:.1f} um RMS would pass these checks (the probe's "
+                    "stated noise span leaves room for it)")
         failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
         head = f"model inadequate ({failed})" if not self.adequate else \
             "model adequate, bands widened"
@@ -138,7 +157,8 @@ class Adequacy:
     def as_dict(self) -> dict:
         return {"adequate": self.adequate, "checks": self.checks,
                 "unresolved_rms_mm": self.unresolved_rms_mm, "where": self.where(),
-                "finer_than_mm": self.knot_spacing_mm, "extrapolated": self.extrapolated(),
+                "finer_than_mm": self.knot_spacing_mm, "unseen_rms_mm": self.unseen_rms_mm,
+                "extrapolated": self.extrapolated(),
                 "summary": self.summary()}
 
 
@@ -234,4 +254,19 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
             var[~flagged & ~thin] = 0.0
     return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var,
                     plate_mm=tuple(map(tuple, plate_mm)),
-                    reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)))
+                    reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)),
+                    unseen_rms_mm=unseen_rms(n, a_glob, q, noise_range_mm))
+
+
+def unseen_rms(n: int, alpha: float, q: np.ndarray, noise_range_mm) -> float | None:
+    """RMS (mm) of structure finer than the touches' spacing (white at the touches) that the
+    noise-span and leave-one-out checks begin to see, the probe as good as the span's low end
+    (module docstring; they fire about a third of the time at it); None without a span
+    (unbounded). ``q``: the surface's LOO
+    variances (mm^2), ``alpha``: each check's level."""
+    if noise_range_mm is None or n < 1:
+        return None
+    lo, hi = (float(v) for v in noise_range_mm)
+    by_span = (hi * (1.0 + float(norm.isf(alpha)) / np.sqrt(2.0 * n))) ** 2 - lo**2
+    excess = (checks.mean_square_upper(n, alpha) - 1.0) / float(np.mean(1.0 / (q + hi**2)))
+    return float(np.sqrt(max(0.0, min(by_span, hi**2 - lo**2 + excess))))
