@@ -32,8 +32,9 @@ structure reaches before a check sees it: ``Adequacy.unseen_rms_mm``, in result.
 summary. Measured (tests/test_adequacy.py; span 3-8 um, the probe at 3 um, learned noise): at
 that size the checks fire 30 % of the time (30/100 at 30 readings, 23/60 at 80), at 1.3 x it
 80-100 %, at 0.7 x never. Without a span it is not bounded: the learned noise takes all of
-it (a 6 um ripple at 30 mm passed every check after 12 touches, true error 5.3 um against a
-claimed 3.4 um, benchmarks/bench_plates.py).
+it. Even with the probe's noise told as 4.9-5.1 um, a 6 um ripple at a 30 mm period passed
+every check after 12 touches (true error 5.3 um against a claimed 3.4 um; unseen 6.5 um;
+``adaptive-cal run`` on plate 0 of benchmarks/plates' ripple family).
 
 The map beyond the reachable box (the edge margin no touch can reach, ``reach_mm``) is an
 extrapolation that no check can test: ``extrapolated`` names it (result.json, the summary)
@@ -262,8 +263,7 @@ def unseen_rms(n: int, alpha: float, q: np.ndarray, noise_range_mm) -> float | N
     """RMS (mm) of structure finer than the touches' spacing (white at the touches) that the
     noise-span and leave-one-out checks begin to see, the probe as good as the span's low end
     (module docstring; they fire about a third of the time at it); None without a span
-    (unbounded). ``q``: the surface's LOO
-    variances (mm^2), ``alpha``: each check's level."""
+    (unbounded). ``q``: the surface's LOO variances (mm^2); ``alpha``: each check's level."""
     if noise_range_mm is None or n < 1:
         return None
     lo, hi = (float(v) for v in noise_range_mm)
