@@ -164,18 +164,22 @@ def suggest_touches(ctx: Context, name: str, partners: list[str], dz_mm: float =
             "touches": touches, "canonical_correlation_after": round(cc, 4)}
 
 
-def nearest_distance(gx, gy, px, py, neighbours: int = 8) -> np.ndarray:
+def nearest_distance(gx, gy, px, py, neighbours: int = 8, others: bool = False) -> np.ndarray:
     """min over the points (px, py) of hypot(g - p) for every g, as the plain broadcast computes
     it, without the len(g) x len(p) matrix: a k-d tree proposes the ``neighbours`` nearest
     distinct points and the exact hypot of those is taken (the same minimum unless more than
-    ``neighbours`` distinct points lie within rounding of one distance)."""
+    ``neighbours`` distinct points lie within rounding of one distance). ``others``: a point at
+    the query itself does not count (the nearest *other* point; inf where there is none)."""
     from scipy.spatial import cKDTree
 
     pts = np.unique(np.stack([np.asarray(px, float), np.asarray(py, float)], 1), axis=0)
-    k = min(neighbours, len(pts))
+    k = min(neighbours + others, len(pts))
     _, j = cKDTree(pts).query(np.stack([gx, gy], 1), k=k)
     j = j.reshape(len(gx), k)
-    return np.min(np.hypot(gx[:, None] - pts[j, 0], gy[:, None] - pts[j, 1]), 1)
+    dist = np.hypot(gx[:, None] - pts[j, 0], gy[:, None] - pts[j, 1])
+    if others:
+        dist[dist == 0.0] = np.inf
+    return np.min(dist, 1)
 
 
 def _gap_touches(ctx: Context, count: int = 4) -> dict:

@@ -18,6 +18,7 @@ from scipy import special
 
 from adaptive_cal.analysis.explain.candidates import Context
 from adaptive_cal.analysis.explain.evidence import Projector
+from adaptive_cal.analysis.explain.identify import nearest_distance
 
 ALPHA = 0.01  # an axis is flagged "real" below this p-value
 KERNEL_REACH = 9.0  # bandwidths; the kernel beyond it is below exp(-40.5) = 2.6e-18
@@ -80,18 +81,11 @@ def f_test(ctx: Context, X: np.ndarray, given: np.ndarray | None = None) -> dict
             "explained_rms_mm": float(np.sqrt(explained / ctx.design.n)), "real": bool(p < ALPHA)}
 
 
-def nearest_other(xy: np.ndarray, neighbours: int = 8) -> np.ndarray:
-    """Distance from each of the distinct points ``xy`` to the nearest other, as the dense
-    hypot matrix (diagonal set to inf) gives it: a k-d tree proposes the ``neighbours`` nearest
-    others and their exact hypot is taken (the same minimum unless more than ``neighbours``
-    points lie within rounding of one distance), without the n x n matrix."""
-    from scipy.spatial import cKDTree
-
-    k = min(neighbours + 1, len(xy))
-    _, j = cKDTree(xy).query(xy, k=k)
-    dist = np.hypot(xy[:, None, 0] - xy[j, 0], xy[:, None, 1] - xy[j, 1])
-    dist[j == np.arange(len(xy))[:, None]] = np.inf  # the point itself
-    return dist.min(1)
+def nearest_other(xy: np.ndarray) -> np.ndarray:
+    """Distance from each of the distinct points ``xy`` to the nearest other, as the dense hypot
+    matrix (diagonal set to inf) gives it, without that n x n matrix
+    (``identify.nearest_distance``'s k-d tree)."""
+    return nearest_distance(xy[:, 0], xy[:, 1], xy[:, 0], xy[:, 1], others=True)
 
 
 def smoothing_grid(d) -> tuple[np.ndarray, np.ndarray, float]:
