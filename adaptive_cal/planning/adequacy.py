@@ -256,17 +256,18 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var,
                     plate_mm=tuple(map(tuple, plate_mm)),
                     reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)),
-                    unseen_rms_mm=unseen_rms(n, a_glob, q, noise_range_mm))
+                    unseen_rms_mm=unseen_rms(result, q, noise_range_mm))
 
 
-def unseen_rms(n: int, alpha: float, q: np.ndarray, noise_range_mm) -> float | None:
+def unseen_rms(result: dict, q: np.ndarray, noise_range_mm) -> float | None:
     """RMS (mm) of structure finer than the touches' spacing (white at the touches) that the
     noise-span and leave-one-out checks begin to see, the probe as good as the span's low end
     (module docstring; they fire about a third of the time at it); None without a span
-    (unbounded). ``q``: the surface's LOO variances (mm^2); ``alpha``: each check's level."""
-    if noise_range_mm is None or n < 1:
+    (unbounded). ``result``: the checks with their bounds (``assess``); ``q``: the surface's
+    LOO variances (mm^2)."""
+    if noise_range_mm is None or not len(q):
         return None
     lo, hi = (float(v) for v in noise_range_mm)
-    by_span = (hi * (1.0 + float(norm.isf(alpha)) / np.sqrt(2.0 * n))) ** 2 - lo**2
-    excess = (checks.mean_square_upper(n, alpha) - 1.0) / float(np.mean(1.0 / (q + hi**2)))
+    by_span = result["noise_span"]["bound"] ** 2 - lo**2
+    excess = (result["loo"]["bound"] - 1.0) / float(np.mean(1.0 / (q + hi**2)))
     return float(np.sqrt(max(0.0, min(by_span, hi**2 - lo**2 + excess))))
