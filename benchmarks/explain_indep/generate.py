@@ -28,7 +28,8 @@ corners included); ``arm_sag`` s (r / 1 m)^p, r the horizontal distance from the
 from {1.5, 2, 2.5}; ``reversal`` span / 2 x the direction of arrival along x (the sign of the
 last non-zero x move; the first touch arrives moving +x); ``thermal_drift`` linear rate x t, or
 the warm-up A (1 - exp(-t / tau_s)), tau_s a third of the run; ``local_defect`` a parabolic cap
-h (1 - (d / R)^2) for d < R (its own profile, not explain's), centred between a touch and one
+h (1 - (d / R)^2) for d < R (its own profile, not the library's cosine bell; explain's height
+interval averages over a dome, the bell and a cone since 2026-11-23), centred between a touch and one
 of its 4 nearest neighbours (drawn at random: along a row or across rows) so that it reaches
 both. Out of the library: ``backlash_y`` +-b/2 by the direction of arrival along y; ``ripple``
 A sin(2 pi x / 50 mm + phase).
