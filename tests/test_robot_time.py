@@ -40,7 +40,8 @@ def _told(plan, n):
 
 def _brute_objective(plan, state, here):
     """dJ / (touch_time_s + |p - here| / speed) for every allowed candidate, by explicit
-    posterior covariances (trace(Q C) before minus after, one candidate at a time, in loops)."""
+    posterior covariances (trace(Q C) before minus after, one candidate at a time, in loops);
+    a candidate within ``plan.min_spacing_mm`` of a touch is not allowed."""
     cov, r, gram = state.belief.cov, state.noise_var, plan.gram
     j0 = np.trace(gram @ cov)
     out = np.full(len(plan.candidates.xy_mm), -np.inf)
@@ -48,16 +49,22 @@ def _brute_objective(plan, state, here):
         var = float(h @ cov @ h)
         if scoring.STROKE_Z * np.sqrt(var + r) > 0.5 * (plan.usable_mm[1] - plan.usable_mm[0]):
             continue  # not promised inside the stroke
+        if any(np.hypot(p[0] - x, p[1] - y) < plan.min_spacing_mm
+               for x, y in state.touched_xy_mm):
+            continue  # too close to an earlier touch
         drop = j0 - np.trace(gram @ bl.covariance_after(cov, h[None], r))
         dist = np.sqrt((p[0] - here[0]) ** 2 + (p[1] - here[1]) ** 2)
         out[i] = drop / (plan.touch_time_s + dist / plan.speed_mm_per_s)
     return out
 
 
-@pytest.mark.parametrize("touches,speed,touch_s", [(6, 150.0, 3.0), (12, 20.0, 0.5),
-                                                   (12, 500.0, 10.0)])
-def test_time_aware_choice_is_the_brute_force_argmax_of_drop_per_second(touches, speed, touch_s):
+@pytest.mark.parametrize("touches,speed,touch_s,spacing", [
+    (6, 150.0, 3.0, None), (12, 20.0, 0.5, None), (12, 500.0, 10.0, None), (12, 20.0, 0.5, 0.0)])
+def test_time_aware_choice_is_the_brute_force_argmax_of_drop_per_second(touches, speed, touch_s,
+                                                                        spacing):
     plan = _plan(speed_mm_per_s=speed, touch_time_s=touch_s, lookahead=1)
+    if spacing is not None:  # None: the cell's default (half the knot interval)
+        plan = replace(plan, min_spacing_mm=spacing)
     state = _told(plan, touches)
     here = plan.here_xy_mm(state.touched_xy_mm)
     assert tuple(here) == state.touched_xy_mm[-1]

@@ -248,6 +248,9 @@ class Plan(Block):
     hyper_every: int = Field(4, ge=1, description="refit hyper-parameters every N readings")
     hyper_after: int = Field(8, ge=3, description="first refit after N readings")
     drift_std_mm: float = Field(0.01, ge=0, description="widening for --prior-from")
+    min_spacing_mm: float | None = Field(
+        None, ge=0, description="no touch is planned closer than this to an earlier one while "
+        "points further away are allowed; default half the planning knot spacing (0: off)")
 
 
 class Cell(Block):

@@ -14,6 +14,10 @@ from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware 
 ``plan.lookahead`` touches ahead (at most twice the touches made, so the hyper-parameters
 being learned rest on a third of the readings a batch ends with) once the stroke no longer steers the choice (at least ``FREE`` of
 the candidates promised inside it): the touches one at a time would take, in a shorter path.
+
+No touch is planned within ``plan.min_spacing_mm`` of an earlier one (nor of another in its
+batch) while points further away are allowed; on a plate too full for it the spacing is halved
+until one is (``cell.build.min_spacing``: why, and what it changed).
 """
 from __future__ import annotations
 
@@ -70,6 +74,14 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
     # approach heights come from the belief now, so every touch of a batch must be promised
     # inside the stroke under it (variance only falls with readings: then also after them)
     ok = stroke_ok(var0, r, plan.usable_mm) & z_ok
+    free = ok.mean()  # the share the stroke and the workspace allow (spacing aside)
+    spacing = plan.min_spacing_mm  # halved while no allowed point keeps it (a full plate)
+    while spacing > 0:
+        spaced = ok & apart(xy, state.touched_xy_mm, spacing)
+        if spaced.any():
+            ok = spaced
+            break
+        spacing = spacing / 2 if spacing > 1.0 else 0.0
 
     def pick(c, timed_here=False):
         d = d0 if c is cov else variance_drop(rows, c, plan.gram, r)[0]
@@ -88,7 +100,7 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         t = touch_time_s(np.reshape(p_xy, (-1, 2)), here, plan.speed_mm_per_s, plan.touch_time_s)
         return drop / np.maximum(t, 1e-9)
 
-    if n is None and plan.batch == 1 and timed and plan.lookahead > 1 and ok.mean() >= FREE:
+    if n is None and plan.batch == 1 and timed and plan.lookahead > 1 and free >= FREE:
         # the stroke no longer steers the choice: plan ahead and order for travel, at most twice
         # the touches made (batches swept in travel order from the start left the
         # hyper-parameters learned from one side of the plate)
@@ -102,16 +114,37 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         if plan.criterion == "integrated" and plan.refine:
             score = np.where(ok, per_second(xy, d0), -np.inf)
             top = np.argsort(-score)[: plan.refine]
-            p = _refined(plan, state, xy[top[np.isfinite(score[top])]], per_second)
+            p = _refined(plan, state, xy[top[np.isfinite(score[top])]], per_second, spacing)
         return [target(plan, state, *p)]
     # a batch: the greedy set by the drop of J (the touches the one-at-a-time rule would take
     # while the hyper-parameters stay), then ordered for travel from where the probe is
-    chosen = plan_batch(pick, rows, cov, r, n,
+    def pick_apart(c):  # a batch's touches keep their spacing among themselves too
+        i = pick(c)
+        if i >= 0 and spacing > 0:
+            far = apart(xy, [xy[i]], spacing)
+            if (ok & far).any():
+                ok[:] = ok & far
+        return i
+
+    chosen = plan_batch(pick_apart, rows, cov, r, n,
                         enough=lambda c, k: bool(plan.stop(_status_after(plan, c, state.touches + k))))
     if not chosen:
         return []
     pts = xy[chosen]
     return [target(plan, state, *pts[i]) for i in travel_order(here, pts)]
+
+
+def apart(xy: np.ndarray, touched_xy, spacing_mm: float) -> np.ndarray:
+    """Mask of the points ``xy`` (N, 2) at least ``spacing_mm`` from every touched point."""
+    if spacing_mm <= 0 or not len(touched_xy):
+        return np.ones(len(xy), bool)
+    t = np.asarray(touched_xy, float).reshape(-1, 2)
+    if len(t) <= 8:  # a batch's pick, the first touches: direct
+        d2 = ((xy[:, None, :] - t[None]) ** 2).sum(-1).min(1)
+        return d2 >= spacing_mm**2
+    from scipy.spatial import cKDTree
+
+    return cKDTree(t).query(xy)[0] >= spacing_mm
 
 
 def _status_after(plan: SurveyPlan, cov: np.ndarray, touches: int) -> Status:
@@ -122,12 +155,15 @@ def _status_after(plan: SurveyPlan, cov: np.ndarray, touches: int) -> Status:
                   float(np.sqrt(max(var.max(), 0.0))))
 
 
-def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray, value) -> np.ndarray:
-    """Gradient refinement (of dJ) of the best few candidates; the refined point of largest
-    ``value(xy, dJ)`` (the plan's objective) wins."""
+def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray, value,
+             spacing: float = 0.0) -> np.ndarray:
+    """Gradient refinement (of dJ) of the best few candidates, kept ``spacing`` from every
+    touch; the refined point of largest ``value(xy, dJ)`` (the plan's objective) wins."""
     r, cov = state.noise_var, state.belief.cov
 
     def accept(x, y):
+        if not apart(np.array([[x, y]]), state.touched_xy_mm, spacing)[0]:
+            return False
         h = plan.model.surface.basis(np.array([x]), np.array([y]))
         var = float(h[0] @ cov @ h[0])
         return plan.allows(x, y) and bool(stroke_ok(np.array([var]), r, plan.usable_mm)[0])

@@ -39,7 +39,9 @@ class SurveyPlan:
     where the probe is (``start_xy_mm`` before the first touch); ``time_aware``: choose by
     the drop of J per second of robot time (False: by the drop of J alone); ``lookahead``: with
     ``time_aware``, one touch asked for is the first of a batch of this many planned ahead and
-    ordered for travel (receding horizon; 1: the best touch per second alone)."""
+    ordered for travel (receding horizon; 1: the best touch per second alone);
+    ``min_spacing_mm``: no touch is planned closer than this to an earlier one while points
+    further away are allowed (0: off)."""
 
     model: PriorModel
     candidates: Candidates
@@ -72,6 +74,7 @@ class SurveyPlan:
     start_xy_mm: tuple[float, float] = (0.0, 0.0)
     time_aware: bool = True
     lookahead: int = LOOKAHEAD
+    min_spacing_mm: float = 0.0
 
     @property
     def coefficients(self) -> int:

@@ -1,0 +1,97 @@
+"""The planner keeps touches apart (``plan.min_spacing_mm``): no touch is planned within the
+spacing of an earlier one, nor of another in its batch, while points further away are allowed;
+on a plate too full for it the spacing is halved until one is."""
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import adaptive_cal
+
+sys.path.insert(0, str(Path(__file__).parent))
+from helpers import sim_cell  # noqa: E402
+
+adaptive_cal.use_float64()
+
+
+def _plan(**plan):
+    from adaptive_cal.cell.build import survey_plan
+
+    return survey_plan(sim_cell(plan={"candidates": 2000, **plan}))
+
+
+def test_apart_is_the_brute_force_distance_test():
+    from adaptive_cal.planning.ask import apart
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-200, 200, (3000, 2))
+    for n in (1, 5, 8, 9, 60):  # the direct branch and the k-d tree
+        t = rng.uniform(-200, 200, (n, 2))
+        d = np.sqrt(((xy[:, None] - t[None]) ** 2).sum(-1)).min(1)
+        assert np.array_equal(apart(xy, t, 30.0), d >= 30.0)
+    assert apart(xy, [], 30.0).all() and apart(xy, t, 0.0).all()
+
+
+def test_default_spacing_is_half_the_planning_knot_interval():
+    from adaptive_cal.cell.build import min_spacing
+
+    plan = _plan()
+    s = plan.model.surface
+    half = 0.5 * max(np.diff(s.sx.knots).max(), np.diff(s.sy.knots).max())
+    assert plan.min_spacing_mm == pytest.approx(half) and half > 5.0
+    assert _plan(min_spacing_mm=0).min_spacing_mm == 0.0
+    assert min_spacing(sim_cell(plan={"min_spacing_mm": 12.5}), s) == 12.5
+
+
+def _touched(plan):
+    """A state whose belief is the prior's but whose probe already touched the point the
+    planner takes first: without the spacing it would take it again."""
+    from adaptive_cal.gaussian import belief as bl
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.planning.ask import ask
+
+    state = sv.start(plan)
+    (x0, x1), (y0, y1) = plan.bounds_mm
+    xy = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1], [0.5 * (x0 + x1), 0.5 * (y0 + y1)]])
+    rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])  # five readings: the stroke is free
+    state = replace(state, belief=bl.condition(state.belief, rows, np.zeros(5), 1e-5))
+    first = ask(plan, state, 1)[0]
+    return replace(state, touched_xy_mm=((first.x_mm, first.y_mm),)), first
+
+
+def test_no_touch_is_planned_within_the_spacing_of_an_earlier_one():
+    from adaptive_cal.planning.ask import ask
+
+    off = _plan(min_spacing_mm=0)
+    state, first = _touched(off)
+    again = ask(off, state, 1)[0]
+    assert np.hypot(again.x_mm - first.x_mm, again.y_mm - first.y_mm) < 1.0  # could fail
+    on = _plan(min_spacing_mm=40.0)
+    state, first = _touched(on)
+    t = ask(on, state, 1)[0]
+    assert np.hypot(t.x_mm - first.x_mm, t.y_mm - first.y_mm) >= 40.0 - 1e-9
+
+
+def test_a_batch_keeps_its_spacing_among_itself_and_from_earlier_touches():
+    from adaptive_cal.planning.ask import ask
+
+    plan = _plan(min_spacing_mm=40.0)
+    state, first = _touched(plan)
+    batch = ask(plan, state, 8)
+    pts = np.array([[t.x_mm, t.y_mm] for t in batch] + [[first.x_mm, first.y_mm]])
+    assert len(batch) == 8
+    d = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1))
+    assert d[np.triu_indices(len(pts), 1)].min() >= 40.0 - 1e-9
+
+
+def test_a_plate_too_full_for_the_spacing_still_gets_a_touch():
+    from adaptive_cal.planning.ask import ask
+
+    plan = _plan(min_spacing_mm=5000.0)  # no point of the plate keeps it
+    state, first = _touched(plan)
+    t = ask(plan, state, 1)
+    assert len(t) == 1 and plan.allows(t[0].x_mm, t[0].y_mm)
