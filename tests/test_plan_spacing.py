@@ -1,6 +1,7 @@
-"""The planner keeps touches apart (``plan.min_spacing_mm``): no touch is planned within the
-spacing of an earlier one, nor of another in its batch, while points further away are allowed;
-on a plate too full for it the spacing is halved until one is."""
+"""The planner keeps touches apart (``plan.min_spacing_mm``) once the self-checks found structure
+finer than the knots: no touch is planned within the spacing of an earlier one, nor of another
+in its batch, while points further away are allowed; on a plate too full for it the spacing is
+halved until one is."""
 from __future__ import annotations
 
 import sys
@@ -60,7 +61,8 @@ def _touched(plan):
     rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])  # five readings: the stroke is free
     state = replace(state, belief=bl.condition(state.belief, rows, np.zeros(5), 1e-5))
     first = ask(plan, state, 1)[0]
-    return replace(state, touched_xy_mm=((first.x_mm, first.y_mm),)), first
+    found = np.full(plan.adequacy_regions, 1e-6)  # as if the checks found finer structure
+    return replace(state, touched_xy_mm=((first.x_mm, first.y_mm),), grown_mm2=found), first
 
 
 def test_no_touch_is_planned_within_the_spacing_of_an_earlier_one():
@@ -95,3 +97,21 @@ def test_a_plate_too_full_for_the_spacing_still_gets_a_touch():
     state, first = _touched(plan)
     t = ask(plan, state, 1)
     assert len(t) == 1 and plan.allows(t[0].x_mm, t[0].y_mm)
+
+
+def test_touches_are_kept_apart_only_once_finer_structure_was_found():
+    from dataclasses import replace as rep
+
+    from adaptive_cal.planning.adequacy import Adequacy
+    from adaptive_cal.planning.ask import ask, kept_apart
+
+    plan = _plan(min_spacing_mm=40.0)
+    state, first = _touched(plan)
+    assert kept_apart(plan, state) == 40.0
+    quiet = rep(state, grown_mm2=np.zeros(plan.adequacy_regions))
+    assert kept_apart(plan, quiet) == 0.0 and kept_apart(plan, rep(state, grown_mm2=None)) == 0.0
+    again = ask(plan, quiet, 1)[0]  # nothing found: the touch beside the first is allowed
+    assert np.hypot(again.x_mm - first.x_mm, again.y_mm - first.y_mm) < 1.0
+    edges = np.linspace(0, 1, 4)
+    bad = Adequacy(False, {}, np.zeros((3, 3)), edges, edges, 45.0, np.zeros((3, 3), int))
+    assert kept_apart(plan, rep(quiet, adequacy=bad)) == 40.0

@@ -11,7 +11,7 @@ from adaptive_cal.cell.build import survey_plan
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.planning import route, scoring
 from adaptive_cal.planning import survey as sv
-from adaptive_cal.planning.ask import ask
+from adaptive_cal.planning.ask import ask, kept_apart
 
 from helpers import sim_cell
 
@@ -41,7 +41,7 @@ def _told(plan, n):
 def _brute_objective(plan, state, here):
     """dJ / (touch_time_s + |p - here| / speed) for every allowed candidate, by explicit
     posterior covariances (trace(Q C) before minus after, one candidate at a time, in loops);
-    a candidate within ``plan.min_spacing_mm`` of a touch is not allowed."""
+    a candidate within the spacing touches keep (``ask.kept_apart``) of a touch is not allowed."""
     cov, r, gram = state.belief.cov, state.noise_var, plan.gram
     j0 = np.trace(gram @ cov)
     out = np.full(len(plan.candidates.xy_mm), -np.inf)
@@ -49,7 +49,7 @@ def _brute_objective(plan, state, here):
         var = float(h @ cov @ h)
         if scoring.STROKE_Z * np.sqrt(var + r) > 0.5 * (plan.usable_mm[1] - plan.usable_mm[0]):
             continue  # not promised inside the stroke
-        if any(np.hypot(p[0] - x, p[1] - y) < plan.min_spacing_mm
+        if any(np.hypot(p[0] - x, p[1] - y) < kept_apart(plan, state)
                for x, y in state.touched_xy_mm):
             continue  # too close to an earlier touch
         drop = j0 - np.trace(gram @ bl.covariance_after(cov, h[None], r))
@@ -66,6 +66,8 @@ def test_time_aware_choice_is_the_brute_force_argmax_of_drop_per_second(touches,
     if spacing is not None:  # None: the cell's default (half the knot interval)
         plan = replace(plan, min_spacing_mm=spacing)
     state = _told(plan, touches)
+    if spacing is None:  # as if the checks had found structure finer than the knots
+        state = replace(state, grown_mm2=np.full(plan.adequacy_regions, 1e-6))
     here = plan.here_xy_mm(state.touched_xy_mm)
     assert tuple(here) == state.touched_xy_mm[-1]
     brute = _brute_objective(plan, state, here)

@@ -249,8 +249,9 @@ class Plan(Block):
     hyper_after: int = Field(8, ge=3, description="first refit after N readings")
     drift_std_mm: float = Field(0.01, ge=0, description="widening for --prior-from")
     min_spacing_mm: float | None = Field(
-        None, ge=0, description="no touch is planned closer than this to an earlier one while "
-        "points further away are allowed; default half the planning knot spacing (0: off)")
+        None, ge=0, description="once the self-checks found structure finer than the knots, no "
+        "touch is planned closer than this to an earlier one while points further away are "
+        "allowed; default half the planning knot spacing (0: off)")
 
 
 class Cell(Block):

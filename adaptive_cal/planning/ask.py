@@ -15,9 +15,10 @@ from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware 
 being learned rest on a third of the readings a batch ends with) once the stroke no longer steers the choice (at least ``FREE`` of
 the candidates promised inside it): the touches one at a time would take, in a shorter path.
 
-No touch is planned within ``plan.min_spacing_mm`` of an earlier one (nor of another in its
-batch) while points further away are allowed; on a plate too full for it the spacing is halved
-until one is (``cell.build.min_spacing``: why, and what it changed).
+Once the self-checks found structure finer than the knots (``kept_apart``), no touch is planned
+within ``plan.min_spacing_mm`` of an earlier one (nor of another in its batch) while points
+further away are allowed; on a plate too full for it the spacing is halved until one is
+(``cell.build.min_spacing``: why, and what it changed).
 """
 from __future__ import annotations
 
@@ -75,7 +76,7 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
     # inside the stroke under it (variance only falls with readings: then also after them)
     ok = stroke_ok(var0, r, plan.usable_mm) & z_ok
     free = ok.mean()  # the share the stroke and the workspace allow (spacing aside)
-    spacing = plan.min_spacing_mm  # halved while no allowed point keeps it (a full plate)
+    spacing = kept_apart(plan, state)  # halved while no allowed point keeps it (a full plate)
     while spacing > 0:
         spaced = ok & apart(xy, state.touched_xy_mm, spacing)
         if spaced.any():
@@ -132,6 +133,15 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         return []
     pts = xy[chosen]
     return [target(plan, state, *pts[i]) for i in travel_order(here, pts)]
+
+
+def kept_apart(plan: SurveyPlan, state: SurveyState) -> float:
+    """The spacing (mm) touches keep now: ``plan.min_spacing_mm`` once the self-checks found
+    structure finer than the knots (the model grew, or it is inadequate), else 0 -- until
+    then the learned noise is taken for the probe's, and touches side by side average it."""
+    grown = state.grown_mm2 is not None and bool(np.any(state.grown_mm2 > 0))
+    inadequate = state.adequacy is not None and not state.adequacy.adequate
+    return plan.min_spacing_mm if grown or inadequate else 0.0
 
 
 def apart(xy: np.ndarray, touched_xy, spacing_mm: float) -> np.ndarray:
