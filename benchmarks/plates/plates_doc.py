@@ -118,9 +118,35 @@ def write(docs: Path, summary: dict, checks: list, table: str, plates: int, date
             "Per family and strategy at the strategy's own stop (means over plates), then the "
             "issue's targets (adaptive against grid; \"mix\": all families together).\n\n"
             + table + "\n\n" + "".join(f"![{n}]({n})\n\n" for n in names)
-            + "Where a target reads MISS the figure above is the shortfall; the model work of "
-            "issue 14 (self-checks, growth, robust readings, robot-time cost) is what should "
-            "move it.\n")
+            + WHY)
     path = docs / "plates.md"
     path.write_text(body, encoding="utf-8")
     return path
+
+
+WHY = """Where a target reads MISS the figure above is the shortfall. What is known about why
+(measured 2026-11-23, 20 plates a family unless said):
+
+* **edge**: the miss is the margin no touch can reach (the workplane's 10 mm `edge_margin_mm`,
+  14 % of the evaluation grid's points). Inside the reachable box the adaptive bands cover
+  0.949 of the plate with a true RMS error of 3.7 um; in the margin 0.35, with 14.9 um. The map
+  there is an extrapolation, and result.json and the summary say so (`model.extrapolated`).
+* **ripple, seam**: the misses lie inside the reachable box (ripple 0.754 there, seam 0.842).
+  Structure finer than the touches' spacing looks like probe noise within the stated 3-8 um
+  span: run on to a 2.2 um bound (28-49 touches), the learned noise was 5.7-6.4 um on ripple
+  plates and 4.7-5.5 um on smooth ones (6 plates each), so no check can tell the plate from
+  the probe, and the bands leave the ripple out. More touches narrow the bands without
+  shrinking the ripple: with three readings in every check region required before a stop (27
+  touches or more), coverage fell to 0.63 (ripple), 0.78 (seam) and 0.61 (edge), 8 plates. What would move it: the probe's own
+  noise measured (repeat touches at one point, or a narrow stated span), so that the learned
+  noise's excess over it counts as plate structure in the bands.
+* **rough**: a Matern-3/2 field with a 60 mm length scale holds more structure than 200
+  touches resolve (neither strategy reaches 5 um). The planner had put touches in pairs 4-16 mm
+  apart once its checks found structure finer than the knots (coverage 0.87 against the
+  grid's 0.97); touches are now kept half a knot interval apart then (`plan.min_spacing_mm`).
+  One plate stops at 14 touches with a true error of 15 um: 14 touches 100 mm or more apart
+  cannot tell a 60 mm field from a smooth bow (the length-scale posterior puts about 2 % on
+  60-80 mm).
+* **touches to target on dent**: the grid meets the 5 um target after 5.7 touches on average;
+  0.6 x that is 3.4 touches, fewer than a tilt and the planner's stroke-safe start need.
+"""
