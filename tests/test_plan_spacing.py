@@ -115,3 +115,19 @@ def test_touches_are_kept_apart_only_once_finer_structure_was_found():
     edges = np.linspace(0, 1, 4)
     bad = Adequacy(False, {}, np.zeros((3, 3)), edges, edges, 45.0, np.zeros((3, 3), int))
     assert kept_apart(plan, rep(quiet, adequacy=bad)) == 40.0
+
+
+def test_touches_kept_apart_still_plan_a_batch_ahead():
+    """The spacing does not count as the stroke steering the choice: with most of the plate
+    within the spacing of a touch, the time-aware planner still plans ahead (a batch)."""
+    from adaptive_cal.planning.ask import FREE, apart, ask
+
+    plan = _plan(min_spacing_mm=40.0)
+    state, first = _touched(plan)
+    rng = np.random.default_rng(1)
+    (x0, x1), (y0, y1) = plan.bounds_mm
+    xy = np.stack([rng.uniform(x0, x1, 60), rng.uniform(y0, y1, 60)], 1)
+    state = replace(state, touched_xy_mm=tuple(map(tuple, xy)), touches=60)
+    assert apart(plan.candidates.xy_mm, xy, 40.0).mean() < FREE  # most of the plate is near
+    batch = ask(plan, state)
+    assert plan.batch == 1 and plan.time_aware and len(batch) > 1
