@@ -136,8 +136,9 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   span: run on to a 2.2 um bound (28-49 touches), the learned noise was 5.7-6.4 um on ripple
   plates and 4.7-5.5 um on smooth ones (6 plates each), so no check can tell the plate from
   the probe, and the bands leave the ripple out. More touches narrow the bands without
-  shrinking the ripple: with three readings in every check region required before a stop (27
-  touches or more), coverage fell to 0.63 (ripple), 0.78 (seam) and 0.61 (edge), 8 plates. What would move it: the probe's own
+  shrinking the ripple: with three readings in every check region required before a stop
+  (27 touches or more), coverage fell to 0.63 (ripple), 0.78 (seam) and 0.61 (edge), 8
+  plates. What would move it: the probe's own
   noise measured (repeat touches at one point, or a narrow stated span), so that the learned
   noise's excess over it counts as plate structure in the bands.
 * **rough**: a Matern-3/2 field with a 60 mm length scale holds more structure than 200
@@ -146,7 +147,7 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   grid's 0.97); touches are now kept half a knot interval apart then (`plan.min_spacing_mm`).
   One plate stops at 14 touches with a true error of 15 um: 14 touches 100 mm or more apart
   cannot tell a 60 mm field from a smooth bow (the length-scale posterior puts about 2 % on
-  60-80 mm).
+  80 mm or less).
 * **touches to target on dent**: the grid meets the 5 um target after 5.7 touches on average;
   0.6 x that is 3.4 touches, fewer than a tilt and the planner's stroke-safe start need.
 """
