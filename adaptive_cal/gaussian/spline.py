@@ -173,6 +173,12 @@ class Surface:
     def area_mm2(self) -> float:
         return self.sx.period * self.sy.period
 
+    @property
+    def knot_interval_mm(self) -> float:
+        """The largest knot interval along x or y (mm): the finest scale the spline resolves
+        everywhere."""
+        return float(max(np.diff(self.sx.knots).max(), np.diff(self.sy.knots).max()))
+
     def knot_grid(self) -> tuple[np.ndarray, np.ndarray]:
         """Coordinates (x, y) of each coefficient, in vec(A) order."""
         gx, gy = np.meshgrid(self.sx.knots[: self.sx.size], self.sy.knots[: self.sy.size],

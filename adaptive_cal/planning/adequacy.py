@@ -193,8 +193,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
         r_mag = min(r_p, noise_range_mm[0] * noise_range_mm[1])
     ex = np.linspace(*plate_mm[0], regions[0] + 1)
     ey = np.linspace(*plate_mm[1], regions[1] + 1)
-    spacing = float(max(np.diff(form_surface.sx.knots).max(),
-                        np.diff(form_surface.sy.knots).max()))
+    spacing = form_surface.knot_interval_mm
     nreg = regions[0] * regions[1]
     a_glob, a_reg = ALPHA / 6, ALPHA / 2 / nreg  # innovations, noise, loo: ALPHA/6 each
     z = checks.standardized_innovations(rows, readings, prior.mean, prior.cov, r)
