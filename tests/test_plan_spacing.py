@@ -131,3 +131,36 @@ def test_touches_kept_apart_still_plan_a_batch_ahead():
     assert apart(plan.candidates.xy_mm, xy, 40.0).mean() < FREE  # most of the plate is near
     batch = ask(plan, state)
     assert plan.batch == 1 and plan.time_aware and len(batch) > 1
+
+
+def test_a_batch_ends_early_by_the_surveys_own_status_checks_included():
+    """A batch planned ahead ends where its picks would stop the survey, judged by the status
+    the stop sees (``survey.status``): while a check fails, or while the unresolved variance
+    keeps the bound unmet, it runs on. Judged by the spline's variance alone it ended after one
+    pick, and on rough plates the last 60 touches were each a lone pick 100-380 mm from the
+    one before (fails with the old spline-only status)."""
+    from dataclasses import replace as rep
+
+    from adaptive_cal.planning.adequacy import Adequacy
+    from adaptive_cal.planning.ask import ask
+    from adaptive_cal.planning.survey import status
+
+    plan = _plan(min_spacing_mm=0, stop={"mean_std_mm": 1.0, "min_touches": 0})
+    state, _ = _touched(plan)
+    rng = np.random.default_rng(2)
+    (x0, x1), (y0, y1) = plan.bounds_mm
+    xy = np.stack([rng.uniform(x0, x1, 60), rng.uniform(y0, y1, 60)], 1)
+    (px0, px1), (py0, py1) = plan.plate_mm
+    ex, ey = np.linspace(px0, px1, 4), np.linspace(py0, py1, 4)
+    counts = np.full((3, 3), 7)
+    passing = Adequacy(True, {}, np.zeros((3, 3)), ex, ey, 45.0, counts)
+    state = rep(state, touched_xy_mm=tuple(map(tuple, xy)), touches=60, grown_mm2=None,
+                adequacy=passing)
+    assert plan.stop(status(plan, state)) == "mean_std_bound"  # the spline alone meets 1 mm
+    assert len(ask(plan, state)) == 1  # ... so a batch ends after its first pick
+    failing = Adequacy(False, {}, np.zeros((3, 3)), ex, ey, 45.0, counts)
+    unresolved = Adequacy(True, {}, np.full((3, 3), 4.0), ex, ey, 45.0, counts)  # 2 mm RMS
+    for adequacy in (failing, unresolved):
+        s = rep(state, adequacy=adequacy)
+        assert plan.stop(status(plan, s)) is None
+        assert len(ask(plan, s)) == plan.lookahead  # 64 planned ahead (at most 2 x 60 made)

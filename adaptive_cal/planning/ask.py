@@ -9,11 +9,15 @@ at ``plan.speed_mm_per_s`` from where the probe is, plus ``plan.touch_time_s``),
 drop alone; ``max`` the smallest largest variance after the reading.
 
 A batch is the greedy set by the drop of J (the covariance after a reading does not depend on its
-value), ended early where those picks would already stop the survey, then ordered for travel
-from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware planner plans
-``plan.lookahead`` touches ahead (at most twice the touches made, so the hyper-parameters
-being learned rest on a third of the readings a batch ends with) once the stroke no longer steers the choice (at least ``FREE`` of
-the candidates promised inside it): the touches one at a time would take, in a shorter path.
+value), ended early where those picks would already stop the survey -- by the survey's own
+status (``survey.status``), the unresolved variance and the failing checks included: a status
+of the spline alone ended every batch after one touch once the checks found structure (rough
+plates: the last 60 touches each a lone untimed pick, 100-380 mm apart) -- then ordered for
+travel from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware planner
+plans ``plan.lookahead`` touches ahead (at most twice the touches made, so the
+hyper-parameters being learned rest on a third of the readings a batch ends with) once the
+stroke no longer steers the choice (at least ``FREE`` of the candidates promised inside it):
+the touches one at a time would take, in a shorter path.
 
 Once the self-checks found structure finer than the knots (``kept_apart``), no touch is planned
 within ``plan.min_spacing_mm`` of an earlier one (nor of another in its batch) while points
@@ -26,13 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from adaptive_cal.gaussian.belief import rms_std
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import plan_batch, travel_order
 from adaptive_cal.planning.scoring import (minimax_choice, rate_choice, refine, stroke_ok,
                                            touch_time_s, variance_drop)
-from adaptive_cal.planning.stopping import Status
-from adaptive_cal.planning.survey import SurveyState
+from adaptive_cal.planning.survey import SurveyState, status
 
 
 #: share of the candidates promised inside the stroke from which the planner plans ahead
@@ -127,8 +129,10 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
                 ok[:] = ok & far
         return i
 
-    chosen = plan_batch(pick_apart, rows, cov, r, n,
-                        enough=lambda c, k: bool(plan.stop(_status_after(plan, c, state.touches + k))))
+    def enough(c, k):  # the picks so far would stop the survey (checks as they stand)
+        return bool(plan.stop(status(plan, state, c, state.touches + k)))
+
+    chosen = plan_batch(pick_apart, rows, cov, r, n, enough=enough)
     if not chosen:
         return []
     pts = xy[chosen]
@@ -155,14 +159,6 @@ def apart(xy: np.ndarray, touched_xy, spacing_mm: float) -> np.ndarray:
     from scipy.spatial import cKDTree
 
     return cKDTree(t).query(xy)[0] >= spacing_mm
-
-
-def _status_after(plan: SurveyPlan, cov: np.ndarray, touches: int) -> Status:
-    """The status the stopping rules would see with covariance ``cov`` after ``touches``
-    (as ``survey.status``: RMS std sqrt(trace(Q C) / area), largest std on the grid)."""
-    var = np.einsum("nk,nk->n", plan.eval_rows @ cov, plan.eval_rows)
-    return Status(touches, float(rms_std(cov, plan.gram, plan.model.surface.area_mm2)),
-                  float(np.sqrt(max(var.max(), 0.0))))
 
 
 def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray, value,

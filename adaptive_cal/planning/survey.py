@@ -98,17 +98,21 @@ def start(plan: SurveyPlan, *, prior: bl.Belief | None = None,
 
 
 
-def status(plan: SurveyPlan, state: SurveyState) -> Status:
+def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
+           touches: int | None = None) -> Status:
     """Touches, RMS std sqrt(trace(Q C) / area + mean s_u^2) and the largest std on the grid
     (mm), of the TRUE plate: the spline's posterior variance plus the unresolved-structure
     variance s_u^2 the self-checks found; ``adequate``: the checks pass (a survey that learns
-    is not adequate before its first check)."""
-    c = state.belief.cov
+    is not adequate before its first check). ``cov``/``touches``: the status a batch planned
+    ahead would reach (the covariance after its picks, without readings), under the checks
+    as they stand now."""
+    c = state.belief.cov if cov is None else cov
     var = np.einsum("nk,nk->n", plan.eval_rows @ c, plan.eval_rows)
     j_area = float(bl.integrated_variance(c, plan.gram)) / plan.model.surface.area_mm2
     u = unresolved_var_mm2(plan, state, plan.eval_xy)
     adequate = state.adequacy.adequate if state.adequacy is not None else not learns(plan, state)
-    return Status(state.touches, float(np.sqrt(max(j_area, 0.0) + u.mean())),
+    return Status(state.touches if touches is None else touches,
+                  float(np.sqrt(max(j_area, 0.0) + u.mean())),
                   float(np.sqrt(max((var + u).max(), 0.0))), adequate,
                   float(np.sqrt(u.mean())))
 
