@@ -133,12 +133,14 @@ def test_touches_kept_apart_still_plan_a_batch_ahead():
     assert plan.batch == 1 and plan.time_aware and len(batch) > 1
 
 
-def test_a_batch_ends_early_by_the_surveys_own_status_checks_included():
-    """A batch planned ahead ends where its picks would stop the survey, judged by the status
-    the stop sees (``survey.status``): while a check fails, or while the unresolved variance
-    keeps the bound unmet, it runs on. Judged by the spline's variance alone it ended after one
-    pick, and on rough plates the last 60 touches were each a lone pick 100-380 mm from the
-    one before (fails with the old spline-only status)."""
+def test_a_batch_ends_where_its_picks_would_meet_the_bound_unresolved_variance_included():
+    """A batch planned ahead ends where its picks would meet the bound by the status the stop
+    sees (``survey.status``), the unresolved variance the checks found included: while it
+    keeps the bound unmet the batch runs on. Judged by the spline's variance alone it ended
+    after one pick, and on rough plates the last 60 touches were each a lone pick 100-380 mm
+    from the one before (fails with the old spline-only status). A failing check alone does
+    not run a batch on: it is cut where the bound would be met once the checks pass (they are
+    judged again as the readings come)."""
     from dataclasses import replace as rep
 
     from adaptive_cal.planning.adequacy import Adequacy
@@ -158,9 +160,10 @@ def test_a_batch_ends_early_by_the_surveys_own_status_checks_included():
                 adequacy=passing)
     assert plan.stop(status(plan, state)) == "mean_std_bound"  # the spline alone meets 1 mm
     assert len(ask(plan, state)) == 1  # ... so a batch ends after its first pick
-    failing = Adequacy(False, {}, np.zeros((3, 3)), ex, ey, 45.0, counts)
-    unresolved = Adequacy(True, {}, np.full((3, 3), 4.0), ex, ey, 45.0, counts)  # 2 mm RMS
-    for adequacy in (failing, unresolved):
-        s = rep(state, adequacy=adequacy)
-        assert plan.stop(status(plan, s)) is None
-        assert len(ask(plan, s)) == plan.lookahead  # 64 planned ahead (at most 2 x 60 made)
+    unresolved = rep(state, adequacy=Adequacy(True, {}, np.full((3, 3), 4.0), ex, ey, 45.0,
+                                              counts))  # 2 mm RMS the spline cannot follow
+    assert plan.stop(status(plan, unresolved)) is None
+    assert len(ask(plan, unresolved)) == plan.lookahead  # 64 planned ahead (at most 2 x 60)
+    failing = rep(state, adequacy=Adequacy(False, {}, np.zeros((3, 3)), ex, ey, 45.0, counts))
+    assert plan.stop(status(plan, failing)) is None  # the stop waits for the checks ...
+    assert len(ask(plan, failing)) == 1  # ... the batch is cut as if they pass
