@@ -9,15 +9,15 @@ at ``plan.speed_mm_per_s`` from where the probe is, plus ``plan.touch_time_s``),
 drop alone; ``max`` the smallest largest variance after the reading.
 
 A batch is the greedy set by the drop of J (the covariance after a reading does not depend on its
-value), ended early where those picks would already stop the survey -- by the survey's own
-status (``survey.status``), the unresolved variance and the failing checks included: a status
-of the spline alone ended every batch after one touch once the checks found structure (rough
-plates: the last 60 touches each a lone untimed pick, 100-380 mm apart) -- then ordered for
-travel from where the probe is. Asked for no count with ``plan.batch`` 1, a time-aware planner
-plans ``plan.lookahead`` touches ahead (at most twice the touches made, so the
-hyper-parameters being learned rest on a third of the readings a batch ends with) once the
-stroke no longer steers the choice (at least ``FREE`` of the candidates promised inside it):
-the touches one at a time would take, in a shorter path.
+value), ended early where those picks would already stop the survey -- by the survey's own status
+(``survey.status``), the unresolved variance the checks found included, as if they then pass (they
+are judged again as the readings come): a status of the spline alone ended every batch after one
+touch once the checks found structure (rough plates: the last 60 touches each a lone untimed pick,
+100-380 mm apart) -- then ordered for travel from where the probe is. Asked for no count with
+``plan.batch`` 1, a time-aware planner plans ``plan.lookahead`` touches ahead (at most twice the
+touches made, so the hyper-parameters being learned rest on a third of the readings a batch ends
+with) once the stroke no longer steers the choice (at least ``FREE`` of the candidates promised
+inside it): the touches one at a time would take, in a shorter path.
 
 Once the self-checks found structure finer than the knots (``kept_apart``), no touch is planned
 within ``plan.min_spacing_mm`` of an earlier one (nor of another in its batch) while points
