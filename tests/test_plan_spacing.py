@@ -137,7 +137,7 @@ def test_a_batch_ends_where_its_picks_would_meet_the_bound_unresolved_variance_i
     """A batch planned ahead ends where its picks would meet the bound by the status the stop
     sees (``survey.status``), the unresolved variance the checks found included: while it
     keeps the bound unmet the batch runs on. Judged by the spline's variance alone it ended
-    after one pick, and on rough plates the last 60 touches were each a lone pick 100-380 mm
+    after one pick, and on rough plates the last 64 touches were each a lone pick 100-380 mm
     from the one before (fails with the old spline-only status). A failing check alone does
     not run a batch on: it is cut where the bound would be met once the checks pass (they are
     judged again as the readings come)."""

@@ -12,7 +12,7 @@ A batch is the greedy set by the drop of J (the covariance after a reading does 
 value), ended early where those picks would already stop the survey -- by the survey's own status
 (``survey.status``), the unresolved variance the checks found included, as if they then pass (they
 are judged again as the readings come): a status of the spline alone ended every batch after one
-touch once the checks found structure (rough plates: the last 60 touches each a lone untimed pick,
+touch once the checks found structure (rough plates: the last 64 touches each a lone untimed pick,
 100-380 mm apart) -- then ordered for travel from where the probe is. Asked for no count with
 ``plan.batch`` 1, a time-aware planner plans ``plan.lookahead`` touches ahead (at most twice the
 touches made, so the hyper-parameters being learned rest on a third of the readings a batch ends
