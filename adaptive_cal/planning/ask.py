@@ -34,7 +34,7 @@ from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import plan_batch, travel_order
 from adaptive_cal.planning.scoring import (minimax_choice, rate_choice, refine, stroke_ok,
                                            touch_time_s, variance_drop)
-from adaptive_cal.planning.survey import SurveyState, status
+from adaptive_cal.planning.survey import SurveyState, status, unresolved_var_mm2
 
 
 #: share of the candidates promised inside the stroke from which the planner plans ahead
@@ -129,11 +129,14 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
                 ok[:] = ok & far
         return i
 
+    u = unresolved_var_mm2(plan, state, plan.eval_xy)  # the state's, the same for every pick
+
     def enough(c, k):  # the picks so far would meet the bound, the unresolved variance in
         # (the checks are judged again as the readings come, and the loop's stop sees them; cut
         # only where they pass, a batch planned while one fails ran its whole length in travel
         # order, where the greedy order would have met the bound touches sooner)
-        return bool(plan.stop(replace(status(plan, state, c, state.touches + k), adequate=True)))
+        now = status(plan, state, c, state.touches + k, unresolved_mm2=u)
+        return bool(plan.stop(replace(now, adequate=True)))
 
     chosen = plan_batch(pick_apart, rows, cov, r, n, enough=enough)
     if not chosen:

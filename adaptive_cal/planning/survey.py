@@ -99,17 +99,19 @@ def start(plan: SurveyPlan, *, prior: bl.Belief | None = None,
 
 
 def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
-           touches: int | None = None) -> Status:
+           touches: int | None = None, unresolved_mm2: np.ndarray | None = None) -> Status:
     """Touches, RMS std sqrt(trace(Q C) / area + mean s_u^2) and the largest std on the grid
     (mm), of the TRUE plate: the spline's posterior variance plus the unresolved-structure
     variance s_u^2 the self-checks found; ``adequate``: the checks pass (a survey that learns
     is not adequate before its first check). ``cov``/``touches``: the status a batch planned
     ahead would reach (the covariance after its picks, without readings), under the checks
-    as they stand now."""
+    as they stand now; ``unresolved_mm2``: ``unresolved_var_mm2`` on ``plan.eval_xy`` when
+    already at hand (it depends on the state alone, not on ``cov``)."""
     c = state.belief.cov if cov is None else cov
     var = np.einsum("nk,nk->n", plan.eval_rows @ c, plan.eval_rows)
     j_area = float(bl.integrated_variance(c, plan.gram)) / plan.model.surface.area_mm2
-    u = unresolved_var_mm2(plan, state, plan.eval_xy)
+    u = (unresolved_var_mm2(plan, state, plan.eval_xy) if unresolved_mm2 is None
+         else unresolved_mm2)
     adequate = state.adequacy.adequate if state.adequacy is not None else not learns(plan, state)
     return Status(state.touches if touches is None else touches,
                   float(np.sqrt(max(j_area, 0.0) + u.mean())),
