@@ -167,3 +167,56 @@ def test_a_batch_ends_where_its_picks_would_meet_the_bound_unresolved_variance_i
     failing = rep(state, adequacy=Adequacy(False, {}, np.zeros((3, 3)), ex, ey, 45.0, counts))
     assert plan.stop(status(plan, failing)) is None  # the stop waits for the checks ...
     assert len(ask(plan, failing)) == 1  # ... the batch is cut as if they pass
+
+
+def test_touches_left_reads_the_budget_of_a_composed_rule():
+    """The touch budget under | is the smallest one; under & it stops only with the other
+    rule, so it is no budget; a bound alone has none."""
+    from adaptive_cal.planning.stopping import (AtLeast, MeanStdBelow, TouchBudget,
+                                                touches_left)
+
+    bound = MeanStdBelow(0.004)
+    assert touches_left((bound & AtLeast(30)) | TouchBudget(200), 60) == 140
+    assert touches_left(TouchBudget(300) | bound | TouchBudget(150), 60) == 90
+    assert touches_left(TouchBudget(50), 60) == 0
+    assert touches_left(bound & TouchBudget(200), 60) is None
+    assert touches_left(bound | AtLeast(200), 60) is None  # AtLeast is a floor, not a budget
+
+
+def test_the_rest_of_the_budget_is_one_batch_when_it_is_at_most_twice_the_touches_made():
+    """A plate the touch budget will end is finished in one tour: with the bound out of reach
+    and the rest of the budget at most twice the touches made, the batch runs to the budget
+    (rough plates: two tours of 64 and 57 touches at 44-47 mm a step became one at about 33 mm,
+    10 s of 675 s a plate); with more left it is ``plan.lookahead`` as before, and it never
+    runs past the budget."""
+    from dataclasses import replace as rep
+
+    from adaptive_cal.planning.adequacy import Adequacy
+    from adaptive_cal.planning.ask import ask
+    from adaptive_cal.planning.route import path_length_mm
+
+    def state_for(plan):
+        state, _ = _touched(plan)
+        rng = np.random.default_rng(2)
+        (x0, x1), (y0, y1) = plan.bounds_mm
+        xy = np.stack([rng.uniform(x0, x1, 60), rng.uniform(y0, y1, 60)], 1)
+        (px0, px1), (py0, py1) = plan.plate_mm
+        ex, ey = np.linspace(px0, px1, 4), np.linspace(py0, py1, 4)
+        unresolved = Adequacy(True, {}, np.full((3, 3), 4.0), ex, ey, 45.0, np.full((3, 3), 7))
+        return rep(state, touched_xy_mm=tuple(map(tuple, xy)), touches=60, grown_mm2=None,
+                   adequacy=unresolved)  # 2 mm RMS the spline cannot follow: 1 mm is out of reach
+
+    sizes = {}
+    for budget in (100, 150, 180, 181, 400):
+        plan = _plan(min_spacing_mm=0, stop={"mean_std_mm": 1.0, "min_touches": 0,
+                                             "max_touches": budget})
+        sizes[budget] = ask(plan, state_for(plan))
+    assert len(sizes[100]) == 40  # cut at the budget, as before
+    assert len(sizes[150]) == 90 and len(sizes[180]) == 120  # the rest, in one tour
+    assert len(sizes[181]) == len(sizes[400]) == plan.lookahead  # more than 2 x 60 left
+    # one tour of 120 steps shorter than the 64 of a lookahead batch would (the same picks
+    # lead both: the greedy order does not depend on how many follow)
+    one = np.array([[t.x_mm, t.y_mm] for t in sizes[180]])
+    first = np.array([[t.x_mm, t.y_mm] for t in sizes[400]])
+    start = plan.here_xy_mm(state_for(plan).touched_xy_mm)
+    assert path_length_mm(start, one) / 120 < path_length_mm(start, first) / 64

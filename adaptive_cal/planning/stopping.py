@@ -68,6 +68,17 @@ class TouchBudget(AtLeast):
     name = "touch_budget"
 
 
+def touches_left(rule: StopRule, touches: int) -> int | None:
+    """Touches left before ``rule`` stops the survey on its touch budget alone, whatever the
+    bounds do: a ``TouchBudget``, or the smallest of those joined by | ; None when none is."""
+    if isinstance(rule, TouchBudget):
+        return max(0, rule.touches - touches)
+    if isinstance(rule, _Any):
+        a, b = touches_left(rule.a, touches), touches_left(rule.b, touches)
+        return a if b is None else b if a is None else min(a, b)
+    return None  # no budget, or one joined by & (it stops only with the other)
+
+
 @dataclass(frozen=True)
 class _Any(StopRule):
     a: StopRule
