@@ -185,10 +185,12 @@ def test_touches_left_reads_the_budget_of_a_composed_rule():
 
 def test_the_rest_of_the_budget_is_one_batch_when_it_is_at_most_twice_the_touches_made():
     """A plate the touch budget will end is finished in one tour: with the bound out of reach
-    and the rest of the budget at most twice the touches made, the batch runs to the budget
-    (rough plates: two tours of 64 and 57 touches at 44-47 mm a step became one at about 33 mm,
-    10 s of 675 s a plate); with more left it is ``plan.lookahead`` as before, and it never
-    runs past the budget."""
+    (the unresolved variance alone misses it) and the rest of the budget at most twice the
+    touches made, the batch runs to the budget (rough plates: two tours of 64 and 57 touches at
+    44-47 mm a step became one at about 33 mm, 9 s of 675 s a plate); with more left it is
+    ``plan.lookahead`` as before, and it never runs past the budget. A bound in reach keeps
+    the lookahead (a long batch planned under early hyper-parameters met it 9-32 touches late
+    on 4 of 40 study plates)."""
     from dataclasses import replace as rep
 
     from adaptive_cal.planning.adequacy import Adequacy
@@ -214,6 +216,13 @@ def test_the_rest_of_the_budget_is_one_batch_when_it_is_at_most_twice_the_touche
     assert len(sizes[100]) == 40  # cut at the budget, as before
     assert len(sizes[150]) == 90 and len(sizes[180]) == 120  # the rest, in one tour
     assert len(sizes[181]) == len(sizes[400]) == plan.lookahead  # more than 2 x 60 left
+    from adaptive_cal.planning.ask import out_of_reach
+
+    reach = _plan(min_spacing_mm=0, stop={"mean_std_mm": 1e-4, "min_touches": 0,
+                                          "max_touches": 150})  # 0.1 um: no 90 picks meet it
+    in_reach = rep(state_for(reach), adequacy=None)  # ... but a spline known exactly would
+    assert not out_of_reach(reach, in_reach) and out_of_reach(reach, state_for(reach))
+    assert len(ask(reach, in_reach)) == reach.lookahead
     # one tour of 120 steps shorter than the 64 of a lookahead batch would (the same picks
     # lead both: the greedy order does not depend on how many follow)
     one = np.array([[t.x_mm, t.y_mm] for t in sizes[180]])

@@ -40,7 +40,8 @@ class SurveyPlan:
     the drop of J per second of robot time (False: by the drop of J alone); ``lookahead``: with
     ``time_aware``, one touch asked for is the first of a batch of this many planned ahead and
     ordered for travel (receding horizon; 1: the best touch per second alone), or the rest of
-    the touch budget where that is at most twice the touches made (``planning.ask``);
+    the touch budget where the bound is out of reach and that is at most twice the touches
+    made (``planning.ask``);
     ``min_spacing_mm``: once the self-checks found structure finer than the knots, no touch is
     planned closer than this to an earlier one while points further away are allowed (0: off;
     ``planning.ask.kept_apart``)."""
