@@ -161,10 +161,15 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   200-touch budget: 600 s of it is touching). A batch planned ahead used to end where the
   spline's variance alone would meet the bound, so once the checks found structure every batch
   was one lone pick, 100-380 mm from the last; it now ends by the stop's own status (the
-  unresolved variance in): rough 696 -> 647 s (grid 626 s), mix 1.088 -> 1.044 x. What is left
-  is geometry: the picks of a batch are spread evenly over the plate, so its tour steps about
-  47 mm between touches where the grid's 15 x 13 serpentine steps 31 mm (128 touches planned
-  ahead instead of 64: 675 -> 665 s on 4 plates). The grid is also picked after the fact
+  unresolved variance in): rough 696 -> 647 s (grid 626 s), mix 1.088 -> 1.044 x. Where the
+  bound is out of reach (the unresolved variance alone misses it) the rest of the budget is now
+  one batch, one tour instead of two of 64 and 57: rough 647 -> 637 s, mix 1.034 x. What is
+  left is geometry: the picks of a batch are spread evenly over the plate, so its tour steps
+  about 47 mm between touches (one of 121 about 33 mm) where the grid's 15 x 13 serpentine
+  steps 31 mm, and the earlier batches spread over the whole plate too (picking each touch of
+  a batch by its drop of J per second from the one before instead: 675 -> 673 s on 4 plates;
+  in-family, batches at most 1 x or 3 x the touches made instead of 2 x: no gain in touches
+  or robot time, 40 plates). The grid is also picked after the fact
   (the smallest size meeting the bound, each size its own run) and its readings are taken as
   if every touch landed inside the stroke.
 """
