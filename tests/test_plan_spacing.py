@@ -133,6 +133,23 @@ def test_touches_kept_apart_still_plan_a_batch_ahead():
     assert plan.batch == 1 and plan.time_aware and len(batch) > 1
 
 
+def _sixty(plan, unresolved_mm2: float = 0.0, adequate: bool = True):
+    """A state of 60 touches spread over the plate (the belief of ``_touched``) whose checks
+    found ``unresolved_mm2`` of variance the spline cannot follow in each of 3 x 3 regions."""
+    from adaptive_cal.planning.adequacy import Adequacy
+
+    state, _ = _touched(plan)
+    rng = np.random.default_rng(2)
+    (x0, x1), (y0, y1) = plan.bounds_mm
+    xy = np.stack([rng.uniform(x0, x1, 60), rng.uniform(y0, y1, 60)], 1)
+    (px0, px1), (py0, py1) = plan.plate_mm
+    ex, ey = np.linspace(px0, px1, 4), np.linspace(py0, py1, 4)
+    checks = Adequacy(adequate, {}, np.full((3, 3), unresolved_mm2), ex, ey, 45.0,
+                      np.full((3, 3), 7))
+    return replace(state, touched_xy_mm=tuple(map(tuple, xy)), touches=60, grown_mm2=None,
+                   adequacy=checks)
+
+
 def test_a_batch_ends_where_its_picks_would_meet_the_bound_unresolved_variance_included():
     """A batch planned ahead ends where its picks would meet the bound by the status the stop
     sees (``survey.status``), the unresolved variance the checks found included: while it
@@ -141,30 +158,17 @@ def test_a_batch_ends_where_its_picks_would_meet_the_bound_unresolved_variance_i
     from the one before (fails with the old spline-only status). A failing check alone does
     not run a batch on: it is cut where the bound would be met once the checks pass (they are
     judged again as the readings come)."""
-    from dataclasses import replace as rep
-
-    from adaptive_cal.planning.adequacy import Adequacy
     from adaptive_cal.planning.ask import ask
     from adaptive_cal.planning.survey import status
 
     plan = _plan(min_spacing_mm=0, stop={"mean_std_mm": 1.0, "min_touches": 0})
-    state, _ = _touched(plan)
-    rng = np.random.default_rng(2)
-    (x0, x1), (y0, y1) = plan.bounds_mm
-    xy = np.stack([rng.uniform(x0, x1, 60), rng.uniform(y0, y1, 60)], 1)
-    (px0, px1), (py0, py1) = plan.plate_mm
-    ex, ey = np.linspace(px0, px1, 4), np.linspace(py0, py1, 4)
-    counts = np.full((3, 3), 7)
-    passing = Adequacy(True, {}, np.zeros((3, 3)), ex, ey, 45.0, counts)
-    state = rep(state, touched_xy_mm=tuple(map(tuple, xy)), touches=60, grown_mm2=None,
-                adequacy=passing)
+    state = _sixty(plan)
     assert plan.stop(status(plan, state)) == "mean_std_bound"  # the spline alone meets 1 mm
     assert len(ask(plan, state)) == 1  # ... so a batch ends after its first pick
-    unresolved = rep(state, adequacy=Adequacy(True, {}, np.full((3, 3), 4.0), ex, ey, 45.0,
-                                              counts))  # 2 mm RMS the spline cannot follow
+    unresolved = _sixty(plan, 4.0)  # 2 mm RMS the spline cannot follow
     assert plan.stop(status(plan, unresolved)) is None
     assert len(ask(plan, unresolved)) == plan.lookahead  # 64 planned ahead (at most 2 x 60)
-    failing = rep(state, adequacy=Adequacy(False, {}, np.zeros((3, 3)), ex, ey, 45.0, counts))
+    failing = _sixty(plan, adequate=False)
     assert plan.stop(status(plan, failing)) is None  # the stop waits for the checks ...
     assert len(ask(plan, failing)) == 1  # ... the batch is cut as if they pass
 
@@ -193,20 +197,11 @@ def test_the_rest_of_the_budget_is_one_batch_when_it_is_at_most_twice_the_touche
     on 4 of 40 study plates)."""
     from dataclasses import replace as rep
 
-    from adaptive_cal.planning.adequacy import Adequacy
     from adaptive_cal.planning.ask import ask
     from adaptive_cal.planning.route import path_length_mm
 
-    def state_for(plan):
-        state, _ = _touched(plan)
-        rng = np.random.default_rng(2)
-        (x0, x1), (y0, y1) = plan.bounds_mm
-        xy = np.stack([rng.uniform(x0, x1, 60), rng.uniform(y0, y1, 60)], 1)
-        (px0, px1), (py0, py1) = plan.plate_mm
-        ex, ey = np.linspace(px0, px1, 4), np.linspace(py0, py1, 4)
-        unresolved = Adequacy(True, {}, np.full((3, 3), 4.0), ex, ey, 45.0, np.full((3, 3), 7))
-        return rep(state, touched_xy_mm=tuple(map(tuple, xy)), touches=60, grown_mm2=None,
-                   adequacy=unresolved)  # 2 mm RMS the spline cannot follow: 1 mm is out of reach
+    def state_for(plan):  # 2 mm RMS the spline cannot follow: 1 mm is out of reach
+        return _sixty(plan, 4.0)
 
     sizes = {}
     for budget in (100, 150, 180, 181, 400):
