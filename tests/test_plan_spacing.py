@@ -191,9 +191,9 @@ def test_the_rest_of_the_budget_is_one_batch_when_it_is_at_most_twice_the_touche
     """A plate the touch budget will end is finished in one tour: with the bound out of reach
     (the unresolved variance alone misses it) and the rest of the budget at most twice the
     touches made, the batch runs to the budget (rough plates: two tours of 64 and 57 touches at
-    44-47 mm a step became one at about 33 mm, 9 s of 675 s a plate); with more left it is
+    44-47 mm a step became one at about 33 mm, 10 s of 675 s a plate); with more left it is
     ``plan.lookahead`` as before, and it never runs past the budget. A bound in reach keeps
-    the lookahead (a long batch planned under early hyper-parameters met it 9-32 touches late
+    the lookahead (a long batch planned under early hyper-parameters met it 4-32 touches late
     on 4 of 40 study plates)."""
     from dataclasses import replace as rep
 

@@ -116,9 +116,9 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         if left is not None and n < left <= 2 * state.touches and out_of_reach(plan, state):
             # the budget ends this plate: the rest of it in one tour (rough plates ran to it in
             # two tours of 64 and 57 spread over the plate, 44-47 mm a step; one of 121 steps
-            # about 33 mm: 9 s of 675 s a plate). Not while the bound is in reach: a long batch
+            # about 33 mm: 10 s of 675 s a plate). Not while the bound is in reach: a long batch
             # planned under early hyper-parameters and taken in travel order meets it later
-            # than batches planned again (4 of 40 study plates: 9-32 touches more)
+            # than batches planned again (4 of 40 study plates: 4-32 touches more)
             n = left
     n = n or plan.batch
     if n == 1:
