@@ -197,30 +197,26 @@ def test_the_rest_of_the_budget_is_one_batch_when_it_is_at_most_twice_the_touche
     on 4 of 40 study plates)."""
     from dataclasses import replace as rep
 
-    from adaptive_cal.planning.ask import ask
+    from adaptive_cal.planning.ask import ask, out_of_reach
     from adaptive_cal.planning.route import path_length_mm
-
-    def state_for(plan):  # 2 mm RMS the spline cannot follow: 1 mm is out of reach
-        return _sixty(plan, 4.0)
 
     sizes = {}
     for budget in (100, 150, 180, 181, 400):
         plan = _plan(min_spacing_mm=0, stop={"mean_std_mm": 1.0, "min_touches": 0,
                                              "max_touches": budget})
-        sizes[budget] = ask(plan, state_for(plan))
+        sizes[budget] = ask(plan, _sixty(plan, 4.0))  # 2 mm RMS unresolved: 1 mm out of reach
     assert len(sizes[100]) == 40  # cut at the budget, as before
     assert len(sizes[150]) == 90 and len(sizes[180]) == 120  # the rest, in one tour
     assert len(sizes[181]) == len(sizes[400]) == plan.lookahead  # more than 2 x 60 left
-    from adaptive_cal.planning.ask import out_of_reach
 
     reach = _plan(min_spacing_mm=0, stop={"mean_std_mm": 1e-4, "min_touches": 0,
                                           "max_touches": 150})  # 0.1 um: no 90 picks meet it
-    in_reach = rep(state_for(reach), adequacy=None)  # ... but a spline known exactly would
-    assert not out_of_reach(reach, in_reach) and out_of_reach(reach, state_for(reach))
+    in_reach = rep(_sixty(reach, 4.0), adequacy=None)  # ... but a spline known exactly would
+    assert not out_of_reach(reach, in_reach) and out_of_reach(reach, _sixty(reach, 4.0))
     assert len(ask(reach, in_reach)) == reach.lookahead
     # one tour of 120 steps shorter than the 64 of a lookahead batch would (the same picks
     # lead both: the greedy order does not depend on how many follow)
     one = np.array([[t.x_mm, t.y_mm] for t in sizes[180]])
     first = np.array([[t.x_mm, t.y_mm] for t in sizes[400]])
-    start = plan.here_xy_mm(state_for(plan).touched_xy_mm)
+    start = plan.here_xy_mm(_sixty(plan, 4.0).touched_xy_mm)
     assert path_length_mm(start, one) / 120 < path_length_mm(start, first) / 64

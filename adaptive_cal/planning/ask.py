@@ -107,19 +107,22 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         t = touch_time_s(np.reshape(p_xy, (-1, 2)), here, plan.speed_mm_per_s, plan.touch_time_s)
         return drop / np.maximum(t, 1e-9)
 
+    u = None  # unresolved variance on plan.eval_xy: the state's, computed once where needed
     if n is None and plan.batch == 1 and timed and plan.lookahead > 1 and free >= FREE:
         # the stroke no longer steers the choice: plan ahead and order for travel, at most twice
         # the touches made (batches swept in travel order from the start left the
         # hyper-parameters learned from one side of the plate)
         n = max(1, min(plan.lookahead, 2 * state.touches))
         left = touches_left(plan.stop, state.touches)
-        if left is not None and n < left <= 2 * state.touches and out_of_reach(plan, state):
-            # the budget ends this plate: the rest of it in one tour (rough plates ran to it in
-            # two tours of 64 and 57 spread over the plate, 44-47 mm a step; one of 121 steps
-            # about 33 mm: 10 s of 675 s a plate). Not while the bound is in reach: a long batch
-            # planned under early hyper-parameters and taken in travel order meets it later
-            # than batches planned again (4 of 40 study plates: 4-32 touches more)
-            n = left
+        if left is not None and n < left <= 2 * state.touches:
+            u = unresolved_var_mm2(plan, state, plan.eval_xy)  # the batch's cut uses it too
+            if out_of_reach(plan, state, left, u):
+                # the budget ends this plate: the rest of it in one tour (rough plates ran to it
+                # in two tours of 64 and 57 spread over the plate, 44-47 mm a step; one of 121
+                # steps about 33 mm: 10 s of 675 s a plate). Not while the bound is in reach: a
+                # long batch planned under early hyper-parameters and taken in travel order
+                # meets it later than batches planned again (4 of 40 study plates: 4-32 more)
+                n = left
     n = n or plan.batch
     if n == 1:
         i = pick(cov, timed)
@@ -141,7 +144,8 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
                 ok[:] = ok & far
         return i
 
-    u = unresolved_var_mm2(plan, state, plan.eval_xy)  # the state's, the same for every pick
+    if u is None:  # the state's, the same for every pick
+        u = unresolved_var_mm2(plan, state, plan.eval_xy)
 
     def enough(c, k):  # the picks so far would meet the bound, the unresolved variance in
         # (the checks are judged again as the readings come, and the loop's stop sees them; cut
@@ -157,14 +161,17 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
     return [target(plan, state, *pts[i]) for i in travel_order(here, pts)]
 
 
-def out_of_reach(plan: SurveyPlan, state: SurveyState) -> bool:
+def out_of_reach(plan: SurveyPlan, state: SurveyState, left: int | None = None,
+                 unresolved_mm2: np.ndarray | None = None) -> bool:
     """The stop's bound cannot be met before the touch budget, however many touches the spline
     gets: the unresolved variance the checks found (which touches do not shrink) alone misses
-    it -- the status of a spline known exactly, one touch before the budget."""
-    left = touches_left(plan.stop, state.touches)
+    it -- the status of a spline known exactly, one touch before the budget. ``left``
+    (``stopping.touches_left``) and ``unresolved_mm2`` (``survey.status``) when at hand."""
+    left = touches_left(plan.stop, state.touches) if left is None else left
     if not left:
         return False
-    exact = status(plan, state, np.zeros_like(state.belief.cov), state.touches + left - 1)
+    exact = status(plan, state, np.zeros_like(state.belief.cov), state.touches + left - 1,
+                   unresolved_mm2=unresolved_mm2)
     return not plan.stop(replace(exact, adequate=True))
 
 
