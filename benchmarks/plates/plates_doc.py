@@ -138,9 +138,14 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   the probe, and the bands leave the ripple out. More touches narrow the bands without
   shrinking the ripple: with three readings in every check region required before a stop
   (27 touches or more), coverage fell to 0.63 (ripple), 0.78 (seam) and 0.61 (edge), 8
-  plates. What would move it: the probe's own
-  noise measured (repeat touches at one point, or a narrow stated span), so that the learned
-  noise's excess over it counts as plate structure in the bands.
+  plates. Knowing the probe's noise does not move it either: with the probe's 5 um given
+  exactly and the learned noise's excess over it always counted in the bands and the stop (an
+  oracle no cell has; 8 plates a family, 2026-11-23), ripple coverage went 0.788 -> 0.816
+  (min 0.71) for 15.8 -> 22.5 touches, smooth 0.945 -> 0.945 for 29.4 -> 38.4. At the stop
+  (11-20 touches) the learned noise was 4.3-5.0 um on 6 of 8 ripple plates, below the probe's
+  own 5 um though probe and ripple together are 6.6 um RMS: with a dozen readings the learned
+  form takes up part of the ripple and the rest is inside the noise estimate's sampling error
+  (about 20 % at 12 readings), so there is no excess to count.
 * **rough**: a Matern-3/2 field with a 60 mm length scale holds more structure than 200
   touches resolve (neither strategy reaches 5 um). The planner had put touches in pairs 4-16 mm
   apart once its checks found structure finer than the knots (coverage 0.87 against the
