@@ -47,6 +47,33 @@ def test_bilinear_map_is_reproduced_exactly_in_any_row_order(tmp_path):
     assert m.covers((-225, 225), (-185, 185)) and not m.covers((-230, 225), (-185, 185))
 
 
+def test_the_fast_and_the_careful_reader_give_the_same_map(tmp_path, monkeypatch):
+    """A well-formed map is read by numpy's C reader; the line-by-line reader (which names a
+    fault's line) is the oracle: the same nodes and heights, bit for bit, in a shuffled order."""
+    import adaptive_cal.formats.heightmap as hm
+    rng = np.random.default_rng(1)
+    xs, ys = np.linspace(-225, 225, 91), np.linspace(-185, 185, 75)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    rows = np.column_stack([X.ravel(), Y.ravel(), rng.normal(0, 1e-2, X.size)])
+    shuffled = rng.permutation(rows).tolist()
+    text = HEADER + "\n" + "\n".join(f"{a!r},{b!r},{c!r}" for a, b, c in shuffled)
+    fast = parse_heightmap(text + "\n", "m")
+    monkeypatch.setattr(hm, "_fast_numbers", lambda _text: None)
+    careful = parse_heightmap(text + "\n", "m")
+    for a, b in ((fast.x_mm, careful.x_mm), (fast.y_mm, careful.y_mm), (fast.z_mm, careful.z_mm)):
+        assert np.array_equal(a, b)
+    assert np.array_equal(fast.z_mm, rows[:, 2].reshape(91, 75))
+
+
+@pytest.mark.parametrize("newline", ["\n", "\r\n", "\r"])
+def test_round_off_in_node_positions_is_one_node_with_any_line_ending(newline):
+    """0.1 + 0.2 written beside 0.3 is the same node (a writer's round-off), not an irregular
+    grid; a BOM, CRLF or old-Mac CR line ends and a trailing blank line are read alike."""
+    lines = ["\ufeff" + HEADER, "0,0,1", "0.30000000000000004,0,2", "0,1,3", "0.3,1,4", ""]
+    m = parse_heightmap(newline.join(lines), "m")
+    assert np.allclose(m.x_mm, [0, 0.3]) and np.array_equal(m.z_mm, [[1, 3], [2, 4]])
+
+
 @pytest.mark.parametrize("edit, words", [
     (lambda ls: ["x,y,z"] + ls[1:], ["line 1", "x_mm,y_mm,height_mm", "'x,y,z'"]),
     (lambda ls: ls[1:], ["line 1", HEADER]),

