@@ -22,8 +22,9 @@ OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} \\
 ```
 
 Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun, so the page is
-rewritten in seconds; a fresh 40-plate run took about 11 minutes on the 2-core development
-machine, with the lower bound on 20 plates (25 when it was shared with other jobs).
+rewritten in seconds; a fresh 40-plate run took 63 minutes on the 2-core development machine
+(2026-11-23, partly shared with other jobs), with the lower bound on 20 plates (11 minutes on
+2026-11-21, before the planner's self-checks and robot-time cost landed).
 
 ## Headline ({plates} plates of `{study_file}`)
 
