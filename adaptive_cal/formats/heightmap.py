@@ -111,12 +111,19 @@ def _fast_numbers(text: str) -> np.ndarray | None:
     return a
 
 
+def _place(a: np.ndarray, source: str):
+    """The grid's nodes (xs, ys) and each row's node indices (i, j), from rows ``a`` (x, y,
+    height); axis faults raise HeightMapError."""
+    xs = _axis(a[:, 0], "x_mm", source)
+    ys = _axis(a[:, 1], "y_mm", source)
+    return xs, ys, _node(xs, a[:, 0]), _node(ys, a[:, 1])
+
+
 def _grid(a: np.ndarray, source: str) -> HeightMap | None:
     """The map from rows ``a`` (x, y, height), or None when a node is given twice or missing
     (the careful reader names the lines). Axis faults raise HeightMapError here."""
-    xs = _axis(a[:, 0], "x_mm", source)
-    ys = _axis(a[:, 1], "y_mm", source)
-    flat = _node(xs, a[:, 0]) * len(ys) + _node(ys, a[:, 1])
+    xs, ys, i, j = _place(a, source)
+    flat = i * len(ys) + j
     if len(flat) != xs.size * ys.size or len(np.unique(flat)) != len(flat):
         return None
     z = np.empty(xs.size * ys.size)
@@ -161,10 +168,7 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     if not numbers:
         raise HeightMapError(f"{source}: no rows after the header")
     a = np.array(numbers)
-    xs = _axis(a[:, 0], "x_mm", source)
-    ys = _axis(a[:, 1], "y_mm", source)
-    i = _node(xs, a[:, 0])
-    j = _node(ys, a[:, 1])
+    xs, ys, i, j = _place(a, source)
     z = np.full((len(xs), len(ys)), np.nan)
     seen = np.full((len(xs), len(ys)), 0)
     for k, (ii, jj) in enumerate(zip(i, j)):
