@@ -118,6 +118,7 @@ def test_a_map_that_does_not_cover_the_workplane_is_refused(tmp_path):
     msg = str(e.value)
     assert "simulation.surface_file" in msg and "plate.csv" in msg and "does not cover" in msg
     assert "x_mm=[-200, 225]" in msg
+    assert msg.count("simulation.surface_file") == 1, msg  # the key once, not "key: key: ..."
 
 
 def test_a_missing_map_is_refused_naming_the_key(tmp_path):

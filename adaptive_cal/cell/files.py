@@ -49,7 +49,8 @@ def _format(err: ValidationError, source: str) -> str:
             msg = msg[: 4 * ECHO_CHARS - 3] + "..."
         named = re.match(r"([a-z_]\w*(?:\.\w+)+)\b", msg) if not e["loc"] else None
         if named:  # a check across blocks names its key first; the whole file is no echo
-            lines.append(f"  {named.group(1)}: {msg}")
+            key = named.group(1)  # said once: "key: key: ..." when the message opens with it
+            lines.append(f"  {key}: {msg.removeprefix(key + ': ')}")
             continue
         if e["type"] == "extra_forbidden":
             msg = "unknown key (check the spelling; unknown keys are refused)"
