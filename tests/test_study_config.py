@@ -98,6 +98,11 @@ def test_overrides_set_keys_strategies_and_plates_and_name_bad_keys():
         (2, ["paper", "grid"], 0.02, 0)
     assert apply_overrides(study, base) is study
     assert apply_overrides(study, base, plates=5).plates == 5
+    for bad in (0, -3):  # refused naming the flag, before any plate is drawn
+        with pytest.raises(ConfigError, match=f"--plates {bad}: a study runs at least 1 plate"):
+            apply_overrides(study, base, plates=bad)
+    with pytest.raises(ConfigError, match="example_plate"):  # validated, not copied over
+        apply_overrides(study.model_copy(update={"example_plate": 3}), base, plates=2)
     for item, words in (("bound.true_rms_mm", "expected KEY=VALUE"),
                         ("plates.x=1", "'plates' is not a block"),
                         ("bound.mean_std_mm=-1", "bound.mean_std_mm"),

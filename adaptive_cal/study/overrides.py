@@ -32,14 +32,17 @@ def set_key(data: dict, item: str) -> dict:
 def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
                     strategies: str | None = None, settings: Sequence[str] = (),
                     source: str = "overrides") -> Study:
-    """The study with the command line's changes: ``plates`` (0 or None: keep), ``strategies``
-    (comma separated), ``settings`` (KEY=VALUE items, in order). Re-validated and checked
-    against the base cell whenever strategies or settings change."""
-    if plates:
-        study = study.model_copy(update={"plates": plates})
-    if not (strategies or settings):
+    """The study with the command line's changes: ``plates`` (None: keep; at least 1),
+    ``strategies`` (comma separated), ``settings`` (KEY=VALUE items, in order). Re-validated and
+    checked against the base cell whenever anything changes (``example_plate`` below ``plates``
+    included)."""
+    if plates is not None and plates < 1:
+        raise ConfigError(f"--plates {plates}: a study runs at least 1 plate")
+    if not (plates or strategies or settings):
         return study
     data = study.model_dump(mode="json")
+    if plates:
+        data["plates"] = plates
     if strategies:
         data["strategies"] = [s.strip() for s in strategies.split(",") if s.strip()]
     for item in settings:
