@@ -84,3 +84,30 @@ def test_dry_run_prints_approach_heights_expected_touches_and_robot_time():
     assert last.startswith("expected: about ") and "robot time about " in last and " min (" in last
     touches = int(last.split()[2])
     assert 16 <= touches <= 120  # at least the spline's coefficients, at most the budget
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["flatness", CHENG / "round0_initial.csv", "--samples", "-5"], "--samples: -5 is below 1"),
+    (["flatness", CHENG / "round0_initial.csv", "--samples", "0"], "--samples: 0 is below 1"),
+    (["study", ROOT / "configs" / "study-smoke.yaml", "--json", "x.json", "--workers", "-2"],
+     "--workers: -2 is below 0"),
+    (["study", ROOT / "configs" / "study-smoke.yaml", "--json", "x.json", "--plates", "-3"],
+     "--plates: -3 is below 1"),
+    (["emulate", "--robot", ROOT / "configs" / "cell-modbus-emulated.yaml", "--move-s", "-1"],
+     "--move-s: -1 s: must be a finite time of at least 0 s"),
+    (["emulate", "--robot", ROOT / "configs" / "cell-modbus-emulated.yaml", "--seconds", "nan"],
+     "--seconds: nan s: must be a finite time above 0 s"),
+])
+def test_numeric_options_out_of_range_are_refused_naming_the_option(argv, words, capsys,
+                                                                     tmp_path, monkeypatch):
+    """Before: --samples -5 failed inside numpy ("negative dimensions are not allowed"),
+    --plates -3 ran a study of no plates (exit 0), --workers -2 and a negative --move-s or
+    --seconds were taken as given. Refused by argparse, before anything is read or started."""
+    from adaptive_cal.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and words in err and "Traceback" not in err, err
+    assert not list(tmp_path.iterdir())  # nothing written

@@ -25,6 +25,34 @@ class DefaultsShown(argparse.HelpFormatter):
         return text
 
 
+def at_least(minimum: int):
+    """argparse type: an integer of at least ``minimum``; argparse names the option and the value
+    ("argument --samples: -5 is below 1") instead of failing later inside numpy."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} is below {minimum}")
+        return value
+    return parse
+
+
+def seconds(positive: bool):
+    """argparse type: a finite time in s, > 0 (``positive``) or >= 0."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid number of seconds: {text!r}") from None
+        if not (value > 0 if positive else value >= 0) or value == float("inf"):
+            raise argparse.ArgumentTypeError(
+                f"{text} s: must be a finite time {'above' if positive else 'of at least'} 0 s")
+        return value
+    return parse
+
+
 RECORDING_MAGIC = "# adaptive-cal recording v1"  # formats.recording.MAGIC (kept stdlib-only here)
 RECORDING_FORMAT = (
     "A recording is a UTF-8 CSV: first line '# adaptive-cal recording v1', more '#' lines of "

@@ -9,13 +9,15 @@ from __future__ import annotations
 import argparse
 import time
 
+from adaptive_cal.cli.common import seconds
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", required=True, metavar="CELL.yaml",
                         help="cell file whose robot/probe blocks name the loopback ports")
-    parser.add_argument("--move-s", type=float, default=0.02,
+    parser.add_argument("--move-s", type=seconds(positive=False), default=0.02,
                         help="time every emulated move takes (s)")
-    parser.add_argument("--seconds", type=float, default=None,
+    parser.add_argument("--seconds", type=seconds(positive=True), default=None,
                         help="stop after this many seconds (default: until Ctrl-C)")
 
 

@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+from adaptive_cal.cli.common import at_least
+
 
 def add_arguments(p) -> None:
     p.add_argument("study", help="study file (YAML), e.g. configs/study-tilts.yaml")
@@ -20,9 +22,9 @@ def add_arguments(p) -> None:
     p.add_argument("--out", metavar="DIR", help="per-plate records, table (markdown) and plots")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask scheduler (tcp://host:port); workers need OPENBLAS_NUM_THREADS=1")
-    p.add_argument("--workers", type=int, default=0,
+    p.add_argument("--workers", type=at_least(0), default=0,
                    help="run on a Dask LocalCluster of N worker processes (0: in-process)")
-    p.add_argument("--plates", type=int, help="override the study's number of plates (at least 1)")
+    p.add_argument("--plates", type=at_least(1), help="override the study's number of plates (at least 1)")
     p.add_argument("--strategies", help="override the study's strategies (comma separated)")
     p.add_argument("--doc", metavar="PAGE.md", help="write the study page (docs/study.md)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
