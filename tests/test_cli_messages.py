@@ -97,6 +97,9 @@ def test_dry_run_prints_approach_heights_expected_touches_and_robot_time():
      "--move-s: -1 s: must be a finite time of at least 0 s"),
     (["emulate", "--robot", ROOT / "configs" / "cell-modbus-emulated.yaml", "--seconds", "nan"],
      "--seconds: nan s: must be a finite time above 0 s"),
+    (["flatness", CHENG / "round0_initial.csv", "--seed", "-1"], "--seed: -1 is below 0"),
+    (["explain", CHENG / "round0_initial.csv", "--robot", ROOT / "configs" / "cheng2025-cell.yaml",
+      "--seed", "-1"], "--seed: -1 is below 0"),
 ])
 def test_numeric_options_out_of_range_are_refused_naming_the_option(argv, words, capsys,
                                                                      tmp_path, monkeypatch):
@@ -111,3 +114,16 @@ def test_numeric_options_out_of_range_are_refused_naming_the_option(argv, words,
     err = capsys.readouterr().err
     assert e.value.code == 2 and words in err and "Traceback" not in err, err
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+@pytest.mark.parametrize("given, words", [("nope", "--resume nope: no such folder"),
+                                          ("file.csv", "file.csv: a file, not a folder")])
+def test_resume_of_something_that_is_not_a_run_folder(given, words, tmp_path, monkeypatch, capsys):
+    """Before: "nope/cell.yaml: no such file" -- a file the user never named."""
+    from adaptive_cal.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "file.csv").write_text("x")
+    assert main(["run", "--resume", given]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "adaptive-cal run --out DIR" in err and "Traceback" not in err, err

@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from adaptive_cal.cli.common import UserError, check_cell_file, check_recording
+from adaptive_cal.cli.common import UserError, at_least, check_cell_file, check_recording
 
 
 def add_arguments(parser) -> None:
@@ -24,7 +24,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--json", metavar="OUT.json", help="write the report here")
     parser.add_argument("--out", metavar="DIR", help="write the updated cell file and figures here")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures in DIR")
-    parser.add_argument("--seed", type=int, default=0,
+    parser.add_argument("--seed", type=at_least(0), default=0,
                         help="seed of the bootstrap of the round-to-round flatness change")
 
 

@@ -26,7 +26,7 @@ def add_arguments(p) -> None:
     p.add_argument("--samples", type=at_least(1), default=None, help="posterior samples for the "
                    "intervals (default: 200 with a map, as in run, so the digits are the run's; 400 "
                    "for a bare recording)%(default).0s")
-    p.add_argument("--seed", type=int, default=0, help="seed of the posterior samples")
+    p.add_argument("--seed", type=at_least(0), default=0, help="seed of the posterior samples")
 
 
 NO_PLATE = ("needs a map: give the cell file (--robot CELL.yaml), or the recording of a run "

@@ -39,6 +39,10 @@ def command(args) -> int:
         return _dry_run(load_cell(args.robot))
     if args.resume:
         out = Path(args.resume)
+        if not out.is_dir():
+            raise UserError(f"--resume {out}: {'a file, not a' if out.exists() else 'no such'} "
+                            "folder (give the folder an interrupted 'adaptive-cal run --out DIR' "
+                            "wrote)")
         cell_path = Path(args.robot) if args.robot else out / "cell.yaml"
     else:
         if not args.robot or not args.out:
