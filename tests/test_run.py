@@ -249,6 +249,10 @@ def test_dry_run_moves_nothing(tmp_path, capsys):
     ({"plan": {"stop": {"mean_std_mm": -0.001}}}, "plan.stop.mean_std_mm"),
     ({"workplane": {"x_mm": [-225, 225], "y_mm": [-185, 185],
                     "keep_outs": [{"x_mm": [-300, 300], "y_mm": [-300, 300]}]}}, "keep_outs[0]"),
+    # a clamp in another frame or unit: wholly off the plate, it would protect nothing
+    ({"workplane": {"x_mm": [-225, 225], "y_mm": [-185, 185],
+                    "keep_outs": [{"x_mm": [260, 310], "y_mm": [60, 110]}]}},
+     "keep_outs[0] x_mm=[260.0, 310.0] y_mm=[60.0, 110.0] lies wholly outside the workplane"),
     ({"workplane": None}, "workplane"),
 ])
 def test_bad_cell_files_name_the_key(tmp_path, patch, key, capsys):

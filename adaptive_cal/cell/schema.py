@@ -59,7 +59,8 @@ class Workplane(Block):
     x_mm: Interval
     y_mm: Interval
     edge_margin_mm: float = Field(5.0, ge=0, description="no touch closer than this to the plate edge")
-    keep_outs: list[Rect] = Field([], description="rectangles never touched (clamps, holes)")
+    keep_outs: list[Rect] = Field([], description="rectangles never touched (clamps, holes); "
+                                "each must overlap the workplane")
 
     @field_validator("x_mm", "y_mm")
     @classmethod
@@ -79,6 +80,14 @@ class Workplane(Block):
                     and k.y_mm[0] <= inner.y_mm[0] and k.y_mm[1] >= inner.y_mm[1]):
                 raise ValueError(f"keep_outs[{i}] x_mm={list(k.x_mm)} y_mm={list(k.y_mm)} covers "
                                  "the whole plate: nothing is left to touch")
+            if (k.x_mm[1] < self.x_mm[0] or k.x_mm[0] > self.x_mm[1]
+                    or k.y_mm[1] < self.y_mm[0] or k.y_mm[0] > self.y_mm[1]):
+                # touches only land on the plate: such a keep-out protects nothing -- most likely
+                # a clamp given in another frame or unit, which the probe would then hit
+                raise ValueError(f"keep_outs[{i}] x_mm={list(k.x_mm)} y_mm={list(k.y_mm)} lies "
+                                 f"wholly outside the workplane x_mm={list(self.x_mm)}, "
+                                 f"y_mm={list(self.y_mm)}: it keeps nothing out (keep-outs are "
+                                 "in the workplane frame, mm); move it onto the plate or delete it")
         return self
 
     @property
