@@ -127,3 +127,17 @@ def test_resume_of_something_that_is_not_a_run_folder(given, words, tmp_path, mo
     assert main(["run", "--resume", given]) == 2
     err = capsys.readouterr().err
     assert words in err and "adaptive-cal run --out DIR" in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("sep, name", [(";", "semicolons"), ("\t", "tabs")])
+def test_a_table_with_another_separator_is_told_to_use_commas(sep, name, tmp_path, capsys):
+    """A spreadsheet's export (';' where the decimal mark is a comma, or tabs): said so, not
+    "is not an adaptive-cal recording" about a first line that does name x_mm, y_mm and
+    height_mm."""
+    from adaptive_cal.cli import main
+
+    f = tmp_path / "export.csv"
+    f.write_text(sep.join(["y_mm", "x_mm", "height_mm"]) + "\n" + sep.join(["1", "2", "0.1"]) + "\n")
+    assert main(["flatness", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert f"its columns are separated by {name}" in err and "commas" in err, err

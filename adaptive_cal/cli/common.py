@@ -85,6 +85,11 @@ def check_recording(path: str) -> None:
     from adaptive_cal.formats.table import table_columns
 
     if line != RECORDING_MAGIC and table_columns(line) is None:
+        for sep, name in ((";", "semicolons"), ("\t", "tabs")):
+            if sep in line and table_columns(line.replace(sep, ",")) is not None:
+                raise UserError(f"{p}: its columns are separated by {name} "
+                                f"({line[:60]!r}); a recording or table separates them by "
+                                "commas, with a point as the decimal mark. " + RECORDING_FORMAT)
         raise UserError(f"{p} is not an adaptive-cal recording (its first line is {line[:60]!r}). "
                         + RECORDING_FORMAT)
 
