@@ -238,7 +238,7 @@ def test_a_single_row_gets_a_clear_message(tmp_path, cell_file, capsys):
     rec = _write(tmp_path / "one.csv", 1)
     code, err = _cli(["explain", "--robot", str(cell_file), str(rec)], capsys)
     assert code == 2
-    assert "one.csv: 1 rows, 1 of them fused" in err and "at least 8" in err, err
+    assert "one.csv: 1 row; explain needs at least 8 fused rows" in err, err
     assert "Traceback" not in err and "internal error" not in err
 
 

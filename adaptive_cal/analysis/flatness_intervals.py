@@ -88,7 +88,8 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
     rec = read_recording(path)
     x, y, z = heights(rec)
     if len(z) < 4:
-        raise ValueError(f"{path}: {len(z)} usable touches; flatness needs at least 4")
+        raise ValueError(f"{path}: {len(z)} usable touch{'es' * (len(z) != 1)}; flatness needs "
+                         "at least 4")
     if np.linalg.matrix_rank(np.c_[x - x.mean(), y - y.mean()], tol=1e-6) < 2:
         raise RecordingError(f"{path}: the {len(z)} fused touches lie on one line or at one "
                              "point (columns x_mm, y_mm): a plane's tilt and flatness need "

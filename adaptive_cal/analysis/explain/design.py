@@ -113,9 +113,12 @@ def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
     wp = cell.workplane
     fused = rec.select(rec.fused)
     if len(fused) < MIN_ROWS_PER_ROUND:
-        raise RecordingError(f"{label}: {len(rec)} rows, {len(fused)} of them fused (the column "
-                             f"flags marks the others gated or rejected); explain needs at least "
-                             f"{MIN_ROWS_PER_ROUND} per recording (tilt, one effect and the noise)")
+        rows = f"{len(rec)} row{'s' * (len(rec) != 1)}"
+        held = rows if len(fused) == len(rec) else (
+            f"{rows}, {len(fused)} of them fused (the column flags marks the others gated or "
+            "rejected)")
+        raise RecordingError(f"{label}: {held}; explain needs at least {MIN_ROWS_PER_ROUND} fused "
+                             "rows per recording (tilt, one effect and the noise)")
     for c, lo, hi in (("x_mm", *wp.x_mm), ("y_mm", *wp.y_mm)):
         values = getattr(rec, c)
         bad = np.flatnonzero((values < lo - 1e-9) | (values > hi + 1e-9))
