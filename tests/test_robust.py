@@ -58,6 +58,23 @@ def test_invalid_readings_are_refused_naming_the_value_and_change_nothing(plan):
     assert told is not None
 
 
+def test_a_reading_that_is_not_a_number_is_refused_naming_it(plan):
+    """A notebook's tell("5.0") or tell(None): a TypeError naming the key (it was Python's
+    "must be real number, not str"); numpy and JAX scalars are numbers and are taken."""
+    import jax.numpy as jnp
+
+    state, _, _ = _learned_state(plan)
+    x, y = plan.candidates.xy_mm[0]
+    for bad, shown in (("5.0", "'5.0'"), (None, "None"), ([5.0], r"\[5.0\]"),
+                       (np.array([5.0]), r"array\(\[5.\]\)")):
+        with pytest.raises(TypeError, match=f"reading_mm = {shown} is not a number"):
+            sv.tell(plan, state, x, y, 0.0, bad)
+    with pytest.raises(TypeError, match="z_mm = 'a' is not a number"):
+        sv.tell(plan, state, x, y, "a", 5.0)
+    for good in (np.float32(5.0), np.int64(5), np.array(5.0), jnp.asarray(5.0)):
+        assert sv.tell(plan, state, x, y, 0.0, good)[1] is not None
+
+
 def test_nan_reading_leaves_the_belief_bit_identical(plan):
     state, _, _ = _learned_state(plan)
     mean, cov = state.belief.mean.copy(), state.belief.cov.copy()

@@ -34,7 +34,13 @@ def check_touch(plan: SurveyPlan, x_mm: float, y_mm: float, z_mm: float,
     outside every keep-out. A point in the edge margin is on the plate and is accepted."""
     for name, value in (("reading_mm", reading_mm), ("x_mm", x_mm), ("y_mm", y_mm),
                         ("z_mm", z_mm)):
-        if not math.isfinite(value):
+        try:  # a float, numpy or JAX scalar; not a string (float("5") would take it)
+            if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
+                raise TypeError
+            finite = math.isfinite(float(value))
+        except (TypeError, ValueError):
+            raise TypeError(f"{name} = {value!r} is not a number (mm): not fused") from None
+        if not finite:
             raise InvalidReading(f"{name} = {value} is not a finite number: not fused")
     (x0, x1), (y0, y1) = plan.plate_mm
     if not (x0 <= x_mm <= x1 and y0 <= y_mm <= y1):
