@@ -47,3 +47,24 @@ def test_start_survey_and_flatness_agree_with_the_layers_below():
     path = ROOT / "adaptive_cal" / "data" / "cheng2025" / "round0_initial.csv"
     expected = recording_flatness(path, np.random.default_rng(3), 50)[0]
     assert adaptive_cal.flatness(path, samples=50, seed=3) == expected
+
+
+def test_survey_ask_and_skip_refuse_what_cannot_be_meant():
+    """ask(0) used to mean the plan's batch and ask(-1) gave an empty list; skip() counted a
+    touch at x = 1e6 mm. Now a ValueError naming n, and InvalidReading naming the position
+    with nothing counted."""
+    import numpy as np
+
+    adaptive_cal.use_float64()
+    survey = adaptive_cal.start_survey(adaptive_cal.load_cell(ROOT / "configs" / "sim-cell.yaml"))
+    for n in (0, -1, 2.5, "3", True):
+        with pytest.raises(ValueError, match=f"n = {n!r}: ask for at least 1 touch"):
+            survey.ask(n)
+    assert len(survey.ask(np.int64(2))) == 2
+    for xy, words in (((1e6, 0.0), r"x_mm = 1e\+06"), ((float("nan"), 0.0), "x_mm = nan"),
+                      ((-15.0, 85.0), "keep-out")):
+        with pytest.raises(adaptive_cal.InvalidReading, match=words):
+            survey.skip(*xy)
+    assert survey.touches == 0 and len(survey.history) == 1
+    survey.skip(0.0, 0.0)
+    assert survey.touches == 1

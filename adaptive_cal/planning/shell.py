@@ -10,12 +10,15 @@ appends the status to ``survey.history``; ``survey.state`` can be kept, compared
 """
 from __future__ import annotations
 
+import numbers
+
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.ask import Target, ask
 from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.planning.robust import check_touch
 from adaptive_cal.planning.stopping import Status
 
 
@@ -30,7 +33,10 @@ class Survey:
         self.history: list[Status] = [self.status()]
 
     def ask(self, n: int | None = None, *, from_xy=None) -> list[Target]:
-        """The next touch(es) (``planning.ask.ask``)."""
+        """The next touch(es) (``planning.ask.ask``): ``n`` of them (None: the plan's batch)."""
+        if n is not None and (isinstance(n, bool) or not isinstance(n, numbers.Integral)
+                              or n < 1):
+            raise ValueError(f"n = {n!r}: ask for at least 1 touch (None: the plan's batch)")
         return ask(self.plan, self.state, n, from_xy=from_xy)
 
     def tell(self, x_mm: float, y_mm: float, z_mm: float, reading_mm: float) -> Told:
@@ -40,7 +46,10 @@ class Survey:
         return told
 
     def skip(self, x_mm: float, y_mm: float) -> None:
-        """Count a touch whose reading the probe cycle rejected (not fused)."""
+        """Count a touch whose reading the probe cycle rejected (not fused). The position must be
+        one a touch can have (finite, on the workplane, outside the keep-outs): else
+        ``InvalidReading`` naming it, and nothing is counted."""
+        check_touch(self.plan, x_mm, y_mm, 0.0, 0.0)
         self.state = sv.skip(self.plan, self.state, x_mm, y_mm)
         self.history.append(self.status())
 
