@@ -95,9 +95,16 @@ def start_survey(cell, *, prior=None, hyper=None):
 def flatness(recording, *, samples: int = 400, seed: int = 0) -> dict:
     """Tilt, least-squares flatness (Cheng et al. eqs. 1-6), range and ISO 1101 minimum zone of a
     recording (path), each with a 95 % interval from ``samples`` predicted repeat measurements
-    drawn with ``numpy.random.default_rng(seed)`` (mm, deg)."""
+    drawn with ``numpy.random.default_rng(seed)`` (mm, deg). ``samples`` at least 2 (an
+    interval needs two draws), ``seed`` at least 0: else a ValueError naming them."""
+    import numbers
+
     import numpy as np
 
     from adaptive_cal.analysis.flatness_intervals import recording_flatness
+
+    for name, value, least in (("samples", samples, 2), ("seed", seed, 0)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
+            raise ValueError(f"{name} = {value!r}: a whole number of at least {least}")
 
     return recording_flatness(recording, np.random.default_rng(seed), samples)[0]

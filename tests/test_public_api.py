@@ -68,3 +68,12 @@ def test_survey_ask_and_skip_refuse_what_cannot_be_meant():
     assert survey.touches == 0 and len(survey.history) == 1
     survey.skip(0.0, 0.0)
     assert survey.touches == 1
+
+
+def test_flatness_refuses_samples_and_seed_it_cannot_use():
+    """samples = 0 was an IndexError, -5 numpy's 'negative dimensions are not allowed'."""
+    path = ROOT / "adaptive_cal" / "data" / "cheng2025" / "round0_initial.csv"
+    for kw, words in (({"samples": 0}, "samples = 0"), ({"samples": 1}, "samples = 1"),
+                      ({"samples": 2.5}, "samples = 2.5"), ({"seed": -1}, "seed = -1")):
+        with pytest.raises(ValueError, match=words):
+            adaptive_cal.flatness(path, **kw)
