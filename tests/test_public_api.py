@@ -77,3 +77,21 @@ def test_flatness_refuses_samples_and_seed_it_cannot_use():
                       ({"samples": 2.5}, "samples = 2.5"), ({"seed": -1}, "seed = -1")):
         with pytest.raises(ValueError, match=words):
             adaptive_cal.flatness(path, **kw)
+
+
+def test_explain_takes_paths_as_well_as_recordings_and_cells(tmp_path):
+    """A notebook's explain("round0.csv", "cell.yaml") was "'str' object has no attribute
+    'path'"; explain([], cell) numpy's "need at least one array to concatenate"."""
+    adaptive_cal.use_float64()
+    path = ROOT / "adaptive_cal" / "data" / "cheng2025" / "round0_initial.csv"
+    cell_file = ROOT / "configs" / "cheng2025-cell.yaml"
+    cell = adaptive_cal.load_cell(cell_file)
+    want = adaptive_cal.explain([adaptive_cal.read_recording(path)], cell).findings
+    for recs, c in ((str(path), cell), (path, str(cell_file)), ([path], cell_file)):
+        got = adaptive_cal.explain(recs, c).findings
+        assert (got["verdict"], got["verdict_probability"]) == \
+            (want["verdict"], want["verdict_probability"])
+    with pytest.raises(ValueError, match="at least one recording"):
+        adaptive_cal.explain([], cell)
+    with pytest.raises(ValueError, match="nope.csv: no such file"):
+        adaptive_cal.explain(tmp_path / "nope.csv", cell)

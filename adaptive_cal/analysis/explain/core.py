@@ -275,9 +275,25 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     return Explanation(findings, ctx, cands, winner, before, after)
 
 
-def explain(recordings: list[Recording], cell: Cell, **kw) -> Explanation:
-    """Calibrate the cell's unknowns on the recordings (rounds), then ``explain_design``."""
-    return explain_design(build_design(list(recordings), cell), **kw)
+def explain(recordings, cell, **kw) -> Explanation:
+    """Calibrate the cell's unknowns on the recordings (rounds), then ``explain_design``.
+
+    ``recordings``: a Recording or a recording's path, or a list of them (one per round, in
+    order); ``cell``: a Cell or the cell file's path. A recording or cell file that cannot be
+    read raises the reader's error (it names the file and the line)."""
+    import os
+
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.formats.recording import read_recording
+
+    if isinstance(recordings, (Recording, str, os.PathLike)):
+        recordings = [recordings]
+    recordings = [r if isinstance(r, Recording) else read_recording(r) for r in recordings]
+    if not recordings:
+        raise ValueError("explain needs at least one recording")
+    if not isinstance(cell, Cell):
+        cell = load_cell(cell)
+    return explain_design(build_design(recordings, cell), **kw)
 
 
 def belief_rows(effect: str, params: dict, features: effects.Features,
