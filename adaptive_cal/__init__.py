@@ -94,9 +94,9 @@ def start_survey(cell, *, prior=None, hyper=None):
 
 def flatness(recording, *, samples: int = 400, seed: int = 0) -> dict:
     """Tilt, least-squares flatness (Cheng et al. eqs. 1-6), range and ISO 1101 minimum zone of a
-    recording (path), each with a 95 % interval from ``samples`` predicted repeat measurements
-    drawn with ``numpy.random.default_rng(seed)`` (mm, deg). ``samples`` at least 2 (an
-    interval needs two draws), ``seed`` at least 0: else a ValueError naming them."""
+    recording (a path, or a Recording), each with a 95 % interval from ``samples`` predicted
+    repeat measurements drawn with ``numpy.random.default_rng(seed)`` (mm, deg). ``samples`` at
+    least 2 (an interval needs two draws), ``seed`` at least 0: else a ValueError naming them."""
     import numbers
 
     import numpy as np

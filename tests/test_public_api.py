@@ -77,6 +77,10 @@ def test_flatness_refuses_samples_and_seed_it_cannot_use():
                       ({"samples": 2.5}, "samples = 2.5"), ({"seed": -1}, "seed = -1")):
         with pytest.raises(ValueError, match=words):
             adaptive_cal.flatness(path, **kw)
+    # a Recording read already gives the same figures as its path
+    rec = adaptive_cal.read_recording(path)
+    assert adaptive_cal.flatness(rec, samples=20, seed=1) == \
+        adaptive_cal.flatness(path, samples=20, seed=1)
 
 
 def test_explain_takes_paths_as_well_as_recordings_and_cells(tmp_path):
