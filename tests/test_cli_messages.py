@@ -141,3 +141,24 @@ def test_a_table_with_another_separator_is_told_to_use_commas(sep, name, tmp_pat
     assert main(["flatness", str(f)]) == 2
     err = capsys.readouterr().err
     assert f"its columns are separated by {name}" in err and "commas" in err, err
+
+
+def test_a_broken_result_json_is_named_with_its_line(tmp_path, capsys):
+    """A result.json cut short or edited by hand: report and compensate said only "Expecting
+    value: line 2 column 1 (char 12)", naming no file."""
+    from adaptive_cal.cli import main
+    from adaptive_cal.formats.jsonfile import read_json
+
+    run = tmp_path / "run"
+    assert main(["run", "--robot", str(CELL), "--out", str(run), "--no-progress"]) == 0
+    capsys.readouterr()
+    (run / "result.json").write_text('{"broken": \n')
+    for argv in (["report", str(run)], ["compensate", "--map", str(run), "--grid",
+                                         str(tmp_path / "g.csv")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{run / 'result.json'}: not valid JSON (Expecting value at line 2, column 1)" \
+            in err and "Traceback" not in err, err
+    (run / "result.json").write_bytes(b'{"a": "\xff"}')
+    with pytest.raises(ValueError, match="result.json: not UTF-8 text"):
+        read_json(run / "result.json")

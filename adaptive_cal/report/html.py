@@ -17,7 +17,6 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import io
-import json
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,7 @@ from matplotlib.patches import Rectangle
 from adaptive_cal import __version__
 from adaptive_cal.cell.schema import Cell, load_cell
 from adaptive_cal.formats.recording import read_recording
+from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.gaussian.belief import Belief, predict
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report import figures as plots
@@ -142,7 +142,7 @@ def render(run_dir: str | Path) -> str:
         if not (run_dir / name).exists():
             raise FileNotFoundError(f"{run_dir / name}: missing; is {run_dir} a folder written by "
                                     "'adaptive-cal run --out DIR'?")
-    result = json.loads((run_dir / "result.json").read_text(encoding="utf-8"))
+    result = read_json(run_dir / "result.json")
     cell = load_cell(run_dir / "cell.yaml")
     rec = read_recording(run_dir / "recording.csv")
     conv = run_dir / "convergence.png"

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ import numpy as np
 from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, PLATE, SPREAD,
                                                    touched_what, value_text)
 from adaptive_cal.cell.schema import Cell
+from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.report.status import missing, next_step
 
 UM = 1000.0
@@ -192,7 +192,7 @@ def explain_section(run_dir: Path) -> str:
                 "recording with the cell's simulation: <code>adaptive-cal explain "
                 f"{escape(run_dir / 'recording.csv')} --robot CELL.yaml --json {escape(path)} --out "
                 f"{escape(run_dir)}</code>, then run the report again.</p>")
-    findings = json.loads(path.read_text(encoding="utf-8"))
+    findings = read_json(path)
     fit = findings.get("fit", {})
     parts = ["<h2>Explain: what the simulation left out</h2>",
              f"<p class='verdict'>verdict: <b>{escape(findings.get('verdict', '-'))}</b>"
@@ -242,7 +242,7 @@ def cards(result: dict, run_dir: Path | None) -> str:
              (f"{_um(p['mean_std_mm'])}", f"RMS posterior std after {result['touches']} touches")]
     ex = run_dir / "explain.json" if run_dir is not None else None
     if ex is not None and ex.exists():
-        cards.append((escape(json.loads(ex.read_text(encoding="utf-8")).get("verdict", "-")),
+        cards.append((escape(read_json(ex).get("verdict", "-")),
                       "explain verdict (left-out physics)"))
     return "<div class='cards'>" + "".join(
         f"<div class='card'><div class='v'>{v}</div><div class='l'>{l}</div></div>" for v, l in cards) + "</div>"

@@ -11,7 +11,6 @@ posterior std in both frames (the correction is a fixed, applied value).
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import numpy as np
 
 from adaptive_cal.cell.build import plan_model
 from adaptive_cal.cell.schema import load_cell
+from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report.status import missing
@@ -83,7 +83,7 @@ def load_map(run_dir: str | Path) -> HeightMap:
             raise FileNotFoundError(f"--map {run_dir}: {name} is missing (a run folder holds "
                                     "cell.yaml, result.json and belief.npz)")
     cell = load_cell(run_dir / "cell.yaml")
-    result = json.loads((run_dir / "result.json").read_text(encoding="utf-8"))
+    result = read_json(run_dir / "result.json")
     belief, _ = read_belief(run_dir, cell)
     tilt = result.get("tilt") or {}
     if any(tilt.get(k) is None for k in "abc"):

@@ -4,7 +4,6 @@ from it.
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 from adaptive_cal.cell.build import plan_model
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.effects.frame import plane_in_corrected_frame
+from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.run.results import read_belief
@@ -37,7 +37,7 @@ def applied_correction(run_dir: Path, correction: str | tuple[float, float] = "p
     elif correction == "proposed":
         path = run_dir / "result.json"
         try:
-            tilt = json.loads(path.read_text(encoding="utf-8"))["tilt"]
+            tilt = read_json(path)["tilt"]
             rx, ry = float(tilt["rx_deg"]), float(tilt["ry_deg"])
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise ValueError(f"{path}: no proposed tilt correction (tilt rx_deg, ry_deg) to "
@@ -89,7 +89,7 @@ def saved_prior(out: Path, resume: bool, prior_from, correction):
     if not resume or not path.exists():
         return prior_from, correction
     try:
-        rec = json.loads(path.read_text(encoding="utf-8"))
+        rec = read_json(path)
         run, saved = rec["run"], rec["correction_applied"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise ValueError(f"{path}: unreadable ({type(e).__name__}: {e}); pass --prior-from and "

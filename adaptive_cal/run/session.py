@@ -8,7 +8,6 @@ every touch and ``--resume`` continues it: no touch repeated, none lost.
 """
 from __future__ import annotations
 
-import json
 import signal
 import warnings
 from contextlib import contextmanager
@@ -20,6 +19,7 @@ import numpy as np
 
 from adaptive_cal.cell.build import survey_plan, touch_floor
 from adaptive_cal.cell.schema import Cell
+from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import RecordingWriter, read_recording, repair_cut_row
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
@@ -212,7 +212,7 @@ def _saved_result(out: Path) -> dict | None:
     results complete), else None."""
     if not (out / "result.json").exists() or not (out / "belief.npz").exists():
         return None
-    return json.loads((out / "result.json").read_text(encoding="utf-8"))
+    return read_json(out / "result.json")
 
 
 def _progress(enabled: bool, cell: Cell, initial: int):
