@@ -162,3 +162,27 @@ def test_a_broken_result_json_is_named_with_its_line(tmp_path, capsys):
     (run / "result.json").write_bytes(b'{"a": "\xff"}')
     with pytest.raises(ValueError, match="result.json: not UTF-8 text"):
         read_json(run / "result.json")
+
+
+def test_a_broken_belief_npz_is_named(tmp_path, capsys):
+    """A belief.npz cut short or overwritten: report, compensate and flatness gave numpy's "This
+    file contains pickled (object) data. If you trust the file ..." and named no file."""
+    import numpy as np
+
+    from adaptive_cal.cli import main
+
+    run = tmp_path / "run"
+    assert main(["run", "--robot", str(CELL), "--out", str(run), "--no-progress"]) == 0
+    whole = (run / "belief.npz").read_bytes()
+    for data, words in ((b"junk\n", "not an .npz file adaptive-cal wrote"),
+                        (whole[:400], "not an .npz file adaptive-cal wrote"), (None, "no array 'cov'")):
+        if data is None:
+            np.savez(run / "belief.npz", mean=np.zeros(3))
+        else:
+            (run / "belief.npz").write_bytes(data)
+        capsys.readouterr()
+        for argv in (["report", str(run)], ["flatness", str(run / "recording.csv")],
+                     ["compensate", "--map", str(run), "--grid", str(tmp_path / "g.csv")]):
+            assert main(argv) == 2, argv
+            err = capsys.readouterr().err
+            assert f"{run / 'belief.npz'}: {words}" in err and "Traceback" not in err, err

@@ -88,7 +88,9 @@ def map_flatness(args) -> dict | None:
         state = sv.replay(plan, sv.start(plan), rec)
         belief, noise_mm, source = state.belief, state.hyper.noise_std_mm, f"replayed with {args.robot}"
     else:
-        data = np.load(saved)
+        from adaptive_cal.formats.npz import read_npz
+
+        data = read_npz(saved)
         belief = Belief(data["mean"], data["cov"])
         noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm
         source = f"the map saved in {saved}"

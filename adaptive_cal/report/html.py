@@ -27,6 +27,7 @@ from adaptive_cal import __version__
 from adaptive_cal.cell.schema import Cell, load_cell
 from adaptive_cal.formats.recording import read_recording
 from adaptive_cal.formats.jsonfile import read_json
+from adaptive_cal.formats.npz import read_npz
 from adaptive_cal.gaussian.belief import Belief, predict
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report import figures as plots
@@ -95,7 +96,7 @@ def surface_png(run_dir: Path, cell: Cell, rec, result: dict) -> str | None:
     if not path.exists():
         png = run_dir / "surface.png"
         return base64.b64encode(png.read_bytes()).decode("ascii") if png.exists() else None
-    return belief_png(np.load(path), cell, rec, result)
+    return belief_png(read_npz(path), cell, rec, result)
 
 
 def belief_png(data, cell: Cell, rec, result: dict) -> str:

@@ -13,6 +13,7 @@ import numpy as np
 from adaptive_cal.cell.build import plan_model, touch_floor
 from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer
 from adaptive_cal.cell.schema import Cell
+from adaptive_cal.formats.npz import read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
@@ -152,7 +153,7 @@ def read_belief(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
     path = Path(run_dir) / "belief.npz"
     if not path.exists():
         raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
-    data = np.load(path)
+    data = read_npz(path)
     surface = plan_model(cell).surface
     if (len(data["knots_x"]) != len(surface.sx.knots) or len(data["knots_y"]) != len(surface.sy.knots)
             or not np.allclose(data["knots_x"], surface.sx.knots)
