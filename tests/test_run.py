@@ -254,6 +254,11 @@ def test_dry_run_moves_nothing(tmp_path, capsys):
                     "keep_outs": [{"x_mm": [260, 310], "y_mm": [60, 110]}]}},
      "keep_outs[0] x_mm=[260.0, 310.0] y_mm=[60.0, 110.0] lies wholly outside the workplane"),
     ({"workplane": None}, "workplane"),
+    # 200,000 candidates x 1,600 coefficients: 2.6 GB of rows a decision, refused, not an
+    # out-of-memory 'internal error' from JAX
+    ({"model": {"knots_x": 40, "knots_y": 40, "tilt_std_deg": 1.0, "offset_std_mm": 0.5},
+      "plan": {"stop": {"mean_std_mm": 0.004, "max_touches": 120}, "candidates": 200000}},
+     "plan.candidates=200000 with 1600 spline coefficients"),
 ])
 def test_bad_cell_files_name_the_key(tmp_path, patch, key, capsys):
     import yaml

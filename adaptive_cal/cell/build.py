@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from adaptive_cal.cell.consistency import derived_box_mm
+from adaptive_cal.cell.files import ConfigError
 from adaptive_cal.cell.schema import Cell, Workspace
 from adaptive_cal.gaussian.prior import Hyper, PriorModel
 from adaptive_cal.gaussian.spline import Surface, default_knots, embedding, refined
@@ -18,6 +19,9 @@ from adaptive_cal.planning.stopping import AtLeast, MaxStdBelow, MeanStdBelow, S
 
 EVAL_POINTS = 41  # the evaluation grid over the plate is EVAL_POINTS x EVAL_POINTS
 GROW_CAP = 160  # a model grows (knots refined once) only up to this many coefficients
+MAX_CANDIDATE_ENTRIES = 200_000_000  # candidates x coefficients: the basis rows scored each
+# decision (and a product as large) at 8 bytes an entry, 1.6 GB each; 10^6 candidates pass at
+# the grown model's 160 coefficients
 
 
 def workspace(cell: Cell) -> Workspace | None:
@@ -145,6 +149,13 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
         big, unit = grown_model(model)
         model = big or model
         growth = unit if big is not None and not informed_prior else None
+    k, n = model.surface.size, cell.plan.candidates
+    if n * k > MAX_CANDIDATE_ENTRIES:  # refused before anything is allocated or moved
+        raise ConfigError(
+            f"plan.candidates={n} with {k} spline coefficients (model.knots_x x knots_y"
+            f"{', refined where the model grows' if k > coarse_size else ''}) scores "
+            f"{n * k * 8 / 1e9:.1f} GB of basis rows each decision: give at most "
+            f"{MAX_CANDIDATE_ENTRIES // k} candidates, or fewer knots")
     wp, m = cell.workplane, cell.workplane.edge_margin_mm
     inner = ((wp.x_mm[0] + m, wp.x_mm[1] - m), (wp.y_mm[0] + m, wp.y_mm[1] - m))
     cand = candidate_grid(model.surface, wp.allows, *inner, cell.plan.candidates)
