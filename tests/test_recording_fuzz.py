@@ -30,7 +30,7 @@ from recording_mutants import FAMILIES, mutant
 SEED, MUTANTS, SECONDS_EACH = 16, 200, 60
 # a refusal names where: path:line, a column, the header, the first line, or what is missing
 NAMES_WHERE = re.compile(r"\.csv:\d+|column|header|first line|not an adaptive-cal recording|"
-                         r"touches|rows?\b|not UTF-8|no such file|recording version", re.I)
+                         r"touch(es)?\b|rows?\b|not UTF-8|no such file|recording version", re.I)
 
 
 class _Timeout(Exception):
