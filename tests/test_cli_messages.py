@@ -137,7 +137,8 @@ def test_a_table_with_another_separator_is_told_to_use_commas(sep, name, tmp_pat
     from adaptive_cal.cli import main
 
     f = tmp_path / "export.csv"
-    f.write_text(sep.join(["y_mm", "x_mm", "height_mm"]) + "\n" + sep.join(["1", "2", "0.1"]) + "\n")
+    f.write_text(sep.join(["y_mm", "x_mm", "height_mm"]) + "\n"
+                 + sep.join(["1", "2", "0.1"]) + "\n")
     assert main(["flatness", str(f)]) == 2
     err = capsys.readouterr().err
     assert f"its columns are separated by {name}" in err and "commas" in err, err
@@ -175,7 +176,8 @@ def test_a_broken_belief_npz_is_named(tmp_path, capsys):
     assert main(["run", "--robot", str(CELL), "--out", str(run), "--no-progress"]) == 0
     whole = (run / "belief.npz").read_bytes()
     for data, words in ((b"junk\n", "not an .npz file adaptive-cal wrote"),
-                        (whole[:400], "not an .npz file adaptive-cal wrote"), (None, "no array 'cov'")):
+                        (whole[:400], "not an .npz file adaptive-cal wrote"),
+                        (None, "no array 'cov'")):
         if data is None:
             np.savez(run / "belief.npz", mean=np.zeros(3))
         else:

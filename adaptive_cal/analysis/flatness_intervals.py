@@ -86,7 +86,7 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
     """Tilt, flatness figures with 95 % intervals and average ranges of one recording (JSON-ready),
     and the sampled figures (for ``compare``). ``path``: the recording's path, or a Recording."""
     rec = path if isinstance(path, Recording) else read_recording(path)
-    path = rec.path or "the recording" if isinstance(path, Recording) else path
+    path = (rec.path or "the recording") if isinstance(path, Recording) else path
     x, y, z = heights(rec)
     if len(z) < 4:
         raise ValueError(f"{path}: {len(z)} usable touch{'es' * (len(z) != 1)}; flatness needs "

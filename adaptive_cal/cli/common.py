@@ -27,7 +27,7 @@ class DefaultsShown(argparse.HelpFormatter):
 
 def at_least(minimum: int):
     """argparse type: an integer of at least ``minimum``; argparse names the option and the value
-    ("argument --samples: -5 is below 1") instead of failing later inside numpy."""
+    ("argument --seed: -1 is below 0") instead of failing later inside numpy."""
     def parse(text: str) -> int:
         try:
             value = int(text)

@@ -97,7 +97,8 @@ def map_flatness(args) -> dict | None:
     xyz = touched_heights(plan, rec)
     if len(xyz[2]) < 4:
         n = len(xyz[2])
-        raise UserError(f"{rec_path}: {n} usable touch{'es' * (n != 1)}; flatness needs at least 4")
+        raise UserError(f"{rec_path}: {n} usable touch{'es' * (n != 1)}; flatness needs at "
+                        "least 4")
     out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
                           args.samples or SAMPLES)
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),

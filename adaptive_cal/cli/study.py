@@ -24,7 +24,8 @@ def add_arguments(p) -> None:
                    help="Dask scheduler (tcp://host:port); workers need OPENBLAS_NUM_THREADS=1")
     p.add_argument("--workers", type=at_least(0), default=0,
                    help="run on a Dask LocalCluster of N worker processes (0: in-process)")
-    p.add_argument("--plates", type=at_least(1), help="override the study's number of plates (at least 1)")
+    p.add_argument("--plates", type=at_least(1),
+                   help="override the study's number of plates (at least 1)")
     p.add_argument("--strategies", help="override the study's strategies (comma separated)")
     p.add_argument("--doc", metavar="PAGE.md", help="write the study page (docs/study.md)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
