@@ -188,3 +188,27 @@ def test_a_broken_belief_npz_is_named(tmp_path, capsys):
             assert main(argv) == 2, argv
             err = capsys.readouterr().err
             assert f"{run / 'belief.npz'}: {words}" in err and "Traceback" not in err, err
+
+
+def test_a_file_where_a_folder_is_needed_is_said_so(tmp_path, capsys, monkeypatch):
+    """--out naming a file: "[Errno 17] File exists: 'afile'"; --grid under a file: an
+    'internal error: NotADirectoryError'. Now the path first, then what is wrong with it."""
+    from adaptive_cal.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("x")
+    run = tmp_path / "run"
+    assert main(["run", "--robot", str(CELL), "--out", str(run), "--no-progress"]) == 0
+    capsys.readouterr()
+    for argv, words in (
+            (["run", "--robot", str(CELL), "--out", "afile"],
+             "afile: a file is in the way where a folder is needed"),
+            (["report", str(run), "--out", "afile/x.html"],
+             "afile: a file is in the way where a folder is needed"),
+            (["compensate", "--map", str(run), "--grid", "afile/g.csv"],
+             "afile/g.csv: part of this path is a file, not a folder"),
+            (["compensate", "--map", str(run), "--grid", str(tmp_path)],
+             f"{tmp_path}: Is a directory")):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert words in err and "internal error" not in err and "Errno" not in err, err

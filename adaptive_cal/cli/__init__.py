@@ -74,11 +74,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(importlib.import_module(args._module).command(args) or 0)
     except (UserError, ConfigError, RecordingError, AdapterError, FileNotFoundError,
-            FileExistsError, PermissionError, ValueError) as e:
+            FileExistsError, PermissionError, NotADirectoryError, IsADirectoryError,
+            ValueError) as e:
         if args.debug:
             raise
         notes = "".join(f"\n  {n}" for n in getattr(e, "__notes__", ()))
-        print(f"adaptive-cal {args.subcommand}: error: {e}{notes}", file=sys.stderr)
+        print(f"adaptive-cal {args.subcommand}: error: {_said(e)}{notes}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"adaptive-cal {args.subcommand}: interrupted", file=sys.stderr)
@@ -96,3 +97,17 @@ def main(argv: list[str] | None = None) -> int:
               "(run again with --debug for the traceback, and please report it)", file=sys.stderr)
         return 1
 
+
+
+def _said(e: BaseException) -> str:
+    """An error as the user reads it: an OS error on a path given as "PATH: what is wrong", the
+    path named first ("[Errno 17] File exists: 'out'" says neither that 'out' is a file nor that
+    a folder was wanted); everything else as its own message."""
+    name = getattr(e, "filename", None)
+    if not isinstance(e, OSError) or name is None or not e.strerror:
+        return str(e)
+    if isinstance(e, FileExistsError) and os.path.isfile(name):
+        return f"{name}: a file is in the way where a folder is needed"
+    if isinstance(e, NotADirectoryError):
+        return f"{name}: part of this path is a file, not a folder"
+    return f"{name}: {e.strerror}"
