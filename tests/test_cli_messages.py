@@ -212,3 +212,18 @@ def test_a_file_where_a_folder_is_needed_is_said_so(tmp_path, capsys, monkeypatc
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert words in err and "internal error" not in err and "Errno" not in err, err
+
+
+def test_a_folder_or_binary_file_given_as_yaml(tmp_path, capsys):
+    """Was "not a UTF-8 text file (IsADirectoryError)" for a folder."""
+    from adaptive_cal.cli import main
+
+    (tmp_path / "bad.yaml").write_bytes(b"\xff\xfe")
+    for argv, words in ((["study", str(tmp_path), "--json", str(tmp_path / "x.json")],
+                         f"{tmp_path}: a folder, not a YAML file"),
+                        (["emulate", "--robot", str(tmp_path)], "a folder, not a YAML file"),
+                        (["run", "--robot", str(tmp_path / "bad.yaml"), "--out",
+                          str(tmp_path / "o")], "bad.yaml: not a UTF-8 text file (invalid start")):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert words in err and "Traceback" not in err, err

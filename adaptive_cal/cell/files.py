@@ -205,8 +205,10 @@ def load_yaml(path: str | Path) -> dict:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
-    except (UnicodeDecodeError, IsADirectoryError) as e:
-        raise ConfigError(f"{path}: not a UTF-8 text file ({type(e).__name__})") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: a folder, not a YAML file") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
     try:
         data = parse_yaml(text, str(path))
     except yaml.YAMLError as e:
