@@ -98,7 +98,6 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
-
 def _said(e: BaseException) -> str:
     """An error as the user reads it: an OS error on a path given as "PATH: what is wrong", the
     path named first ("[Errno 17] File exists: 'out'" says neither that 'out' is a file nor that
