@@ -15,19 +15,18 @@ def read_npz(path: str | os.PathLike, keys=BELIEF_KEYS) -> dict[str, np.ndarray]
     the file when it is not an .npz numpy wrote or lacks one of ``keys``."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in keys if k not in data.files]
-            if missing:
-                raise ValueError(f"{path}: no array {missing[0]!r} (it holds "
-                                 f"{', '.join(data.files) or 'nothing'}): not a file "
-                                 "adaptive-cal wrote")
-            return {k: data[k] for k in keys}
+            held = list(data.files)
+            arrays = {k: data[k] for k in keys if k in held}
+    except FileNotFoundError:
+        raise
     except (zipfile.BadZipFile, OSError, EOFError) as e:
-        if isinstance(e, FileNotFoundError):
-            raise
         raise ValueError(f"{path}: not an .npz file adaptive-cal wrote ({e}); was it cut "
                          "short or overwritten?") from None
-    except ValueError as e:
-        if str(e).startswith(f"{path}:"):
-            raise
+    except ValueError:  # not an archive numpy reads, or an array of pickled objects
         raise ValueError(f"{path}: not an .npz file adaptive-cal wrote (not a zip archive of plain "
                          "arrays); was it cut short or overwritten?") from None
+    missing = [k for k in keys if k not in arrays]
+    if missing:
+        raise ValueError(f"{path}: no array {missing[0]!r} (it holds "
+                         f"{', '.join(held) or 'nothing'}): not a file adaptive-cal wrote")
+    return arrays
