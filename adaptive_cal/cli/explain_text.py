@@ -56,7 +56,8 @@ def touches_lines(touches: list[dict]) -> list[str]:
 
 
 def readings_lines(report: dict, shown: int = 5) -> list[str]:
-    """The suspect readings set aside (the first ``shown``) and a heavy-tailed noise judgement."""
+    """The suspect readings set aside (the first ``shown``), a heavy-tailed noise judgement and
+    the scaling of the evidence for readings correlated from one touch to the next."""
     sus, readings = report.get("suspect_readings") or [], report.get("readings") or {}
     out = []
     if sus:
@@ -72,6 +73,11 @@ def readings_lines(report: dict, shown: int = 5) -> list[str]:
         out.append(f"reading noise: heavy-tailed (Student-t, {noise['dof']:g} dof; log likelihood "
                    f"ratio {noise['log_lr_vs_gaussian']:.1f} against Gaussian): every effect "
                    "is judged against heavy-tailed noise")
+    serial = noise.get("serial")
+    if serial:
+        out.append(f"reading noise: consecutive readings correlated (lag-1 {serial['lag1_correlation']:+.2f}"
+                   f"): every log Bayes factor scaled by {serial['evidence_factor']:.2f}, the "
+                   "readings' effective share")
     return out
 
 

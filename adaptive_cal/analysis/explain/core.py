@@ -187,6 +187,33 @@ def _screened(design: Design):
     return scored_design, ctx, cands, suspects, noise
 
 
+def serially_deflated(cands: list[Candidate], structure: dict) -> tuple[list[Candidate], dict | None]:
+    """Every log BF scaled by the readings' effective share where the residual of the library's
+    best explanation says consecutive readings are correlated (the serial-correlation test of
+    ``structure`` is real): the candidates, best first, and {lag1_correlation,
+    evidence_factor}; unchanged and None otherwise.
+
+    The evidence takes the readings as independent. Under an AR(1) disturbance of lag-1
+    correlation rho, a slowly varying column's least-squares coefficient has about
+    (1 + rho) / (1 - rho) times the variance that independence gives -- n readings are worth
+    n (1 - rho) / (1 + rho) (Bayley & Hammersley 1946, "The effective number of independent
+    observations in an autocorrelated time series", JRSS Suppl. 8, 184-197) -- so its chi-square
+    and the log BF that grows with it are scaled by that share. rho is the residual's lag-1
+    correlation less its value under independence; the library's fit has taken up part of the
+    disturbance already, so the scaling errs on the side of the evidence. A disturbance that
+    lasts from touch to touch makes a wander along the path look like drift, form or sag (30 %
+    of AR(1) nulls, rho = 0.5, named a library effect before the test; docs/explain.md)."""
+    test = structure.get("tests", {}).get("serial correlation")
+    if not cands or not test or not test.get("real"):
+        return cands, None
+    rho = float(np.clip(test["excess_rho"], 0.0, 0.95))
+    factor = (1.0 - rho) / (1.0 + rho)
+    out = sorted((replace(c, log_bf=float(c.log_bf * factor)) if c.log_bf > 0 else c
+                  for c in cands), key=lambda c: -c.log_bf)
+    return out, {"lag1_correlation": float(test["lag1_correlation"]),
+                 "evidence_factor": float(factor)}
+
+
 def _separated(entries: list[dict], verdict: str, ambiguous: list[str]) -> list[dict]:
     """The verdict is never listed as not identifiable where the data separated it (nothing is
     ``ambiguous_with`` it): a named bump is not also "not identifiable" for the design's
@@ -211,6 +238,12 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     best = cands[0] if cands else None
     winner = best if best and best.log_bf > threshold else None
     structure = residual_structure(ctx, cands, winner, threshold, design.noise_stated_mm)
+    cands, serial = serially_deflated(cands, structure)
+    if serial is not None:  # the evidence re-judged: the library may no longer name anything
+        best = cands[0] if cands else None
+        winner = best if best and best.log_bf > threshold else None
+        if winner is None and structure.get("finding"):
+            structure["unexplained"] = True
     unexplained = structure.pop("unexplained")
     nearest = winner
     if unexplained:
@@ -252,7 +285,8 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
                      "suspect": len(suspects), "noise": {
                          "distribution": "gaussian" if noise["nu"] is None else "student_t",
                          "dof": noise["nu"], "log_lr_vs_gaussian": noise["log_lr_vs_gaussian"],
-                         "judged_under": noise["judged_under"]}},
+                         "judged_under": noise["judged_under"],
+                         **({"serial": serial} if serial is not None else {})}},
         "not_identifiable": (_separated(not_identifiable(ctx, sigma, verdict=verdict, ambiguous=tuple(
             ambiguous)), verdict, ambiguous) if identifiability else []),
         "mismatch": locate(ctx),

@@ -32,7 +32,7 @@ from adaptive_cal.analysis.explain.locate import axis_bases, where
 MAX_COLUMNS = 48  # of a one-coordinate basis (memory: n x 48 floats)
 ALPHA = 0.01  # family-wise false-alarm rate of the structure tests on a recording of noise only
 AXIS_OF = {"position along x": "position", "position along y": "position",
-           "direction along y": "direction"}
+           "direction along y": "direction", "serial correlation": "time"}
 
 
 def arrival(v: np.ndarray, round_index: np.ndarray) -> np.ndarray:
@@ -93,6 +93,45 @@ def _axis_test(P: Projector, r: np.ndarray, m: int, X: np.ndarray) -> dict:
             "q": q}
 
 
+def touch_pairs(d) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (i, j) of every pair of touches taken one after the other in the same round."""
+    order = np.lexsort((d.seq, d.round_index))
+    same = d.round_index[order[1:]] == d.round_index[order[:-1]]
+    return order[:-1][same], order[1:][same]
+
+
+def serial_test(P: Projector, r: np.ndarray, m: int, pairs) -> dict:
+    """Readings correlated from one touch to the next (vibration, a wandering temperature, a
+    gauge that settles): the lag-1 autocorrelation R = r^T A r / r^T r of the residual in the
+    order taken (A: 1/2 on each pair of consecutive touches of a round), one-sided.
+
+    Under independent Gaussian noise r = M e with M the residual projector, and R is a ratio of
+    quadratic forms in e independent of its denominator, so its mean and variance are exact
+    (Durbin & Watson 1950, "Testing for serial correlation in least squares regression I",
+    Biometrika 37, 409-428): E R = tr(M A) / m, Var R = 2 (tr((M A)^2) - (tr(M A))^2 / m) /
+    (m (m + 2)); the p-value is the normal tail of (R - E R) / sd R. The traces take the basis Q
+    of span(M)'s complement only (O(n rank), no n x n matrix): A is sparse."""
+    i, j = pairs
+    q, rr = int(i.size), float(r @ r)
+    if q < 8 or m < 8 or rr <= 0.0:
+        return {"p_value": 1.0, "excess_mm2": 0.0, "q": 0}
+    Q = P.basis
+    AQ = np.zeros_like(Q)  # A Q, A symmetric with 1/2 at (i, j) and (j, i)
+    np.add.at(AQ, i, 0.5 * Q[j])
+    np.add.at(AQ, j, 0.5 * Q[i])
+    QAQ = Q.T @ AQ
+    tr_ma = -float(np.trace(QAQ))  # tr(A) = 0
+    # tr(MAMA) = tr(A^2) - 2 tr(Q^T A^2 Q) + tr((Q^T A Q)^2)
+    tr_a2 = 0.5 * q  # each pair gives (1/2)^2 at (i, j) and (j, i), twice in the trace
+    tr_mama = tr_a2 - 2.0 * float(np.sum(AQ * AQ)) + float(np.sum(QAQ * QAQ))
+    mean = tr_ma / m
+    var = 2.0 * (tr_mama - tr_ma ** 2 / m) / (m * (m + 2.0))
+    R = float(r[i] @ r[j]) / rr
+    z = (R - mean) / np.sqrt(max(var, 1e-300))
+    return {"p_value": float(special.ndtr(-z)), "excess_mm2": max(R - mean, 0.0) * rr,
+            "q": 1, "lag1_correlation": R, "excess_rho": max(R - mean, 0.0)}
+
+
 def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate | None,
                        threshold: float, noise_mm: float) -> dict:
     """The ``structure_after_model`` block, and whether the verdict is ``unexplained``."""
@@ -105,6 +144,7 @@ def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate |
     if m < 4:
         return {"unexplained": False, "tests": {}, "note": "too few readings to test"}
     tests = {name: _axis_test(P, r, m, X) for name, X in _bases(ctx).items()}
+    tests["serial correlation"] = serial_test(P, r, m, touch_pairs(d))
     rss = float(r @ r)
     if noise_mm > 0:
         tests["noise"] = {"p_value": float(special.chdtrc(m, max(rss / noise_mm ** 2, 0.0))),
@@ -169,6 +209,12 @@ def _detail(name: str, t: dict, r: np.ndarray, ctx: Context) -> str:
                          if m.any())  # a raster never arrives moving -y
         return (f"the residual averages {said} (no library effect acts along y's direction): "
                 f"{what}")
+    if name == "serial correlation":
+        return (f"consecutive readings are correlated (lag-1 correlation "
+                f"{t['lag1_correlation']:+.2f} of the residual in the order taken; independent "
+                f"readings give about 0): a disturbance that lasts from one touch to the next "
+                f"(vibration, a wandering temperature, a gauge that settles), not an effect of the "
+                f"library, and evidence that takes the readings as independent is overstated: {what}")
     if name.startswith("position along"):
         return f"a function of {name[-1]} alone, finer than the library's form: {what}"
     return f"along {name}, beyond every library effect: {what}"
