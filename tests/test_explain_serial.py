@@ -95,7 +95,7 @@ def test_a_named_effect_under_correlated_noise_has_its_evidence_scaled(tmp_path,
     """A 15 sigma form read through white noise plus an AR(1) disturbance (rho 0.8, each 5 um;
     the cell states their 7.1 um together): form is still named, every log BF is scaled by the
     effective share, and the JSON and the terminal say so."""
-    from adaptive_cal.cli.explain_text import readings_lines
+    from adaptive_cal.report.explain_text import readings_lines
 
     rng = np.random.default_rng(5)
     case = gen.recording("form", rng, 15.0)

@@ -233,7 +233,7 @@ def test_batched_passes_set_aside_what_one_at_a_time_does(seed):
 def test_terminal_lists_suspects_and_heavy_tails():
     """The CLI's text names each suspect reading (seq, place, residual in um) and says when the
     noise was judged heavy-tailed; nothing when there is neither."""
-    from adaptive_cal.cli.explain_text import readings_lines
+    from adaptive_cal.report.explain_text import readings_lines
 
     report = {"suspect_readings": [{"seq": 7, "x_mm": -12.5, "y_mm": 40.0, "residual_mm": 0.0614,
                                     "probability": 0.998}],

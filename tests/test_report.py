@@ -94,10 +94,42 @@ def test_explain_findings_appear_when_present(explained, capsys):
     html = _page(explained, capsys)
     rep = json.loads((explained / "explain.json").read_text())
     assert "Explain: what the simulation left out" in html
-    assert f"verdict: <b>{rep['verdict']}</b>" in html
+    assert f"verdict: <b>{rep['verdict']}</b> (probability {rep['verdict_probability']:.2f}" in html
     assert "leave-one-out RMS" in html
     assert "residual_map.png" in html  # explain's own figure, embedded
     assert "No explain findings" not in html
+
+
+def test_report_says_what_is_unexplained_where_and_what_was_set_aside(explained, tmp_path,
+                                                                      capsys):
+    """An ``unexplained`` verdict with its axis, detail and places, the suspect readings and the
+    noise judgement reach the page, as the terminal prints them (escaped)."""
+    d = tmp_path / "run"
+    shutil.copytree(explained, d)
+    rep = json.loads((d / "explain.json").read_text())
+    rep.update({
+        "verdict": "unexplained", "verdict_probability": 0.981, "ambiguous_with": [],
+        "unexplained": {"axis": "time", "test": "serial correlation", "p_value": 1e-3,
+                        "structure_rms_mm": 0.004, "library_share": 0.0,
+                        "nearest_library_effect": None,
+                        "where": [{"x_mm": 55.0, "y_mm": 15.0, "residual_mm": 0.0054}],
+                        "detail": "consecutive readings are correlated (lag-1 +0.32) <x>"},
+        "suspect_readings": [{"seq": 7, "x_mm": -20.0, "y_mm": 40.0, "residual_mm": 0.061,
+                              "probability": 0.99}],
+        "readings": {"total": 31, "used": 30, "suspect": 1, "noise": {
+            "distribution": "gaussian", "dof": None, "log_lr_vs_gaussian": 0.0,
+            "judged_under": "none",
+            "serial": {"lag1_correlation": 0.32, "evidence_factor": 0.47}}}})
+    (d / "explain.json").write_text(json.dumps(rep))
+    html = _page(d, capsys)
+    assert ("verdict: <b>unexplained</b> (probability, bounded from the structure test&#x27;s "
+            "p-value 0.98)") in html
+    assert "unexplained structure along time: consecutive readings are correlated" in html
+    assert "&lt;x&gt;" in html and "<x>" not in html  # the detail is escaped
+    assert "near x 55, y 15 mm: residual +5.4 um" in html
+    assert "suspect readings, set aside (not physics): 1 of 31" in html
+    assert "seq 7 at x -20, y 40 mm: residual +61.0 um, P(gross error) 0.99" in html
+    assert "every log Bayes factor scaled by 0.47" in html
 
 
 def test_out_option_and_errors_without_traceback(run_dir, tmp_path, capsys):

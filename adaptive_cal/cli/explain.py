@@ -29,7 +29,7 @@ def add_arguments(parser) -> None:
 
 
 def _print(report: dict) -> None:
-    from adaptive_cal.cli.explain_text import lines
+    from adaptive_cal.report.explain_text import lines
     from adaptive_cal.effects import EFFECTS
 
     units = {name: {p.name: p.unit for p in e.params} for name, e in EFFECTS.items()}

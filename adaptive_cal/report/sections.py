@@ -14,6 +14,7 @@ from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE,
                                                    touched_what, value_text)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
+from adaptive_cal.report.explain_text import readings_lines, verdict_lines
 from adaptive_cal.report.status import missing, next_step
 
 UM = 1000.0
@@ -194,10 +195,17 @@ def explain_section(run_dir: Path) -> str:
                 f"{escape(run_dir)}</code>, then run the report again.</p>")
     findings = read_json(path)
     fit = findings.get("fit", {})
+    verdict = findings.get("verdict", "-")
+    head, *more = verdict_lines({**findings, "verdict": verdict})
+    said = escape(head.removeprefix(f"verdict: {verdict}"))
     parts = ["<h2>Explain: what the simulation left out</h2>",
-             f"<p class='verdict'>verdict: <b>{escape(findings.get('verdict', '-'))}</b>"
-             + (" (no left-out effect is supported by the data)" if findings.get("verdict") == "none" else "")
+             f"<p class='verdict'>verdict: <b>{escape(verdict)}</b>{said}"
+             + (" (no left-out effect is supported by the data)" if verdict == "none" else "")
              + "</p>"]
+    more += readings_lines(findings)  # the structure left, suspect readings, the noise judged
+    if more:
+        parts.append("<ul>" + "".join(f"<li>{escape(line.strip())}</li>" for line in more)
+                     + "</ul>")
     rows = [(escape(e["effect"]), escape(e["summary"])) for e in findings.get("left_out", [])]
     if rows:
         parts.append(_table(rows, head=("effect", "fitted (log Bayes factor against none)")))

@@ -81,12 +81,16 @@ def readings_lines(report: dict, shown: int = 5) -> list[str]:
     return out
 
 
-def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
-    fit, amb = report["fit"], report.get("ambiguous_with") or []
+def verdict_lines(report: dict) -> list[str]:
+    """The verdict with its probability and what it cannot be told from, then for
+    ``unexplained`` the structure left, its axis and where (the terminal's and the report's)."""
+    amb = report.get("ambiguous_with") or []
     kind = ("probability, bounded from the structure test's p-value" if report["verdict"] ==
             "unexplained" else "probability")
-    out = [f"verdict: {report['verdict']} ({kind} {report['verdict_probability']:.2f}"
-           + (f"; cannot be told apart from {', '.join(amb)} on this design" if amb else "") + ")"]
+    p = report.get("verdict_probability")
+    said = [f"{kind} {p:.2f}"] if p is not None else []
+    said += [f"cannot be told apart from {', '.join(amb)} on this design"] if amb else []
+    out = [f"verdict: {report['verdict']}" + (f" ({'; '.join(said)})" if said else "")]
     u = report.get("unexplained")
     if u:
         near = (f"; the nearest library effect, {u['nearest_library_effect']}, explains "
@@ -94,6 +98,12 @@ def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
         out.append(f"  unexplained structure along {u['axis']}: {u['detail']}{near}")
         out.extend(f"    near x {w['x_mm']:g}, y {w['y_mm']:g} mm: residual "
                    f"{1e3 * w['residual_mm']:+.1f} um" for w in u["where"])
+    return out
+
+
+def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
+    fit = report["fit"]
+    out = verdict_lines(report)
     for e in report["left_out"]:
         out.append(left_out_line(e, units.get(e["effect"], {})))
     out.extend(readings_lines(report))
