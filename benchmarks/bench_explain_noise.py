@@ -16,8 +16,12 @@ code); only the noise of each null recording is replaced, here, by one of:
 
 Each case is written as a cell file and a v1 recording and read back, as a real one reaches
 explain. A library effect named is a false positive (``unexplained`` is counted beside it).
+``--effects 6,10``: also single library effects (form bow, sag, drift, defect, reversal; S-path
+and random designs in turn) at those k sigma, their noise AR(1) as above and, beside it, the
+generator's own white noise: how often each is still named.
 
     python benchmarks/bench_explain_noise.py [--n 40] [--kinds ar1,laplace,...] [--seed 7]
+        [--effects 6,10] [--n-effects 30]
 """
 from __future__ import annotations
 
@@ -76,6 +80,50 @@ def null_case(kind: str, rng: np.random.Generator) -> G.Case:
     return case
 
 
+class AR1Draws:
+    """A Generator whose noise draw is AR(1): the independent generator draws a recording's
+    noise last, as ``standard_normal(n)`` with n the touches; that draw (an int size above 20)
+    is made correlated, lag-1 ``rho``, unit marginal sd. Everything else is the Generator's."""
+
+    def __init__(self, rng: np.random.Generator, rho: float):
+        self.rng, self.rho = rng, rho
+
+    def __getattr__(self, name):
+        return getattr(self.rng, name)
+
+    def standard_normal(self, size=None, *args, **kw):
+        e = self.rng.standard_normal(size, *args, **kw)
+        if not (isinstance(size, (int, np.integer)) and size > 20 and self.rho):
+            return e
+        z = np.empty(size)
+        z[0] = e[0]
+        for i in range(1, size):
+            z[i] = self.rho * z[i - 1] + np.sqrt(1.0 - self.rho ** 2) * e[i]
+        return z
+
+
+EFFECTS = ("form:bow", "arm_sag", "thermal_drift", "local_defect", "reversal")
+
+
+def effects_table(sigmas: list[float], n: int, seed: int, run) -> None:
+    """Single effects named right under AR(1) noise (rho 0.5) and under white noise."""
+    for k in sigmas:
+        for rho in (0.0, 0.5):
+            for eff in EFFECTS:
+                name = eff.split(":")[0]
+                got, scaled = Counter(), 0
+                for i in range(n):
+                    rng = AR1Draws(np.random.default_rng([seed, i, *eff.encode()]), rho)
+                    case = G.generate("single", (eff,), k, ("s_path", "random")[i % 2], rng)
+                    f = run(case)
+                    v = f["verdict"]
+                    got["right" if v == name else v if v in ("none", "unexplained") else "other"] += 1
+                    scaled += "serial" in f["readings"]["noise"]
+                print(f"{k:g} sigma, {'AR(1) 0.5' if rho else 'white    '} {name:14s} right "
+                      f"{got['right']}/{n}, unexplained {got['unexplained']}, none {got['none']}, "
+                      f"another effect {got['other']}; evidence scaled in {scaled}", flush=True)
+
+
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     p = k / n
     mid = (p + z * z / (2 * n)) / (1 + z * z / n)
@@ -88,20 +136,24 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--n", type=int, default=40, help="recordings per noise kind")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--effects", default="", help="k sigma of single effects, e.g. 6,10")
+    ap.add_argument("--n-effects", type=int, default=30, help="recordings per effect and k")
     args = ap.parse_args(argv)
     from adaptive_cal.analysis.explain import explain
     from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.formats.recording import read_recording
 
+    def run(case):
+        with tempfile.TemporaryDirectory() as tmp:
+            cell, recs = G.write(case, Path(tmp))
+            return explain([read_recording(p) for p in recs], load_cell(cell)).findings
+
     t0 = time.perf_counter()
-    for kind in args.kinds.split(","):
+    for kind in [k for k in args.kinds.split(",") if k]:
         rng = np.random.default_rng([args.seed, *kind.encode()])
         verdicts, named, high = Counter(), 0, 0
         for _ in range(args.n):
-            case = null_case(kind, rng)
-            with tempfile.TemporaryDirectory() as tmp:
-                cell, recs = G.write(case, Path(tmp))
-                f = explain([read_recording(p) for p in recs], load_cell(cell)).findings
+            f = run(null_case(kind, rng))
             verdicts[f["verdict"]] += 1
             if f["verdict"] not in ("none", "unexplained"):
                 named += 1
@@ -110,6 +162,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{kind:13s} library effect named {named}/{args.n} = {100 * named / args.n:.1f} % "
               f"[{100 * lo:.1f}, {100 * hi:.1f}], at p >= 0.9: {high}; verdicts "
               + ", ".join(f"{k} {v}" for k, v in verdicts.most_common()), flush=True)
+    if args.effects:
+        effects_table([float(v) for v in args.effects.split(",")], args.n_effects, args.seed, run)
     print(f"wall time {time.perf_counter() - t0:.0f} s")
 
 
