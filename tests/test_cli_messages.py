@@ -227,3 +227,19 @@ def test_a_folder_or_binary_file_given_as_yaml(tmp_path, capsys):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err, err
+
+
+def test_a_check_across_a_block_is_not_echoed_whole(tmp_path, capsys):
+    """Was "probe: noise_range_mm must be [low, high] with low < high, got [0.004, 0.001] (got
+    {'adapter': 'sim', 'noise_range_mm': [0.004, 0.001], 'noise_std_mm': 0.005, '...)"."""
+    from adaptive_cal.cli import main
+
+    text = CELL.read_text(encoding="utf-8").replace(
+        "  # noise_range_mm: [0.001, 0.004]", "  noise_range_mm: [0.004, 0.001]")
+    assert "noise_range_mm: [0.004, 0.001]" in text
+    (tmp_path / "cell.yaml").write_text(text, encoding="utf-8")
+    assert main(["run", "--robot", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert ("  probe: noise_range_mm must be [low, high] with low < high, got [0.004, 0.001]\n"
+            in err), err
+    assert "(got {" not in err and "'adapter'" not in err
