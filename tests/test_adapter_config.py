@@ -30,7 +30,7 @@ def edited(base, path, value):
     (HSES, "probe.adapter", "laser", "probe.adapter: Input should be"),
     (HSES, "robot.hses.host", KeyError, "robot.hses.host: missing"),
     (HSES, "robot.hses.port", KeyError, "robot.hses.port: missing"),
-    (HSES, "robot.hses.host", " ", "robot.hses.host: host must be"),
+    (HSES, "robot.hses.host", " ", "robot.hses.host: must be an IP address or a host name"),
     (HSES, "robot.hses.tmeout_s", 1, "robot.hses.tmeout_s: unknown key"),
     (HSES, "robot.hses", KeyError, "needs a robot.hses block"),
     (HSES, "probe.serial.baudrate", 9601, "probe.serial.baudrate: baud rate 9601 does not exist"),

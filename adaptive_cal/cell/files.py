@@ -54,11 +54,12 @@ def _format(err: ValidationError, source: str) -> str:
             continue
         if e["type"] == "extra_forbidden":
             msg = "unknown key (check the spelling; unknown keys are refused)"
-        if isinstance(e.get("input"), dict) and e["type"] != "missing":
+        if (isinstance(e.get("input"), dict) or ", got " in msg) and e["type"] != "missing":
             # a check across a block's keys names them and the values in its message; an
             # echo of the whole block says nothing more ("probe: noise_range_mm must be [low,
-            # high] with low < high, got [0.004, 0.001]", not "... (got {'adapter': ...")
-            lines.append(f"  {key}: {msg}")
+            # high] with low < high, got [0.004, 0.001]", not "... (got {'adapter': ..."), nor
+            # one of a value the message already gives ("..., got [0.02, 0.005]")
+            lines.append(f"  {key}: {msg.removeprefix(key.rsplit('.', 1)[-1] + ' ')}")
             continue
         lines.append(f"  {key}: {msg} (got {echo(e.get('input'))})" if e["type"] != "missing"
                      else f"  {key}: missing")
