@@ -201,8 +201,9 @@ def serially_deflated(cands: list[Candidate], structure: dict) -> tuple[list[Can
     and the log BF that grows with it are scaled by that share. rho is the residual's lag-1
     correlation less its value under independence; the library's fit has taken up part of the
     disturbance already, so the scaling errs on the side of the evidence. A disturbance that
-    lasts from touch to touch makes a wander along the path look like drift, form or sag (30 %
-    of AR(1) nulls, rho = 0.5, named a library effect before the test; docs/explain.md)."""
+    lasts from touch to touch makes a wander along the path look like drift, form or sag (25 %
+    of 100 AR(1) nulls, rho = 0.5, named a library effect before the test, 11 % after;
+    benchmarks/bench_explain_noise.py)."""
     test = structure.get("tests", {}).get("serial correlation")
     if not cands or not test or not test.get("real"):
         return cands, None
