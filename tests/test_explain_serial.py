@@ -12,6 +12,15 @@ from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.formats.recording import read_recording
 
 
+def _ar1(e: np.ndarray, rho: float) -> np.ndarray:
+    """AR(1) with lag-1 correlation ``rho`` and unit marginal sd, driven by the N(0, 1) ``e``."""
+    ar = np.empty(e.size)
+    ar[0] = e[0]
+    for k in range(1, e.size):
+        ar[k] = rho * ar[k - 1] + np.sqrt(1.0 - rho * rho) * e[k]
+    return ar
+
+
 def _design(n=60, seed=0):
     rng = np.random.default_rng(seed)
     x, y = rng.uniform(-200, 200, n), rng.uniform(-150, 150, n)
@@ -58,10 +67,7 @@ def test_serial_test_sees_correlated_noise_and_not_independent_noise():
     n = P.basis.shape[0]
     rng = np.random.default_rng(3)
     e = rng.standard_normal(n)
-    ar = np.empty(n)
-    ar[0] = e[0]
-    for k in range(1, n):
-        ar[k] = 0.6 * ar[k - 1] + 0.8 * e[k]
+    ar = _ar1(e, 0.6)
     hit = serial_test(P, P(ar), m, pairs)
     assert hit["p_value"] < 1e-3 and hit["lag1_correlation"] > 0.3  # 1e-3: the level after
     # the Bonferroni correction over the eleven structure tests (ALPHA = 0.01)
@@ -76,11 +82,7 @@ def test_ar1_noise_is_unexplained_along_time_not_a_library_effect(tmp_path):
         rng = np.random.default_rng([11, seed])
         case = gen.recording("null", rng)
         n = case["x"].size
-        e = rng.standard_normal(n)
-        ar = np.empty(n)
-        ar[0] = e[0]
-        for k in range(1, n):
-            ar[k] = 0.6 * ar[k - 1] + 0.8 * e[k]
+        ar = _ar1(rng.standard_normal(n), 0.6)
         plane = rng.normal(0, 1e-4) * case["x"] + rng.normal(0, 1e-4) * case["y"] + 0.1
         case["reading"] = plane + gen.NOISE_MM * ar  # in place of the generator's white noise
         cell, rec = gen.write(tmp_path, case)
@@ -100,11 +102,7 @@ def test_a_named_effect_under_correlated_noise_has_its_evidence_scaled(tmp_path,
     rng = np.random.default_rng(5)
     case = gen.recording("form", rng, 15.0)
     n = case["x"].size
-    e = rng.standard_normal(n)
-    ar = np.empty(n)
-    ar[0] = e[0]
-    for k in range(1, n):
-        ar[k] = 0.8 * ar[k - 1] + 0.6 * e[k]
+    ar = _ar1(rng.standard_normal(n), 0.8)
     case["reading"] = case["reading"] + gen.NOISE_MM * ar
     cell, rec = gen.write(tmp_path, case, stated_noise_mm=gen.NOISE_MM * np.sqrt(2.0))
     plain = explain([read_recording(rec)], load_cell(cell)).findings
