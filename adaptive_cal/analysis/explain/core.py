@@ -198,16 +198,17 @@ def serially_deflated(cands: list[Candidate], structure: dict) -> tuple[list[Can
     (1 + rho) / (1 - rho) times the variance that independence gives -- n readings are worth
     n (1 - rho) / (1 + rho) (Bayley & Hammersley 1946, "The effective number of independent
     observations in an autocorrelated time series", JRSS Suppl. 8, 184-197) -- so its chi-square
-    and the log BF that grows with it are scaled by that share. rho is the residual's lag-1
-    correlation less its value under independence; the library's fit has taken up part of the
-    disturbance already, so the scaling errs on the side of the evidence. A disturbance that
+    and the log BF that grows with it are scaled by that share. rho is the disturbance's own
+    (``structure.ar1_rho``): the residual's lag-1 correlation understates it, as the library's
+    fit has taken up part of the disturbance, and the AR(1) process whose residual after the
+    same fit has that correlation is solved for. A disturbance that
     lasts from touch to touch makes a wander along the path look like drift, form or sag (25 %
-    of 100 AR(1) nulls, rho = 0.5, named a library effect before the test, 11 % after;
+    of 100 AR(1) nulls, rho = 0.5, named a library effect before the test, 19 % after, 1 at p >= 0.9;
     benchmarks/bench_explain_noise.py)."""
     test = structure.get("tests", {}).get("serial correlation")
-    if not cands or not test or not test.get("real"):
+    if not test or not test.get("real"):
         return cands, None
-    rho = float(np.clip(test["excess_rho"], 0.0, 0.95))
+    rho = float(np.clip(test["rho"], 0.0, 0.95))
     factor = (1.0 - rho) / (1.0 + rho)
     out = sorted((replace(c, log_bf=float(c.log_bf * factor)) if c.log_bf > 0 else c
                   for c in cands), key=lambda c: -c.log_bf)
@@ -240,8 +241,8 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     winner = best if best and best.log_bf > threshold else None
     structure = residual_structure(ctx, cands, winner, threshold, design.noise_stated_mm)
     cands, serial = serially_deflated(cands, structure)
-    if serial is not None:  # the evidence re-judged: the library may no longer name anything
-        best = cands[0] if cands else None
+    if serial is not None:  # the evidence re-judged: where no library effect survives it, the
+        best = cands[0] if cands else None  # readings' correlation is the finding
         winner = best if best and best.log_bf > threshold else None
         if winner is None and structure.get("finding"):
             structure["unexplained"] = True

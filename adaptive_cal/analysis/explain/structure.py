@@ -10,7 +10,10 @@ residual is tested for structure that is left:
   along y (a backlash in y) -- each by the nested-model F-test given N and L;
 - against the probe's stated noise (``probe.noise_range_mm``'s upper end, else
   ``probe.noise_std_mm`` where the cell file states it): RSS / sigma_stated^2 against
-  chi-square(m) -- readings scattered at twice the stated noise are structure, not noise.
+  chi-square(m) -- readings scattered at twice the stated noise are structure, not noise;
+- serial correlation (``serial_test``): the residual's lag-1 correlation in the order taken,
+  against its exact mean and variance under independent noise -- a disturbance lasting from
+  one touch to the next.
 
 The tests are Bonferroni-corrected to a family-wise ``ALPHA``. The verdict is ``unexplained``
 when the most significant corrected test passes and the structure left (its energy beyond what
@@ -18,7 +21,10 @@ noise gives: explained - q s^2 for an axis, RSS - m sigma_stated^2 for the noise
 the energy the library explains (|M y|^2 - |r_L|^2): the library then names less than half of
 what is there, and the nearest library name would be a guess. Where the library explains most of
 it (the reference plate: form takes 150 -> 31 um, 10 um stated) the verdict stands and the
-structure left is still reported (``structure_after_model``).
+structure left is still reported (``structure_after_model``). Serial correlation is not weighed
+that way: where it is real, the disturbance's rho (``ar1_rho``) scales every log BF
+(``core.serially_deflated``), and the verdict is ``unexplained`` where no library effect keeps
+its name through that.
 """
 from __future__ import annotations
 
@@ -31,8 +37,9 @@ from adaptive_cal.analysis.explain.locate import axis_bases, where
 
 MAX_COLUMNS = 48  # of a one-coordinate basis (memory: n x 48 floats)
 ALPHA = 0.01  # family-wise false-alarm rate of the structure tests on a recording of noise only
+SERIAL = "serial correlation"
 AXIS_OF = {"position along x": "position", "position along y": "position",
-           "direction along y": "direction", "serial correlation": "time"}
+           "direction along y": "direction", SERIAL: "time"}
 
 
 def arrival(v: np.ndarray, round_index: np.ndarray) -> np.ndarray:
@@ -128,8 +135,56 @@ def serial_test(P: Projector, r: np.ndarray, m: int, pairs) -> dict:
     var = 2.0 * (tr_mama - tr_ma ** 2 / m) / (m * (m + 2.0))
     R = float(r[i] @ r[j]) / rr
     z = (R - mean) / np.sqrt(max(var, 1e-300))
-    return {"p_value": float(special.ndtr(-z)), "excess_mm2": max(R - mean, 0.0) * rr,
+    # its size: the share rho^2 of the residual that the previous reading predicts
+    return {"p_value": float(special.ndtr(-z)), "excess_mm2": max(R - mean, 0.0) ** 2 * rr,
             "q": 1, "lag1_correlation": R, "excess_rho": max(R - mean, 0.0)}
+
+
+def _ar1_cov_times(Q: np.ndarray, segments: list[np.ndarray], rho: float) -> np.ndarray:
+    """Sigma Q for Sigma_ij = rho^|i - j| between touches of one round in the order taken (0
+    across rounds): per round a forward and a backward exponential filter, less the diagonal
+    counted twice."""
+    from scipy.signal import lfilter
+
+    out = np.zeros_like(Q)
+    for idx in segments:
+        x = Q[idx]
+        f = lfilter([1.0], [1.0, -rho], x, axis=0)
+        b = lfilter([1.0], [1.0, -rho], x[::-1], axis=0)[::-1]
+        out[idx] = f + b - x
+    return out
+
+
+def ar1_rho(P: Projector, R: float, d) -> float:
+    """The lag-1 correlation rho of an AR(1) disturbance (within each round, in the order taken)
+    whose residual after the same fit shows the lag-1 correlation R: the fit takes up part of
+    the disturbance, so R understates rho. Solves g(rho) = R by bisection on [0, 0.95], with
+    g(rho) = E[r^T A r] / E[r^T r] = tr(M A M S) / tr(M S), S the AR(1) correlation; the traces
+    from the basis Q of the fit (M = I - Q Q^T) and S Q (``_ar1_cov_times``), O(n rank) each."""
+    order = np.lexsort((d.seq, d.round_index))
+    segments = [order[d.round_index[order] == k] for k in np.unique(d.round_index)]
+    i, j = touch_pairs(d)
+    Q = P.basis
+    AQ = np.zeros_like(Q)
+    np.add.at(AQ, i, 0.5 * Q[j])
+    np.add.at(AQ, j, 0.5 * Q[i])
+    QAQ = Q.T @ AQ
+
+    def g(rho: float) -> float:
+        SQ = _ar1_cov_times(Q, segments, rho)
+        QSQ = Q.T @ SQ
+        num = i.size * rho - 2.0 * float(np.sum(AQ * SQ)) + float(np.sum(QAQ * QSQ))
+        return num / max(d.n - float(np.trace(QSQ)), 1e-300)
+
+    lo, hi = 0.0, 0.95
+    if R <= g(lo):
+        return 0.0
+    if R >= g(hi):
+        return hi
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if g(mid) < R else (lo, mid)
+    return 0.5 * (lo + hi)
 
 
 def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate | None,
@@ -144,7 +199,7 @@ def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate |
     if m < 4:
         return {"unexplained": False, "tests": {}, "note": "too few readings to test"}
     tests = {name: _axis_test(P, r, m, X) for name, X in _bases(ctx).items()}
-    tests["serial correlation"] = serial_test(P, r, m, touch_pairs(d))
+    tests[SERIAL] = serial_test(P, r, m, touch_pairs(d))
     rss = float(r @ r)
     if noise_mm > 0:
         tests["noise"] = {"p_value": float(special.chdtrc(m, max(rss / noise_mm ** 2, 0.0))),
@@ -156,6 +211,8 @@ def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate |
         t["p_value_corrected"] = min(1.0, t["p_value"] * k)
         t["structure_rms_mm"] = float(np.sqrt(t.pop("excess_mm2") / d.n))
         t["real"] = bool(t["p_value_corrected"] < ALPHA)
+    if tests[SERIAL]["real"]:  # the disturbance's own rho, for scaling the evidence
+        tests[SERIAL]["rho"] = ar1_rho(P, tests[SERIAL]["lag1_correlation"], d)
     library_mm2 = float(ctx.yt @ ctx.yt) - rss if lib else 0.0
     real = {n: t for n, t in tests.items() if t["real"]}
     out = {"library": [c.effect for c in lib], "residual_rms_mm": float(np.sqrt(rss / d.n)),
@@ -163,11 +220,16 @@ def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate |
            "tests": tests, "alpha": ALPHA, "unexplained": False}
     if not real:
         return out
-    left_mm2 = max(t["structure_rms_mm"] for t in real.values()) ** 2 * d.n
-    axes = [n for n in real if n != "noise"] or ["noise"]  # the most specific axis that shows it
-    name = max(axes, key=lambda n: (real[n]["structure_rms_mm"], -real[n]["p_value"]))
-    t = real[name]
-    out["unexplained"] = bool(left_mm2 > library_mm2)
+    # serial correlation is answered by scaling the evidence (``core.serially_deflated``): it
+    # makes the verdict unexplained where no library effect survives the scaling, not by
+    # weighing its energy against the library's here
+    others = {n: t for n, t in real.items() if n != SERIAL}
+    pool = others or real
+    axes = [n for n in pool if n != "noise"] or ["noise"]  # the most specific axis that shows it
+    name = max(axes, key=lambda n: (pool[n]["structure_rms_mm"], -pool[n]["p_value"]))
+    t = pool[name]
+    left_mm2 = max(u["structure_rms_mm"] for u in pool.values()) ** 2 * d.n
+    out["unexplained"] = bool(others) and bool(left_mm2 > library_mm2)
     sigma = float(np.sqrt(rss / m))
     out["finding"] = {
         "axis": AXIS_OF.get(name, name), "test": name, "p_value": t["p_value_corrected"],
