@@ -4,6 +4,7 @@ A real probe's noise is not always Gaussian, independent and as stated. The plat
 tilts come from the independent generator (benchmarks/explain_indep, numpy only, no adaptive_cal
 code); only the noise of each null recording is replaced, here, by one of:
 
+- ``gauss``: the control, Gaussian noise of the stated sd as the benchmark draws it;
 - ``ar1``: a disturbance lasting from touch to touch (vibration, a wandering temperature, a gauge
   that settles): AR(1), lag-1 correlation 0.5 per touch, marginal sd the stated one;
 - ``laplace``: double-exponential noise of the stated sd (kurtosis 6);
@@ -38,7 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from explain_indep import generate as G  # noqa: E402
 
-KINDS = ("ar1", "laplace", "quant1", "quant_coarse", "hetero", "misstated", "few")
+KINDS = ("gauss", "ar1", "laplace", "quant1", "quant_coarse", "hetero", "misstated", "few")
 
 
 def null_case(kind: str, rng: np.random.Generator) -> G.Case:
@@ -50,7 +51,9 @@ def null_case(kind: str, rng: np.random.Generator) -> G.Case:
     n = x.size
     base = 5.0 + rng.normal(0, 2e-3) * x + rng.normal(0, 2e-3) * y + rng.normal(0, 0.2)
     e = rng.standard_normal(n)
-    if kind == "quant1":
+    if kind == "gauss":  # the control: Gaussian noise of the stated sd
+        read = base + s * e
+    elif kind == "quant1":
         read = np.round((base + s * e) / 0.001) * 0.001
     elif kind == "quant_coarse":
         q = 1.5 * s
