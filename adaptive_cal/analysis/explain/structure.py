@@ -107,6 +107,15 @@ def touch_pairs(d) -> tuple[np.ndarray, np.ndarray]:
     return order[:-1][same], order[1:][same]
 
 
+def _lag1_terms(Q: np.ndarray, pairs) -> tuple[np.ndarray, np.ndarray]:
+    """A Q and Q^T A Q for A with 1/2 at (i, j) and (j, i) of every pair: O(n rank), A sparse."""
+    i, j = pairs
+    AQ = np.zeros_like(Q)
+    np.add.at(AQ, i, 0.5 * Q[j])
+    np.add.at(AQ, j, 0.5 * Q[i])
+    return AQ, Q.T @ AQ
+
+
 def serial_test(P: Projector, r: np.ndarray, m: int, pairs) -> dict:
     """Readings correlated from one touch to the next (vibration, a wandering temperature, a
     gauge that settles): the lag-1 autocorrelation R = r^T A r / r^T r of the residual in the
@@ -122,11 +131,7 @@ def serial_test(P: Projector, r: np.ndarray, m: int, pairs) -> dict:
     q, rr = int(i.size), float(r @ r)
     if q < 8 or m < 8 or rr <= 0.0:
         return {"p_value": 1.0, "excess_mm2": 0.0, "q": 0}
-    Q = P.basis
-    AQ = np.zeros_like(Q)  # A Q, A symmetric with 1/2 at (i, j) and (j, i)
-    np.add.at(AQ, i, 0.5 * Q[j])
-    np.add.at(AQ, j, 0.5 * Q[i])
-    QAQ = Q.T @ AQ
+    AQ, QAQ = _lag1_terms(P.basis, pairs)
     tr_ma = -float(np.trace(QAQ))  # tr(A) = 0
     # tr(MAMA) = tr(A^2) - 2 tr(Q^T A^2 Q) + tr((Q^T A Q)^2)
     tr_a2 = 0.5 * q  # each pair gives (1/2)^2 at (i, j) and (j, i), twice in the trace
@@ -163,17 +168,14 @@ def ar1_rho(P: Projector, R: float, d) -> float:
     from the basis Q of the fit (M = I - Q Q^T) and S Q (``_ar1_cov_times``), O(n rank) each."""
     order = np.lexsort((d.seq, d.round_index))
     segments = [order[d.round_index[order] == k] for k in np.unique(d.round_index)]
-    i, j = touch_pairs(d)
+    pairs = touch_pairs(d)
     Q = P.basis
-    AQ = np.zeros_like(Q)
-    np.add.at(AQ, i, 0.5 * Q[j])
-    np.add.at(AQ, j, 0.5 * Q[i])
-    QAQ = Q.T @ AQ
+    AQ, QAQ = _lag1_terms(Q, pairs)
 
     def g(rho: float) -> float:
         SQ = _ar1_cov_times(Q, segments, rho)
         QSQ = Q.T @ SQ
-        num = i.size * rho - 2.0 * float(np.sum(AQ * SQ)) + float(np.sum(QAQ * QSQ))
+        num = pairs[0].size * rho - 2.0 * float(np.sum(AQ * SQ)) + float(np.sum(QAQ * QSQ))
         return num / max(d.n - float(np.trace(QSQ)), 1e-300)
 
     lo, hi = 0.0, 0.95
