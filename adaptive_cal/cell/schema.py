@@ -261,6 +261,11 @@ class Plan(Block):
         None, ge=0, description="once the self-checks found structure finer than the knots, no "
         "touch is planned closer than this to an earlier one while points further away are "
         "allowed; default half the planning knot spacing (0: off)")
+    closure: bool = Field(
+        True, description="when a variance bound stops the run, touch the first place again: a "
+        "difference beyond the probe's noise (1 % level) means the cell drifted during the run; "
+        "the run then stops with `drift`, says so and widens the bands (one touch more; the budget's "
+        "last touch where no bound stopped the run; none in a re-check from --prior-from)")
 
 
 class Cell(Block):

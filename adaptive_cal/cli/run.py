@@ -187,6 +187,7 @@ def _summary(r: dict, out: Path) -> None:
         f"stopped: {r['stopped_because']} after {r['touches']} touches ({r['fused']} fused)",
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
         r.get('model', {}).get('summary') or 'model: not checked',
+        *([r["closure"]["text"]] if r.get("closure") else []),
         f"tilt correction{' (provisional)' if gap else ''}: rx {t['rx_deg']:+.4f} deg, "
         f"ry {t['ry_deg']:+.4f} deg (a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm, c {t['c']:+.4f} mm)",
     ]

@@ -44,7 +44,8 @@ class SurveyPlan:
     made (``planning.ask``);
     ``min_spacing_mm``: once the self-checks found structure finer than the knots, no touch is
     planned closer than this to an earlier one while points further away are allowed (0: off;
-    ``planning.ask.kept_apart``)."""
+    ``planning.ask.kept_apart``); ``closure``: when a variance bound stops the run, touch the
+    first place again to see a drift (``planning.closure``, ``run.loop``)."""
 
     model: PriorModel
     candidates: Candidates
@@ -78,6 +79,7 @@ class SurveyPlan:
     time_aware: bool = True
     lookahead: int = LOOKAHEAD
     min_spacing_mm: float = 0.0
+    closure: bool = False
 
     @property
     def coefficients(self) -> int:

@@ -31,6 +31,7 @@ from adaptive_cal.formats.recording import surface_height_mm
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, learned_belief
 from adaptive_cal.planning.adequacy import Adequacy, assess
+from adaptive_cal.planning.closure import Closure
 from adaptive_cal.planning.gate import Retake, Told, flagged_p, judge as gate_judge, pending_after
 from adaptive_cal.planning.robust import InvalidReading, check_touch, predictive  # noqa: F401
 from adaptive_cal.planning.plan import SurveyPlan
@@ -49,7 +50,9 @@ class SurveyState:
     a second touch, or None; ``fitted_at``: fused readings at the last refit; ``prior``: a
     belief carried over from an earlier run (``--prior-from``), or None; ``weights``: each fused
     reading's share w = 1 - p of the noise precision (p its flagged outlier probability: its
-    noise variance is r / w in every fusion and refit)."""
+    noise variance is r / w in every fusion and refit); ``closure``: the verdict of the touch
+    that revisited the first place when a bound stopped the loop (``planning.closure``), or
+    None."""
 
     belief: bl.Belief
     hyper: Hyper
@@ -64,6 +67,7 @@ class SurveyState:
     weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
     adequacy: Adequacy | None = None
     grown_mm2: np.ndarray | None = None
+    closure: Closure | None = None  # the closure touch's verdict (``planning.closure``)
 
     @property
     def fused_weights(self) -> np.ndarray:
@@ -121,11 +125,13 @@ def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
 
 def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:
     """s_u^2 (mm^2) at points ``xy`` (N, 2): variance of the plate the spline cannot represent
-    (0 while the self-checks pass). Add it to the spline's variance for bands of the plate."""
+    (0 while the self-checks pass), plus a drift a failed closure touch found (d^2 / 3
+    everywhere, ``planning.closure``). Add it to the spline's variance for bands of the plate."""
     xy = np.asarray(xy, float).reshape(-1, 2)
+    drift = state.closure.drift_var_mm2 if state.closure is not None else 0.0
     if state.adequacy is None:
-        return np.zeros(len(xy))
-    return state.adequacy.unresolved_var_mm2(xy[:, 0], xy[:, 1])
+        return np.full(len(xy), drift)
+    return state.adequacy.unresolved_var_mm2(xy[:, 0], xy[:, 1]) + drift
 
 
 def check(plan: SurveyPlan, state: SurveyState, *, coarse: bool = False) -> Adequacy | None:

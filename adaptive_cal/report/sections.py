@@ -113,6 +113,9 @@ def model_section(result: dict) -> str:
               f"{w['y_mm'][1]:.0f} mm", f"about {_um(w['unresolved_rms_mm'])} RMS unresolved "
               f"({w['readings']} readings): do not trust the map here to better than this")
              for w in m.get("where", [])]
+    c = result.get("closure")
+    if c:  # the closure touch: did the cell drift during the run?
+        rows.append(("closure touch (drift)", escape(c.get("text", ""))))
     return "<h3>Is the model adequate?</h3>" + _table(rows, cls="kv")
 
 

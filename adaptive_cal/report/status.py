@@ -15,12 +15,17 @@ WHY = {
     "invalid_readings": "stopped: 3 invalid readings in a row (NaN, infinite or off the plate)",
     "prior_disagrees_with_readings": "stopped: the readings contradict the earlier belief "
                                      "(--prior-from) in the frame assumed",
+    "drift": "stopped: the cell drifted during the run (the closure touch read the first place "
+             "again and it had moved)",
 }
 # reasons that --resume does not cure: what to do instead
 INSTEAD = {
     "prior_disagrees_with_readings": "give the correction really applied (--correction-applied "
                                      "proposed | none | RX,RY) or map from scratch without "
                                      "--prior-from, in a new folder",
+    "drift": "warm the cell up (run the robot over the plate for as long as the drift took) and "
+             "map again in a new folder, or model the drift: adaptive-cal explain on the "
+             "recording",
 }
 # reasons after which a run may be complete (when no bound is left unmet)
 FINISHING = ("mean_std_bound", "max_std_bound", "touch_budget", "at_least")

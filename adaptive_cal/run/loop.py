@@ -21,25 +21,46 @@ A batch is cut short after a gated reading (the retake comes first), when ``inte
 so, or when the stop predicate fires: it is asked before each ask and after each touch, so a
 batch larger than the touch budget left never makes more touches than the budget.
 ``loop.state`` is the latest state even when a device raises.
+
+The closure touch (``plan.closure``, ``planning.closure``): when the predicate stops on a
+variance bound, the probe first touches the run's first place again (its retake too, if the
+gate asks for one), flagged ``closure``, recorded and fused like any reading; the verdict goes
+to ``state.closure``. A drift ends the loop with ``DRIFT``; else it stops as the predicate says
+(or goes on, if the repeat reading moved the status off the bound: a later stop closes again
+only ``CLOSURE_GAP`` touches on). No closure past the touch budget: where no bound stopped the
+run first, the budget's last touch is the closure (its retake, if one is owed, the budget
+allowing).
 """
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Callable, NamedTuple
 
+import numpy as np
+
+from adaptive_cal.formats.recording import surface_height_mm
 from adaptive_cal.hardware.base import ProbeCycle, ProbeLeftDown, Touch, TouchRejected
+from adaptive_cal.planning import closure as cl
 from adaptive_cal.planning import survey as sv
-from adaptive_cal.planning.ask import Target, ask
+from adaptive_cal.planning.adequacy import positions_mm
+from adaptive_cal.planning.ask import Target, ask, target as target_at
 from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.robust import InvalidReading
-from adaptive_cal.planning.stopping import Status
+from adaptive_cal.planning.stopping import Status, touches_left
 
 #: the reason a loop ends when no allowed point can be promised inside the probe stroke
 NO_ADMISSIBLE_POINT = "no_admissible_point"
 #: the reason a loop ends after ``MAX_INVALID`` invalid readings in a row (a broken device)
 INVALID_READINGS = "invalid_readings"
 MAX_INVALID = 3
+#: the reason a loop ends when its closure touch found the cell drifting
+DRIFT = cl.DRIFT
+#: the stop reasons that close with a closure touch (a variance bound met)
+CLOSING = ("mean_std_bound", "max_std_bound")
+#: touches after a closure before a later stop closes again
+CLOSURE_GAP = 10
 
 
 class Row(NamedTuple):
@@ -84,17 +105,29 @@ class SurveyLoop:
 
     def __init__(self, plan: SurveyPlan, state: sv.SurveyState, cycle: ProbeCycle, *,
                  stop: StopPredicate | None = None, record: Callable[[Row], None] | None = None,
-                 hooks: tuple[Hook, ...] = (), interrupt: Callable[[], bool] = lambda: False):
+                 hooks: tuple[Hook, ...] = (), interrupt: Callable[[], bool] = lambda: False,
+                 fused_t_s=None):
         self.plan, self.state, self.cycle = plan, state, cycle
         self.stop = stop or survey_stop(plan)
         self.record, self.hooks, self.interrupt = record, tuple(hooks), interrupt
         self.invalid_in_a_row = 0
+        # the time (s) of each fused reading, for the closure's elapsed time (resume: from the
+        # recording; NaN where unknown)
+        self.fused_t_s = (list(map(float, fused_t_s)) if fused_t_s is not None
+                          else [math.nan] * state.fused)
+        self.closed_at: int | None = None
 
     def run(self) -> str:
-        """Ask, touch, record and fuse until the stop predicate fires; returns its reason, or
-        ``NO_ADMISSIBLE_POINT`` when the planner has no point to offer."""
+        """Ask, touch, record and fuse until the stop predicate fires; returns its reason,
+        ``DRIFT`` when the closure touch found a drift, or ``NO_ADMISSIBLE_POINT`` when the
+        planner has no point to offer."""
         while True:
             why = self.stop(self.state, sv.status(self.plan, self.state))
+            if (why and self._closes(why)) or (not why and self._last_touch()):
+                closure = self.close()
+                if closure.made and not closure.passed:
+                    return DRIFT
+                why = self.stop(self.state, sv.status(self.plan, self.state))
             if why:
                 return why
             targets = ask(self.plan, self.state, from_xy=self.cycle.motion.position()[:2])
@@ -105,33 +138,99 @@ class SurveyLoop:
                 if self.invalid_in_a_row >= MAX_INVALID:
                     return INVALID_READINGS
                 if (step.invalid is not None or self.state.retake is not None or self.interrupt()
-                        or self.stop(self.state, step.status)):
+                        or self.stop(self.state, step.status) or self._last_touch()):
                     break  # a batch never runs past the stop rule (the touch budget included)
 
-    def touch(self, target: Target) -> Step:
-        """One touch at ``target``: taken, judged, recorded, then fused; hooks called."""
+    def _closes(self, why: str) -> bool:
+        """A closure touch is due: the plan asks for one, a variance bound stopped the loop,
+        a reading was fused, the touch budget is not spent and no closure was made in the last
+        ``CLOSURE_GAP`` touches."""
+        touches = self.state.touches
+        left = touches_left(self.plan.stop, touches)
+        return (self.plan.closure and why in CLOSING and self.state.fused > 0
+                and (left is None or left > 0)
+                and (self.closed_at is None or touches - self.closed_at >= CLOSURE_GAP))
+
+    def _last_touch(self) -> bool:
+        """The touch budget has one touch left and no closure was made: that touch is the
+        closure (a run its bound never stopped -- a model the checks call inadequate, a bound
+        out of reach -- still learns whether the cell drifted)."""
+        return (self.plan.closure and self.closed_at is None and self.state.fused > 0
+                and self.state.retake is None
+                and touches_left(self.plan.stop, self.state.touches) == 1)
+
+    def close(self) -> cl.Closure:
+        """The closure touch (module docstring): the first place touched again (and its
+        retake when the gate owes one), judged by ``planning.closure.judge``; the verdict is
+        kept in ``state.closure`` and returned."""
+        plan, state = self.plan, self.state
+        self.closed_at = state.touches
+        i = cl.first_place(state.fused_weights)
+        if i is None:
+            return self._closed(cl.Closure(False, why="every one of the first readings was "
+                                           "flagged an outlier"))
+        xy = positions_mm(plan.model.surface, state.rows[:cl.FIRST_OF])
+        x, y = (float(v) for v in xy[i])
+        first = next((k for k, p in enumerate(state.touched_xy_mm)
+                      if math.hypot(p[0] - x, p[1] - y) < 1e-6), -1)
+        start = cl.start_cluster(state.fused_weights, xy, i)
+        first_rows, first_mm = state.rows[start].copy(), state.heights_mm[start].copy()
+        first_t = self.fused_t_s[i] if i < len(self.fused_t_s) else math.nan
+        rows, heights, seqs, t_last = [], [], [], math.nan
+        target = target_at(plan, state, x, y)
+        for _ in range(2):  # the repeat, and its retake when the gate owes one
+            seq = self.state.touches
+            step = self.touch(target, extra=(cl.FLAG,))
+            if step.touch is None or step.invalid is not None:
+                break
+            t = step.touch
+            rows.append(plan.model.surface.basis(np.array([t.x_mm]), np.array([t.y_mm]))[0])
+            heights.append(surface_height_mm(t.reading_mm, t.z_mm, plan.zero_mm))
+            seqs.append(seq)
+            t_last = t.t_s
+            if self.state.retake is None or touches_left(plan.stop, self.state.touches) == 0:
+                break
+            target = ask(plan, self.state)[0]
+        if not heights:
+            return self._closed(cl.Closure(False, x_mm=x, y_mm=y, first_touch=first,
+                                           why="the probe cycle rejected the touch or its "
+                                               "reading was invalid (see the recording's flags)"))
+        elapsed = t_last - first_t if math.isfinite(t_last - first_t) else None
+        belief = self.state.belief
+        return self._closed(cl.judge(first_rows, first_mm, rows, heights, belief.mean,
+                                     belief.cov, self.state.noise_var,
+                                     self.state.fused, x_mm=x, y_mm=y, first_touch=first,
+                                     repeat_touches=tuple(seqs), elapsed_s=elapsed))
+
+    def _closed(self, closure: cl.Closure) -> cl.Closure:
+        self.state = replace(self.state, closure=closure)
+        return closure
+
+    def touch(self, target: Target, extra: tuple[str, ...] = ()) -> Step:
+        """One touch at ``target``: taken, judged, recorded (its flags and ``extra``), then
+        fused; hooks called."""
         plan = self.plan
         touch = told = rejected = invalid = None
         try:
             touch = self.cycle.touch(target.x_mm, target.y_mm, target.z_mm)
         except TouchRejected as e:
             rejected = e
-            self._reject(target, e)
+            self._reject(target, e, extra)
         except ProbeLeftDown as e:  # the tip may be down: keep what was read, then stop
             if e.touch is not None:
                 try:
-                    self._take(e.touch)
+                    self._take(e.touch, extra)
                 except InvalidReading:
-                    self._invalid(target, e.touch)
+                    self._invalid(target, e.touch, extra)
             elif isinstance(e.__cause__, TouchRejected):
-                self._reject(target, e.__cause__)
+                self._reject(target, e.__cause__, extra)
             raise
         else:
             try:
-                told = self._take(touch)
+                told = self._take(touch, extra)
             except InvalidReading as e:
                 invalid = e
-                self._invalid(target, touch)
+                self._invalid(target, touch, extra)
         self.invalid_in_a_row = self.invalid_in_a_row + 1 if invalid is not None else 0
         step = Step(self.state, sv.status(plan, self.state), target, touch, told, rejected,
                     invalid)
@@ -139,31 +238,34 @@ class SurveyLoop:
             hook(step)
         return step
 
-    def _take(self, touch: Touch) -> Told:
+    def _take(self, touch: Touch, extra: tuple[str, ...] = ()) -> Told:
         """Judge a reading that was taken, record it, then fuse it."""
         told = sv.judge(self.plan, self.state, touch.x_mm, touch.y_mm, touch.z_mm,
                         touch.reading_mm)
         self._record(Row(self.state.touches, touch.t_s, touch.x_mm, touch.y_mm, touch.z_mm,
-                         touch.reading_mm, told.flags))
+                         touch.reading_mm, told.flags + extra))
         self.state = sv.fuse(self.plan, self.state, told)
+        if told.fused:
+            self.fused_t_s.append(float(touch.t_s))
         return told
 
-    def _invalid(self, target: Target, touch: Touch) -> None:
+    def _invalid(self, target: Target, touch: Touch, extra: tuple[str, ...] = ()) -> None:
         """Record a reading ``survey.judge`` refused (flagged ``invalid``, never fused; a
         non-finite value is written as 0 with the flag ``nonfinite``) and count the touch at
         its target."""
         values = (touch.x_mm, touch.y_mm, touch.z_mm, touch.reading_mm)
         finite = [v if math.isfinite(v) else 0.0 for v in values]
-        flags = ("invalid", "rejected") + (() if finite == list(values) else ("nonfinite",))
+        flags = ("invalid", "rejected") + (() if finite == list(values) else ("nonfinite",)) \
+            + extra
         t_s = touch.t_s if math.isfinite(touch.t_s) else self.cycle.clock()
         self._record(Row(self.state.touches, t_s, *finite, flags))
         self.state = sv.skip(self.plan, self.state, target.x_mm, target.y_mm)
 
-    def _reject(self, target: Target, e: TouchRejected) -> None:
+    def _reject(self, target: Target, e: TouchRejected, extra: tuple[str, ...] = ()) -> None:
         """Record a touch the probe cycle rejected (flagged, never fused) and count it."""
         reading = e.reading_mm if math.isfinite(e.reading_mm) else 0.0
         self._record(Row(self.state.touches, self.cycle.clock(), target.x_mm, target.y_mm,
-                         target.z_mm, reading, tuple(e.flags)))
+                         target.z_mm, reading, tuple(e.flags) + extra))
         self.state = sv.skip(self.plan, self.state, target.x_mm, target.y_mm)
 
     def _record(self, row: Row) -> None:

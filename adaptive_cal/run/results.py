@@ -65,6 +65,8 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
                      "ends": surface.sx.ends},
     }
     result["model"] = model_block(state, status)
+    # the closure touch's verdict (planning.closure), or None when none was made
+    result["closure"] = state.closure.as_dict() if state.closure is not None else None
     xyz = (touched_heights(plan, recording)
            if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,

@@ -60,6 +60,12 @@ def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path
     return sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0, next_seq
 
 
+def fused_times(path: Path) -> np.ndarray:
+    """The time (s, NaN where blank) of each fused reading of a recording, in order."""
+    rec = read_recording(path)
+    return rec.t_s[rec.fused]
+
+
 @contextmanager
 def _deferred_interrupt():
     """First Ctrl-C sets a flag (stop after this touch); a second one interrupts at once."""
@@ -130,10 +136,13 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             warnings.warn(f"{paths.recording}: its last row was cut by a crash mid-write and is "
                           f"dropped: {cut[:80]!r}", stacklevel=2)
         state, start_t, next_seq = replay(plan, state, paths.recording)
+        fused_t_s = fused_times(paths.recording)
         done = plan.stop(sv.status(plan, state))
         saved = _saved_result(paths.out)
         if done and saved is not None and saved.get("touches") == state.touches:
             return {**saved, "already_finished": done}  # finished: nothing to do or rewrite
+    else:
+        fused_t_s = None
     start_touch = state.touches
     seq_offset = next_seq - start_touch  # new rows continue from the last seq + 1
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
@@ -172,7 +181,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             return None
 
         loop = SurveyLoop(plan, state, opened.cycle, stop=stop, record=record, hooks=tuple(hooks),
-                          interrupt=lambda: flag["stop"])
+                          interrupt=lambda: flag["stop"], fused_t_s=fused_t_s)
         try:
             stopped = loop.run()
             if stopped == NO_ADMISSIBLE_POINT:

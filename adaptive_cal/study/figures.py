@@ -65,7 +65,7 @@ def example_plate_figure(study: Study, summary: dict, records: list[dict], base:
         rec = next((r for r in recs if r["plate"] == study.example_plate), None)
         if rec is None:
             continue
-        xy = np.asarray(rec["xy"][: rec["touches"]]).reshape(-1, 2)
+        xy = np.asarray(rec["xy"][: rec["touches"] - bool(rec.get("closure"))]).reshape(-1, 2)
         ax.plot(xy[:, 0], xy[:, 1], "-", color="0.7", lw=0.6)
         ax.scatter(xy[:, 0], xy[:, 1], c=np.arange(len(xy)), s=10, cmap="viridis")
         ax.set_title(f"{s}: {rec['touches']} touches\ntrue RMS {rec['true_rms_mm'] * 1e3:.1f} um",

@@ -29,7 +29,7 @@ from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import robot_time_s
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
-from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, run_loop
+from adaptive_cal.run.loop import CLOSING, NO_ADMISSIBLE_POINT, run_loop
 from adaptive_cal.run.truth import state_truth_error
 from adaptive_cal.study.config import Study
 from adaptive_cal.study.designs import (Evaluator, grid_points, grid_sizes, level_tilt_mm,
@@ -73,14 +73,20 @@ def record(ctx: Context, strategy: str, trajectory: list, stop: int, final: dict
            stop_reason: str, target_true: float, **extra) -> dict:
     """A strategy's result on one plate. ``trajectory``: [touches, mean_std_mm, true_rms_mm] at
     each point the strategy could stop; ``stop``: touches at its own stop; ``final``: the four
-    figures there; ``xy``: every touch sent, in order."""
+    figures there; ``xy``: every touch sent, in order.
+
+    A stop on a variance bound pays the closure touch a run makes there (``plan.closure``,
+    ``run.loop``): one touch more and the trip back to the first touch, in ``touches`` and the
+    robot time (its reading, a repeat, is not in the figures: it adds little to the map)."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     reached = [t for t, _, rms in trajectory if rms <= target_true]
     true_touches = reached[0] if reached else None
+    closes = bool(ctx.plan.closure and stop_reason in CLOSING and stop > 0)
+    paid = np.vstack([xy[:stop], xy[:1]]) if closes else xy[:stop]
     return {"strategy": strategy, "plate": ctx.plate.index, "seed": ctx.plate.seed,
-            "noise_std_mm": ctx.plate.noise_std_mm, "touches": int(stop),
-            "stop_reason": stop_reason, "robot_time_s": ctx.robot_time_s(xy[:stop]),
-            "travel_mm": ctx.robot(xy[:stop])[1],
+            "noise_std_mm": ctx.plate.noise_std_mm, "touches": int(stop) + closes,
+            "stop_reason": stop_reason, "robot_time_s": ctx.robot_time_s(paid),
+            "travel_mm": ctx.robot(paid)[1], "closure": closes,
             **{k: float(final[k]) for k in ("mean_std_mm", "true_rms_mm", "true_max_mm",
                                              "coverage95")},
             "touches_true": true_touches,

@@ -1,0 +1,132 @@
+"""The closure touch: when a variance bound stops a run, the probe touches the run's first place
+again, and the two readings are compared. A cell that warms up (robot links, probe, plate) or
+otherwise drifts while it touches changes every later reading by the same amount, whatever the
+plate; a map of touches each at a new place cannot tell that from the plate's form (measured:
+docs/study-notes.md, "Drift during a run"), but two readings at one place can: the plate is the
+same there, so their difference is noise plus the drift between them.
+
+Test. The start is the first k <= 3 unflagged readings within ``CLUSTER_MM`` of the first one
+(the planner's start puts its second and third touches 4 and 8 mm from the first, seconds
+later); the repeat is one reading at the first place (a retake, if the gate owes one, averaged
+in: m readings). d = mean(h_repeat) - mean(h_start) - a . mu, a = mean(repeat rows) -
+mean(start rows): the heights' difference less the map's own difference between the places (0
+for one place). Under the model (no drift) d ~ N(0, r (1/m + 1/k) + a C a), r the learned
+noise variance (a nugget: probe noise plus structure finer than the spline; at one place that
+structure cancels, so the test is conservative), C the belief's covariance; with r learned from
+n readings, d / sd is compared with Student-t on n - 3 degrees of freedom. Two-sided at
+``ALPHA``. Detection needs |drift| above about 3 x the learned noise (2.58 sqrt(1 + 1/3)) with
+the usual start of three readings.
+
+A failed closure ends the run (``DRIFT``): more touches cannot undo a drift the model does not
+have. The map carries it: each reading is off by the drift since the run began, between 0 and
+d; the bands and the stop statistic add d^2 / 3 everywhere (the RMS of a drift that grows
+linearly from the first touch to the last; one that settles early puts more of the run near d).
+What to do is said with it: warm the cell up and map again, or let ``adaptive-cal explain``
+model the drift on the recording.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.stats import t as student_t
+
+ALPHA = 0.01  # false-alarm level of the two-sided test on a cell that does not drift
+#: the loop's stop reason after a failed closure
+DRIFT = "drift"
+#: the flag a closure touch (and its retake) carries in the recording
+FLAG = "closure"
+FIRST_OF = 3  # the place revisited is the first unflagged reading among the first three fused
+CLUSTER_MM = 20.0  # the start's readings within this of it stand for the start (averaged)
+
+
+@dataclass(frozen=True)
+class Closure:
+    """The closure's verdict (mm, s): where, which touches (0-based, as the recording's rows of
+    the run), the difference and its sd, the two-sided p, ``passed``; ``made`` False (with
+    ``why``) when no repeat reading could be taken."""
+
+    made: bool
+    x_mm: float = float("nan")
+    y_mm: float = float("nan")
+    first_touch: int = -1
+    first_readings: int = 1
+    repeat_touches: tuple[int, ...] = ()
+    elapsed_s: float | None = None
+    difference_mm: float = float("nan")
+    sd_mm: float = float("nan")
+    dof: int = 0
+    p: float = float("nan")
+    passed: bool = True
+    why: str = ""
+
+    @property
+    def drift_var_mm2(self) -> float:
+        """d^2 / 3 after a failed closure (added to the map's variance everywhere), else 0."""
+        return self.difference_mm**2 / 3.0 if self.made and not self.passed else 0.0
+
+    def text(self) -> str:
+        """One line for the terminal and the report."""
+        if not self.made:
+            return f"closure touch not made: {self.why}"
+        when = f" after {self.elapsed_s:.0f} s" if self.elapsed_s is not None else ""
+        start = (f"the run's start there ({self.first_readings} readings)"
+                 if self.first_readings > 1 else "the run's first reading")
+        head = (f"closure: the first place (x {self.x_mm:.1f}, y {self.y_mm:.1f} mm) read "
+                f"{self.difference_mm * 1e3:+.1f} um against {start}{when} (sd "
+                f"{self.sd_mm * 1e3:.1f} um, p {self.p:.2g})")
+        if self.passed:
+            return f"{head}: no drift seen"
+        return (f"{head}: the cell drifted during the run; the map carries about "
+                f"{abs(self.difference_mm) / math.sqrt(3) * 1e3:.1f} um RMS of it (in the bands)"
+                "; warm the cell up and map again, or model it: adaptive-cal explain on the "
+                "recording")
+
+    def as_dict(self) -> dict:
+        out = asdict(self)
+        out["repeat_touches"] = list(self.repeat_touches)
+        out["drift_rms_mm"] = math.sqrt(self.drift_var_mm2)
+        out["level"] = ALPHA
+        out["text"] = self.text()
+        return out
+
+
+def first_place(weights: np.ndarray) -> int | None:
+    """Index (among the fused readings) of the reading to revisit: the first with its full
+    weight (not flagged an outlier) among the first ``FIRST_OF``; None when there is none."""
+    for i, w in enumerate(np.asarray(weights, float)[:FIRST_OF]):
+        if w >= 1.0:
+            return i
+    return None
+
+
+def start_cluster(weights: np.ndarray, xy_mm: np.ndarray, i: int) -> list[int]:
+    """The fused readings that stand for the run's start: those among the first ``FIRST_OF``
+    with their full weight within ``CLUSTER_MM`` of reading ``i`` (the planner's start puts
+    its second and third touches a few mm from the first, seconds later)."""
+    w = np.asarray(weights, float)
+    xy = np.asarray(xy_mm, float)
+    return [j for j in range(min(FIRST_OF, len(w)))
+            if w[j] >= 1.0 and math.hypot(*(xy[j] - xy[i])) <= CLUSTER_MM]
+
+
+def judge(first_rows, first_mm, repeat_rows, repeat_mm, mean, cov, noise_var_mm2: float,
+          fused: int, **where) -> Closure:
+    """The test (module docstring): ``first_rows``/``first_mm`` the basis rows and heights of
+    the start's readings (k >= 1); ``repeat_rows``/``repeat_mm`` the repeat readings' (m >= 1);
+    ``mean``/``cov`` the belief; ``noise_var_mm2`` r; ``fused`` n, the fused readings r was
+    learned from. ``where``: the Closure's x_mm, y_mm, first_touch, repeat_touches,
+    elapsed_s."""
+    first_rows = np.atleast_2d(np.asarray(first_rows, float))
+    first_mm = np.atleast_1d(np.asarray(first_mm, float))
+    repeat_rows = np.atleast_2d(np.asarray(repeat_rows, float))
+    repeat_mm = np.atleast_1d(np.asarray(repeat_mm, float))
+    k, m = len(first_mm), len(repeat_mm)
+    a = repeat_rows.mean(axis=0) - first_rows.mean(axis=0)
+    d = float(repeat_mm.mean() - first_mm.mean() - a @ np.asarray(mean, float))
+    sd = math.sqrt(noise_var_mm2 * (1.0 / m + 1.0 / k) + max(float(a @ cov @ a), 0.0))
+    dof = max(fused - 3, 1)
+    p = float(2.0 * student_t.sf(abs(d) / sd, dof)) if sd > 0 else (0.0 if d else 1.0)
+    return Closure(True, difference_mm=d, sd_mm=sd, dof=dof, p=p, passed=p >= ALPHA,
+                   first_readings=k, **where)

@@ -1,0 +1,146 @@
+"""The closure touch (planning.closure, run.loop): a run stopped by its bound touches its first
+place again; the two readings tell a cell that drifted during the run from one that did not."""
+import math
+
+import numpy as np
+import pytest
+
+from adaptive_cal.planning import closure as cl
+from adaptive_cal.planning import survey as sv
+from tests.helpers import sim_cell
+
+
+def test_the_test_subtracts_the_maps_own_difference_and_averages_a_retake():
+    first, rep = np.array([[1.0, 0.0]]), np.array([[0.0, 1.0], [0.0, 1.0]])
+    mean = np.array([0.010, 0.013])  # the map says the repeat's point is 3 um higher
+    cov = np.diag([1e-6, 4e-6])
+    c = cl.judge(first, [0.100], rep, [0.104, 0.106], mean, cov, 0.002**2, 40)
+    assert c.difference_mm == pytest.approx(0.105 - 0.100 - 0.003, abs=1e-12)
+    # r (1/m + 1/k) + a C a, a = (-1, 1): m = 2 repeats, k = 1 start reading
+    assert c.sd_mm == pytest.approx(math.sqrt(0.002**2 * 1.5 + 5e-6))
+    assert c.dof == 37 and c.made and c.passed
+
+
+def test_the_starts_readings_are_averaged_against_a_dense_reference():
+    """Three start readings a few mm apart and one repeat: d and its variance against the
+    covariance of (repeat, start) heights under the model, built densely."""
+    rng = np.random.default_rng(2)
+    K = 6
+    rows = rng.uniform(0, 1, (4, K))  # three start readings, then the repeat
+    mean, L = rng.normal(0, 0.01, K), rng.normal(0, 0.001, (K, K))
+    cov, r = L @ L.T, 0.003**2
+    h = rng.normal(0, 0.01, 4)
+    c = cl.judge(rows[:3], h[:3], rows[3:], h[3:], mean, cov, r, 30)
+    w = np.array([-1 / 3, -1 / 3, -1 / 3, 1.0])  # d = w . (h - rows mean)
+    assert c.difference_mm == pytest.approx(float(w @ (h - rows @ mean)), abs=1e-15)
+    dense = rows @ cov @ rows.T + r * np.eye(4)  # the heights' covariance given the belief
+    assert c.sd_mm**2 == pytest.approx(float(w @ dense @ w), rel=1e-12)
+    assert c.first_readings == 3
+
+
+def test_false_alarms_at_the_stated_level_by_monte_carlo():
+    """No drift: d ~ N(0, 2 r), r learned from n readings (the sample variance of n - 3
+    residuals, as a refit gives it): the test fires at ALPHA. 20,000 draws: binomial sd 0.07 %,
+    bound 4 sd."""
+    rng = np.random.default_rng(5)
+    n, sigma, draws = 30, 0.005, 20_000
+    fired = 0
+    for _ in range(draws):
+        r = sigma**2 * rng.chisquare(n - 3) / (n - 3)
+        first, rep = rng.normal(0, sigma, 2)
+        c = cl.judge([[1.0]], [first], [[1.0]], [rep], np.zeros(1), np.zeros((1, 1)), r, n)
+        fired += not c.passed
+    rate = fired / draws
+    assert abs(rate - cl.ALPHA) < 4 * math.sqrt(cl.ALPHA * (1 - cl.ALPHA) / draws)
+
+
+def test_the_first_unflagged_reading_is_revisited():
+    assert cl.first_place(np.array([1.0, 1.0, 1.0])) == 0
+    assert cl.first_place(np.array([0.2, 1.0, 1.0])) == 1
+    assert cl.first_place(np.array([0.2, 0.5, 0.9, 1.0])) is None  # only the first three
+    xy = np.array([[0.0, 0.0], [4.0, 0.0], [150.0, 0.0], [1.0, 1.0]])
+    assert cl.start_cluster(np.ones(4), xy, 0) == [0, 1]  # near, and among the first three
+    assert cl.start_cluster(np.array([1.0, 0.5, 1.0, 1.0]), xy, 0) == [0]  # flagged: left out
+
+
+def test_a_failed_closure_widens_the_bands_by_its_drift():
+    c = cl.Closure(True, difference_mm=0.030, sd_mm=0.007, p=1e-4, passed=False)
+    assert c.drift_var_mm2 == pytest.approx(0.030**2 / 3)
+    assert cl.Closure(True, difference_mm=0.030, passed=True).drift_var_mm2 == 0.0
+    assert "drifted" in c.text() and "explain" in c.text()
+
+
+def _run(tmp_path, effects=None, **plan):
+    """The loop on the simulated cell (its drift, if any, in the truth)."""
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.run.devices import open_cell
+    from adaptive_cal.run.loop import run_loop
+
+    sim = {"seed": 3, "noise_std_mm": 0.002, "repeatability_mm": 0.0,
+           "effects": {"tilt": {"a": 0.0140, "b": 0.0019, "c": 0.2},
+                       "form": {"pv_mm": 0.28, "bow_y": 1.0, "twist": 0.4}, **(effects or {})}}
+    cell = sim_cell(simulation=sim, plan={"stop": {"mean_std_mm": 0.004, "max_touches": 120},
+                                          "candidates": 2000, **plan})
+    plan_ = survey_plan(cell)
+    opened = open_cell(cell)
+    rows = []
+    try:
+        state, why = run_loop(plan_, sv.start(plan_), opened.cycle, record=rows.append)
+    finally:
+        opened.close()
+    return plan_, state, why, rows
+
+
+def test_a_run_without_drift_closes_at_its_first_place_and_stops_on_its_bound(tmp_path):
+    plan, state, why, rows = _run(tmp_path)
+    assert why == "mean_std_bound"
+    c = state.closure
+    assert c is not None and c.made and c.passed
+    last = rows[-1]
+    assert "closure" in last.flags and sum("closure" in r.flags for r in rows) == 1
+    assert (last.x_mm, last.y_mm) == pytest.approx((rows[c.first_touch].x_mm,
+                                                   rows[c.first_touch].y_mm))
+    assert c.repeat_touches == (last.seq,) and c.elapsed_s == pytest.approx(
+        last.t_s - rows[c.first_touch].t_s)
+    assert sv.status(plan, state).mean_std_mm <= 0.004  # no drift: nothing added
+
+
+def test_a_warm_up_during_the_run_ends_it_with_drift_and_wide_bands(tmp_path):
+    """A 0.2 mm warm-up (tau 60 s: an arm straight from cold) is far beyond the noise; the
+    self-checks keep the bound from stopping the run, so the budget's last touch closes."""
+    plan, state, why, rows = _run(tmp_path, {"thermal_drift": {"amplitude_mm": 0.2,
+                                                                "tau_s": 60}})
+    from adaptive_cal.run.loop import DRIFT
+    c = state.closure
+    assert why == DRIFT and c.made and not c.passed and c.p < cl.ALPHA
+    assert c.difference_mm > 0.1  # the warm-up raises later readings
+    status = sv.status(plan, state)
+    assert status.mean_std_mm >= abs(c.difference_mm) / math.sqrt(3)
+    assert "closure" in rows[-1].flags
+
+
+def test_no_closure_when_turned_off_or_the_budget_is_spent(tmp_path):
+    _, state, why, rows = _run(tmp_path, closure=False)
+    assert why == "mean_std_bound" and state.closure is None
+    assert not any("closure" in r.flags for r in rows)
+    # no bound can stop the run before its budget: the budget's last touch is the closure,
+    # and no touch goes past the budget
+    _, state, why, rows = _run(tmp_path, stop={"mean_std_mm": 0.004, "max_touches": 31,
+                                               "min_touches": 31})
+    assert len(rows) == 31 and why in ("mean_std_bound", "touch_budget")
+    assert [r.seq for r in rows if "closure" in r.flags] == [30] and state.closure.passed
+
+
+def test_the_run_says_drift_in_result_json_and_the_summary(tmp_path):
+    from adaptive_cal.report.status import missing, next_step
+    from adaptive_cal.run.session import run
+
+    cell = sim_cell(simulation={**sim_cell().simulation.model_dump(exclude_none=True),
+                                "effects": {"tilt": {"a": 0.0140, "b": 0.0019, "c": 0.2},
+                                            "thermal_drift": {"amplitude_mm": 0.2,
+                                                              "tau_s": 60}}},
+                    plan={"candidates": 2000})
+    result = run(cell, tmp_path / "run", progress=False)
+    assert result["stopped_because"] == "drift"
+    assert result["closure"]["passed"] is False and result["closure"]["drift_rms_mm"] > 0.05
+    assert "drifted" in missing(result) and "warm the cell up" in next_step(result, "x").lower()
