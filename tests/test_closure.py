@@ -144,3 +144,35 @@ def test_the_run_says_drift_in_result_json_and_the_summary(tmp_path):
     assert result["stopped_because"] == "drift"
     assert result["closure"]["passed"] is False and result["closure"]["drift_rms_mm"] > 0.05
     assert "drifted" in missing(result) and "warm the cell up" in next_step(result, "x").lower()
+
+
+def test_studies_charge_the_closure_to_bound_stops_only():
+    """A study record (adaptive, grid, random) at a bound stop pays one touch and the trip back
+    to the first touch; a budget stop or a plan without closure pays nothing."""
+    from types import SimpleNamespace
+
+    from adaptive_cal.planning.route import robot_time_s
+    from adaptive_cal.study.strategies import record
+    from adaptive_cal.study.summary import to_bound
+
+    def ctx(closure):
+        def robot(xy):
+            return robot_time_s((0.0, 0.0), xy, 100.0, 3.0)
+        return SimpleNamespace(plan=SimpleNamespace(closure=closure), robot=robot,
+                               robot_time_s=lambda xy: robot(xy)[0],
+                               plate=SimpleNamespace(index=0, seed=1, noise_std_mm=0.005))
+
+    xy = np.array([[100.0, 0.0], [100.0, 300.0], [400.0, 300.0]])
+    final = {"mean_std_mm": 0.004, "true_rms_mm": 0.004, "true_max_mm": 0.01,
+             "coverage95": 0.95}
+    traj = [[3, 0.004, 0.004]]
+    rec = record(ctx(True), "grid", traj, 3, final, xy, "mean_std_bound", 0.005)
+    # 100 + 300 + 300 mm there, 300 sqrt 2 mm back to the first touch; four touches of 3 s
+    back = 700.0 + 300.0 * math.sqrt(2.0)
+    assert rec["touches"] == 4 and rec["closure"] and to_bound(rec) == 3
+    assert rec["travel_mm"] == pytest.approx(back)
+    assert rec["robot_time_s"] == pytest.approx(back / 100.0 + 12.0)
+    for c, why in ((True, "touch_budget"), (False, "mean_std_bound")):
+        rec = record(ctx(c), "grid", traj, 3, final, xy, why, 0.005)
+        assert rec["touches"] == 3 and not rec["closure"]
+        assert rec["robot_time_s"] == pytest.approx(7.0 + 9.0)

@@ -71,7 +71,7 @@ class Closure:
         if not self.made:
             return f"closure touch not made: {self.why}"
         when = f" after {self.elapsed_s:.0f} s" if self.elapsed_s is not None else ""
-        start = (f"the run's start there ({self.first_readings} readings)"
+        start = (f"the run's first {self.first_readings} readings there"
                  if self.first_readings > 1 else "the run's first reading")
         head = (f"closure: the first place (x {self.x_mm:.1f}, y {self.y_mm:.1f} mm) read "
                 f"{self.difference_mm * 1e3:+.1f} um against {start}{when} (sd "
