@@ -178,6 +178,11 @@ class SurveyLoop:
         first_t = self.fused_t_s[i] if i < len(self.fused_t_s) else math.nan
         rows, heights, seqs, t_last = [], [], [], math.nan
         target = target_at(plan, state, x, y)
+        if plan.z_range_mm is not None and not (
+                plan.z_range_mm[0] <= target.z_mm <= plan.z_range_mm[1]):
+            return self._closed(cl.Closure(False, x_mm=x, y_mm=y, first_touch=first,
+                                           why=f"its approach height {target.z_mm:.3f} mm is "
+                                               "outside the workspace box; nothing was sent"))
         for _ in range(2):  # the repeat, and its retake when the gate owes one
             seq = self.state.touches
             step = self.touch(target, extra=(cl.FLAG,))

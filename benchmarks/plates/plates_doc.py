@@ -38,6 +38,9 @@ coverage95: share of the evaluation grid where |true - posterior mean| <= 1.96 p
 never gets there within the budget counts 200 (reached: how many got there). "mix": the ratio
 of the means over the families, so the families with the most touches (rough) weigh most; the
 grid's robot time is that of the serpentine grid it stopped at (each grid size is its own run).
+A stop on the bound (adaptive and grid alike) pays the closure touch a run makes there -- one
+touch more and the trip back to the first touch, a check for drift during the run
+(`plan.closure`; its reading, a repeat, is not in the figures); `paper` stops by its own rule.
 
 ## The families and their physics
 
@@ -194,5 +197,14 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   except two coverages that cross their boundary: dent over-covers (0.987 against at most
   0.98) and noisy falls short (0.894 against at least 0.90). Each family's mean coverage moved
   by 0.01-0.03 between the two draws: 20 plates cannot place a family that near a boundary on
-  one side of it.
+  one side of it. (Measured before the closure touch: the seed-15 figures above do not charge
+  it.)
+* **the closure touch** (a drift check: the first place read again at the stop; README,
+  docs/study-notes.md). Charged to both strategies' bound stops: +1 touch each, +4 s (adaptive:
+  its last touch is anywhere) against +6 s (grid: its serpentine ends at the far corner) of
+  robot time. Against the same run without it (`benchmarks/results/plates-2026-11-23.json`):
+  mix robot time 1.034 -> 1.024 x, touches 1.005 -> 1.006 x; coverage and true error are those
+  of the stop before the closure (the repeat reading is not in the figures) and no other
+  target's verdict changed. On the rough plates the budget's last touch is the closure (no
+  bound stops them): 637 -> 639 s, coverage 0.924 -> 0.923.
 """
