@@ -80,8 +80,9 @@ def test_dry_run_prints_approach_heights_expected_touches_and_robot_time():
     lines = p.stdout.splitlines()
     assert lines[2].split() == ["#", "x_mm", "y_mm", "approach", "z_mm"]
     assert len(lines[3].split()) == 4
-    last = lines[-1]
-    assert last.startswith("expected: about ") and "robot time about " in last and " min (" in last
+    last = next(line for line in lines if line.startswith("expected: about "))
+    assert "robot time about " in last and " min (" in last
+    assert lines[-1].startswith("then one closure touch at the first place")
     touches = int(last.split()[2])
     assert 16 <= touches <= 120  # at least the spline's coefficients, at most the budget
 

@@ -225,6 +225,9 @@ def _dry_run(cell) -> int:
           f"{cell.plan.stop.max_touches}), robot time about {robot_s / 60:.1f} min "
           f"({r.touch_time_s:g} s per touch, {travel_mm / 1000:.1f} m of travel at "
           f"{r.speed_mm_per_s:g} mm/s); with the prior's hyper-parameters and no gated reading")
+    if plan.closure:
+        print("then one closure touch at the first place, to see whether the cell drifted during "
+              "the run (plan.closure)")
     return 0
 
 
