@@ -9,6 +9,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+from html import escape
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +89,10 @@ def test_page_is_self_contained_with_every_section_and_unit(run_dir, capsys):
     assert "of the whole plate (from the map)" in html and "touched points (Cheng eqs. 1-6)" in html
     assert "minimum zone (ISO 1101)" in html and "95 % interval" in html
     assert "No explain findings" in html  # and it says how to get them
+    # the closure touch's verdict, as the terminal says it
+    assert result["closure"]["made"] and "closure touch (drift)" in html
+    assert escape(result["closure"]["text"]) in html
+    assert result["closure"]["text"] in (run_dir.parent / "run-stdout.txt").read_text()
 
 
 def test_explain_findings_appear_when_present(explained, capsys):
