@@ -39,7 +39,9 @@ same plates and is judged by the same spline model; the bound is {bound} um. {no
   touches: xy travel at `robot.speed_mm_per_s` plus `robot.touch_time_s` per touch.
 * **touches at own stop, true RMS / max, coverage95**: where each strategy's own rule stops
   (posterior RMS std at the bound; the paper: its levelling check), and there the true errors
-  and the share of the plate inside the posterior 95 % band.
+  and the share of the plate inside the posterior 95 % band. A stop on the bound pays the
+  closure touch a run makes there (a drift check: one touch more and the trip back to the first
+  touch, in the touches and robot time; not in the errors, nor in the lower bound's ratios).
 * `adaptive`: the engine with hyper-parameter learning; `greedy_fixed`: the same planner with the
   fixed hyper-parameters it starts from (noise {fixed_noise:g} um); `paper`: 5-point levelling
   then rounds of the 10 x 4 S-shaped path until a round's least-squares plane tilts by at most
