@@ -88,6 +88,12 @@ def test_interrupted_run_resumes_without_repeating_or_losing_a_touch(tmp_path):
     rec = read_recording(out / "recording.csv")
     np.testing.assert_array_equal(rec.seq, np.arange(len(rec)))
     assert r2["touches"] == len(rec) > 7
+    # the closure after a resume: the first place again, timed from the recording's first row
+    c = r2["closure"]
+    assert c["made"] and c["passed"] and set(rec.flags[-1]) == {"closure"}
+    assert c["elapsed_s"] == pytest.approx(rec.t_s[-1] - rec.t_s[c["first_touch"]], abs=2e-3)
+    assert (rec.x_mm[-1], rec.y_mm[-1]) == pytest.approx((rec.x_mm[c["first_touch"]],
+                                                         rec.y_mm[c["first_touch"]]), abs=1e-3)
     with pytest.raises(FileExistsError, match="--resume"):
         session.run(cell, out, progress=False)
 
