@@ -131,19 +131,29 @@ def test_no_closure_when_turned_off_or_the_budget_is_spent(tmp_path):
     assert [r.seq for r in rows if "closure" in r.flags] == [30] and state.closure.passed
 
 
-def test_the_run_says_drift_in_result_json_and_the_summary(tmp_path):
-    from adaptive_cal.report.status import missing, next_step
-    from adaptive_cal.run.session import run
+def test_the_run_says_drift_in_result_json_the_summary_and_its_exit_status(tmp_path, capsys):
+    import json
 
-    cell = sim_cell(simulation={**sim_cell().simulation.model_dump(exclude_none=True),
-                                "effects": {"tilt": {"a": 0.0140, "b": 0.0019, "c": 0.2},
-                                            "thermal_drift": {"amplitude_mm": 0.2,
-                                                              "tau_s": 60}}},
-                    plan={"candidates": 2000})
-    result = run(cell, tmp_path / "run", progress=False)
+    import yaml
+
+    from adaptive_cal.cli import main
+    from adaptive_cal.report.status import missing, next_step
+    from tests.helpers import SIM_CELL
+
+    data = yaml.safe_load(SIM_CELL.read_text())
+    data["simulation"]["effects"]["thermal_drift"] = {"amplitude_mm": 0.2, "tau_s": 60}
+    data["plan"]["candidates"] = 2000
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert main(["run", "--robot", str(cell), "--out", str(out), "--no-progress"]) == 1
+    printed = capsys.readouterr().out
+    result = json.loads((out / "result.json").read_text())
     assert result["stopped_because"] == "drift"
     assert result["closure"]["passed"] is False and result["closure"]["drift_rms_mm"] > 0.05
     assert "drifted" in missing(result) and "warm the cell up" in next_step(result, "x").lower()
+    assert printed.startswith("INCOMPLETE: stopped: the cell drifted")
+    assert result["closure"]["text"] in printed
 
 
 def test_studies_charge_the_closure_to_bound_stops_only():

@@ -105,6 +105,8 @@ def command(args) -> int:
     if result.get("prior_from", {}).get("disagreement"):
         print(f"re-check stopped: {result['prior_from']['disagreement']}")
         return 1
+    if result["stopped_because"] == "drift":  # the map is not a result: a script must not use it
+        return 1
     return 130 if result["stopped_because"] == "interrupted" else 0
 
 

@@ -16,7 +16,7 @@ WHY = {
     "prior_disagrees_with_readings": "stopped: the readings contradict the earlier belief "
                                      "(--prior-from) in the frame assumed",
     "drift": "stopped: the cell drifted during the run (the closure touch read the first place "
-             "again and it had moved)",
+             "again and the reading had moved beyond the noise)",
 }
 # reasons that --resume does not cure: what to do instead
 INSTEAD = {
