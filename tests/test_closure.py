@@ -65,7 +65,7 @@ def test_the_first_unflagged_reading_is_revisited():
 
 def test_a_failed_closure_widens_the_bands_by_its_drift():
     c = cl.Closure(True, difference_mm=0.030, sd_mm=0.007, p=1e-4, passed=False)
-    assert c.drift_var_mm2 == pytest.approx(0.030**2 / 3)
+    assert c.drift_var_mm2 == pytest.approx(0.030**2)
     assert cl.Closure(True, difference_mm=0.030, passed=True).drift_var_mm2 == 0.0
     assert "drifted" in c.text() and "explain" in c.text()
 
@@ -114,9 +114,38 @@ def test_a_warm_up_during_the_run_ends_it_with_drift_and_wide_bands(tmp_path):
     c = state.closure
     assert why == DRIFT and c.made and not c.passed and c.p < cl.ALPHA
     assert c.difference_mm > 0.1  # the warm-up raises later readings
+    # the noise relearned with the drift taken out (as linear in time): below the nugget the
+    # drift inflated (a warm-up that settles in a quarter of the run is not a line: 41 -> 31 um)
+    assert c.noise_h0_mm is not None
+    assert c.sd_mm < 0.9 * c.noise_h0_mm * math.sqrt(1 + 1 / c.first_readings)
     status = sv.status(plan, state)
-    assert status.mean_std_mm >= abs(c.difference_mm) / math.sqrt(3)
+    assert status.mean_std_mm >= abs(c.difference_mm)
     assert "closure" in rows[-1].flags
+
+
+def test_runs_on_a_cell_that_does_not_drift_rarely_say_drift():
+    """Monte Carlo over whole runs (the noise relearned with the closure's drift taken out is
+    what the test uses): 30 seeds of the simulated cell without drift, at most 2 false alarms
+    at the 1 % level (binomial: P(3 or more) = 0.003 when calibrated; measured 2 of 400,
+    docs/study-notes.md)."""
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.run.devices import open_cell
+    from adaptive_cal.run.loop import run_loop
+
+    alarms, ps = 0, []
+    for seed in range(30):
+        cell = sim_cell(simulation={**sim_cell().simulation.model_dump(exclude_none=True),
+                                    "seed": 1000 + seed}, plan={"candidates": 2000})
+        plan = survey_plan(cell)
+        opened = open_cell(cell)
+        try:
+            state, why = run_loop(plan, sv.start(plan), opened.cycle)
+        finally:
+            opened.close()
+        alarms += why == "drift"
+        ps.append(state.closure.p)
+    assert alarms <= 2
+    assert 0.25 <= float(np.median(ps)) <= 0.75  # p-values spread over (0, 1), not piled up
 
 
 def test_no_closure_when_turned_off_or_the_budget_is_spent(tmp_path):

@@ -176,7 +176,7 @@ class SurveyLoop:
         start = cl.start_cluster(state.fused_weights, xy, i)
         first_rows, first_mm = state.rows[start].copy(), state.heights_mm[start].copy()
         first_t = self.fused_t_s[i] if i < len(self.fused_t_s) else math.nan
-        rows, heights, seqs, t_last = [], [], [], math.nan
+        rows, heights, seqs, times, t_last = [], [], [], [], math.nan
         target = target_at(plan, state, x, y)
         if plan.z_range_mm is not None and not (
                 plan.z_range_mm[0] <= target.z_mm <= plan.z_range_mm[1]):
@@ -192,6 +192,7 @@ class SurveyLoop:
             rows.append(plan.model.surface.basis(np.array([t.x_mm]), np.array([t.y_mm]))[0])
             heights.append(surface_height_mm(t.reading_mm, t.z_mm, plan.zero_mm))
             seqs.append(seq)
+            times.append(float(t.t_s))
             t_last = t.t_s
             if self.state.retake is None or touches_left(plan.stop, self.state.touches) == 0:
                 break
@@ -201,11 +202,35 @@ class SurveyLoop:
                                            why="the probe cycle rejected the touch or its "
                                                "reading was invalid (see the recording's flags)"))
         elapsed = t_last - first_t if math.isfinite(t_last - first_t) else None
-        belief = self.state.belief
+        belief, n = self.state.belief, self.state.fused
+        where = dict(x_mm=x, y_mm=y, first_touch=first, repeat_touches=tuple(seqs),
+                     elapsed_s=elapsed)
+        h0 = cl.judge(first_rows, first_mm, rows, heights, belief.mean, belief.cov,
+                      self.state.noise_var, n, **where)
+        r1 = self._noise_without_drift(h0.difference_mm, start, times)
+        if r1 is None:
+            return self._closed(h0)
         return self._closed(cl.judge(first_rows, first_mm, rows, heights, belief.mean,
-                                     belief.cov, self.state.noise_var,
-                                     self.state.fused, x_mm=x, y_mm=y, first_touch=first,
-                                     repeat_touches=tuple(seqs), elapsed_s=elapsed))
+                                     belief.cov, r1, n, noise_h0_mm=math.sqrt(
+                                         self.state.noise_var), **where))
+
+    def _noise_without_drift(self, d_mm: float, start: list[int], times: list[float]
+                             ) -> float | None:
+        """The noise variance (mm^2) relearned with the drift the closure reads taken out of
+        every fused reading, as a drift linear in time from the start to the repeat
+        (``planning.closure``: a drift the map could not hold went into the learned noise and
+        would hide itself); None where the noise is not learned or a time is unknown."""
+        t = np.asarray(self.fused_t_s, float)
+        if not sv.learns(self.plan, self.state) or len(t) != self.state.fused or \
+                not np.isfinite(t).all() or not times:
+            return None
+        t0 = float(t[start].mean())
+        span = float(np.mean(times)) - t0
+        if span <= 0:
+            return None
+        corrected = self.state.heights_mm - d_mm / span * (t - t0)
+        refit = sv.refit(self.plan, replace(self.state, heights_mm=corrected))
+        return refit.noise_var
 
     def _closed(self, closure: cl.Closure) -> cl.Closure:
         self.state = replace(self.state, closure=closure)
