@@ -178,7 +178,7 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
         speed_mm_per_s=cell.robot.speed_mm_per_s, touch_time_s=cell.robot.touch_time_s,
         start_xy_mm=(0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)),
         min_spacing_mm=min_spacing(cell, model.surface),
-        closure=plan.closure and not informed_prior)  # a re-check: a handful of touches on a warm cell
+        closure=plan.closure and not informed_prior)  # a re-check: a few touches, a warm cell
 
 
 def min_spacing(cell: Cell, surface) -> float:

@@ -1,9 +1,10 @@
 """The closure touch: when a variance bound stops a run (or with the touch budget's last touch,
-where none did), the probe touches the run's first place again, and the readings are compared. A cell that warms up (robot links, probe, plate) or
-otherwise drifts while it touches changes every later reading by the same amount, whatever the
-plate; a map of touches each at a new place cannot tell that from the plate's form (measured:
-docs/study-notes.md, "Drift during a run"), but two readings at one place can: the plate is the
-same there, so their difference is noise plus the drift between them.
+where none did), the probe touches the run's first place again, and the readings are compared.
+A cell that warms up (robot links, probe, plate) or otherwise drifts while it touches changes
+every later reading by the same amount, whatever the plate; a map of touches each at a new place
+cannot tell that from the plate's form (measured: docs/study-notes.md, "Drift during a run"),
+but two readings at one place can: the plate is the same there, so their difference is noise
+plus the drift between them.
 
 Test. The start is the first k <= 3 unflagged readings within ``CLUSTER_MM`` of the first one
 (the planner's start puts its second and third touches 4 and 8 mm from the first, seconds
@@ -50,8 +51,10 @@ CLUSTER_MM = 20.0  # the start's readings within this of it stand for the start 
 @dataclass(frozen=True)
 class Closure:
     """The closure's verdict (mm, s): where, which touches (0-based row indices of the run's
-    recording), how many start readings were averaged, the difference and its sd, the two-sided p, ``passed``; ``made`` False (with
-    ``why``) when no repeat reading could be taken."""
+    recording), how many start readings were averaged, the difference and its sd, the
+    two-sided p, ``passed``; ``made`` False (with ``why``) when no repeat reading could be
+    taken; ``noise_h0_mm``: the learned noise before the drift was taken out (None when the
+    test used it as it was)."""
 
     made: bool
     x_mm: float = float("nan")
