@@ -43,7 +43,7 @@ def command(args) -> int:
 
 
 def _from_recording(recording, cell_file, out) -> "Path":
-    """Replay the recording with the cell's plan (``run.session.replay``) and write its page."""
+    """Replay the recording with the cell's plan (``planning.survey.replay``) and write its page."""
     from pathlib import Path
 
     import numpy as np
@@ -56,7 +56,6 @@ def _from_recording(recording, cell_file, out) -> "Path":
     from adaptive_cal.planning import survey as sv
     from adaptive_cal.report.html import render_recording
     from adaptive_cal.run.results import result_of
-    from adaptive_cal.run.session import replay
 
     cell = load_cell(cell_file)
     plan = survey_plan(cell)
@@ -64,7 +63,7 @@ def _from_recording(recording, cell_file, out) -> "Path":
     if rec.fused.sum() < 4:
         raise UserError(f"{recording}: {int(rec.fused.sum())} fused touches; a report needs at "
                         "least 4")
-    state, _, _ = replay(plan, sv.start(plan), recording)
+    state = sv.replay(plan, sv.start(plan), rec)  # the recording read once, above
     stopped = plan.stop(sv.status(plan, state)) or "recording_ended"
     result = result_of(cell, plan, state, rec, stopped, rng=np.random.default_rng(SEED))
     s = plan.model.surface

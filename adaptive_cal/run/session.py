@@ -51,19 +51,15 @@ class RunPaths:
 
 
 def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path
-           ) -> tuple[sv.SurveyState, float, int]:
-    """The state after a recording's touches (from a fresh ``state``), the last time (s) and
-    the seq the next row takes (the last seq + 1: a recording may start above 0 or have gaps)."""
+           ) -> tuple[sv.SurveyState, float, int, np.ndarray]:
+    """The state after a recording's touches (from a fresh ``state``), the last time (s), the
+    seq the next row takes (the last seq + 1: a recording may start above 0 or have gaps) and
+    the time (s, NaN where blank) of each fused reading, in order (the loop's closure touch)."""
     rec = read_recording(path)
     t = rec.t_s[np.isfinite(rec.t_s)]
     next_seq = int(rec.seq[-1]) + 1 if len(rec) else 0
-    return sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0, next_seq
-
-
-def fused_times(path: Path) -> np.ndarray:
-    """The time (s, NaN where blank) of each fused reading of a recording, in order."""
-    rec = read_recording(path)
-    return rec.t_s[rec.fused]
+    return (sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0, next_seq,
+            rec.t_s[rec.fused])
 
 
 @contextmanager
@@ -135,8 +131,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         if cut is not None:
             warnings.warn(f"{paths.recording}: its last row was cut by a crash mid-write and is "
                           f"dropped: {cut[:80]!r}", stacklevel=2)
-        state, start_t, next_seq = replay(plan, state, paths.recording)
-        fused_t_s = fused_times(paths.recording)
+        state, start_t, next_seq, fused_t_s = replay(plan, state, paths.recording)
         done = plan.stop(sv.status(plan, state))
         saved = _saved_result(paths.out)
         if done and saved is not None and saved.get("touches") == state.touches:

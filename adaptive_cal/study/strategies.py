@@ -292,11 +292,10 @@ def run_grid(ctx: Context, target_true: float) -> dict:
     reason = "mean_std_bound"
     if stop is None:
         stop, final, best_xy, reason = len(xy), fig, xy, "touch_budget"
+    # robot time and travel by ``record``: the grid it stopped at (stop = len(best_xy)), and
+    # its closure touch's trip back to that grid's first touch
     rec = record(ctx, "grid", trajectory, stop, final, best_xy, reason, target_true,
                  hyper=list(learner.hyper), grid=[nx, ny])
-    # its closure touch (``record``) goes back to the first touch of that grid
-    rec["robot_time_s"], rec["travel_mm"] = ctx.robot(
-        np.vstack([best_xy, best_xy[:1]]) if rec["closure"] else best_xy)
     if true_xy is not None:  # each grid is its own run: time the grid that met the target
         rec["robot_time_true_s"] = ctx.robot_time_s(true_xy)
     return rec
