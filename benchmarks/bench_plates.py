@@ -5,8 +5,9 @@ The maps come from benchmarks/plates/generate.py (numpy/scipy only; written if m
 family runs as a study of configs/study-plates.yaml with ``plate.surface_files`` set to that
 family's maps, through ``adaptive_cal.study.tasks.plate_task`` (strategies adaptive, grid,
 paper: the loop, the serpentine grid and the reference procedure of strategies.py). The
-``noisy`` family adds ``simulation.outlier_rate`` / ``outlier_mm`` from the generator's manifest
-(the study's reading noise stays Gaussian: the simulator has no Student-t key; see docs/plates.md).
+``noisy`` family's readings follow the generator's manifest: Student-t noise of its degrees of
+freedom (``simulation.noise_dof``; the study's 5 um stays the standard deviation, as the
+generator's) and its gross errors (``simulation.outlier_rate`` / ``outlier_mm``, the mean rate).
 
 Printed per family and strategy: touches and robot time (s; xy travel from the plate centre at
 robot.speed_mm_per_s + touch_time_s per touch) at the strategy's own stop, the claimed RMS
@@ -60,13 +61,15 @@ def family_study(study, family: str, maps: Path, plates: int):
 
 
 def family_base(base: dict, family: str, manifest: dict) -> dict:
-    """The base cell; for the noisy family with the manifest's gross errors (mean rate)."""
+    """The base cell; for the noisy family with the manifest's Student-t degrees of freedom and
+    gross errors (mean rate)."""
     specs = [d["noise"] for k, d in manifest["plates"].items() if k.startswith(family + "/")]
     specs = [s for s in specs if s["kind"] == "student_t"]
     if not specs:
         return base
     sim = dict(base.get("simulation") or {})
-    sim.update(outlier_rate=float(np.mean([s["outlier_rate"] for s in specs])),
+    sim.update(noise_dof=float(specs[0]["dof"]),
+               outlier_rate=float(np.mean([s["outlier_rate"] for s in specs])),
                outlier_mm=float(specs[0]["outlier_mm"]))
     return {**base, "simulation": sim}
 

@@ -4,6 +4,7 @@ simulator's readings against the study's own draws; the outlier share by Monte C
 import numpy as np
 import pytest
 import yaml
+from scipy import stats
 
 from adaptive_cal.cell.schema import ConfigError, load_cell, load_yaml
 from adaptive_cal.formats.heightmap import (HEADER, HeightMapError, load_heightmap, parse_heightmap,
@@ -153,10 +154,31 @@ def test_outliers_replace_the_stated_share_and_leave_other_readings_as_they_were
     assert 0.8 < np.std(dirty[hit] - clean[hit]) < 1.2
 
 
-def test_study_designs_see_the_simulators_readings_outliers_included(tmp_path):
+@pytest.mark.parametrize("dof", [2, 1.5, 0])
+def test_student_t_noise_needs_more_than_two_degrees_of_freedom(dof):
+    with pytest.raises(ConfigError, match="simulation.noise_dof"):
+        sim_cell(simulation={"noise_dof": dof})
+
+
+@pytest.mark.parametrize("dof", [3.0, 6.0])
+def test_student_t_noise_is_t_distributed_with_the_stated_standard_deviation(dof):
+    n, std = 3000, 0.05
+    still = {"repeatability_mm": 0.0, "xy_repeatability_mm": 0.0}
+    clean = _readings(sim_cell(simulation={**still, "noise_std_mm": 0.0}), n)
+    noisy = _readings(sim_cell(simulation={**still, "noise_std_mm": std, "noise_dof": dof}), n)
+    # oracle: scipy's Student-t, scaled so that its standard deviation is noise_std_mm; the
+    # probe's 0.1 um resolution is 0.3 % of the scale, far below the KS test's resolution here
+    z = (noisy - clean) / (std * np.sqrt((dof - 2) / dof))
+    assert stats.kstest(z, stats.t(dof).cdf).pvalue > 1e-3
+    # and it is not the Gaussian of the same standard deviation
+    assert stats.kstest((noisy - clean) / std, stats.norm.cdf).pvalue < 1e-3
+
+
+@pytest.mark.parametrize("noise", [{"outlier_rate": 0.3, "outlier_mm": 0.5},
+                                   {"noise_dof": 3.0, "noise_std_mm": 0.05, "outlier_rate": 0.02}])
+def test_study_designs_see_the_simulators_readings_outliers_included(tmp_path, noise):
     write_map(tmp_path / "plate.csv")
-    cell = load_cell(cell_with_map(tmp_path, outlier_rate=0.3, outlier_mm=0.5,
-                                   repeatability_mm=0.0))
+    cell = load_cell(cell_with_map(tmp_path, repeatability_mm=0.0, **noise))
     sim = SimulatedCell.from_cell(cell)
     xy = np.array([[-200.0 + 10 * k, 150.0 - 7 * k] for k in range(40)])  # inside the stroke
     read = []
@@ -165,7 +187,7 @@ def test_study_designs_see_the_simulators_readings_outliers_included(tmp_path):
         read.append(sim.read().reading_mm - cell.probe.zero_mm)
     expected = heights_at(cell, xy)
     assert np.allclose(read, expected, atol=1.01e-4)  # the probe's resolution
-    assert np.ptp(np.array(read) - truth(cell)(xy[:, 0], xy[:, 1])) > 0.1  # gross errors there
+    assert np.ptp(np.array(read) - truth(cell)(xy[:, 0], xy[:, 1])) > 0.1  # the errors are there
 
 
 def _study(tmp_path, files):

@@ -22,7 +22,11 @@ class Simulation(Block):
     effects: dict[str, dict[str, float]] = Field(
         {}, description="effect name -> parameters (DESIGN.md effect table)")
     unknown: list[str] = Field(["tilt"], description="effects explain calibrates from a recording")
-    noise_std_mm: float = Field(0.002, ge=0, description="probe noise")
+    noise_std_mm: float = Field(0.002, ge=0, description="probe noise (standard deviation)")
+    noise_dof: float | None = Field(
+        None, gt=2, description="Student-t reading noise with this many degrees of freedom (heavy "
+        "tails: dust, a chip, a sticking stylus), its standard deviation noise_std_mm; more than 2 "
+        "(at 2 or fewer the variance is infinite); none: Gaussian")
     repeatability_mm: float = Field(0.005, ge=0, description="robot z repeatability (1 sigma)")
     xy_repeatability_mm: float = Field(0.01, ge=0, description="robot x/y repeatability (1 sigma)")
     frame_correction_deg: FrameCorrection | None = Field(

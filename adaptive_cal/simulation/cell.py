@@ -1,6 +1,7 @@
 """The simulated cell: a plate with tilt and form (or a height map, ``simulation.surface_file``),
 every effect of the effect table as a forward model, robot repeatability, probe stroke,
-resolution, noise and gross errors (``simulation.outlier_rate`` / ``outlier_mm``), all seeded.
+resolution, noise (Gaussian, or Student-t with ``simulation.noise_dof``) and gross errors
+(``simulation.outlier_rate`` / ``outlier_mm``), all seeded.
 
 It knows the truth, so runs on it report their true error. Randomness for touch number ``k`` is
 drawn from ``np.random.default_rng([seed, k])``: a resumed run sees the same plate and noise.
@@ -96,7 +97,7 @@ class SimulatedCell:
                              np.array([self._last_dir]), np.array([ideal]))
         _, others = effects.split(self.sim.effects)
         value = ideal + float(effects.total_change(others, f, self.geometry)[0])
-        value += self.sim.noise_std_mm * rng.standard_normal()
+        value += reading_noise_mm(self.sim, rng)
         value += gross_error_mm(self.sim, rng)
         value = float(np.clip(value, 0.0, self.stroke_mm))  # the probe bottoms out
         value = round(value / self.resolution_mm) * self.resolution_mm
@@ -104,6 +105,16 @@ class SimulatedCell:
 
     def close(self) -> None:
         pass
+
+
+def reading_noise_mm(sim: Simulation, rng: np.random.Generator) -> float:
+    """A reading's probe noise of standard deviation ``noise_std_mm``: Gaussian, or with
+    ``noise_dof`` Student-t of that many degrees of freedom, scaled by sqrt((dof - 2) / dof) so its
+    standard deviation is the same."""
+    if sim.noise_dof is None:
+        return sim.noise_std_mm * rng.standard_normal()
+    scale = sim.noise_std_mm * np.sqrt((sim.noise_dof - 2.0) / sim.noise_dof)
+    return float(scale * rng.standard_t(sim.noise_dof))
 
 
 def gross_error_mm(sim: Simulation, rng: np.random.Generator) -> float:

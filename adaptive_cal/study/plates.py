@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from adaptive_cal.simulation.cell import SimulatedCell, gross_error_mm
+from adaptive_cal.simulation.cell import SimulatedCell, gross_error_mm, reading_noise_mm
 from adaptive_cal.cell.schema import Cell, parse_cell
 from adaptive_cal.study.config import Study, surface_files
 
@@ -93,8 +93,8 @@ def heights_at(cell: Cell, xy: np.ndarray, first_touch: int = 0) -> np.ndarray:
     out = np.empty(len(xy))
     for k, (x, y) in enumerate(np.asarray(xy, float)):
         rng = np.random.default_rng([sim.seed, first_touch + k])
-        e = rng.standard_normal(4)
+        e = rng.standard_normal(3)
         surface = float(f(x + sim.xy_repeatability_mm * e[0], y + sim.xy_repeatability_mm * e[1]))
-        out[k] = (surface - sim.repeatability_mm * e[2] + sim.noise_std_mm * e[3]
+        out[k] = (surface - sim.repeatability_mm * e[2] + reading_noise_mm(sim, rng)
                   + gross_error_mm(sim, rng))
     return out

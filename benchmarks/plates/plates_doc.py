@@ -58,11 +58,12 @@ Every plate also carries a mild smooth form (std 3 um, length scale 200 mm), a t
 +-1 deg about each axis and an offset uniform in +-0.2 mm. Maps use a 5 mm grid. Plate i of a
 family is drawn from `default_rng([seed, family, i])`: deterministic.
 
-**Limitation (noisy family).** The simulator's reading noise is Gaussian
-(`simulation.noise_std_mm`) plus gross errors (`simulation.outlier_rate`, `outlier_mm`); it has no
-Student-t key. The benchmark runs the noisy family with the generator's gross-error rate and size
-on top of the study's 5 um Gaussian noise; the Student-t part is written in the generator's
-`manifest.json` (`generate.reading_noise_mm` draws it) but is not what the study's readings see.
+**Noisy family.** Its readings are those the generator's `manifest.json` describes: the
+simulator draws Student-t noise with the manifest's 3 degrees of freedom (`simulation.noise_dof`)
+scaled to the study's 5 um standard deviation -- the generator's own scale, 5 / sqrt(3) um --
+and gross errors of 50 um at the manifest's mean rate (`simulation.outlier_rate`,
+`outlier_mm`). Until 2026-11-24 the simulator had no Student-t key and this family's noise
+was Gaussian with the gross errors on top.
 
 """
 
