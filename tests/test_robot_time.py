@@ -13,7 +13,9 @@ from adaptive_cal.planning import route, scoring
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.ask import ask, kept_apart
 
-from helpers import sim_cell
+from adaptive_cal.run.devices import open_cell
+
+from helpers import drive, sim_cell
 
 RNG = np.random.default_rng(14)
 
@@ -242,3 +244,23 @@ def test_study_summary_puts_touches_and_robot_time_side_by_side():
     text = table(s)
     assert "| adaptive | 70.0 / 78 | 240 | 100% | 70.0 | 240 | 5.00 |" in text
     assert "touches 0.88 x, robot time 0.89 x" in text
+
+
+def test_a_probe_position_the_adapter_cannot_read_is_planned_from_the_last_touch():
+    """The Modbus and manual adapters know no position before their first move (NaN): the
+    choice is then priced from the last touch (or the start), as with no position given -- it
+    was NaN for every candidate, and the run ended before its first touch."""
+    cell = sim_cell(plan={"candidates": 600},  # the refinement of the best points on
+                    model={"knots_x": 6, "knots_y": 5, "learn_hyper": False})
+    plan = survey_plan(cell)
+    assert plan.refine > 0
+    state = _told(plan, 5)
+    for n in (1, 3):
+        unknown = ask(plan, state, n, from_xy=(np.nan, np.nan))
+        assert unknown and [(t.x_mm, t.y_mm) for t in unknown] == [
+            (t.x_mm, t.y_mm) for t in ask(plan, state, n)]
+    # a whole run through the loop on a motion that never knows where it is
+    opened = open_cell(cell)
+    opened.cycle.motion.position = lambda: (np.nan, np.nan, np.nan)
+    state = drive(survey_plan(cell), opened, limit=6)
+    assert state.touches == 6 and np.all(np.isfinite(state.touched_xy_mm))

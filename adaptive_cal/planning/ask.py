@@ -68,8 +68,9 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         return [target(plan, state, x, y, z_mm=z, retake=True)]
     rows, cov, r = plan.candidates.rows, state.belief.cov, state.noise_var
     xy = plan.candidates.xy_mm
-    here = (np.asarray(from_xy, float)[:2] if from_xy is not None
-            else plan.here_xy_mm(state.touched_xy_mm))
+    here = None if from_xy is None else np.asarray(from_xy, float)[:2]
+    if here is None or not np.all(np.isfinite(here)):  # an adapter that cannot read its position
+        here = plan.here_xy_mm(state.touched_xy_mm)
     timed = plan.time_aware and plan.criterion == "integrated"
     mean = rows @ state.belief.mean
     z_ok = np.ones(len(mean), bool)
