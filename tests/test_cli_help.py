@@ -118,6 +118,10 @@ def test_the_installed_command_keeps_stdout_clean_and_debug_shows_the_traceback(
     assert p.stderr.strip() == f"adaptive-cal flatness: error: {missing}: no such file"
     p = subprocess.run(exe + ["--debug", "flatness", missing], capture_output=True, text=True, timeout=120)
     assert p.returncode != 0 and "Traceback" in p.stderr
+    # after the command too, as the error message's "run again with --debug" invites
+    p = subprocess.run(exe + ["flatness", missing, "--debug"], capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode != 0 and "Traceback" in p.stderr and "unrecognized" not in p.stderr
     p = subprocess.run(exe + ["bogus"], capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "invalid choice" in p.stderr and p.stdout == ""
 

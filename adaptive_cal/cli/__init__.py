@@ -53,6 +53,8 @@ def _chosen(argv: list[str]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    if "--debug" in argv[1:]:  # `adaptive-cal run ... --debug` as well as `adaptive-cal --debug run`
+        argv = ["--debug"] + [a for a in argv if a != "--debug"]
     parser = build_parser(only=_chosen(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "_module", None):
