@@ -202,7 +202,8 @@ def _summary(r: dict, out: Path) -> None:
     if r.get("robot_time_s") is not None:  # touches and robot time side by side
         lines.append(f"robot time: about {r['robot_time_s'] / 60:.1f} min for {r['touches']} "
                      f"touches ({r['travel_mm'] / 1000:.1f} m of travel)")
-    lines.append(f"wrote {out}/recording.csv, result.json, surface.png, convergence.png")
+    lines.append(f"wrote {out}/recording.csv, result.json, surface.png, convergence.png, "
+                 "belief.npz, cell.yaml")
     print("\n".join(lines))
 
 
