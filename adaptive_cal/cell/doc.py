@@ -20,15 +20,37 @@ def _type(annotation) -> str:
     return text.replace("|", "&#124;")
 
 
-def _models(model: type[BaseModel], prefix: str, seen: set):
-    yield prefix, model
+def _models(model: type[BaseModel], prefix: str, seen: dict, said: set | None = None):
+    """(key path, model, the path where the same model was described first, or None), each
+    path once (an optional block's class appears twice in its annotation)."""
+    said = set() if said is None else said
+    said.add(prefix)
+    yield prefix, model, None
     for name, field in model.model_fields.items():
         for arg in (field.annotation, *typing.get_args(field.annotation)):
             inner = typing.get_args(arg) or (arg,)
             for cls in inner:
-                if isinstance(cls, type) and issubclass(cls, BaseModel) and cls not in seen:
-                    seen.add(cls)
-                    yield from _models(cls, f"{prefix}.{name}" if prefix else name, seen)
+                if isinstance(cls, type) and issubclass(cls, BaseModel):
+                    path = f"{prefix}.{name}" if prefix else name
+                    if path in said:
+                        continue
+                    if cls in seen:
+                        said.add(path)
+                        yield path, cls, seen[cls]
+                        continue
+                    seen[cls] = path
+                    yield from _models(cls, path, seen, said)
+
+
+def _intro(model: type[BaseModel]) -> str:
+    """The docstring's first paragraph on one line (its first line alone can stop mid-sentence)."""
+    text = (model.__doc__ or "").strip().split("\n\n")[0]
+    return " ".join(line.strip() for line in text.splitlines())
+
+
+def _anchor(path: str) -> str:
+    """GitHub's anchor of a heading "`a.b`": lower case, the dots and backquotes dropped."""
+    return re.sub(r"[^a-z0-9_ -]", "", path.lower()).replace(" ", "-")
 
 
 def reference() -> str:
@@ -37,8 +59,12 @@ def reference() -> str:
            "current. Units: mm, s, deg, in the workplane frame. Unknown keys are refused, and "
            "every error names the key and the value. `configs/sim-cell.yaml` is a complete "
            "example.", ""]
-    for prefix, model in _models(Cell, "", set()):
-        out += [f"## `{prefix or '(top level)'}`", "", (model.__doc__ or "").strip().splitlines()[0], "",
+    for prefix, model, same_as in _models(Cell, "", {}):
+        if same_as is not None:
+            out += [f"## `{prefix}`", "", f"The same keys as [`{same_as}`](#{_anchor(same_as)}): "
+                    f"{_intro(model)}", ""]
+            continue
+        out += [f"## `{prefix or '(top level)'}`", "", _intro(model), "",
                 "| key | type | default | meaning |", "|---|---|---|---|"]
         for name, field in model.model_fields.items():
             default = "required" if field.is_required() else field.get_default()
