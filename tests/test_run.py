@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from adaptive_cal.cell.build import survey_plan
-from adaptive_cal.cell.schema import load_yaml
+from adaptive_cal.cell.schema import load_cell, load_yaml
 from adaptive_cal.cli import main
 from adaptive_cal.formats.recording import RecordingError, read_recording
 from adaptive_cal.planning import survey as sv
@@ -242,10 +242,19 @@ def test_batch_mode_plans_k_touches_ordered_for_travel():
         travel_order((0, 0), pts) == list(range(6))
 
 
-def test_dry_run_moves_nothing(tmp_path, capsys):
+def test_dry_run_moves_nothing_and_lists_the_runs_own_first_touches(tmp_path, capsys):
+    """The listed touches are the run's: its stroke-safe start included (the list was once one
+    batch planned before any reading, the start's points each three times). Oracle: the first
+    touches a real run on the simulated cell makes."""
     assert main(["run", "--robot", str(SIM_CELL), "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert "nothing moves" in out and len(out.splitlines()) >= 5
+    listed = [tuple(map(float, line.split()[1:3])) for line in out.splitlines()
+              if line[:3].strip().isdigit()]
+    assert len(listed) == 20 and len(set(listed)) == 20
+    cell = load_cell(SIM_CELL)
+    state = drive(survey_plan(cell), open_cell(cell), limit=3)
+    np.testing.assert_allclose(listed[:3], np.asarray(state.touched_xy_mm)[:3], atol=0.006)
 
 
 @pytest.mark.parametrize("patch,key", [

@@ -209,19 +209,16 @@ def _summary(r: dict, out: Path) -> None:
 
 def _dry_run(cell) -> int:
     from adaptive_cal.cell.build import survey_plan
-    from adaptive_cal.planning import survey as sv
-    from adaptive_cal.planning.ask import ask
 
     plan = survey_plan(cell)
-    n = min(cell.plan.stop.max_touches, 20)
-    targets = ask(plan, sv.start(plan), n)
-    print(f"dry run: the first {len(targets)} planned touches, in travel order; nothing moves.\n"
-          "The plan adapts as readings arrive, and each approach height is set from the belief "
-          "at that touch.")
+    touches, travel_mm, why, targets = _forecast(plan, cell)
+    targets = targets[:20]
+    print(f"dry run: the first {len(targets)} touches as planned when every reading lands where "
+          "the belief expects it; nothing moves.\nThe plan adapts as readings arrive, and each "
+          "approach height is set from the belief at that touch.")
     print("  #     x_mm     y_mm  approach z_mm")
     for i, t in enumerate(targets):
         print(f"{i:3d} {t.x_mm:8.2f} {t.y_mm:8.2f} {t.z_mm:14.3f}")
-    touches, travel_mm, why = _forecast(plan, cell)
     r = cell.robot
     robot_s = touches * r.touch_time_s + travel_mm / r.speed_mm_per_s
     print(f"expected: about {touches} touches ({why.replace('_', ' ')}; at most "
@@ -234,26 +231,30 @@ def _dry_run(cell) -> int:
     return 0
 
 
-def _forecast(plan, cell) -> tuple[int, float, str]:
-    """Touches until the stopping rule fires, and the travel between them (mm), when every
-    reading lands where the belief expects it: the covariance does not depend on the readings,
-    so this is the plan's own count while the hyper-parameters stay at the prior's."""
+def _forecast(plan, cell) -> tuple[int, float, str, list]:
+    """Touches until the stopping rule fires, the travel between them (mm), why it fired and
+    the touches, when every reading lands where the belief expects it: the covariance does not
+    depend on the readings, so this is the plan's own count while the hyper-parameters stay at
+    the prior's. The first 20 are chosen as the run chooses them (its refinement of the best
+    candidates included), the rest on the candidate grid alone (faster)."""
     import math
     from dataclasses import replace
 
     from adaptive_cal.planning import survey as sv
     from adaptive_cal.planning.ask import ask
 
-    quick = replace(plan, refine=0, learn=False)
-    state, travel, last = sv.start(quick), 0.0, None
+    fixed = replace(plan, learn=False)
+    quick = replace(fixed, refine=0)
+    state, travel, last, made = sv.start(quick), 0.0, None, []
     while True:
         why = quick.stop(sv.status(quick, state))
         if why:
-            return state.touches, travel, why
-        targets = ask(quick, state, 1)
+            return state.touches, travel, why, made
+        targets = ask(fixed if state.touches < 20 else quick, state, 1)
         if not targets:
-            return state.touches, travel, "no_admissible_point"
+            return state.touches, travel, "no_admissible_point", made
         t = targets[0]
+        made.append(t)
         if last is not None:
             travel += math.dist(last, (t.x_mm, t.y_mm))
         last = (t.x_mm, t.y_mm)
