@@ -125,3 +125,54 @@ def test_modbus_config_checks_its_register_map_without_the_adapter():
         from adaptive_cal.hardware.modbus.config import ModbusConfig
 
         ModbusConfig(host="127.0.0.1", port=502, registers={"done": "D5"})
+
+
+def test_modbus_default_scale_is_the_jobs_0_1_um_counts():
+    """A cell file that leaves scale out must send what hw/ACAL_TOUCH.JBI reads: 0.1 um counts,
+    divided by 10 into the um that SETE puts in P001 (the map, the job and the docs say 10000)."""
+    import re
+
+    from adaptive_cal.hardware.modbus.config import ModbusConfig
+
+    cfg = ModbusConfig(host="192.168.1.5", port=502)
+    job = (ROOT / "hw" / "ACAL_TOUCH.JBI").read_text()
+    div = int(re.search(r"^DIV D001 (\d+)$", job, re.M).group(1))
+    assert "0.1 UM" in job.upper() and div == 10
+    for mm in (2.0, 100.0, -185.0):
+        counts = round(mm * cfg.scale)
+        assert int(counts / div) / 1000 == mm  # SETE: um -> the job moves to mm
+    assert re.search(r"`scale` is register counts per mm \(10000 = 0\.1\s+um\)",
+                     (ROOT / "hw" / "plc-register-map.md").read_text())
+    assert cfg.scale == MODBUS["robot"]["modbus"]["scale"] == 10000
+
+
+@pytest.mark.parametrize("number, scale, fits", [
+    ("int32", 10000, True), ("int16", 10000, False), ("int16", 100, True),
+    ("float32", 10000, True), ("float32", 1e5, False)])
+def test_modbus_number_and_scale_checked_against_the_workspace(number, scale, fits):
+    from adaptive_cal.hardware.modbus.config import ModbusConfig
+
+    cfg = ModbusConfig(host="127.0.0.1", port=502, number=number, scale=scale)
+    box = {k: tuple(v) for k, v in MODBUS["workspace"].items()}  # x up to 230 mm
+    if fits:
+        cfg.check_reach(box, "robot.modbus")
+    else:
+        with pytest.raises(ValueError, match=f"robot.modbus.scale={scale:g} with "
+                                             f"robot.modbus.number='{number}' carries at most"):
+            cfg.check_reach(box, "robot.modbus")
+
+
+def test_modbus_serial_data_bits_per_transport():
+    """Modbus over Serial Line V1.02 s.2.5.1: RTU is 8 data bits (even parity by default);
+    7 data bits exist in ASCII mode only (Delta DVP's default 9600 7E1)."""
+    from adaptive_cal.hardware.modbus.config import ModbusConfig
+
+    rtu = ModbusConfig(transport="rtu", serial_port="/dev/ttyUSB0")
+    ascii_ = ModbusConfig(transport="ascii", serial_port="/dev/ttyUSB0")
+    assert (rtu.bytesize, rtu.parity, rtu.stopbits) == (8, "E", 1)
+    assert (ascii_.bytesize, ascii_.parity, ascii_.stopbits) == (7, "E", 1)
+    assert ModbusConfig(transport="ascii", serial_port="x", bytesize=8).bytesize == 8
+    bad = edited(edited(MODBUS, "robot.modbus.transport", "rtu"), "robot.modbus.bytesize", 7)
+    bad = edited(bad, "robot.modbus.serial_port", "/dev/ttyUSB0")
+    with pytest.raises(ConfigError, match="robot.modbus: bytesize 7 with transport 'rtu'"):
+        parse_cell(bad, "cell.yaml")

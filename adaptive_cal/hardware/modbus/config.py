@@ -37,8 +37,12 @@ class ModbusConfig(Strict):
     port: int | None = Field(None, ge=1, le=65535)
     serial_port: str | None = None
     baudrate: int = 9600
-    parity: Literal["N", "E", "O"] = "E"
-    bytesize: Literal[7, 8] = 7
+    parity: Literal["N", "E", "O"] = Field("E", description="serial parity (Modbus: even by "
+                                           "default)")
+    bytesize: Literal[7, 8] | None = Field(
+        None, description="serial data bits; left out: 8 for rtu (Modbus RTU is 8 data bits, "
+        "Modbus over Serial Line V1.02 s.2.5.1), 7 for ascii (Delta DVP's 9600 7E1); rtu with 7 "
+        "is refused")
     stopbits: Literal[1, 2] = 1
     device_id: int = Field(1, ge=0, le=247)
     timeout_s: float = Field(1.0, gt=0)
@@ -46,12 +50,24 @@ class ModbusConfig(Strict):
     word_order: Literal["big", "little"] = Field(
         "little", description="order of the two words of a 32-bit value (Delta: little, verify)")
     number: Literal["int32", "float32", "int16"] = "int32"
-    scale: float = Field(1000.0, description="register value per mm (1000: um as integers)")
+    scale: float = Field(10000.0, description="register counts per mm (10000: 0.1 um, as "
+                         "hw/plc-register-map.md and hw/ACAL_TOUCH.JBI expect)")
     registers: ModbusRegisters = ModbusRegisters()
     watchdog_s: float = Field(1.0, gt=0, description="the PLC faults when the watchdog is older")
     move_timeout_s: float = Field(60.0, gt=0)
     probe_timeout_s: float = Field(2.0, gt=0)
     poll_s: float = Field(0.02, gt=0)
+    done_settle_s: float = Field(
+        0.05, gt=0, le=5, description="after the PC clears done, it must stay off this long "
+        "(several PLC scans) before start is set; a PLC that copies the robot's done output "
+        "into the done flag is refused")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _bytesize_of_the_transport(cls, data):
+        if isinstance(data, dict) and data.get("bytesize") is None:
+            data = {**data, "bytesize": 7 if data.get("transport") == "ascii" else 8}
+        return data
 
     @field_validator("baudrate")
     @classmethod
@@ -74,5 +90,27 @@ class ModbusConfig(Strict):
             check_host(self.host)
         elif self.serial_port is None:
             raise ValueError(f"transport '{self.transport}' needs serial_port")
+        if self.transport == "rtu" and self.bytesize == 7:
+            raise ValueError("bytesize 7 with transport 'rtu': Modbus RTU frames are 8 data bits "
+                             "(Modbus over Serial Line V1.02 s.2.5.1); use bytesize 8, or "
+                             "transport 'ascii' for a 7-bit line (Delta DVP default 9600 7E1)")
         check_map(self.registers.roles(), 1 if self.number == "int16" else 2)
         return self
+
+    def reach_mm(self) -> float:
+        """The largest |value| in mm that ``number`` carries at ``scale`` (float32: while one
+        count stays exact, 2**24 counts)."""
+        counts = {"int16": 2 ** 15 - 1, "int32": 2 ** 31 - 1, "float32": 2 ** 24}[self.number]
+        return counts / abs(self.scale)
+
+    def check_reach(self, box: dict[str, tuple[float, float]], key: str) -> None:
+        """ValueError naming ``key``.scale/number when a corner of ``box`` (axis -> (lo, hi), mm:
+        the workspace, every target that can be sent) does not fit the registers."""
+        reach = self.reach_mm()
+        for axis, (lo, hi) in box.items():
+            worst = max(abs(lo), abs(hi))
+            if not worst <= reach:
+                raise ValueError(
+                    f"{key}.scale={self.scale:g} with {key}.number={self.number!r} carries at "
+                    f"most {reach:g} mm, but the workspace {axis}={[lo, hi]} reaches {worst:g} "
+                    f"mm: lower {key}.scale or use a wider number (int32)")
