@@ -100,3 +100,167 @@ def test_watchdog_expires_when_the_pc_stops_kicking(plc):
 def test_cannot_connect_names_the_endpoint():
     with pytest.raises(AdapterError, match="modbus 127.0.0.1:9: cannot connect"):
         ModbusLink(config(port=9))
+
+
+# -- the handshake's edges and exits (hw/plc-register-map.md, hw/ACAL_TOUCH.JBI) -----------------
+
+def raw_client(server):
+    raw = ModbusTcpClient(host="127.0.0.1", port=server.port, timeout=0.3, retries=0)
+    assert raw.connect()
+    return raw
+
+
+def test_a_fault_during_a_move_leaves_start_cleared(plc):
+    server, link = plc
+    server.faults.fault_on_move = 1
+    with pytest.raises(AdapterError, match="fault flag M12"):
+        ModbusMotion(link).move_to(1.0, 2.0, 3.0)
+    assert not server.bit("start")  # a level-triggered job would move when the fault clears
+    server.clear_fault()
+    time.sleep(0.05)
+    assert server.robot.moves == 0
+
+
+def test_a_timeout_leaves_start_cleared(plc):
+    server, link = plc
+    server.robot.move_s = 5.0  # never done within move_timeout_s
+    with pytest.raises(AdapterError, match="no 'done' \\(M11\\) within move_timeout_s"):
+        ModbusMotion(link).move_to(1.0, 2.0, 3.0)
+    assert not server.bit("start") and server.robot.moves == 1
+
+
+def test_link_lost_during_a_move_says_start_may_still_be_set():
+    cfg = config()
+    server = PlcServer(EmulatedRobot.from_cell(CELL, move_s=5.0), cfg, port=0).start()
+    link = ModbusLink(cfg.model_copy(update={"port": server.port}))
+    try:
+        import threading
+        threading.Timer(0.15, server.close).start()  # the PLC goes away while the robot moves
+        with pytest.raises(AdapterError) as e:
+            ModbusMotion(link).move_to(1.0, 2.0, 3.0)
+        msg = str(e.value)
+        assert msg.startswith(f"modbus 127.0.0.1:{server.port}: START (M10) MAY STILL BE SET")
+        assert "Clear M10 at the HMI before clearing any fault" in msg and "link lost" in msg
+    finally:
+        link.close()
+        server.close()
+
+
+def test_emulated_plc_acts_on_a_rising_start_not_on_a_start_held_set(plc):
+    """hw/plc-register-map.md, handshake step 3: 'rising start, done off'."""
+    server, link = plc
+    raw = raw_client(server)
+    start, done = 0x0800 + 10, 0x0800 + 11
+    assert raw.write_coil(start, True, device_id=1).isError() is False
+    t = time.monotonic()
+    while not server.bit("done"):
+        assert time.monotonic() - t < 1.0
+        time.sleep(0.005)
+    assert server.robot.moves == 1
+    raw.write_coil(done, False, device_id=1)  # start stays set: no new move
+    time.sleep(0.05)
+    assert server.robot.moves == 1 and not server.bit("done")
+    server.faults.fault_on_move = 1  # a held start across a fault and its reset: no move either
+    raw.write_coil(start, False, device_id=1)
+    raw.write_coil(start, True, device_id=1)
+    time.sleep(0.05)
+    assert server.bit("fault") and server.robot.moves == 1
+    server.clear_fault()
+    time.sleep(0.05)
+    assert server.robot.moves == 1
+    raw.close()
+
+
+def test_a_stuck_probe_trigger_is_rearmed_by_the_next_read(plc):
+    server, link = plc
+    ModbusMotion(link).move_to(0.0, 0.0, 0.2)
+    server.faults.probe_silent = 1  # the PLC misses one trigger and leaves it set
+    with pytest.raises(BadSample, match="stale"):
+        ModbusProbe(link).read()
+    assert server.bit("probe_trigger")
+    count = server.words_of("probe_count", 1)[0]
+    assert ModbusProbe(link).read().reading_mm > 0  # off then on: a rising edge again
+    assert server.words_of("probe_count", 1)[0] == count + 1
+
+
+def test_emulated_plc_ignores_a_trigger_held_set(plc):
+    server, link = plc
+    raw = raw_client(server)
+    server.faults.probe_silent = 1
+    raw.write_coil(0x0800 + 13, True, device_id=1)  # missed: stays set
+    time.sleep(0.03)
+    raw.write_coil(0x0800 + 13, True, device_id=1)  # written on again, never off: no edge
+    time.sleep(0.03)
+    assert server.bit("probe_trigger") and server.words_of("probe_count", 1)[0] == 0
+    raw.close()
+
+
+class JobMirrorPlc:
+    """A modbus-tk server (an independent Modbus stack) with a ladder that copies the robot's
+    done output OT#(1) into M11 every scan, and ACAL_TOUCH.JBI's logic: WAIT IN#(1)=ON; DOUT
+    OT#(1) OFF; move; DOUT OT#(1) ON; WAIT IN#(1)=OFF -- done stays on until the next start."""
+
+    def __init__(self):
+        import socket
+        import threading
+        from modbus_tk import defines as cst, modbus_tcp
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            self.port = s.getsockname()[1]
+        self.server = modbus_tcp.TcpServer(port=self.port, address="127.0.0.1")
+        self.slave = self.server.add_slave(1)
+        self.slave.add_block("m", cst.COILS, 0x0800, 32)
+        self.slave.add_block("d", cst.HOLDING_REGISTERS, 0x1000, 256)
+        self.server.start()
+        self.io, self.moves, self.stop = {"in1": 0, "ot1": 0}, [], threading.Event()
+        for f in (self.ladder, self.job):
+            threading.Thread(target=f, daemon=True).start()
+        t = time.monotonic()
+        while time.monotonic() - t < 10:
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
+                break
+            except OSError:
+                time.sleep(0.02)
+
+    def ladder(self):
+        while not self.stop.wait(0.003):
+            self.io["in1"] = self.slave.get_values("m", 0x0800 + 10, 1)[0]
+            self.slave.set_values("m", 0x0800 + 11, [self.io["ot1"]])
+
+    def job(self):
+        while not self.stop.is_set():
+            if not self.io["in1"]:
+                time.sleep(0.002)
+                continue
+            self.io["ot1"] = 0
+            d = self.slave.get_values("d", 0x1000 + 100, 6)
+            self.moves.append(tuple(((d[2 * i + 1] << 16 | d[2 * i]) ^ 0x80000000) - 0x80000000
+                                    for i in range(3)))
+            time.sleep(0.05)
+            self.io["ot1"] = 1
+            while self.io["in1"] and not self.stop.is_set():
+                time.sleep(0.002)
+
+    def close(self):
+        self.stop.set()
+        self.server.stop()
+
+
+def test_a_plc_that_mirrors_the_robots_done_is_refused_before_start():
+    pytest.importorskip("modbus_tk")
+    plc = JobMirrorPlc()
+    link = ModbusLink(config(port=plc.port, watchdog_s=5.0))
+    try:
+        motion = ModbusMotion(link)
+        motion.move_to(10.0, 20.0, 15.0)
+        assert plc.moves == [(100000, 200000, 150000)]  # 0.1 um counts
+        with pytest.raises(AdapterError, match=r"'done' \(M11\) is set again after the PC "
+                                               r"cleared it; start \(M10\) was not set"):
+            motion.move_to(100.0, 50.0, 15.0)
+        time.sleep(0.1)
+        assert len(plc.moves) == 1 and plc.io["in1"] == 0  # nothing moved, start never set
+        assert motion.position() == (10.0, 20.0, 15.0)  # where the robot still stands
+    finally:
+        link.close()
+        plc.close()

@@ -2,9 +2,12 @@
 
 Relays cannot carry coordinates, so the PC writes the target into data registers that a robot
 job copies into a position variable (hw/plc-register-map.md). Handshake, per move:
-PC writes target_x/y/z, clears ``done``, sets ``start``; the PLC/robot moves and sets ``done``;
-the PC clears ``start``. ``fault`` set by the PLC stops the run. A probe sample: PC sets
-``probe_trigger``; the PLC stores the value and increments ``probe_count``; a counter that does
+PC writes target_x/y/z, clears ``done`` and checks that it stays off (a PLC that copies the robot's
+done output into it is refused before ``start``), sets ``start``; the PLC (on the rising edge)
+has the robot move and sets ``done``; the PC clears ``start``, also when the wait ends any other
+way (fault, timeout, lost link: else a level-triggered PLC or job moves the robot when the fault
+is cleared). ``fault`` set by the PLC stops the run. A probe sample: PC writes ``probe_trigger``
+off then on (a rising edge); the PLC stores the value and increments ``probe_count``; a counter that does
 not move means a stale value, which is rejected. A background thread increments ``watchdog``
 every watchdog_s / 4 so the PLC can stop the cell when the PC or the link dies.
 """
@@ -110,7 +113,9 @@ class ModbusLink:
             return self.client.convert_to_registers(v, DT.FLOAT32, word_order=c.word_order)
         n, bits = round(v), (16 if c.number == "int16" else 32)
         if not -(2 ** (bits - 1)) <= n < 2 ** (bits - 1):
-            raise AdapterError(f"{role}={mm} mm x scale {c.scale} does not fit in {c.number}")
+            raise AdapterError(f"{self.where}: {role}={mm} mm x scale {c.scale:g} does not fit "
+                               f"in {c.number}; start was not set (check modbus.scale and "
+                               "modbus.number against the workspace)")
         if c.number == "int16":
             return [n & 0xFFFF]
         return self.client.convert_to_registers(n, DT.INT32, word_order=c.word_order)
@@ -167,19 +172,57 @@ class ModbusMotion:
         for role, v in zip(("target_x", "target_y", "target_z"), (x_mm, y_mm, z_mm)):
             k.write_mm(role, v)
         k.write_bit("done", False)
+        self._done_stays_off()  # before start: a 'done' that is not ours would end the wait
+        self.pose = (math.nan,) * 3  # unknown from the moment start is set until done
         k.write_bit("start", True)
-        self.pose = (math.nan,) * 3  # unknown until done
-        start = k.clock()
-        while k.clock() - start < k.cfg.move_timeout_s:
-            k.check_fault()
+        try:
+            start = k.clock()
+            while True:
+                k.check_fault()
+                if k.read_bit("done"):
+                    k.write_bit("start", False)
+                    self.pose = (x_mm, y_mm, z_mm)
+                    return
+                if k.clock() - start >= k.cfg.move_timeout_s:
+                    raise AdapterError(
+                        f"{k.where}: no 'done' ({k.map['done'].name}) within "
+                        f"move_timeout_s={k.cfg.move_timeout_s} s; check the robot job")
+                k.sleep(k.cfg.poll_s)
+        except BaseException as err:  # fault, timeout, lost link, Ctrl-C: start must not stay set
+            self._drop_start(err)
+            raise
+
+    def _done_stays_off(self) -> None:
+        """``done`` must read off, and stay off for done_settle_s (several PLC scans), after the
+        PC cleared it: a PLC that copies the robot's output into it (the job keeps OT#(1) on until
+        the next start) would end the next wait before the robot moves. Raise before start."""
+        k = self.link
+        t0 = k.clock()
+        while True:
             if k.read_bit("done"):
-                k.write_bit("start", False)
-                self.pose = (x_mm, y_mm, z_mm)
+                a, s = k.map["done"].name, k.map["start"].name
+                raise AdapterError(
+                    f"{k.where}: 'done' ({a}) is set again after the PC cleared it; start ({s}) "
+                    "was not set and nothing moved. The PLC must latch done when the robot "
+                    "finishes and leave clearing it to the PC (hw/plc-register-map.md, "
+                    "handshake); it must not copy the robot's done output into it")
+            if k.clock() - t0 >= k.cfg.done_settle_s:
                 return
-            k.sleep(k.cfg.poll_s)
-        k.write_bit("start", False)
-        raise AdapterError(f"{k.where}: no 'done' ({k.map['done'].name}) within "
-                           f"move_timeout_s={k.cfg.move_timeout_s} s; check the robot job")
+            k.sleep(min(k.cfg.poll_s, k.cfg.done_settle_s))
+
+    def _drop_start(self, err: BaseException) -> None:
+        """Clear ``start`` after a move that did not end in done; a level-triggered PLC or job
+        would otherwise move the robot when the fault is cleared, with no PC involved."""
+        k, s = self.link, self.link.map["start"].name
+        try:
+            k.write_bit("start", False)
+        except Exception as e:
+            msg = (f"{k.where}: START ({s}) MAY STILL BE SET: clearing it failed ({e}). Clear "
+                   f"{s} at the HMI before clearing any fault, or the robot may move by itself "
+                   f"when the fault clears. What stopped the move: {err}")
+            if isinstance(err, AdapterError):
+                raise AdapterError(msg) from err
+            log.error("%s", msg)  # Ctrl-C and the like go on as they are; the danger is logged
 
     def position(self) -> tuple[float, float, float]:
         return self.pose
@@ -198,6 +241,7 @@ class ModbusProbe:
         k = self.link
         k.check_fault()
         before = k.read_words("probe_count", 1)[0]
+        k.write_bit("probe_trigger", False)  # a rising edge, even where a trigger was left set
         k.write_bit("probe_trigger", True)
         start = k.clock()
         while k.read_words("probe_count", 1)[0] == before:

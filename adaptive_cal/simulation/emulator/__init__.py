@@ -81,6 +81,13 @@ def start_emulator(cell: Cell, *, ephemeral: bool = False, move_s: float = 0.02)
         for role, block in (("robot", r), ("probe", p)):
             if block.adapter == "modbus":
                 cfg = block.modbus
+                if role == "robot" and cell.workspace is not None:
+                    ws = cell.workspace
+                    try:
+                        cfg.check_reach({"x_mm": ws.x_mm, "y_mm": ws.y_mm, "z_mm": ws.z_mm},
+                                        "robot.modbus")
+                    except ValueError as e:
+                        raise AdapterError(str(e)) from None
                 if cfg.transport != "tcp":
                     raise AdapterError(f"{role}.modbus.transport={cfg.transport!r}: the emulator "
                                        "serves Modbus TCP only")

@@ -1,7 +1,8 @@
 """An emulated PLC: a real pymodbus ``ModbusTcpServer`` whose register map is the cell file's,
 with a scan loop (every ``scan_s``) that runs the handshake of ``hardware.modbus.adapter`` against an
-EmulatedRobot: start -> move -> done, probe_trigger -> probe_value/probe_count, watchdog ->
-fault. Runs its asyncio loop in a background thread.
+EmulatedRobot: rising start (done off) -> move -> done, rising probe_trigger ->
+probe_value/probe_count, watchdog -> fault. A start or trigger that stays set does nothing more;
+a flag the PC writes off and on between two scans still counts as an edge. Runs its asyncio loop in a background thread.
 """
 from __future__ import annotations
 
@@ -47,6 +48,9 @@ class PlcServer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread = threading.Thread(target=self._run, daemon=True, name="plc-emulator")
         self._wd_value, self._wd_time = None, 0.0
+        # start and probe_trigger act on a rising edge (hw/plc-register-map.md): a flag acts
+        # once it was seen off (by a scan, or written off by the PC) and then on
+        self._low_seen = {"start": False, "probe_trigger": False}
 
     # -- memory layout ---------------------------------------------------------------------
     def _device(self) -> SimDevice:
@@ -67,6 +71,13 @@ class PlcServer:
                          action=self._action)
 
     async def _action(self, fc, start, address, count, registers, values):
+        if values:  # a write: note the PC clearing an edge-triggered flag between two scans
+            for role in self._low_seen:
+                a = self.map[role]
+                if fc in ((6, 16) if a.word_flag else (5, 15)) and a.table in ("coil", "hr") \
+                        and address <= a.address < address + len(values) \
+                        and not values[a.address - address]:
+                    self._low_seen[role] = True
         if self.faults.close_connections > 0:
             self.faults.close_connections -= 1
             for conn in list(self.server.active_connections.values()):
@@ -142,7 +153,7 @@ class PlcServer:
         if self.busy and not self.robot.moving():
             self.busy = False
             self.set_bit("done", True)
-        if self.bit("start") and not self.bit("done") and not self.busy:
+        if self.rising("start") and not self.bit("done") and not self.busy:
             if self.faults.fault_on_move > 0:
                 self.faults.fault_on_move -= 1
                 self.set_bit("fault", True)
@@ -150,14 +161,24 @@ class PlcServer:
             xyz = [self.read_mm(r) for r in ("target_x", "target_y", "target_z")]
             self.robot.command(*xyz)
             self.busy = True
-        if self.bit("probe_trigger"):
-            self.set_bit("probe_trigger", False)
-            if self.faults.probe_silent > 0:
+        if self.rising("probe_trigger"):
+            if self.faults.probe_silent > 0:  # not acted on: the trigger stays set (stuck)
                 self.faults.probe_silent -= 1
                 return
+            self.set_bit("probe_trigger", False)
             self.write_mm("probe_value", self.robot.read().reading_mm)
             count = self.words_of("probe_count", 1)[0]
             self.set_words("probe_count", [(count + 1) & 0xFFFF])
+
+    def rising(self, role: str) -> bool:
+        """True once per off -> on of ``role``'s flag (the edge is consumed)."""
+        if not self.bit(role):
+            self._low_seen[role] = True
+            return False
+        if self._low_seen[role]:
+            self._low_seen[role] = False
+            return True
+        return False
 
     def clear_fault(self) -> None:
         self.set_bit("fault", False)
