@@ -57,6 +57,11 @@ def run_one(job: tuple[dict, int]) -> dict:
             "params_std": chosen["params_std"] if chosen else None,
             "log_bayes_factor": chosen["log_bayes_factor"] if chosen else None,
             "left_out": [e["effect"] for e in f["left_out"]],
+            "as_well": [e["effect"] for e in f["left_out"]
+                        if (e.get("given_verdict") or {}).get("left_out")],
+            "left_out_params": {e["effect"]: e["params"] for e in f["left_out"]},
+            "as_well_params": {e["effect"]: e["given_verdict"]["params"] for e in f["left_out"]
+                               if (e.get("given_verdict") or {}).get("left_out")},
             "candidates": {c["effect"]: c["log_bayes_factor"] for c in f["candidates"]},
             "suspect_readings": f["suspect_readings"],
             "suspects_found": [_key(s) for s in f["suspect_readings"]],

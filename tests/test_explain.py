@@ -1,4 +1,6 @@
 """explain on concealed effects (fixed seeds), nulls, identifiability and the real rounds."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -165,3 +167,40 @@ def test_linear_drift_is_still_a_rate():
     e = explain([c.recording], c.cell, identifiability=False)
     assert e.findings["verdict"] == "thermal_drift"
     assert set(e.findings["left_out"][0]["params"]) == {"rate_mm_per_s"}
+
+
+def _bumped(recording, height_mm, x_mm=60.0, y_mm=-50.0, sd_mm=50.0):
+    """The recording with a Gaussian bump added to its readings (the truth for the oracle)."""
+    d2 = (recording.x_mm - x_mm) ** 2 + (recording.y_mm - y_mm) ** 2
+    return replace(recording, reading_mm=recording.reading_mm
+                   + height_mm * np.exp(-0.5 * d2 / sd_mm ** 2))
+
+
+def test_other_candidates_are_judged_beside_the_verdict(cheng_round0, cheng_round1):
+    """Every left_out entry beats none alone; beside the verdict most only stand in for it.
+    Cheng's rounds: a warm-up of about -0.8 mm at log BF 37 against none is weak beside the
+    form and far smaller; the bump is no longer there at all. A bump hidden under the form
+    (0.2 mm added to the real readings: below the threshold alone) is found beside it, where
+    it was put. Oracle: the injected bump."""
+    cell = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
+    r0, r1 = read_recording(cheng_round0), read_recording(cheng_round1)
+    rep = explain([r0, r1], cell).findings
+    by = {e["effect"]: e for e in rep["left_out"]}
+    assert rep["verdict"] == "form" and "given_verdict" not in by["form"]
+    drift = by["thermal_drift"]
+    assert drift["log_bayes_factor"] > 20
+    assert drift["given_verdict"]["log_bayes_factor"] < 0.1 * drift["log_bayes_factor"]
+    assert (abs(drift["given_verdict"]["params"]["amplitude_mm"])
+            < 0.25 * abs(drift["params"]["amplitude_mm"]))
+    bump = by["local_defect"]
+    assert bump["log_bayes_factor"] > 1.0 and not bump["given_verdict"]["left_out"]
+
+    rep = explain([_bumped(r0, 0.2), _bumped(r1, 0.2)], cell).findings
+    by = {e["effect"]: e for e in rep["left_out"]}
+    assert rep["verdict"] == "form"
+    hidden = by["local_defect"]
+    assert hidden["log_bayes_factor"] <= rep["threshold"]["log_bayes_factor"]  # alone: nothing
+    assert hidden["given_verdict"]["left_out"]
+    p = hidden["given_verdict"]["params"]
+    assert np.hypot(p["x_mm"] - 60.0, p["y_mm"] + 50.0) < 30.0
+    assert 0.1 < p["height_mm"] < 0.3

@@ -38,12 +38,29 @@ def _notes(summary: str) -> list[str]:
     return [p.replace("log BF", "log Bayes factor") for p in parts]
 
 
-def left_out_line(e: dict, units: dict) -> str:
-    params, stds = e.get("params", {}), e.get("params_std", {})
+def left_out_line(e: dict, units: dict, verdict: str | None = None) -> str:
+    """One ``left_out`` entry. Beside a verdict (``given_verdict``): "as well" with the fit
+    beside it where it is still there with the verdict in the model, else "instead of" -- it
+    explains the verdict's residual, not something more."""
+    given = e.get("given_verdict")
+    if given and given["left_out"]:
+        params, stds = given["params"], given["params_std"]
+    else:
+        params, stds = e.get("params", {}), e.get("params_std", {})
     values = ", ".join(quantity(k, v, stds.get(k), units.get(k, "")) for k, v in params.items())
-    notes = "; ".join(_notes(e.get("summary", "")))
-    return (f"  left out: {e['effect']}: {values}" + (f"; {notes}" if notes else "")
-            + f"; evidence: log Bayes factor {e['log_bayes_factor']:.1f} against none")
+    notes = "; ".join(_notes(e.get("summary", "")) if not (given and given["left_out"]) else [])
+    against = f"log Bayes factor {e['log_bayes_factor']:.1f} against none"
+    if not given:
+        return (f"  left out: {e['effect']}: {values}" + (f"; {notes}" if notes else "")
+                + f"; evidence: {against}")
+    beside = f"{given['log_bayes_factor']:.1f} with {verdict} in the model"
+    if given["left_out"]:
+        why = (f"hidden by {verdict}" if not e["log_bayes_factor"] >= given["log_bayes_factor"]
+               else f"where it takes up part of what {verdict} explains")
+        return (f"  left out as well, beside {verdict}: {e['effect']}: {values}; evidence: "
+                f"log Bayes factor {beside} ({against} alone, {why})")
+    return (f"  instead of {verdict}, not beside it: {e['effect']}: {values}"
+            + (f"; {notes}" if notes else "") + f"; evidence: {against}, {beside}")
 
 
 def touches_lines(touches: list[dict]) -> list[str]:
@@ -105,7 +122,7 @@ def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
     fit = report["fit"]
     out = verdict_lines(report)
     for e in report["left_out"]:
-        out.append(left_out_line(e, units.get(e["effect"], {})))
+        out.append(left_out_line(e, units.get(e["effect"], {}), report.get("verdict")))
     out.extend(readings_lines(report))
     for e in report["not_identifiable"]:
         if e.get("not_testable"):

@@ -209,9 +209,18 @@ def explain_section(run_dir: Path) -> str:
     if more:
         parts.append("<ul>" + "".join(f"<li>{escape(line.strip())}</li>" for line in more)
                      + "</ul>")
-    rows = [(escape(e["effect"]), escape(e["summary"])) for e in findings.get("left_out", [])]
+    def beside(e: dict) -> str:
+        g = e.get("given_verdict")
+        if e["effect"] == verdict or not g:
+            return "-"
+        return (f"{g['log_bayes_factor']:.1f}: " + ("there as well" if g["left_out"] else
+                f"instead of {verdict}, not beside it"))
+
+    rows = [(escape(e["effect"]), escape(e["summary"]), escape(beside(e)))
+            for e in findings.get("left_out", [])]
     if rows:
-        parts.append(_table(rows, head=("effect", "fitted (log Bayes factor against none)")))
+        parts.append(_table(rows, head=("effect", "fitted (log Bayes factor against none)",
+                                         f"log Bayes factor with {verdict} in the model")))
     if fit:
         parts.append(_table([
             ("RMS residual", f"{_um(fit.get('rms_before_mm'))} &rarr; {_um(fit.get('rms_after_mm'))}"),

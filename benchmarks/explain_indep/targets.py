@@ -7,6 +7,8 @@ truth for a null is ``none``, for structure outside the library ``unexplained``.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 LIBRARY = ("tilt", "form", "thermal_drift", "reversal", "arm_sag", "probe_gain", "local_defect")
@@ -36,6 +38,13 @@ def truth_names(rec: dict) -> list[str]:
     if fam == "out_of_library":
         return ["unexplained"]
     return [e["effect"] for e in rec["truth"]["effects"]]
+
+
+def _placed(rec: dict, params: dict) -> bool:
+    """The listed bump within the true bump's radius (at least 40 mm) of its centre."""
+    t = next(e for e in rec["truth"]["effects"] if e["effect"] == "local_defect")
+    p = params["local_defect"]
+    return math.hypot(p["x_mm"] - t["x_mm"], p["y_mm"] - t["y_mm"]) <= max(40.0, t["radius_mm"])
 
 
 def right(rec: dict) -> bool:
@@ -155,6 +164,27 @@ def report(records: list[dict], threshold: float) -> list[str]:
         both = sum(set(truth_names(r)) <= set(r["left_out"]) for r in two)
         out.append(_line("two effects: verdict one of the two", f"{k}/{n} = {k / n:.1%}; both "
                          f"in left_out {both}/{n}", None, "-"))
+        found = sum(right(r) and bool(set(truth_names(r)) - {r["verdict"]}
+                                      <= set(r.get("as_well", []))) for r in two)
+        out.append(_line("two effects: the other one beside the verdict (with it in the model)",
+                         f"{found}/{n} = {found / n:.1%}", None, "-"))
+        bumps = [r for r in two if right(r) and r["verdict"] != "local_defect"
+                 and "local_defect" in truth_names(r) and "left_out_params" in r]
+        if bumps:
+            alone = [_placed(r, r["left_out_params"]) for r in bumps
+                     if "local_defect" in r["left_out_params"]]
+            beside = [_placed(r, r["as_well_params"]) for r in bumps
+                      if "local_defect" in r["as_well_params"]]
+            out.append(_line("two effects, the bump beside another verdict: listed in left_out / "
+                             "at the truth's place (within its radius or 40 mm)",
+                             f"alone {len(alone)}/{len(bumps)} / {sum(alone)}; beside the "
+                             f"verdict {len(beside)}/{len(bumps)} / {sum(beside)}", None, "-"))
+    lone = [r for r in ok if r["family"] in ("single", "warmup", "rounds_shared_form")
+            and r["k_sigma"] >= 6 and right(r) and "as_well" in r]
+    if lone:
+        extra = sum(bool(r["as_well"]) for r in lone)
+        out.append(_line("one effect >= 6 sigma, named right: a second effect claimed beside it "
+                         "(false)", f"{extra}/{len(lone)} = {extra / len(lone):.1%}", None, "-"))
     shared = [r for r in ok if r["family"] == "rounds_shared_form"]
     if shared:
         k, n = _share(shared, right)
