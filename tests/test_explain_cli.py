@@ -113,3 +113,16 @@ def test_terminal_text_reads_in_um_one_line_per_finding(tmp_path, cheng_round0, 
     for t in touches:
         assert f"({t['x_mm']:g}, {t['y_mm']:g}, {t['z_mm']:g})" in text
     assert "docs/explain.md" in lines[-1]
+
+
+def test_the_json_is_written_before_the_terminal_lines(tmp_path, cheng_round0, monkeypatch):
+    """`explain ... --json OUT.json | head -1`: the reader leaves after one line, OUT.json is
+    still written (it was written after the printing, which the closed pipe ends)."""
+    import adaptive_cal.cli.explain as cli_explain
+
+    def closed(report):
+        raise BrokenPipeError
+    monkeypatch.setattr(cli_explain, "_print", closed)
+    out = tmp_path / "r.json"
+    assert main(["explain", str(cheng_round0), "--robot", str(CELL), "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["verdict"] == "form"

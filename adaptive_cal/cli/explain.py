@@ -59,8 +59,8 @@ def command(args) -> int:
             from adaptive_cal.report.explain_figures import figures  # matplotlib: only here
 
             result.findings["figures"] = [str(p) for p in figures(result, args.out)]
-    _print(result.findings)
-    if args.json:
+    if args.json:  # written before the terminal's lines: a reader that leaves (`| head`) loses none
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(result.findings, indent=1), encoding="utf-8")
+    _print(result.findings)
     return 0
