@@ -208,4 +208,11 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   of the stop before the closure (the repeat reading is not in the figures) and no other
   target's verdict changed. On the rough plates the budget's last touch is the closure (no
   bound stops them): 637 -> 639 s, coverage 0.924 -> 0.923.
+* **the noisy family's Student-t readings** (2026-11-24; before, its readings were Gaussian
+  with the gross errors on top, `benchmarks/results/plates-2026-11-24.json`): the other six
+  families are the same plates and the same figures. Noisy, adaptive: 24.1 -> 40.0 touches,
+  93 -> 144 s, coverage 0.909 -> 0.913, true RMS / bound 1.12 -> 1.02; grid 37.3 -> 48.0
+  touches, 133 -> 167 s: both need more touches to the bound with the heavier tails, and the
+  adaptive run's lead over the grid there shrinks (40 s -> 23 s), so the mix moves: robot
+  time 1.024 -> 1.039 x, touches 1.006 -> 1.022 x.
 """
