@@ -129,11 +129,24 @@ class Robot(Block):
     speed_mm_per_s: float = Field(100.0, gt=0, le=10000, description="travel speed (robot time estimates)")
     safe_height_mm: float = Field(15.0, gt=0, le=1000, description="travel height (workplane "
                                   "z) between touches; above probe.zero_mm, the tip's free reach")
-    touch_time_s: float = Field(3.0, ge=0, le=3600, description="approach, settle, read and retract")
+    touch_time_s: float = Field(3.0, le=3600, description="approach, settle, read and retract; "
+                                "above 0 (the planner weighs travel against it)")
     manual: ManualConfig | None = None
     hses: HsesConfig | None = None
     modbus: ModbusConfig | None = None
     robodk: RobodkConfig | None = None
+
+    @field_validator("touch_time_s")
+    @classmethod
+    def _touch_takes_time(cls, v):
+        if not v > 0:
+            # the time-aware planner prices a touch at touch_time_s + travel / speed: at 0 a
+            # repeat touch where the probe stands costs nothing (an infinite rate) and the
+            # whole budget goes to one point
+            raise ValueError(f"must be above 0 s, got {v}: a touch takes time (approach, settle, "
+                             "read, retract) and the planner weighs travel against it; at 0 a "
+                             "touch where the probe already stands would cost nothing")
+        return v
 
     @model_validator(mode="after")
     def _block(self):

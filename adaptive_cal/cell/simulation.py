@@ -18,7 +18,7 @@ class FrameCorrection(Block):
 class Simulation(Block):
     """The simulated cell's truth: effects from the effect table and the noise it adds."""
 
-    seed: int = Field(0, description="seed of the simulated noise")
+    seed: int = Field(0, ge=0, description="seed of the simulated noise; 0 or above")
     effects: dict[str, dict[str, float]] = Field(
         {}, description="effect name -> parameters (DESIGN.md effect table)")
     unknown: list[str] = Field(["tilt"], description="effects explain calibrates from a recording")
