@@ -36,12 +36,34 @@ def _print(report: dict) -> None:
     print("\n".join(lines(report, units)))
 
 
+def _refuse_overwrite(args) -> None:
+    """--json and the files --out writes (the explained cell file, the figures) must not be a
+    recording, the cell file or a run folder's measurement: they would overwrite it."""
+    from adaptive_cal.cli.report import refuse_input_as_output
+
+    inputs = [*args.recordings, args.robot]
+    if args.json:
+        refuse_input_as_output("--json", args.json, inputs)
+    if args.out:
+        out = Path(args.out)
+        if out.is_file():
+            raise UserError(f"--out {out} is a file; --out takes a folder (the explained cell file "
+                            "and the figures are written into it)")
+        refuse_input_as_output("--out", out / f"{Path(args.robot).stem}-explained.yaml", inputs)
+        for given in inputs:  # a figure's name: residual_map.png, residual_vs_*.png, ...
+            name = Path(given).name
+            if name.endswith(".png") and (name.startswith("residual_")
+                                          or name == "fitted_effect.png"):
+                refuse_input_as_output("--out", out / name, inputs)
+
+
 def command(args) -> int:
     if not args.robot:
         raise UserError("explain needs --robot CELL.yaml (the cell file with its simulation block)")
     check_cell_file(args.robot)
     for path in args.recordings:
         check_recording(path)
+    _refuse_overwrite(args)
     import numpy as np
 
     from adaptive_cal.cell.schema import load_cell, load_yaml

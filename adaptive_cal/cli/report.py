@@ -3,6 +3,45 @@ CELL.yaml`` (a bare recording replayed with its cell file): one self-contained H
 (figures embedded)."""
 from __future__ import annotations
 
+from pathlib import Path
+
+#: a run folder's measurement: never overwritten by an output of report or explain
+RUN_FILES = ("recording.csv", "result.json", "belief.npz", "cell.yaml")
+
+
+def _same(a: Path, b: Path) -> bool:
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and a.samefile(b)  # a hard link
+    except OSError:
+        return False
+
+
+def refuse_input_as_output(option: str, out, inputs, folders=(), also=()) -> None:
+    """Raise UserError when the output ``out`` of ``option`` is one of the ``inputs`` (same file,
+    resolved, links followed) or one of the measurement files of a run folder: the ``folders``
+    given, and the folder of an input that is a run folder's recording.csv (and the names in
+    ``also`` there). Writing there would overwrite the measurement itself."""
+    from adaptive_cal.cli.common import UserError
+
+    out = Path(out)
+    protected = []  # (path, what it is)
+    for given in inputs:
+        if given is None:
+            continue
+        given = Path(given)
+        protected.append((given, "an input of this command"))
+        if given.name == "recording.csv" and (given.parent / "cell.yaml").exists():
+            folders = (*folders, given.parent)
+    for folder in folders:
+        protected += [(Path(folder) / name, f"part of the run folder {folder}")
+                      for name in (*RUN_FILES, *also)]
+    for path, what in protected:
+        if _same(out, path):
+            raise UserError(f"{option} {out} is {path} itself ({what}): writing there would "
+                            "destroy it; write the output to another file")
+
 
 def add_arguments(p) -> None:
     p.add_argument("run_dir", metavar="DIR|RECORDING.csv", help="a run folder written by "
@@ -18,8 +57,6 @@ def add_arguments(p) -> None:
 
 
 def command(args) -> int:
-    from pathlib import Path
-
     from adaptive_cal.cli.common import UserError, check_cell_file, check_recording
 
     given = Path(args.run_dir)
@@ -30,6 +67,8 @@ def command(args) -> int:
                             f"was taken with: adaptive-cal report {given} --robot CELL.yaml")
         check_recording(str(given))
         check_cell_file(args.robot)
+        refuse_input_as_output("--out", args.out or given.with_suffix(".html"),
+                               [given, args.robot])
         path = _from_recording(given, Path(args.robot), args.out)
     else:
         if args.robot:
@@ -37,6 +76,9 @@ def command(args) -> int:
                             "its own cell.yaml")
         from adaptive_cal.report.html import write
 
+        if given.is_dir():
+            refuse_input_as_output("--out", args.out or given / "report.html", [args.robot],
+                                   [given], also=("explain.json",))  # read by the page
         path = write(args.run_dir, args.out)
     print(f"wrote {path}")
     return 0
@@ -44,8 +86,6 @@ def command(args) -> int:
 
 def _from_recording(recording, cell_file, out) -> "Path":
     """Replay the recording with the cell's plan (``planning.survey.replay``) and write its page."""
-    from pathlib import Path
-
     import numpy as np
 
     from adaptive_cal.analysis.flatness_answer import SEED
