@@ -8,6 +8,7 @@ marked unknown); the target of every fit is reading - nominal. Tilt is always ca
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
@@ -34,6 +35,10 @@ class Design:
     paths: tuple[str, ...]
     noise_floor_mm: float = 0.0  # the probe's stated noise (cell file), 0 where not stated
     noise_stated_mm: float = 0.0  # the largest noise the cell file states, 0 where not stated
+    # the cell's rule for a point a run may touch (workplane.allows: inside the edge margin,
+    # outside every keep-out), the one the planner's candidate grid is built with; None: any
+    # point of the workplane
+    allows: Callable[[float, float], bool] | None = None
 
     @property
     def n(self) -> int:
@@ -180,7 +185,7 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     return Design(feats, geometry, cat["r"].astype(int), cat["seq"].astype(int), cat["z"],
                   cat["read"], nominal, tuple(known), unknown,
                   tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)),
-                  stated_noise_mm(cell), stated_noise_mm(cell, high=True))
+                  stated_noise_mm(cell), stated_noise_mm(cell, high=True), cell.workplane.allows)
 
 
 def stated_noise_mm(cell: Cell, high: bool = False) -> float:

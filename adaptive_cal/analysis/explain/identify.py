@@ -95,7 +95,7 @@ def _alias_cc(ctx, name, partners, feats, ridx) -> float:
 
 
 def _last_round(ctx: Context) -> np.ndarray:
-    return np.flatnonzero(ctx.design.round_index == ctx.design.rounds - 1)
+    return _last_round_of(ctx.design)
 
 
 def _menu(ctx: Context, name: str, dz_mm: float) -> list[list[dict]]:
@@ -182,20 +182,48 @@ def nearest_distance(gx, gy, px, py, neighbours: int = 8, others: bool = False) 
     return np.min(dist, 1)
 
 
+def _approach_plane(d) -> tuple[np.ndarray, float]:
+    """Plane (a, b, c) through the last round's surface heights as the probe saw them
+    (z_mm + reading_mm: the commanded height plus the indication, up to the probe zero), and that
+    round's median indication: an approach at plane(x, y) - indication expects that indication."""
+    idx = _last_round_of(d)
+    x, y = d.features.x_mm[idx], d.features.y_mm[idx]
+    seen = d.z_mm[idx] + d.reading_mm[idx]
+    A = np.stack([x, y, np.ones_like(x)], 1)
+    coef = np.linalg.lstsq(A, seen, rcond=None)[0]
+    return coef, float(np.median(d.reading_mm[idx]))
+
+
+def _last_round_of(d) -> np.ndarray:
+    return np.flatnonzero(d.round_index == d.rounds - 1)
+
+
 def _gap_touches(ctx: Context, count: int = 4) -> dict:
-    """Touches at the centres of the largest empty circles of the design (greedy maximin)."""
+    """Touches at the centres of the largest empty circles of the design (greedy maximin), among
+    the places a run could touch: the cell's own rule (``Design.allows``, the workplane's edge
+    margin and keep-outs, as the planner's candidate grid), at an approach height from a plane
+    fitted to the last round (``_approach_plane``)."""
     d = ctx.design
     gx, gy = effects.defect_centres(d.geometry, 10.0)
     dist = nearest_distance(gx, gy, d.features.x_mm, d.features.y_mm)
-    touches, fill0 = [], None
-    z_mm, n0 = float(np.median(d.z_mm)), int((d.round_index == d.rounds - 1).sum())
-    for k in range(count):
+    fill0 = float(dist.max())  # over the whole workplane: where a defect may sit
+    if d.allows is not None:
+        ok = np.fromiter((d.allows(float(x), float(y)) for x, y in zip(gx, gy)), bool, gx.size)
+        gx, gy, dist = gx[ok], gy[ok], dist[ok]
+    n0 = int((d.round_index == d.rounds - 1).sum())
+    (a, b, c), indication = _approach_plane(d)
+    touches = []
+    for k in range(min(count, gx.size)):
         i = int(np.argmax(dist))
-        fill0 = float(dist[i]) if fill0 is None else fill0
-        touches.append({"x_mm": float(gx[i]), "y_mm": float(gy[i]), "z_mm": z_mm, "order": n0 + k})
+        z_mm = float(a * gx[i] + b * gy[i] + c - indication)
+        touches.append({"x_mm": float(gx[i]), "y_mm": float(gy[i]), "z_mm": round(z_mm, 4),
+                        "order": n0 + k})
         dist = np.minimum(dist, np.hypot(gx - gx[i], gy - gy[i]))  # the new touch is a point too
     return {"description": f"fill distance {fill0:.0f} mm: a defect of smaller radius between "
-            "touches reaches no touch; touches at the centres of the largest gaps",
+            "touches reaches no touch; touches at the centres of the largest gaps a run could "
+            "touch (inside the edge margin, outside the keep-outs), each approached at the "
+            "height of a plane fitted to the last round's touches (z_mm + reading_mm), where "
+            f"the indication is expected near that round's median {indication:.3f} mm",
             "touches": touches, "fill_distance_mm": fill0}
 
 

@@ -1,0 +1,65 @@
+"""explain's suggestions and rounds: suggested touches only where a run could touch them (the
+cell's own rule, as the planner's candidates), at an approach height that follows the plate;
+one recording given twice as two rounds is refused, naming both."""
+from dataclasses import replace
+
+import numpy as np
+
+from adaptive_cal.analysis.explain.candidates import Context
+from adaptive_cal.analysis.explain.design import build_design
+from adaptive_cal.analysis.explain.identify import _gap_touches
+from adaptive_cal.formats.recording import read_recording
+
+from helpers import sim_cell
+
+KEEP_OUT = {"x_mm": [-140, -100], "y_mm": [40, 70]}
+TILT = (0.01, -0.005)  # mm/mm: the plate rises 4.5 mm along x
+
+
+def _write(path, xy, zero=5.0, noise=0.002, seed=0):
+    rng = np.random.default_rng(seed)
+    lines = ["# adaptive-cal recording v1", "seq,t_s,x_mm,y_mm,z_mm,reading_mm"]
+    for i, (x, y) in enumerate(xy):
+        surface = TILT[0] * x + TILT[1] * y + 0.3
+        z = 0.5 * surface  # an approach that follows the plate only half way
+        reading = surface - z + zero + noise * rng.standard_normal()
+        lines.append(f"{i},{4.0 * i:.1f},{x:.4f},{y:.4f},{z:.4f},{reading:.6f}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _sparse_design(tmp_path):
+    # a coarse ring of touches: the largest gaps are at the keep-out and on the plate's edge
+    xs = [-200, -60, 60, 200]
+    ys = [-160, 0, 160]
+    xy = [(x, y) for y in ys for x in xs]
+    cell = sim_cell(workplane={"keep_outs": [KEEP_OUT]})
+    return cell, build_design([read_recording(_write(tmp_path / "r.csv", xy))], cell)
+
+
+def test_gap_touches_land_only_where_a_run_could_touch(tmp_path):
+    cell, design = _sparse_design(tmp_path)
+    wp = cell.workplane
+    got = _gap_touches(Context.of(design), count=12)
+    assert len(got["touches"]) == 12
+    for t in got["touches"]:
+        assert wp.allows(t["x_mm"], t["y_mm"]), t
+    # the same design without the cell's rule suggests places no run could touch: the filter
+    # above is what keeps them out
+    free = _gap_touches(Context.of(replace(design, allows=None)), count=12)
+    assert any(not wp.allows(t["x_mm"], t["y_mm"]) for t in free["touches"])
+    # the coverage statement is about the whole plate, as before
+    assert got["fill_distance_mm"] == free["fill_distance_mm"]
+
+
+def test_gap_touches_approach_at_the_fitted_plane_not_one_median_height(tmp_path):
+    _, design = _sparse_design(tmp_path)
+    got = _gap_touches(Context.of(design), count=6)
+    assert "plane fitted" in got["description"]
+    for t in got["touches"]:
+        surface = TILT[0] * t["x_mm"] + TILT[1] * t["y_mm"] + 0.3
+        # expected reading there: surface - z + zero, near the recorded readings (about 5.15)
+        expected = surface - t["z_mm"] + 5.0
+        assert abs(expected - np.median(design.reading_mm)) < 0.02, (t, expected)
+    zs = {round(t["z_mm"], 2) for t in got["touches"]}
+    assert len(zs) > 1  # not one height for all
