@@ -100,3 +100,204 @@ def test_position_mismatch_is_reported(controller):
                                           (0x2030, "release"), (0x1234, "manual")])
 def test_added_status_messages(added, words):
     assert words in P.explain(0x1F, added)
+
+
+# -- holds, alarms, errors, lost answers (the manual's tables; yrcom's as a second reading) -----
+
+MANUAL_HOLDS = {0x2020: "programming pendant", 0x2030: "playback panel", 0x2040: "external",
+                0x2050: "command"}  # the manual's "Operation status (2000s)" table
+
+
+def raw(controller, command, instance, attribute, service, payload=b""):
+    """One request to the emulator, its answer decoded with the manual's layout."""
+    import socket
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.settimeout(1.0)
+        s.sendto(P.encode_request(9, command, instance, attribute, service, payload),
+                 ("127.0.0.1", controller.port))
+        return P.decode_answer(s.recv(4096))
+
+
+def requests_after(controller, n):
+    return [(r.command, r.instance) for r in controller.requests[n:]]
+
+
+def test_hold_codes_are_the_manuals():
+    for code, who in MANUAL_HOLDS.items():
+        assert who in P.ADDED_STATUS[code] and who in P.HOLDS[code]
+    assert dict(P.HOLD_BITS) == {0x02: 0x2020, 0x04: 0x2040, 0x08: 0x2050}  # fs100 get_status
+    yr = pytest.importorskip("yrcom.hses_errors")
+    for code, who in MANUAL_HOLDS.items():
+        assert who in yr.ADDED_STATUS_CODES[code].lower()
+
+
+def test_emulator_answers_a_command_hold_with_2050(controller):
+    m = connect(controller)
+    assert raw(controller, P.CMD_SERVO, P.HOLD, 1, P.SET_ONE, struct.pack("<I", 1)).status == 0
+    with pytest.raises(HsesError, match="command hold") as e:
+        m.move_to(1.0, 1.0, 1.0)
+    assert e.value.added == 0x2050
+    m.close()
+
+
+@pytest.mark.parametrize("bits, added, who", [(0x04, 0x2040, "external hold"),
+                                              (0x02, 0x2020, "programming pendant")])
+def test_a_held_robot_is_never_reset_or_released(controller, bits, added, who):
+    m = connect(controller, reset_alarms=True)
+    n = len(controller.requests)
+    controller.faults.hold_bits = bits
+    with pytest.raises(HsesError, match=who) as e:
+        m.move_to(1.0, 1.0, 1.0)
+    assert e.value.added == added
+    assert requests_after(controller, n) == [(P.CMD_MOVE, 2)]  # no reset, no servo, no re-send
+    m.close()
+
+
+def test_a_hold_during_a_move_stops_the_run_without_a_reset(controller):
+    import threading
+    m = connect(controller, reset_alarms=True)
+    controller.robot.move_s = 0.5
+    threading.Timer(0.1, lambda: raw(controller, P.CMD_SERVO, P.HOLD, 1, P.SET_ONE,
+                                     struct.pack("<I", 1))).start()
+    n = len(controller.requests)
+    with pytest.raises(HsesError, match="THE ROBOT IS HELD by a hold command"):
+        m.move_to(100.0, 50.0, 15.0)
+    assert not [c for c in requests_after(controller, n)  # (the hold itself came from raw())
+                if c[0] == P.CMD_ALARM_RESET or c == (P.CMD_SERVO, P.SERVO_POWER)]
+    assert sum(c == (P.CMD_MOVE, 2) for c in requests_after(controller, n)) == 1
+    m.close()
+
+
+def test_servo_off_during_a_move_is_not_switched_on_again(controller):
+    import threading
+
+    def servo_off():
+        controller.servo = False
+        controller.robot.stop()
+
+    m = connect(controller, reset_alarms=True)
+    controller.robot.move_s = 0.5
+    threading.Timer(0.1, servo_off).start()
+    n = len(controller.requests)
+    with pytest.raises(HsesError, match="SERVO POWER IS OFF during the move"):
+        m.move_to(100.0, 50.0, 15.0)
+    assert not controller.servo
+    assert not [c for c in requests_after(controller, n)
+                if c[0] in (P.CMD_ALARM_RESET, P.CMD_SERVO)]
+    assert m.position() != (100.0, 50.0, 15.0)  # the controller is asked: not the target
+    m.close()
+
+
+def test_an_error_is_cancelled_with_instance_2_an_alarm_reset_with_instance_1(controller):
+    m = connect(controller, reset_alarms=True)
+    controller.faults.error_on_move = 1
+    n = len(controller.requests)
+    m.move_to(5.0, 5.0, 5.0)
+    resets = [c for c in requests_after(controller, n) if c[0] == P.CMD_ALARM_RESET]
+    assert resets == [(P.CMD_ALARM_RESET, P.ERROR_CANCEL)] and not controller.error
+    controller.faults.alarm_on_move = 1
+    n = len(controller.requests)
+    m.move_to(6.0, 6.0, 5.0)
+    resets = [c for c in requests_after(controller, n) if c[0] == P.CMD_ALARM_RESET]
+    assert resets == [(P.CMD_ALARM_RESET, P.ALARM_RESET)]
+    assert controller.robot.pose() == pytest.approx((6.0, 6.0, 5.0))
+    m.close()
+
+
+def test_emulator_resets_only_what_the_instance_names(controller):
+    controller.robot.alarm, controller.error = True, True
+    one = struct.pack("<I", 1)
+    assert raw(controller, P.CMD_ALARM_RESET, P.ERROR_CANCEL, 1, P.SET_ONE, one).status == 0
+    assert controller.robot.alarm and not controller.error
+    assert raw(controller, P.CMD_ALARM_RESET, P.ALARM_RESET, 1, P.SET_ONE, one).status == 0
+    assert not controller.robot.alarm
+
+
+@pytest.mark.parametrize("request_, status, added", [
+    ((P.CMD_SERVO, 4, 1, P.SET_ONE, struct.pack("<I", 1)), 0x1F, 0xA001),  # no such instance
+    ((P.CMD_SERVO, 2, 1, P.SET_ONE, b"\1\0"), 0x1F, 0xB003),               # data size
+    ((P.CMD_SERVO, 2, 1, P.SET_ONE, struct.pack("<I", 3)), 0x1F, 0xB004),  # value out of range
+    ((P.CMD_MOVE, 2, 1, P.SET_ALL, b"\0" * 100), 0x1F, 0xB003),
+    ((P.CMD_POSITION, 1, 0, P.GET_ALL), 0x28, 0),                          # pulse: not emulated
+    ((P.CMD_ALARM, 9, 0, P.GET_ALL), 0x28, 0),
+    ((0x99, 1, 0, P.GET_ALL), 0x08, 0)])                                   # command not defined
+def test_emulator_refusals_are_the_manuals_codes(controller, request_, status, added):
+    controller.servo = True
+    ans = raw(controller, *request_)
+    assert (ans.status, ans.added) == (status, added)
+    assert "see the HSES manual" not in P.explain(ans.status, ans.added)  # each has a message
+
+
+def test_a_bare_status_1_refusal_is_explained_from_the_status(controller):
+    """yrcom's note: a live YRC1000 refuses a move in the wrong state with status 0x01 and
+    added status 0 instead of the manual's codes."""
+    m = connect(controller)
+    orig = controller.handle
+
+    def handle(req):
+        if req.command == P.CMD_MOVE:
+            return P.encode_answer(req.req_id, req.service, 0x01, 0)
+        return orig(req)
+
+    controller.handle = handle
+    controller.servo = False
+    with pytest.raises(HsesError, match="SERVO POWER IS OFF.*status 0x01, added status 0x0000"):
+        m.move_to(1.0, 1.0, 1.0)
+    controller.servo = True
+    with pytest.raises(HsesError, match="status 0x01, added status 0x0000: the controller "
+                                        "cannot carry out the request"):
+        m.move_to(1.0, 1.0, 1.0)
+    m.close()
+
+
+def test_a_lost_move_answer_waits_for_the_robot_and_checks_where_it_stopped(controller):
+    m = connect(controller, retries=2)
+    m.move_to(0.0, 0.0, 15.0)
+    controller.robot.move_s = 0.4  # longer than the re-send: the re-sent move gets 0x2010
+    controller.faults.drop_answers = 1
+    m.move_to(100.0, 50.0, 15.0)
+    assert not controller.robot.moving()
+    assert controller.robot.pose() == pytest.approx((100.0, 50.0, 15.0))
+    assert m.position() == (100.0, 50.0, 15.0)
+    controller.faults.drop_answers, controller.faults.report_error_mm = 1, 3.0
+    with pytest.raises(AdapterError, match="stopped 3.000 mm from the target"):
+        m.move_to(0.0, 0.0, 15.0)
+    assert m.pose is None  # not the stale target: position() asks the controller
+    m.close()
+
+
+def test_without_check_position_a_move_is_not_done_before_the_robot_ran(controller):
+    """A controller that sets RUNNING a moment after it accepted the move."""
+    m = connect(controller, check_position=False)
+    m.move_to(0.0, 0.0, 15.0)
+    controller.robot.move_s = 0.3
+    orig, accepted = controller.handle, []
+
+    def handle(req):
+        ans = orig(req)
+        if req.command == P.CMD_MOVE and ans[25] == 0:
+            accepted.append(time.monotonic())
+        if req.command == P.CMD_STATUS and accepted and time.monotonic() - accepted[-1] < 0.1:
+            d1, d2 = struct.unpack_from("<II", ans, 32)
+            return P.encode_answer(req.req_id, req.service, 0, 0,
+                                   struct.pack("<II", d1 & ~P.RUNNING, d2))
+        return ans
+
+    controller.handle = handle
+    m.move_to(100.0, 50.0, 15.0)
+    assert not controller.robot.moving()
+    assert controller.robot.pose() == pytest.approx((100.0, 50.0, 15.0))
+    m.close()
+
+
+def test_a_position_of_another_tool_is_refused(controller):
+    """The manual: word 2 of the position answer is the tool number."""
+    assert struct.unpack("<13i", P.position_payload((1, 2, 3), (0, 0, 0), 5))[2] == 5
+    with pytest.raises(ValueError, match="tool 5, but robot.hses.tool is 0"):
+        P.unpack_position(P.position_payload((1, 2, 3), (0, 0, 0), 5), tool=0)
+    m = connect(controller)
+    m.move_to(1.0, 1.0, 1.0)
+    controller.tool = 3  # the pendant selected another tool
+    with pytest.raises(AdapterError, match="tool 3, but robot.hses.tool is 0"):
+        m.robot_position()
+    m.close()

@@ -24,11 +24,13 @@ log = logging.getLogger(__name__)
 
 
 class HsesError(AdapterError):
-    """The controller refused a command; ``added`` is its added-status code."""
+    """The controller refused a command or stopped a move; ``added`` is its added-status code;
+    ``alarm`` / ``error``: status data 2 showed an alarm / an error (only these may be reset)."""
 
-    def __init__(self, message: str, status: int = 0, added: int = 0):
+    def __init__(self, message: str, status: int = 0, added: int = 0, *, alarm: bool = False,
+                 error: bool = False):
         super().__init__(message)
-        self.status, self.added = status, added
+        self.status, self.added, self.alarm, self.error = status, added, alarm, error
 
 
 class HsesMotion:
@@ -39,7 +41,7 @@ class HsesMotion:
         self.where = f"robot.hses {cfg.host}:{cfg.port}"
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.connect((cfg.host, cfg.port))
-        self._id = 0
+        self._id = self.sends = 0
         self.pose: tuple[float, float, float] | None = None
         self.dropped = 0
         d1, _ = self.status()
@@ -53,6 +55,7 @@ class HsesMotion:
                 payload: bytes = b"") -> P.Answer:
         """Send one request and return the answer with its request id (re-sent on timeout)."""
         for attempt in range(self.cfg.retries + 1):
+            self.sends = attempt + 1  # > 1: an earlier send may have reached the controller
             self._id = (self._id + 1) % 256
             self.sock.send(P.encode_request(self._id, command, instance, attribute, service,
                                             payload))
@@ -110,14 +113,44 @@ class HsesMotion:
             raise AdapterError(f"{self.where}: {e}") from None
 
     def reset_alarm(self) -> None:
-        self.call(P.CMD_ALARM_RESET, 1, 1, P.SET_ONE, struct.pack("<I", 1))
+        """0x82 instance 1: reset the alarms."""
+        self.call(P.CMD_ALARM_RESET, P.ALARM_RESET, 1, P.SET_ONE, struct.pack("<I", 1))
+
+    def cancel_error(self) -> None:
+        """0x82 instance 2: cancel an error (the manual; fs100's RESET_ALARM_TYPE_ERROR)."""
+        self.call(P.CMD_ALARM_RESET, P.ERROR_CANCEL, 1, P.SET_ONE, struct.pack("<I", 1))
 
     def robot_position(self) -> tuple[float, float, float]:
-        """Position the controller reports: the base frame (data type 16), mm."""
+        """Position the controller reports: the base frame (data type 16), mm, of robot.hses.tool."""
         try:
-            return P.unpack_position(self.call(P.CMD_POSITION, P.POSITION_INSTANCE, 0, P.GET_ALL))
+            return P.unpack_position(self.call(P.CMD_POSITION, P.POSITION_INSTANCE, 0, P.GET_ALL),
+                                     tool=self.cfg.tool)
         except ValueError as e:
             raise AdapterError(f"{self.where}: {e}") from None
+
+    def stopped_by(self, d1: int, d2: int, during: str) -> HsesError | None:
+        """What in status (d1, d2) stops a move, as the error to raise; None when nothing does.
+        Only an alarm or an error is marked resettable; a hold or servo off never is."""
+        if d2 & (P.ALARM | P.ERROR):
+            code, name = self.alarm() if d2 & P.ALARM else (0, "")
+            what = (f"alarm {code} {name!r}" if code else "an alarm") if d2 & P.ALARM else ""
+            if d2 & P.ERROR:
+                what = f"{what} and an error" if what else "an error"
+            return HsesError(f"{self.where}: the controller raised {what} {during}; "
+                             f"{P.ADDED_STATUS[0x2060]}", 0xFF, 0x2060,
+                             alarm=bool(d2 & P.ALARM), error=bool(d2 & P.ERROR))
+        for bit, added in P.HOLD_BITS:
+            if d2 & bit:
+                return HsesError(f"{self.where}: THE ROBOT IS HELD by {P.HOLDS[added]} {during}; "
+                                 f"it stays where it stopped. {P.ADDED_STATUS[added]}, then "
+                                 "continue with --resume (a hold is never released from here)",
+                                 0xFF, added)
+        if not d2 & P.SERVO:
+            return HsesError(f"{self.where}: SERVO POWER IS OFF {during} (e-stop, door, safety "
+                             "fence, or switched off): find why, switch servo power on at the "
+                             "pendant, then continue with --resume (it is never switched on "
+                             "again from here)", 0xFF, 0x3010)
+        return None
 
     def to_base(self, p):
         """A point in the frame of the moves (user or base) -> the base frame."""
@@ -144,60 +177,119 @@ class HsesMotion:
         payload = P.move_payload(target, c.orientation_deg, coord=P.COORD[c.frame],
                                  speed_mm_per_s=c.speed_mm_per_s, tool=c.tool,
                                  user_frame=c.user_frame if c.frame == "user" else 0)
+        before, self.pose = self.pose, None  # unknown while moving: ask the controller
         reset = c.reset_alarms
         for _ in range(c.retries + 2):
             try:
-                self.call(P.CMD_MOVE, 2, 1, P.SET_ALL, payload)
-                self._wait(target)
+                try:
+                    self.call(P.CMD_MOVE, 2, 1, P.SET_ALL, payload)
+                except HsesError as e:
+                    if e.added in P.RETRYABLE and self.sends > 1:
+                        # the answer to an earlier send was lost: that send moves the robot now
+                        log.warning("%s: the answer to the move was lost and the robot is "
+                                    "moving; waiting for it to stop, then checking where it is",
+                                    self.where)
+                        self._wait(target, before, confirm=True)
+                        self.pose = (x_mm, y_mm, z_mm)
+                        return
+                    raise self._refusal(e) from None
+                self._wait(target, before)
                 self.pose = (x_mm, y_mm, z_mm)
                 return
             except HsesError as e:
                 if e.added in P.RETRYABLE:
                     self.sleep(c.poll_s)
                     continue
-                if reset and (e.added == 0x2060 or e.status == 0xFF):
+                if reset and (e.alarm or e.error):
                     reset = False  # one reset per move; a second alarm stops the run
-                    log.warning("%s: resetting a controller alarm (%s) and retrying", self.where, e)
-                    self.reset_alarm()
-                    self.servo(True)
+                    self._reset(e)
                     continue
-                self.pose = None  # where it stopped is not known: ask the controller next time
                 raise
-        raise AdapterError(f"{self.where}: the robot stayed busy; the move to "
-                           f"({x_mm:.3f}, {y_mm:.3f}, {z_mm:.3f}) was not done")
+        raise AdapterError(f"{self.where}: the robot stayed busy (added status 0x2010); the "
+                           f"move to ({x_mm:.3f}, {y_mm:.3f}, {z_mm:.3f}) was not sent")
 
-    def _wait(self, target) -> None:
+    def _refusal(self, e: HsesError) -> HsesError:
+        """A refused move, with alarm/error read from the status when the code is 0x2060 or the
+        bare status 0x01 (a YRC1000 answers it without saying why)."""
+        if e.added != 0x2060 and not (e.status == 0x01 and not e.added):
+            return e
+        d1, d2 = self.status()
+        why = self.stopped_by(d1, d2, f"(the move was refused: status 0x{e.status:02X}, "
+                                      f"added status 0x{e.added:04X})")
+        if why is not None:
+            return why
+        if e.added == 0x2060:  # the bits cleared in between: take the code's word for it
+            return HsesError(str(e), e.status, e.added, alarm=True)
+        return e
+
+    def _reset(self, e: HsesError) -> None:
+        """Reset a genuine alarm (0x82 instance 1) and/or cancel an error (instance 2); servo
+        on again only when an alarm switched it off."""
+        log.warning("%s: resetting (reset_alarms: true, once per move) and retrying: %s",
+                    self.where, e)
+        if e.alarm:
+            self.reset_alarm()
+        if e.error:
+            self.cancel_error()
+        d1, d2 = self.status()
+        if d2 & (P.ALARM | P.ERROR):
+            raise HsesError(f"{self.where}: the reset did not clear it ({e}); "
+                            f"{P.ADDED_STATUS[0x2060]}", 0xFF, 0x2060) from e
+        if not d2 & P.SERVO:
+            if not e.alarm:
+                raise self.stopped_by(d1, d2, "after an error was cancelled") or e
+            self.servo(True)
+
+    def _travel_s(self, target, before) -> float | None:
+        """Straight-line time from where the move starts to ``target`` at the commanded speed,
+        plus a margin; None where the start is not known."""
         c = self.cfg
-        start = self.clock()
+        if before is not None:
+            ox, oy, oz = c.offset_mm
+            start = (before[0] + ox, before[1] + oy, before[2] + oz)
+            d = math.dist(start, target)
+        elif c.frame == "base" or c.user_frame_in_base is not None:
+            d = math.dist(self.robot_position(), self.to_base(target))
+        else:
+            return None
+        return d / c.speed_mm_per_s + max(0.5, 10 * c.poll_s)
+
+    def _wait(self, target, before=None, confirm: bool = False) -> None:
+        """Until the robot stands at ``target``: with check_position (or ``confirm``) the
+        reported position must be there; without, the running bit must have come and gone, or
+        the straight-line travel time at the commanded speed (plus a margin) have passed."""
+        c = self.cfg
+        check = c.check_position or confirm
+        if check and c.frame == "user" and c.user_frame_in_base is None:
+            raise AdapterError(
+                f"{self.where}: the answer to the move was lost and the robot was already moving "
+                "when it was re-sent; where it stopped cannot be checked without "
+                "robot.hses.user_frame_in_base (check_position is false). Check the robot's "
+                "position on the pendant, then continue with --resume")
+        travel = None if check else self._travel_s(target, before)
+        start, seen = self.clock(), False
         while self.clock() - start < c.move_timeout_s:
             d1, d2 = self.status()
-            if d2 & (P.ALARM | P.ERROR):
-                code, name = self.alarm()
-                what = f"alarm {code} {name!r}" if code else "an alarm"
-                raise HsesError(f"{self.where}: the controller raised {what} during the move; "
-                                f"{P.ADDED_STATUS[0x2060]}", 0xFF, 0x2060)
-            if d2 & P.HOLD_MASK:
-                raise HsesError(f"{self.where}: the robot is held; {P.ADDED_STATUS[0x2050]}",
-                                0xFF, 0x2050)
-            if not d2 & P.SERVO:
-                raise HsesError(f"{self.where}: servo power went off; check the e-stops",
-                                0xFF, 0x3010)
-            if not d1 & P.RUNNING:
-                if not c.check_position:
-                    if self.clock() - start > 2 * c.poll_s:
-                        return
-                else:
-                    got, want = self.robot_position(), self.to_base(target)
-                    err = math.dist(got, want)
-                    if err <= c.position_tolerance_mm:
-                        return
-                    if self.clock() - start > max(0.5, 10 * c.poll_s):
-                        raise AdapterError(
-                            f"{self.where}: the robot stopped {err:.3f} mm from the target "
-                            f"{tuple(round(v, 3) for v in want)} (base frame; reported "
-                            f"{tuple(round(v, 3) for v in got)}); check robot.hses.frame, "
-                            "user_frame, user_frame_in_base and offset_mm, or set "
-                            "check_position: false")
+            why = self.stopped_by(d1, d2, "during the move")
+            if why is not None:
+                raise why
+            if d1 & P.RUNNING:
+                seen = True
+            elif not check:
+                if seen or (travel is not None and self.clock() - start > travel):
+                    return
+            else:
+                got, want = self.robot_position(), self.to_base(target)
+                err = math.dist(got, want)
+                if err <= c.position_tolerance_mm:
+                    return
+                if self.clock() - start > max(0.5, 10 * c.poll_s):
+                    raise AdapterError(
+                        f"{self.where}: the robot stopped {err:.3f} mm from the target "
+                        f"{tuple(round(v, 3) for v in want)} (base frame; reported "
+                        f"{tuple(round(v, 3) for v in got)}); check robot.hses.frame, "
+                        "user_frame, user_frame_in_base and offset_mm, or set "
+                        "check_position: false")
             self.sleep(c.poll_s)
         raise AdapterError(f"{self.where}: the move did not finish within "
                            f"robot.hses.move_timeout_s={c.move_timeout_s} s")

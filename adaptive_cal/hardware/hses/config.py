@@ -40,7 +40,8 @@ class HsesConfig(Strict):
     retries: int = Field(3, ge=0, description="re-sends after an unanswered request")
     frame: Literal["user", "base"] = "user"
     user_frame: int = Field(1, ge=1, le=63, description="user frame taught on the plate")
-    tool: int = Field(0, ge=0, le=63)
+    tool: int = Field(0, ge=0, le=63, description="tool number sent with every move; the "
+                      "position answer must be of it")
     speed_mm_per_s: float = Field(50.0, gt=0, le=1000)
     orientation_deg: tuple[float, float, float] = Field(
         (180.0, 0.0, 0.0), description="Rx Ry Rz of the tool held during every move")
@@ -51,11 +52,15 @@ class HsesConfig(Strict):
         "pendant shows them; needed by check_position with frame user, because the position "
         "read (0x75) answers in the base frame only")
     check_position: bool = Field(True, description="compare the position the controller reports "
-                                 "(base frame) with the target converted to the base frame")
+                                 "(base frame) with the target converted to the base frame; "
+                                 "false: a move is done once the running bit came and went, or "
+                                 "the straight-line travel time at speed_mm_per_s (+0.5 s) passed")
     position_tolerance_mm: float = Field(0.1, gt=0)
     move_timeout_s: float = Field(60.0, gt=0)
     poll_s: float = Field(0.02, gt=0)
-    reset_alarms: bool = Field(False, description="reset a controller alarm once and retry")
+    reset_alarms: bool = Field(False, description="once per move, reset a controller alarm "
+                               "(0x82 instance 1) or cancel an error (instance 2) and retry; a "
+                               "hold or servo power off is never reset: it stops the run")
 
     @field_validator("host")
     @classmethod

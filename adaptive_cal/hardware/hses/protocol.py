@@ -33,29 +33,52 @@ POSITION_INSTANCE = 101  # 0x75: robot 1, Cartesian; the manual: answers in the 
 # status data 1 / data 2 bits
 RUNNING, TEACH, PLAY, REMOTE = 0x08, 0x20, 0x40, 0x80
 HOLD_MASK, ALARM, ERROR, SERVO = 0x0E, 0x10, 0x20, 0x40
+ALARM_RESET, ERROR_CANCEL = 1, 2  # instances of 0x82 (the manual; fs100 RESET_ALARM_TYPE_*)
 
+# added-status codes, the manual's table (moto-hses docs/specs/hses-protocol.md "Added status
+# codes"; yrcom's hses_errors.py agrees): 2020 pendant, 2030 playback panel, 2040 external, 2050
+# command hold
 ADDED_STATUS = {
     0x2010: "the robot is moving: wait for it to stop",
-    0x2020: "hold by the pendant: release the hold on the programming pendant",
-    0x2030: "hold from outside: release the external hold",
-    0x2040: "hold by command: release the hold",
-    0x2050: "hold: release the hold and check the safety circuits",
-    0x2060: "an alarm is active: read it on the pendant, fix the cause and reset it",
+    0x2020: "hold by the programming pendant: release HOLD on the pendant",
+    0x2030: "hold by the playback panel: release the hold on the playback panel",
+    0x2040: "external hold: release the external hold input (find what set it: a safety "
+            "device, the PLC)",
+    0x2050: "command hold (HSES hold, command 0x83 instance 1, from this or another PC): "
+            "release it with hold off",
+    0x2060: "an error or alarm is active: read it on the pendant, fix the cause and reset it",
     0x2070: "servo is off: switch servo power on",
     0x2080: "wrong mode: set the pendant to REMOTE / PLAY",
     0x2100: "command remote is not set: enable command remote on the controller",
     0x3010: "servo power is off: switch servo power on (and check the e-stops)",
     0x3350: "the user frame is not taught: teach it or set robot.hses.user_frame",
+    0xA000: "undefined command: is the HSES option enabled on this controller?",
+    0xA001: "instance error: the controller has no such instance of this command",
+    0xA002: "attribute error",
+    0xB003: "data size error: the request's data has the wrong size",
+    0xB004: "data out of range",
     0xB009: "speed out of range: lower robot.hses.speed_mm_per_s",
     0xB00B: "coordinate system not accepted: check robot.hses.frame",
+    0xB00D: "tool number not accepted: check robot.hses.tool",
+    0xB00E: "user frame number not accepted: check robot.hses.user_frame",
 }
+# status byte without an added status (the manual's status codes; 0x01 is yrcom's note: a live
+# YRC1000 answers it, added status 0, for most requests it cannot carry out)
+STATUS = {
+    0x01: "the controller cannot carry out the request in its present state, or the data is "
+          "not there (a YRC1000 answers this without saying why: look at the pendant)",
+    0x08: "the command is not defined on this controller (firmware, HSES option)",
+    0x09: "an invalid element number was found in the data",
+    0x28: "the requested instance does not exist for this command",
+}
+HOLDS = {0x2020: "the programming pendant", 0x2030: "the playback panel",
+         0x2040: "an external hold input", 0x2050: "a hold command (0x83 instance 1)"}
+HOLD_BITS = ((0x02, 0x2020), (0x04, 0x2040), (0x08, 0x2050))  # status data 2 bit -> added status
 RETRYABLE = {0x2010}  # clears by itself
 
 
 def explain(status: int, added: int) -> str:
-    what = ADDED_STATUS.get(added)
-    if what is None and 0x2020 <= added <= 0x2050:
-        what = ADDED_STATUS[0x2050]
+    what = ADDED_STATUS.get(added) if added else STATUS.get(status)
     code = f"status 0x{status:02X}, added status 0x{added:04X}"
     return f"{code}: {what}" if what else f"{code} (see the HSES manual's error table)"
 
@@ -148,12 +171,19 @@ def position_payload(xyz_mm, rxyz_deg, tool: int = 0) -> bytes:
                        *(round(a * 10000) for a in rxyz_deg), 0, 0)
 
 
-def unpack_position(payload: bytes) -> tuple[float, float, float]:
+def unpack_position(payload: bytes, tool: int | None = None) -> tuple[float, float, float]:
+    """X Y Z (mm, base frame) of a 0x75 answer; with ``tool``, the answer's tool number (word 2)
+    must be it: a position of another tool is of another TCP."""
     if len(payload) < 52:
         raise ValueError(f"position answer of {len(payload)} bytes, expected 52")
     w = struct.unpack_from("<13i", payload)
     if w[0] != COORD["base"]:
         raise ValueError(f"position answer of data type {w[0]}, expected 16 (base frame)")
+    if tool is not None and w[2] != tool:
+        raise ValueError(f"position answer is of tool {w[2]}, but robot.hses.tool is {tool}: it "
+                         "would be the position of another tool centre point; set "
+                         "robot.hses.tool to the tool the robot uses, or select the tool on "
+                         "the pendant")
     return w[5] / 1000, w[6] / 1000, w[7] / 1000
 
 

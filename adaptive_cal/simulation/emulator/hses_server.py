@@ -1,9 +1,12 @@
 """An emulated Yaskawa controller speaking HSES on UDP, backed by an EmulatedRobot.
 
 It answers alarm (0x70), status (0x72), position (0x75, base frame, data type 16, as the manual
-says), hold / servo / HLOCK (0x83 instances 1 / 2 / 3), alarm reset (0x82) and linear moves
-(0x8A, in the base or the user frame) with the packet layout of ``hardware.hses.protocol``;
-anything else gets status 0x08 (command not defined). The plate lies at ``offset_mm`` in the
+says, of the tool of the last move), hold / servo / HLOCK (0x83 instances 1 / 2 / 3), alarm reset
+/ error cancel (0x82 instances 1 / 2) and linear moves (0x8A instance 2, in the base or the user
+frame) with the packet layout of ``hardware.hses.protocol``. Refusals as the manual's table: a
+command hold 0x2050, external 0x2040, pendant 0x2020; status 0x1F with B003 for a data size
+error, A001 for an instance a command does not have, B004 for a value out of range; status 0x28
+for a data instance not emulated, 0x08 for a command not defined. The plate lies at ``offset_mm`` in the
 user frame (``plate_frame='user'``) or the base frame; the user frame lies at ``user_frame``
 (origin mm, Rx Ry Rz deg) in the base frame. Faults for tests are set on ``faults``.
 """
@@ -29,7 +32,9 @@ class HsesFaults:
     drop_answers: int = 0      # the next N answers are not sent
     delay_answers: int = 0     # the next N answers are sent late, after delay_s
     delay_s: float = 0.0
-    alarm_on_move: int = 0     # the next N moves stop with an alarm (reset clears it)
+    alarm_on_move: int = 0     # the next N moves stop with an alarm (0x82 instance 1 resets it)
+    error_on_move: int = 0     # the next N moves stop with an error (0x82 instance 2 cancels it)
+    hold_bits: int = 0         # status data 2 hold bits set from outside: 0x02 pendant, 0x04 external
     remote: bool = True        # command remote on
     report_error_mm: float = 0.0  # reported x differs (another frame, or stopped short)
 
@@ -43,7 +48,8 @@ class HsesServer:
         self.robot, self.offset = robot, tuple(offset_mm)
         self.user_frame, self.plate_frame = (tuple(user_frame[0]), tuple(user_frame[1])), plate_frame
         self.faults = HsesFaults()
-        self.servo = self.hold = self.hlock = False
+        self.servo = self.hold = self.hlock = self.error = False
+        self.tool = 0  # the tool of the last move: the position answer is of it
         self.requests: list[P.Request] = []
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
@@ -94,6 +100,23 @@ class HsesServer:
     def _error(self, req: P.Request, added: int) -> bytes:
         return P.encode_answer(req.req_id, req.service, 0x1F, added)
 
+    def _status(self, req: P.Request, status: int) -> bytes:
+        """A refusal with a status byte and no added status (0x08 command not defined, 0x28
+        instance not present: the manual's status codes)."""
+        return P.encode_answer(req.req_id, req.service, status, 0)
+
+    def _set_one(self, req: P.Request, instances) -> tuple[int | None, bytes | None]:
+        """(u32 value, None) of a set-one request, or (None, the manual's refusal): B003 for a
+        size error, A001 for an instance this command does not have, B004 for a value not 1/2."""
+        if req.instance not in instances:
+            return None, self._error(req, 0xA001)
+        if req.service != P.SET_ONE or len(req.payload) != 4:
+            return None, self._error(req, 0xB003)
+        value = struct.unpack_from("<I", req.payload)[0]
+        if value not in (1, 2):
+            return None, self._error(req, 0xB004)
+        return value, None
+
     def to_base(self, workplane_xyz) -> tuple:
         p = tuple(v + o for v, o in zip(workplane_xyz, self.offset))
         return user_to_base(p, *self.user_frame) if self.plate_frame == "user" else p
@@ -104,14 +127,12 @@ class HsesServer:
 
     def _switch(self, req: P.Request) -> bytes:
         """0x83: instance 1 hold, 2 servo power, 3 HLOCK; data 1 on, 2 off."""
-        if req.service != P.SET_ONE or len(req.payload) < 4:
-            return P.encode_answer(req.req_id, req.service, 0x09, 0)  # bad data size
-        value = struct.unpack_from("<I", req.payload)[0]
-        if value not in (1, 2) or req.instance not in (P.HOLD, P.SERVO_POWER, P.HLOCK):
-            return P.encode_answer(req.req_id, req.service, 0x05, 0)  # instance/data out of range
+        value, refused = self._set_one(req, (P.HOLD, P.SERVO_POWER, P.HLOCK))
+        if refused:
+            return refused
         on = value == 1
         if req.instance == P.SERVO_POWER:
-            if on and self.robot.alarm:
+            if on and (self.robot.alarm or self.error):
                 return self._error(req, 0x2060)
             self.servo = on
         elif req.instance == P.HOLD:
@@ -122,6 +143,17 @@ class HsesServer:
             self.hlock = on
         return P.encode_answer(req.req_id, req.service, 0, 0)
 
+    def _reset(self, req: P.Request) -> bytes:
+        """0x82: instance 1 resets the alarms, instance 2 cancels an error; data 1."""
+        value, refused = self._set_one(req, (P.ALARM_RESET, P.ERROR_CANCEL))
+        if refused:
+            return refused
+        if req.instance == P.ALARM_RESET:
+            self.robot.alarm = False
+        else:
+            self.error = False
+        return P.encode_answer(req.req_id, req.service, 0, 0)
+
     def handle(self, req: P.Request) -> bytes:
         r, ok = self.robot, (lambda payload=b"": P.encode_answer(req.req_id, req.service, 0, 0,
                                                                   payload))
@@ -129,36 +161,45 @@ class HsesServer:
             d1 = P.PLAY | (P.REMOTE if self.faults.remote else 0)
             d1 |= P.RUNNING if r.moving() else 0
             d2 = (P.SERVO if self.servo else 0) | (P.ALARM if r.alarm else 0)
+            d2 |= (P.ERROR if self.error else 0) | (self.faults.hold_bits & 0x06)
             d2 |= 0x08 if self.hold else 0  # hold by command
             return ok(struct.pack("<II", d1, d2))
-        if req.command == P.CMD_ALARM and req.service == P.GET_ALL and 1 <= req.instance <= 4:
+        if req.command == P.CMD_ALARM:
+            if not 1 <= req.instance <= 4:
+                return self._status(req, 0x28)
             if r.alarm and req.instance == 1:
                 return ok(P.alarm_payload(4100, 1, 1, "2026/01/01 00:00", "EMULATED ALARM"))
             return ok(P.alarm_payload())
-        if req.command == P.CMD_POSITION and req.instance == P.POSITION_INSTANCE:
+        if req.command == P.CMD_POSITION:
+            if req.instance != P.POSITION_INSTANCE:  # pulse and other groups: not emulated
+                return self._status(req, 0x28)
             x, y, z = self.to_base(r.pose())
             x += self.faults.report_error_mm
-            return ok(P.position_payload((x, y, z), (180.0, 0.0, 0.0)))
+            return ok(P.position_payload((x, y, z), (180.0, 0.0, 0.0), self.tool))
         if req.command == P.CMD_ALARM_RESET:
-            r.alarm = False
-            return ok()
+            return self._reset(req)
         if req.command == P.CMD_SERVO:
             return self._switch(req)
-        if req.command == P.CMD_MOVE and req.instance == 2 and req.service == P.SET_ALL:
+        if req.command == P.CMD_MOVE:
+            if req.instance != 2:  # 1 (joint/link) and 3 (increment) are not emulated
+                return self._status(req, 0x28)
             if not self.faults.remote:
                 return self._error(req, 0x2100)
-            if r.alarm:
+            if r.alarm or self.error:
                 return self._error(req, 0x2060)
+            if self.faults.hold_bits & 0x02:
+                return self._error(req, 0x2020)  # hold by the programming pendant
+            if self.faults.hold_bits & 0x04:
+                return self._error(req, 0x2040)  # external hold
             if self.hold:
-                return self._error(req, 0x2040)
+                return self._error(req, 0x2050)  # command hold (0x83 instance 1)
             if not self.servo:
                 return self._error(req, 0x2070)
             if r.moving():
                 return self._error(req, 0x2010)
-            try:
-                m = P.unpack_move(req.payload)
-            except struct.error:
-                return P.encode_answer(req.req_id, req.service, 0x09, 0)  # bad data size
+            if req.service != P.SET_ALL or len(req.payload) != 104:
+                return self._error(req, 0xB003)  # data size error
+            m = P.unpack_move(req.payload)
             if m["coord"] not in (P.COORD["base"], P.COORD["user"]):
                 return self._error(req, 0xB00B)
             if not 0 < m["speed_mm_per_s"] <= 1000:
@@ -166,9 +207,14 @@ class HsesServer:
             base = (m["xyz_mm"] if m["coord"] == P.COORD["base"]
                     else user_to_base(m["xyz_mm"], *self.user_frame))
             r.command(*self.to_workplane(base))
+            self.tool = m["tool"]
             if self.faults.alarm_on_move > 0:  # the move starts, then the controller alarms
                 self.faults.alarm_on_move -= 1
                 r.stop()
                 r.alarm, self.servo = True, False
+            elif self.faults.error_on_move > 0:  # an error stops the move; servo stays on
+                self.faults.error_on_move -= 1
+                r.stop()
+                self.error = True
             return ok()
-        return P.encode_answer(req.req_id, req.service, 0x08, 0)  # command not defined
+        return self._status(req, 0x08)  # command not defined
