@@ -1,16 +1,21 @@
 """explain's suggestions and rounds: suggested touches only where a run could touch them (the
 cell's own rule, as the planner's candidates), at an approach height that follows the plate;
 one recording given twice as two rounds is refused, naming both."""
+import os
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
+from adaptive_cal.analysis.explain import explain
 from adaptive_cal.analysis.explain.candidates import Context
 from adaptive_cal.analysis.explain.design import build_design
 from adaptive_cal.analysis.explain.identify import _gap_touches
-from adaptive_cal.formats.recording import read_recording
+from adaptive_cal.formats.recording import RecordingError, read_recording
 
-from helpers import sim_cell
+from helpers import ROOT, SIM_CELL, sim_cell
 
 KEEP_OUT = {"x_mm": [-140, -100], "y_mm": [40, 70]}
 TILT = (0.01, -0.005)  # mm/mm: the plate rises 4.5 mm along x
@@ -63,3 +68,34 @@ def test_gap_touches_approach_at_the_fitted_plane_not_one_median_height(tmp_path
         assert abs(expected - np.median(design.reading_mm)) < 0.02, (t, expected)
     zs = {round(t["z_mm"], 2) for t in got["touches"]}
     assert len(zs) > 1  # not one height for all
+
+
+def _rounds_of(tmp_path, *names_seeds):
+    xy = [(x, y) for y in (-160, -60, 40, 140) for x in (-200, -100, 0, 100, 200)]
+    return [_write(tmp_path / name, xy, seed=seed) for name, seed in names_seeds]
+
+
+def test_one_recording_given_twice_is_refused_naming_both(tmp_path):
+    cell = sim_cell()
+    a, b = _rounds_of(tmp_path, ("a.csv", 1), ("b.csv", 2))
+    explain([a, b], cell)  # two real rounds: fine
+    with pytest.raises(RecordingError, match=f"{a} and {a} are the same file"):
+        explain([a, a], cell)
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    with pytest.raises(RecordingError, match="are the same file"):  # another spelling of it
+        explain([a, b, sub / ".." / "a.csv"], cell)
+    copy = tmp_path / "copy.csv"
+    copy.write_text(a.read_text())
+    with pytest.raises(RecordingError, match=f"{a} and {copy} hold the same rows"):
+        explain([a, copy], cell)
+
+
+def test_the_cli_says_so_with_exit_2(tmp_path):
+    a, = _rounds_of(tmp_path, ("a.csv", 1))
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
+    p = subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "explain", str(a), str(a),
+                        "--robot", str(SIM_CELL), "--no-figures"], capture_output=True, text=True,
+                       env=env, timeout=300, cwd=ROOT)
+    assert p.returncode == 2, p.stderr
+    assert f"{a} and {a} are the same file" in p.stderr and "Traceback" not in p.stderr

@@ -137,6 +137,35 @@ def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
                              "calibrated (columns x_mm, y_mm)")
 
 
+def _refuse_repeats(recordings: list[Recording]) -> None:
+    """One recording given twice is not two rounds: the second round repeats every reading
+    exactly, and the "repeatability" between them (zero) reads as structure the noise cannot
+    explain. Refused when two are the same file (resolved path) or hold the same positions and
+    readings, row for row (a copy, retimed or not)."""
+    import hashlib
+    import os
+
+    seen: dict[object, str] = {}
+    for i, rec in enumerate(recordings):
+        label = rec.path or f"recording {i}"
+        keys = []
+        if rec.path:
+            keys.append(("path", os.path.realpath(rec.path)))
+        digest = hashlib.sha256()
+        for column in (rec.x_mm, rec.y_mm, rec.z_mm, rec.reading_mm):  # times aside: a copy
+            digest.update(np.ascontiguousarray(column, dtype=float).tobytes())
+        keys.append(("rows", digest.hexdigest()))
+        for key in keys:
+            if key in seen:
+                why = ("are the same file" if key[0] == "path" else
+                       "hold the same rows (every position and reading)")
+                raise RecordingError(
+                    f"{seen[key]} and {label} {why}: a recording given twice is not a "
+                    "second round (its readings repeat exactly, and explain would read the "
+                    "missing scatter as structure); give each round once")
+            seen[key] = label
+
+
 def build_design(recordings: list[Recording], cell: Cell) -> Design:
     """Stack rounds, compute features and the nominal prediction; check the recordings fit."""
     sim = cell.simulation or Simulation()
@@ -154,6 +183,7 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     if total > MAX_ROWS:  # the reader's limit, also for recordings built in memory
         raise RecordingError(f"{total} rows in {len(recordings)} recording(s); explain takes at "
                              f"most {MAX_ROWS} rows at once: split the recordings by round")
+    _refuse_repeats(recordings)
     cols = {k: [] for k in ("x", "y", "t", "d", "z", "r", "seq", "read")}
     known = []
     for i, rec in enumerate(recordings):
