@@ -142,7 +142,14 @@ class ProbeCycle:
         """Touch at (x, y) with the reference height z; returns the median reading."""
         safe = max(self.safe_height_mm, z_mm)
         cx, cy, cz = self.motion.position()
-        path = [(cx, cy, safe)] if cz < safe - 1e-9 else []  # lift before travelling
+        if all(map(math.isfinite, (cx, cy, cz))):
+            path = [(cx, cy, safe)] if cz < safe - 1e-9 else []  # lift before travelling
+        else:  # no absolute move is safer than the safe height above the target: say so
+            path = []
+            log.warning("the probe position is unknown (the adapter reports %s): the first move "
+                        "goes straight to the safe height z=%.3f mm above x=%.3f y=%.3f mm, "
+                        "with no lift first; make sure the probe is clear of the plate",
+                        tuple(round(v, 3) for v in (cx, cy, cz)), safe, x_mm, y_mm)
         path += [(x_mm, y_mm, safe), (x_mm, y_mm, z_mm)]
         self._check(path)  # every target of this touch, before the first is sent
         approached = False
