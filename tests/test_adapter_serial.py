@@ -50,3 +50,17 @@ def test_missing_port_is_a_clear_error():
 def test_parse_rejects_non_numbers(line):
     with pytest.raises(BadSample):
         parse(line, r"^\d{2}A([-+]\s*\S+)\s*$", 1.0)
+
+
+def test_emulated_mitutoyo_line_has_the_manuals_width():
+    """99MAF600B / HARDWARE.md: ``01A+0000.123\\r``: 01, A, the sign, then 8 characters (D5-D12,
+    the decimal point included), CR."""
+    import re
+
+    from adaptive_cal.simulation.emulator.gauge import answer_line
+
+    published = b"01A+0000.123\r"
+    for mm in (0.123, 4.2, -12.5, 999.9999):
+        line = answer_line("mitutoyo", mm)
+        assert len(line) == len(published) and re.fullmatch(rb"01A[-+][0-9.]{8}\r", line)
+        assert float(line[3:-1]) == pytest.approx(mm, abs=1e-4)

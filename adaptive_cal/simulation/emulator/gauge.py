@@ -17,8 +17,8 @@ from adaptive_cal.hardware.serial.config import SerialConfig
 
 def answer_line(preset: str, reading_mm: float, scale: float = 1.0) -> bytes:
     """The line a gauge of ``preset`` sends for ``reading_mm``."""
-    if preset == "mitutoyo":
-        return f"01A{reading_mm:+010.4f}\r".encode()
+    if preset == "mitutoyo":  # 99MAF600B: 01 A sign D5-D12 (8 characters, point included) CR
+        return f"01A{reading_mm:+09.4f}\r".encode()
     if preset == "sylvac":
         return f"{reading_mm:+.4f}\r".encode()
     if preset == "keyence":
