@@ -17,22 +17,40 @@ failed the gate too but agreed with the first reading: fused -- the surface real
 ``invalid`` (with ``rejected``: NaN or infinite, off the workplane or inside a keep-out; a
 non-finite value is written as 0 and flagged ``nonfinite``), ``outlier=0.12`` (the reading's
 posterior outlier probability, two decimals; a fused reading carries the weight 1 - p).
+Flag words are read stripped of white space and lower-cased (a hand edit's `` Rejected``); a
+word this tool does not know is kept and said once per file (``warning:`` on stderr, with its
+line), and changes nothing about what is fused.
+
+A file whose ``#`` lines were removed (a spreadsheet's round trip) but whose first line is a
+recording's header is read as a recording, flags and all, and says so; any other table of
+x, y and a reading is read by ``formats.table``, its ``flags`` column honoured the same way.
+What the reader has to say is in ``Recording.notes`` and is printed once (``say``).
 """
 from __future__ import annotations
 
 import math
 import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import numpy as np
 
-from adaptive_cal.formats.table import MAX_ROWS, read_table
+from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, parse_flags, read_table,
+                                        unknown_flag_note)
 
 MAGIC = "# adaptive-cal recording v1"
 REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
-NOT_FUSED = frozenset({"gated", "rejected"})
+_SAID: set[str] = set()
+
+
+def say(notes: Iterable[str], prefix: str = "warning: ") -> None:
+    """Print each note on stderr once per process (a recording read again says nothing new)."""
+    for note in notes:
+        if note not in _SAID:
+            _SAID.add(note)
+            print(prefix + note, file=sys.stderr)
 
 
 def surface_height_mm(reading_mm, z_mm, probe_zero_mm):
@@ -49,8 +67,9 @@ class RecordingError(ValueError):
 class Recording:
     """A recording as arrays (one entry per touch, in touch order).
 
-    ``extra`` holds the optional numeric columns by name, ``flags`` a tuple of flag sets and
-    ``meta`` the ``# key: value`` metadata lines.
+    ``extra`` holds the optional numeric columns by name, ``flags`` a tuple of flag sets,
+    ``meta`` the ``# key: value`` metadata lines and ``notes`` what the reader said about the
+    file (a table read as a recording, unknown flag words).
     """
 
     seq: np.ndarray
@@ -63,13 +82,14 @@ class Recording:
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
     meta: Mapping[str, str] = field(default_factory=dict)
     path: str | None = None
+    notes: tuple[str, ...] = ()
 
     def __len__(self) -> int:
         return int(self.seq.shape[0])
 
     @property
     def fused(self) -> np.ndarray:
-        """Boolean mask of the rows the belief fuses (not flagged gated or rejected)."""
+        """Boolean mask of the rows the belief fuses (not flagged gated, rejected or invalid)."""
         if not self.flags:
             return np.ones(len(self), bool)
         return np.array([not (f & NOT_FUSED) for f in self.flags], bool)
@@ -98,7 +118,8 @@ class Recording:
         flags = tuple(f for f, m in zip(self.flags, mask) if m) if self.flags else ()
         return Recording(self.seq[mask], self.t_s[mask], self.x_mm[mask], self.y_mm[mask],
                          self.z_mm[mask], self.reading_mm[mask], flags,
-                         {k: v[mask] for k, v in self.extra.items()}, self.meta, self.path)
+                         {k: v[mask] for k, v in self.extra.items()}, self.meta, self.path,
+                         self.notes)
 
 
 def _number(text: str, *, where: str, blank_ok: bool = False) -> float:
@@ -159,19 +180,28 @@ def read_recording(path: str | os.PathLike) -> Recording:
     data: dict[str, list[float]] = {c: [] for c in REQUIRED}
     extra: dict[str, list[float]] = {}
     flags: list[frozenset[str]] = []
+    unknown: dict[str, tuple[int, int]] = {}  # flag word: (first line, rows)
+    notes: list[str] = []
     prev_seq = -math.inf
     lineno = 0
     try:
         with open(path, encoding="utf-8-sig", newline=None) as f:
             for lineno, line in enumerate(f, start=1):
                 line = line.rstrip("\n")
-                if lineno == 1:
-                    if line.strip() != MAGIC:  # a plain table of x, y, reading (formats.table)?
-                        if (table := read_table(path, line)) is None:
-                            raise RecordingError(f"{path}:1: first line must be {MAGIC!r}"
-                                                 " (or a table's x_mm,y_mm,reading_mm)")
-                        return Recording(**table)
+                if lineno == 1 and line.strip() == MAGIC:
                     continue
+                if lineno == 1 and not all(c in [h.strip() for h in line.split(",")]
+                                           for c in REQUIRED):
+                    # a plain table of x, y, reading (formats.table)?
+                    if (table := read_table(path, line)) is None:
+                        raise RecordingError(f"{path}:1: first line must be {MAGIC!r}"
+                                             " (or a table's x_mm,y_mm,reading_mm)")
+                    say(table["notes"])
+                    return Recording(**table)
+                if lineno == 1:  # a recording's header first: its '#' lines were removed
+                    notes.append(f"{path}: its first line is the header of a recording, not "
+                                 f"{MAGIC!r} (were the '#' lines removed?): read as a recording "
+                                 "without its metadata")
                 if line.startswith("#"):
                     key, sep, value = line[1:].partition(":")
                     if sep:
@@ -214,7 +244,12 @@ def read_recording(path: str | os.PathLike) -> Recording:
                     except RecordingError:
                         extra[c].append(math.nan)  # unknown optional text columns are ignored
                 if "flags" in col:
-                    flags.append(frozenset(f for f in cells[col["flags"]].split(";") if f))
+                    words, odd = parse_flags(cells[col["flags"]], f"{path}:{lineno}: column "
+                                             "flags", RecordingError)
+                    flags.append(words)
+                    for word in odd:
+                        first, n = unknown.get(word, (lineno, 0))
+                        unknown[word] = (first, n + 1)
     except UnicodeDecodeError as e:
         raise RecordingError(f"{path}:{lineno + 1}: not UTF-8 text ({e.reason} at byte "
                              f"{e.start} of the line)") from None
@@ -223,9 +258,17 @@ def read_recording(path: str | os.PathLike) -> Recording:
     if header is None:
         raise RecordingError(f"{path}: no header line")
     arrays = {c: np.asarray(v, float) for c, v in data.items()}
+    if notes and "flags" in col:  # the '#' lines were removed: say what the flags still do
+        left_out = sum(bool(f & NOT_FUSED) for f in flags)
+        notes[0] += (f"; its flags column is honoured: {left_out} of {len(flags)} rows flagged "
+                     f"{'/'.join(sorted(NOT_FUSED))} are not used")
+    if unknown:
+        notes.append(unknown_flag_note(path, unknown))
+    say(notes)
     return Recording(arrays["seq"].astype(np.int64), arrays["t_s"], arrays["x_mm"],
                      arrays["y_mm"], arrays["z_mm"], arrays["reading_mm"], tuple(flags),
-                     {c: np.asarray(v, float) for c, v in extra.items()}, meta, str(path))
+                     {c: np.asarray(v, float) for c, v in extra.items()}, meta, str(path),
+                     tuple(notes))
 
 
 def _header(cells: list[str], where: str) -> list[str]:

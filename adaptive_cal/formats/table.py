@@ -7,11 +7,14 @@ surface either way); other columns are ignored. With a reading column, a ``z_mm`
 column is the approach height, as in a recording (reading = surface - z + zero); without one the
 approach height is 0. Each row is a touch in order (seq 0, 1, ...), with no time: heights are
 relative, which is all tilt and flatness need.
+A ``flags`` column is honoured exactly as a recording's (``parse_flags``): a row flagged
+``gated``, ``rejected`` or ``invalid`` is not used.
 Blank lines and lines starting with ``#`` are skipped.
 """
 from __future__ import annotations
 
 import csv
+import difflib
 import math
 from pathlib import Path
 
@@ -27,6 +30,54 @@ LIMIT_MM = 1e4  # no coordinate or reading of a plate this tool reads lies beyon
 
 class TableError(ValueError):
     """A table that names its columns but has a bad value: the message names line and column."""
+
+
+#: flag words a recording's ``flags`` column carries (docs/recording.md); ``outlier=P`` besides.
+#: A row with one of NOT_FUSED is never used (``invalid`` is written with ``rejected``, and is
+#: not used alone either).
+NOT_FUSED = frozenset({"gated", "rejected", "invalid"})
+KNOWN_FLAGS = NOT_FUSED | {"retake", "surprise", "closure", "spread", "stroke_end", "nonfinite"}
+OUTLIER_FLAG = "outlier="
+
+
+def parse_flags(text: str, where: str, error=ValueError) -> tuple[frozenset[str], list[str]]:
+    """The flag words of a ``flags`` cell (``;``-separated) and those this tool does not know.
+    Words are stripped of white space and lower-cased (``REJECTED``, `` rejected `` are
+    ``rejected``); an unknown word is kept (it changes nothing: it is not one of NOT_FUSED).
+    ``outlier=P`` must carry a probability 0 <= P < 1 (the reading's weight is 1 - P): else
+    ``error`` is raised naming ``where`` and the word."""
+    words, unknown = set(), []
+    for word in text.split(";"):
+        word = word.strip().lower()
+        if not word:
+            continue
+        if word.startswith(OUTLIER_FLAG):
+            value = word[len(OUTLIER_FLAG):].strip()
+            try:
+                p = float(value)
+            except ValueError:
+                p = math.nan
+            if not 0 <= p < 1:
+                raise error(f"{where}: flag {word!r}: the outlier probability must be a number "
+                            "from 0 to below 1 (the reading's weight is 1 - p)")
+            word = OUTLIER_FLAG + value
+        elif word not in KNOWN_FLAGS:
+            unknown.append(word)
+        words.add(word)
+    return frozenset(words), unknown
+
+
+def unknown_flag_note(path, first: dict[str, tuple[int, int]]) -> str:
+    """The one message for a file's unknown flag words: ``first`` maps each word to (the line
+    where it first appears, the number of rows with it)."""
+    parts = []
+    for word, (line, n) in first.items():
+        near = difflib.get_close_matches(word, sorted(KNOWN_FLAGS), n=1)
+        parts.append(f"{word!r} on line {line}" + (f" and {n - 1} more row(s)" if n > 1 else "")
+                     + (f" (did you mean {near[0]!r}?)" if near else ""))
+    return (f"{path}: column flags: unknown flag word{'s' * (len(parts) > 1)} {'; '.join(parts)}. "
+            "Kept, and the row is used as if the word were not there; a row is left out only "
+            f"when flagged {', '.join(sorted(NOT_FUSED))} (docs/recording.md)")
 
 
 def table_columns(first_line: str) -> tuple[int, int, int, str, int | None] | None:
@@ -51,7 +102,10 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
     if cols is None:
         return None
     ix, iy, iv, value_name, iz = cols
-    x, y, v, z = [], [], [], []
+    names = [c.strip().lower() for c in next(csv.reader([first_line]), [])]
+    iflags = names.index("flags") if "flags" in names else None
+    x, y, v, z, flags = [], [], [], [], []
+    unknown: dict[str, tuple[int, int]] = {}
     columns = [(ix, "x", x), (iy, "y", y), (iv, value_name, v)]
     columns += [(iz, "z", z)] if iz is not None else []
     with open(path, encoding="utf-8-sig", newline="") as f:
@@ -62,6 +116,13 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
                 continue
             if len(x) >= MAX_ROWS:
                 raise TableError(f"{path}:{lineno}: more than {MAX_ROWS} rows; split the table")
+            if iflags is not None:
+                words, odd = parse_flags(cells[iflags] if iflags < len(cells) else "",
+                                         f"{path}:{lineno}: column flags", TableError)
+                flags.append(words)
+                for word in odd:
+                    line, n = unknown.get(word, (lineno, 0))
+                    unknown[word] = (line, n + 1)
             for i, name, out in columns:
                 text = cells[i].strip() if i < len(cells) else ""
                 try:
@@ -76,7 +137,16 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
     if not x:
         raise TableError(f"{path}: a table header ({first_line.strip()!r}) but no rows")
     n = len(x)
+    notes = []
+    if iflags is not None:
+        left_out = sum(bool(f & NOT_FUSED) for f in flags)
+        notes.append(f"{path}: read as a plain table (its first line is not '# adaptive-cal "
+                     f"recording v1'); its flags column is honoured: {left_out} of {n} rows "
+                     f"flagged {'/'.join(sorted(NOT_FUSED))} are not used")
+    if unknown:
+        notes.append(unknown_flag_note(path, unknown))
     return {"seq": np.arange(n, dtype=float), "t_s": np.full(n, np.nan),
             "x_mm": np.array(x), "y_mm": np.array(y), "z_mm": np.array(z) if z else np.zeros(n),
-            "reading_mm": np.array(v), "meta": {"source": f"table {Path(path).name}"},
-            "path": str(path)}
+            "reading_mm": np.array(v), "flags": tuple(flags),
+            "meta": {"source": f"table {Path(path).name}"}, "path": str(path),
+            "notes": tuple(notes)}
