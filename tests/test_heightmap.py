@@ -243,3 +243,25 @@ def test_a_run_folder_keeps_a_relative_map_findable(tmp_path):
     x, y = np.array([-100.0, 200.0]), np.array([50.0, 180.0])
     assert np.allclose(SimulatedCell.from_cell(copied).surface_mm(x, y),
                        SimulatedCell.from_cell(load_cell(cell_path)).surface_mm(x, y))
+
+
+def test_a_folder_given_as_the_map_is_refused_naming_the_key(tmp_path):
+    (tmp_path / "plate.csv").mkdir()  # a folder where the file should be
+    with pytest.raises(ConfigError) as e:
+        load_cell(cell_with_map(tmp_path))
+    msg = str(e.value)
+    assert "simulation.surface_file: " in msg and "plate.csv: a folder, not a height map" in msg
+    assert "Is a directory" not in msg
+    (tmp_path / "s").mkdir()
+    path = _study(tmp_path / "s", 1)
+    (tmp_path / "s" / "maps" / "p9.csv").mkdir()  # the glob maps/p*.csv matches a folder too
+    with pytest.raises(ConfigError, match=r"plate\.surface_files: .*p9\.csv: a folder, not a "):
+        load_study(path)
+
+
+def test_a_map_with_more_columns_is_refused_saying_how_to_write_one():
+    # DESIGN.md fixes the header to exactly x_mm,y_mm,height_mm (a stable format): the reader
+    # stays strict and points at compensate --grid --heights-only
+    text = "x_mm,y_mm,height_mm,std_mm\n0,0,1,0.001\n"
+    with pytest.raises(HeightMapError, match=r"line 1: expected the header .*--heights-only"):
+        parse_heightmap(text, "g.csv")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import math
 import os
+import stat
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
@@ -135,8 +136,12 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     """Parse a height map's text; HeightMapError names the line and the value."""
     first = io.StringIO(text, newline=None).readline().strip().lstrip("\ufeff")
     if first != HEADER:
+        hint = ""
+        if first.startswith(HEADER + ","):  # e.g. compensate --grid's x_mm,y_mm,height_mm,std_mm
+            hint = ("; a height map has exactly these three columns (DESIGN.md): drop the others, "
+                    "or write the map with 'adaptive-cal compensate --grid OUT.csv --heights-only'")
         raise HeightMapError(f"{source}, line 1: expected the header {HEADER!r}, got "
-                             f"{first[:80]!r}")
+                             f"{first[:80]!r}{hint}")
     a = _fast_numbers(text)
     if a is not None:
         fast = _grid(a, source)
@@ -192,6 +197,8 @@ def _load(path: str, mtime_ns: int, size: int) -> HeightMap:
         text = Path(path).read_text(encoding="utf-8")
     except UnicodeDecodeError as e:
         raise HeightMapError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except OSError as e:  # a folder, a file without read permission
+        raise HeightMapError(f"{path}: cannot read the height map ({e.strerror})") from None
     return parse_heightmap(text, path)
 
 
@@ -202,6 +209,8 @@ def load_heightmap(path: str | Path) -> HeightMap:
         st = os.stat(path)
     except OSError as e:
         raise HeightMapError(f"{path}: cannot read the height map ({e.strerror})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise HeightMapError(f"{path}: a folder, not a height map file (a height map is one CSV file)")
     return _load(path, st.st_mtime_ns, st.st_size)
 
 
