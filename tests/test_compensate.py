@@ -317,3 +317,83 @@ def test_result_json_tilt_is_what_the_map_uses(mapped):
 def test_a_gcode_comment_naming_columns_is_still_gcode():
     path = read_toolpath("; columns x_mm, y_mm, z_mm\nG0 X1 Y2 Z3\n", "p")
     assert path.kind == "gcode" and path.moves[0].end == (1.0, 2.0, 3.0)
+
+
+# -- input guards (the grid round trip, its size, the tolerance, the program's encoding) ---------
+
+def test_heights_only_grid_is_a_height_map_a_cell_can_use(mapped, tmp_path, capsys):
+    from adaptive_cal.formats.heightmap import load_heightmap, parse_heightmap
+
+    run_dir, truth = mapped
+    full, bare = tmp_path / "map.csv", tmp_path / "plate.csv"
+    assert main(["compensate", "--map", str(run_dir), "--grid", str(full), "--step-mm", "9"]) == 0
+    assert main(["compensate", "--map", str(run_dir), "--grid", str(bare), "--step-mm", "9",
+                 "--heights-only"]) == 0
+    assert "heights only" in capsys.readouterr().out
+    assert bare.read_text().splitlines()[0] == "x_mm,y_mm,height_mm"
+    # the same nodes and heights as the first three columns of the full grid
+    a = np.loadtxt(full, delimiter=",", skiprows=1)
+    assert np.array_equal(np.loadtxt(bare, delimiter=",", skiprows=1), a[:, :3])
+    # the full grid is not a height map (the format fixes its header): the reader says how
+    with pytest.raises(ValueError, match="--heights-only"):
+        parse_heightmap(full.read_text(), str(full))
+    hm = load_heightmap(bare)
+    x, y = np.array([-100.0, 13.0, 200.0]), np.array([-50.0, 77.0, 150.0])
+    assert np.sqrt(np.mean((hm(x, y) - truth(x, y)) ** 2)) < 0.01  # it is the plate
+    cell = sim_cell(simulation={"surface_file": str(bare)})  # a simulated cell takes it
+    assert cell.simulation.surface_file == str(bare)
+
+
+def test_a_grid_finer_than_a_height_map_holds_is_refused_before_any_work(mapped, tmp_path,
+                                                                         capsys):
+    run_dir, _ = mapped
+    grid = tmp_path / "g.csv"
+    assert main(["compensate", "--map", str(run_dir), "--grid", str(grid), "--step-mm",
+                 "0.001"]) == 2
+    err = capsys.readouterr().err
+    assert "--step-mm 0.001" in err and "166,500,820,001 nodes" in err and "4,000,000" in err
+    assert "internal error" not in err and not grid.exists()
+    for step in ("inf", "nan", "-1"):
+        assert main(["compensate", "--map", str(run_dir), "--grid", str(grid), "--step-mm",
+                     step]) == 2
+        assert f"--step-mm {step}" in capsys.readouterr().err
+    assert not grid.exists()
+
+
+def test_grid_axes_stop_at_the_height_map_reader_limit():
+    from adaptive_cal.cli.common import UserError
+    from adaptive_cal.cli.compensate import grid_axes
+    from adaptive_cal.formats.heightmap import MAX_NODES
+
+    plate = ((-225.0, 225.0), (-185.0, 185.0))
+    xs, ys = grid_axes(plate, 0.205)  # 2196 x 1806 nodes: just inside
+    assert len(xs) * len(ys) <= MAX_NODES and (xs[0], xs[-1], ys[0], ys[-1]) == (-225, 225, -185, 185)
+    with pytest.raises(UserError, match="--step-mm 0.204"):  # 2207 x 1815: just over
+        grid_axes(plate, 0.204)
+
+
+@pytest.mark.parametrize("tolerance, words", [
+    ("inf", ["--tolerance-mm inf", "finite"]), ("nan", ["--tolerance-mm nan", "finite"]),
+    ("1e-9", ["--tolerance-mm 1e-09", "0.0001 mm (0.1 um)", "4 decimals"]),
+    ("5e-5", ["--tolerance-mm 5e-05", "0.0001 mm"]),
+])
+def test_a_tolerance_no_output_can_hold_is_refused(tolerance, words, capsys, tmp_path):
+    prog = tmp_path / "p.gcode"
+    prog.write_text("G0 X0 Y0 Z1\n")
+    assert main(["compensate", str(prog), "--map", str(tmp_path), "--out", str(tmp_path / "o"),
+                 "--tolerance-mm", tolerance]) == 2
+    err = capsys.readouterr().err
+    for w in words:
+        assert w in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_program_that_is_not_utf8_names_the_file_and_line(mapped, tmp_path, capsys):
+    run_dir, _ = mapped
+    prog = tmp_path / "latin1.gcode"
+    prog.write_bytes(b"G0 X0 Y0 Z1\n(first cut)\nG1 X10 (Durchmesser \xf8 6)\n")
+    out = tmp_path / "o.gcode"
+    assert main(["compensate", str(prog), "--map", str(run_dir), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{prog} line 3: not UTF-8" in err and "0xf8" in err and "codec" not in err
+    assert not out.exists()

@@ -16,6 +16,10 @@ def add_arguments(p) -> None:
     p.add_argument("--grid", metavar="OUT.csv",
                    help="instead of a toolpath: write the map on a regular grid over the "
                         "workplane, columns x_mm, y_mm, height_mm, std_mm")
+    p.add_argument("--heights-only", action="store_true",
+                   help="--grid: leave out std_mm and write the height-map format itself "
+                        "(x_mm,y_mm,height_mm: a simulation.surface_file or a study's "
+                        "plate.surface_files)")
     p.add_argument("--step-mm", type=float, default=5.0,
                    help="--grid: the grid step, at most this (mm; the grid's ends lie on the "
                         "workplane's edges)")
@@ -43,8 +47,9 @@ def command(args) -> int:
     if not args.grid and not (args.program and args.out):
         raise UserError("give PROGRAM and --out OUT (the compensated toolpath), or --grid OUT.csv "
                         "(the map on a grid)")
-    if not args.tolerance_mm > 0:
-        raise UserError(f"--tolerance-mm {args.tolerance_mm}: must be positive (mm)")
+    if args.heights_only and not args.grid:
+        raise UserError("--heights-only shapes the --grid file: give --grid OUT.csv with it")
+    check_tolerance(args.tolerance_mm)
     if args.program and Path(args.out).resolve() == Path(args.program).resolve():
         raise UserError(f"--out {args.out} is PROGRAM itself: write the output to another file")
     if args.program and not Path(args.program).is_file():
@@ -63,20 +68,74 @@ def command(args) -> int:
     return _program(hmap, args)
 
 
-def _grid(hmap, args) -> int:
-    from adaptive_cal.cli.common import UserError
+def check_tolerance(tolerance_mm: float) -> None:
+    """UserError unless --tolerance-mm is finite and at least the written resolution."""
+    import math
 
-    try:
-        x, y, h, s = hmap.grid(args.step_mm, args.frame)
-    except ValueError as e:
-        raise UserError(str(e)) from None
-    lines = ["x_mm,y_mm,height_mm,std_mm"]
-    lines += [f"{a:.4f},{b:.4f},{c:.6f},{d:.6f}" for a, b, c, d in zip(x, y, h, s)]
+    from adaptive_cal.cli.common import UserError
+    from adaptive_cal.formats.toolpath import DIGITS
+
+    floor = 10.0 ** -DIGITS
+    if not (math.isfinite(tolerance_mm) and tolerance_mm > 0):
+        raise UserError(f"--tolerance-mm {tolerance_mm}: must be a positive finite number (mm)")
+    if tolerance_mm < floor:
+        raise UserError(f"--tolerance-mm {tolerance_mm:g}: below {floor:g} mm "
+                        f"({floor * 1e3:g} um), the resolution the output's coordinates are "
+                        f"written to ({DIGITS} decimals): no output can be held to it")
+
+
+GRID_CHUNK = 65_536  # nodes evaluated at once (the spline basis of a chunk: a few tens of MB)
+
+
+def grid_axes(plate_mm, step_mm: float):
+    """The --grid axes over the workplane (its ends on the edges, step at most ``step_mm``;
+    as ``run.heightmap.HeightMap.grid``), or UserError naming --step-mm when the grid would
+    hold more nodes than the height-map reader takes (``formats.heightmap.MAX_NODES``)."""
+    import math
+
+    import numpy as np
+
+    from adaptive_cal.cli.common import UserError
+    from adaptive_cal.formats.heightmap import MAX_NODES
+
+    if not (math.isfinite(step_mm) and step_mm > 0):
+        raise UserError(f"--step-mm {step_mm}: must be a positive finite number (mm)")
+    counts = [math.ceil((hi - lo) / step_mm - 1e-9) + 1 for lo, hi in plate_mm]
+    nodes = counts[0] * counts[1]
+    if nodes > MAX_NODES:
+        w, h = (hi - lo for lo, hi in plate_mm)
+        least = math.sqrt(w * h / MAX_NODES)
+        while (math.ceil(w / least - 1e-9) + 1) * (math.ceil(h / least - 1e-9) + 1) > MAX_NODES:
+            least *= 1.001
+        raise UserError(f"--step-mm {step_mm:g}: the grid would have {counts[0]:,} x "
+                        f"{counts[1]:,} = {nodes:,} nodes; a height map holds at most "
+                        f"{MAX_NODES:,} (the reader refuses more): give --step-mm "
+                        f"{math.ceil(least * 1000) / 1000:g} or more on this workplane")
+    return [np.linspace(lo, hi, n) for (lo, hi), n in zip(plate_mm, counts)]
+
+
+def _grid(hmap, args) -> int:
+    import numpy as np
+
+    xs, ys = grid_axes(hmap.plate_mm, args.step_mm)
+    height = hmap.height(args.frame)
+    columns = "x_mm,y_mm,height_mm" + ("" if args.heights_only else ",std_mm")
+    fmt = "%.4f,%.4f,%.6f" + ("" if args.heights_only else ",%.6f")
+    rows = max(1, GRID_CHUNK // len(ys))  # x nodes per chunk (x outer, y inner)
+    lo, hi, worst = np.inf, -np.inf, 0.0
     from pathlib import Path
 
-    Path(args.grid).write_text("\n".join(lines) + "\n", encoding="utf-8")
-    print(f"wrote {args.grid}: {len(x)} nodes, frame {args.frame}, height {h.min():+.4f} .. "
-          f"{h.max():+.4f} mm, std at most {s.max() * 1e3:.1f} um")
+    with Path(args.grid).open("w", encoding="utf-8", newline="\n") as f:
+        f.write(columns + "\n")
+        for k in range(0, len(xs), rows):
+            xx, yy = (v.ravel() for v in np.meshgrid(xs[k:k + rows], ys, indexing="ij"))
+            h, s = height(xx, yy)
+            lo, hi, worst = min(lo, h.min()), max(hi, h.max()), max(worst, s.max())
+            table = np.column_stack([xx, yy, h] + ([] if args.heights_only else [s]))
+            np.savetxt(f, table, fmt=fmt)
+    print(f"wrote {args.grid}: {len(xs) * len(ys)} nodes, frame {args.frame}, height "
+          f"{lo:+.4f} .. {hi:+.4f} mm, std at most {worst * 1e3:.1f} um"
+          + (" (heights only: the height-map format)" if args.heights_only else ""))
     return 0
 
 
@@ -88,7 +147,7 @@ def _program(hmap, args) -> int:
     from adaptive_cal.formats.toolpath import read_toolpath, write_toolpath
 
     name, T = args.program, args.tolerance_mm
-    path = read_toolpath(Path(name).read_text(encoding="utf-8"), name)
+    path = read_toolpath(_text(name), name)
     if not path.moves:
         raise UserError(f"{name}: no moves found (G0/G1 with X, Y, Z, or CSV rows x_mm,y_mm,z_mm)")
     result = compensate(path, hmap.height(args.frame), hmap.plate_mm, T,
@@ -99,13 +158,13 @@ def _program(hmap, args) -> int:
             raise UserError(refusal(result.wide, T, name))
         by_line = {m.line: m.item for m in path.moves}
         marks = {by_line[w.line]: f"adaptive-cal: 95 % band {w.band_mm * 1e3:.1f} um exceeds the "
-                                  f"tolerance {T * 1e3:.1f} um" for w in result.wide}
+                                  f"tolerance {T * 1e3:.4g} um" for w in result.wide}
     where = str(args.map).replace("(", "[").replace(")", "]")
     text = write_toolpath(path, result.pieces, marks, header_comment=(
         f"adaptive-cal compensate: map {where}, frame {args.frame}, tolerance {T:g} mm"))
     Path(args.out).write_text(text, encoding="utf-8", newline="")
     print(f"{name}: {result.cuts} cutting moves, {result.rapids} rapids; frame {args.frame}, "
-          f"tolerance {T * 1e3:.1f} um")
+          f"tolerance {T * 1e3:.4g} um")
     print(f"wrote {args.out}: {result.added} points added by splitting; the path departs from the "
           f"map by at most {result.max_deviation_mm * 1e3:.2f} um at the check samples")
     if result.rapids:
@@ -116,3 +175,19 @@ def _program(hmap, args) -> int:
         print(f"marked {len(marks)} line(s) where the band exceeds the tolerance: the output is "
               "NOT within the tolerance there")
     return 0
+
+
+def _text(name: str) -> str:
+    """PROGRAM's text; UserError naming the file and the line of a byte that is not UTF-8."""
+    from pathlib import Path
+
+    from adaptive_cal.cli.common import UserError
+
+    data = Path(name).read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        raise UserError(f"{name} line {line}: not UTF-8 text (byte 0x{data[e.start]:02x} at "
+                        f"byte {e.start} of the file: {e.reason}); save the program as UTF-8 "
+                        "or plain ASCII") from None
