@@ -32,6 +32,10 @@ REFUSED_G = {
     53: "G53 (machine coordinates): not supported; the map is in the workplane frame",
 }
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+_EXPONENT = re.compile(r"[eE][-+]?\d")  # right after a number: 1.5e2 is no G-code number
+# axis words of other machines: rotary A B C, parallel U V W, arc centre I J K and radius R, and
+# E, the extruder axis of RepRap-style controllers (Marlin, RepRapFirmware, Klipper)
+OTHER_AXES = "ABCEUVWIJKR"
 _COMMENT = re.compile(r"\([^)]*\)|;.*$")
 DIGITS = 4  # written coordinates: 0.1 um
 
@@ -91,6 +95,10 @@ def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
         if gap and gap != "%":
             raise ToolpathError(f"{where}: cannot read {gap[:30]!r} (expressions, parameters and "
                                 "block delete are not supported)")
+        if _EXPONENT.match(code, m.end()):
+            word = code[m.start():_EXPONENT.match(code, m.end()).end()]
+            raise ToolpathError(f"{where}: {word.strip()!r} is exponent notation, not a G-code "
+                                "number: write the value in plain decimals (150 for 1.5e2)")
         out.append((m.group(1).upper(), float(m.group(2)), m.span()))
         pos = m.end()
     gap = code[pos:].strip()
@@ -115,10 +123,20 @@ def _read_gcode(text: str, name: str) -> Toolpath:
             if g not in (0, 1) and g not in HARMLESS_G:
                 raise ToolpathError(f"{where}: G{g:g} is not supported (supported: G0, G1 and "
                                     f"G{', G'.join(str(c) for c in sorted(HARMLESS_G))})")
-        axes = {k: v for k, v, _ in words if k in "XYZ"}
-        other = sorted({k for k, _, _ in words if k in "ABCUVWIJKR"})
         if 4 in gs:  # dwell: its X/P is a time, not a position
             continue
+        axes = {}
+        for k, v, _ in words:
+            if k in "XYZ":
+                if k in axes:
+                    raise ToolpathError(f"{where}: axis word {k} given twice ({k}{axes[k]:g} and "
+                                        f"{k}{v:g}): give each axis once on a line")
+                axes[k] = v
+        other = sorted({k for k, _, _ in words if k in OTHER_AXES})
+        if other:  # on any line: a move of another axis alone moves the machine too
+            raise ToolpathError(f"{where}: axis words {', '.join(other)} are not supported "
+                                "(only X, Y, Z straight moves" + (
+                                    "; E is an extruder axis" if "E" in other else "") + ")")
         motion = [g for g in gs if g in (0, 1)]
         if len(motion) > 1:
             raise ToolpathError(f"{where}: two motion codes on one line")
@@ -126,9 +144,6 @@ def _read_gcode(text: str, name: str) -> Toolpath:
             mode = int(motion[0])
         if not axes:
             continue
-        if other:
-            raise ToolpathError(f"{where}: axis words {', '.join(other)} are not supported "
-                                "(only X, Y, Z straight moves)")
         if mode is None:
             raise ToolpathError(f"{where}: coordinates before any G0 or G1")
         for k, v in axes.items():
@@ -146,6 +161,10 @@ def _read_csv(text: str, name: str) -> Toolpath:
     newline, final = _newline(text)
     rows = list(csv.reader(io.StringIO(text)))
     header = [h.strip() for h in rows[0]]
+    for j, h in enumerate(header):
+        if h and h in header[:j]:
+            raise ToolpathError(f"{name} line 1: column {h!r} given twice (columns "
+                                f"{header.index(h) + 1} and {j + 1}): give each column once")
     try:
         cols = tuple(header.index(k) for k in ("x_mm", "y_mm", "z_mm"))
     except ValueError:
