@@ -91,6 +91,7 @@ def map_flatness(args) -> dict | None:
         from adaptive_cal.formats.npz import read_npz
 
         data = read_npz(saved)
+        check_belief(folder, plan.model.surface, data)
         belief = Belief(data["mean"], data["cov"])
         noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm
         source = f"the map saved in {saved}"
@@ -103,6 +104,34 @@ def map_flatness(args) -> dict | None:
                           args.samples or SAMPLES)
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
             "noise_std_mm": noise_mm, **out}
+
+
+def check_belief(folder, surface, data, command: str = "flatness") -> None:
+    """UserError unless the map in ``folder``/belief.npz (``data``) is one the folder's cell.yaml
+    gives (``surface``: its spline): the same knots, and a mean and covariance of their size. A
+    run resumed with another cell, or a cell.yaml edited since, would be read as another map."""
+    from pathlib import Path
+
+    import numpy as np
+
+    folder = Path(folder)
+    k = (len(surface.sx.knots), len(surface.sy.knots))
+    try:
+        kx, ky = np.asarray(data["knots_x"], float), np.asarray(data["knots_y"], float)
+        mean, cov = np.asarray(data["mean"]), np.asarray(data["cov"])
+        fits = (kx.shape == (k[0],) and ky.shape == (k[1],) and np.allclose(kx, surface.sx.knots)
+                and np.allclose(ky, surface.sy.knots) and mean.shape == (k[0] * k[1],)
+                and cov.shape == (k[0] * k[1],) * 2)
+        have = f"{kx.size} x {ky.size}" + ("" if (kx.size, ky.size) != k else " at other places")
+    except (KeyError, ValueError, TypeError):
+        fits, have = False, "unreadable"
+    if not fits:
+        raise UserError(
+            f"{folder / 'belief.npz'} does not match {folder / 'cell.yaml'}: the map's knots are "
+            f"{have}, the cell file gives {k[0]} x {k[1]} (its workplane or "
+            "model.knots_x / knots_y differ: was the run resumed with another --robot, or "
+            f"cell.yaml edited?). Give the cell file the map was made with: adaptive-cal {command} "
+            f"{folder / 'recording.csv'} --robot CELL.yaml replays the recording with it")
 
 
 def _one(r: dict, say_no_plate: bool = True) -> list[str]:

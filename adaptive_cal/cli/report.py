@@ -79,9 +79,24 @@ def command(args) -> int:
         if given.is_dir():
             refuse_input_as_output("--out", args.out or given / "report.html", [args.robot],
                                    [given], also=("explain.json",))  # read by the page
+            _check_belief(given)
         path = write(args.run_dir, args.out)
     print(f"wrote {path}")
     return 0
+
+
+def _check_belief(run_dir: Path) -> None:
+    """The folder's belief.npz must be the map its cell.yaml gives (``cli.flatness.check_belief``);
+    a folder without either is left to the page, which says what is missing."""
+    if not ((run_dir / "cell.yaml").is_file() and (run_dir / "belief.npz").is_file()):
+        return
+    from adaptive_cal.cell.build import plan_model
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.cli.flatness import check_belief
+    from adaptive_cal.formats.npz import read_npz
+
+    check_belief(run_dir, plan_model(load_cell(run_dir / "cell.yaml")).surface,
+                 read_npz(run_dir / "belief.npz"), "report")
 
 
 def _from_recording(recording, cell_file, out) -> "Path":

@@ -1,0 +1,95 @@
+"""--resume DIR --robot CELL.yaml: CELL must be the cell DIR was mapped with in everything that
+changes the map or the touches (refused naming the keys, nothing in DIR changed); keys that do
+not (the name, the stopping rule, how the robot is reached) may differ. A folder whose
+belief.npz is not the map its cell.yaml gives is refused by flatness and report with a message,
+not a numpy error."""
+import contextlib
+import io
+from pathlib import Path
+
+import pytest
+import yaml
+
+from adaptive_cal.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cell(tmp_path, filename, **changes):
+    cell = yaml.safe_load((ROOT / "configs" / "sim-cell.yaml").read_text())
+    cell["plan"].update(candidates=500, refine=0, stop={"mean_std_mm": 0.001, "max_touches": 6})
+    for key, value in changes.items():
+        block, _, leaf = key.rpartition(".")
+        target = cell
+        for part in block.split(".") if block else []:
+            target = target.setdefault(part, {})
+        target[leaf] = value
+    path = tmp_path / filename
+    path.write_text(yaml.safe_dump(cell))
+    return path
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("resume")
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", "--robot", str(_cell(d, "cell.yaml")), "--out", str(d / "run"),
+                     "--no-progress"]) == 0
+    return d / "run"
+
+
+def _files(d):
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir()) if p.is_file()}
+
+
+@pytest.mark.parametrize("changes, keys", [
+    ({"workplane.x_mm": [-100, 100]}, ["workplane.x_mm"]),
+    ({"probe.zero_mm": 4.0, "probe.usable_mm": [1, 9]}, ["probe.usable_mm", "probe.zero_mm"]),
+    ({"model.knots_x": 5}, ["model.knots_x"]),
+    ({"simulation.seed": 99}, ["simulation.seed"]),
+])
+def test_another_cell_on_resume_is_refused_naming_the_keys(run_dir, tmp_path, changes, keys,
+                                                           capsys):
+    before = _files(run_dir)
+    other = _cell(tmp_path, "other.yaml", **changes)
+    assert main(["run", "--resume", str(run_dir), "--robot", str(other), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "not the cell" in err and "resume without --robot" in err and "Traceback" not in err
+    for key in keys:
+        assert f"{key}: " in err
+    assert _files(run_dir) == before
+
+
+def test_a_cell_differing_only_in_what_changes_no_map_resumes(run_dir, tmp_path, capsys):
+    d = tmp_path / "run"
+    d.mkdir()
+    for name, data in _files(run_dir).items():
+        (d / name).write_bytes(data)
+    cell_before = (d / "cell.yaml").read_bytes()
+    rows_before = (d / "recording.csv").read_text().splitlines()
+    more = _cell(tmp_path, "more.yaml", name="renamed", **{"plan.stop": {"mean_std_mm": 0.001,
+                                                                      "max_touches": 8},
+                                                          "robot.speed_mm_per_s": 300})
+    assert main(["run", "--resume", str(d), "--robot", str(more), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "differs from" in out and "name, plan.stop.max_touches, robot.speed_mm_per_s" in out
+    rows = (d / "recording.csv").read_text().splitlines()
+    assert rows[: len(rows_before)] == rows_before and len(rows) == len(rows_before) + 2
+    assert (d / "cell.yaml").read_bytes() == cell_before
+
+
+def test_a_belief_that_is_not_its_cells_map_is_refused_by_flatness_and_report(run_dir, tmp_path,
+                                                                            capsys):
+    d = tmp_path / "run"
+    d.mkdir()
+    for name, data in _files(run_dir).items():
+        (d / name).write_bytes(data)
+    cell = yaml.safe_load((d / "cell.yaml").read_text())
+    cell["model"]["knots_x"] = 5
+    (d / "cell.yaml").write_text(yaml.safe_dump(cell))
+    for argv in (["flatness", str(d / "recording.csv")], ["report", str(d)]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{d / 'belief.npz'} does not match {d / 'cell.yaml'}" in err
+        assert "--robot CELL.yaml" in err and "matmul" not in err
+    assert not (d / "report.html").exists()
