@@ -64,7 +64,13 @@ def command(args) -> int:
                   else out_json.with_name(out_json.name + ".plates.jsonl"))
     client = None
     if args.scheduler or args.workers:
-        client = connect(args.scheduler, max(args.workers, 1))
+        from adaptive_cal.cli.common import UserError
+        from adaptive_cal.study.runner import SchedulerError
+
+        try:
+            client = connect(args.scheduler, max(args.workers, 1))
+        except SchedulerError as e:  # the address given is wrong or down: the user's to fix
+            raise UserError(f"--scheduler {args.scheduler}: {e}") from None
     t0 = time.monotonic()
 
     def progress(done: int, total: int) -> None:
