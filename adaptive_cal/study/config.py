@@ -182,6 +182,8 @@ def check_surface_files(study: Study, cell: Cell, source: str) -> None:
 def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
     """Refuse distributions no planner can serve (ConfigError naming the key).
 
+    * plate.noise_std_mm: with plate.noise_range_known its low end (with the repeatability) is
+      the low end of the probe.noise_range_mm the planner is told, which must be above 0.
     * plate.tilt_deg: the planner only sends the probe where a reading lands in the usable
       stroke with probability 1 - 1e-6 under the cell's prior (model.tilt_std_deg); it steps out
       from a touch by at most half the usable stroke / (z* tan(tilt_std)). A plate whose steepest
@@ -194,6 +196,15 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
 
     check_surface_files(study, cell, source)
     p, m, probe = study.plate, cell.model, cell.probe
+    told = math.hypot(p.noise_std_mm[0], p.repeatability_mm)
+    if p.noise_range_known and not told > 0:
+        # the planner is told probe.noise_range_mm from these: its low end must be above 0 (a
+        # log-normal prior); the cell check would name a key the study file never gave
+        raise ConfigError(
+            f"{source}: plate.noise_std_mm={list(p.noise_std_mm)} starts at 0 (with "
+            f"plate.repeatability_mm={p.repeatability_mm}): with plate.noise_range_known the "
+            "planner is told the noise span as probe.noise_range_mm, whose low end must be "
+            "above 0 mm; give a low end above 0, or plate.noise_range_known: false")
     steepest = math.sqrt(2.0) * math.tan(math.radians(p.tilt_deg))
     allowed = STROKE_Z * math.tan(math.radians(m.tilt_std_deg))
     half = 0.5 * (probe.usable_mm[1] - probe.usable_mm[0])
