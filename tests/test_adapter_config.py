@@ -67,6 +67,7 @@ def test_int16_values_may_sit_one_register_apart():
     regs = {**MODBUS["robot"]["modbus"]["registers"], "target_y": "D101", "target_z": "D102",
             "probe_value": "D103", "probe_count": "D104"}
     d = edited(edited(MODBUS, "robot.modbus.registers", regs), "robot.modbus.number", "int16")
+    d = edited(d, "robot.modbus.scale", 100)  # int16 carries +-327 mm at 100 counts per mm
     d["probe"]["modbus"] = d["robot"]["modbus"]
     assert parse_cell(d).robot.modbus.number == "int16"
 
@@ -176,3 +177,13 @@ def test_modbus_serial_data_bits_per_transport():
     bad = edited(bad, "robot.modbus.serial_port", "/dev/ttyUSB0")
     with pytest.raises(ConfigError, match="robot.modbus: bytesize 7 with transport 'rtu'"):
         parse_cell(bad, "cell.yaml")
+
+
+def test_a_cell_whose_workspace_does_not_fit_the_modbus_registers_is_refused_at_load():
+    """int16 at 10000 counts per mm carries 3.3 mm: the cell file is refused when it is loaded,
+    naming the keys, before anything connects (not at the first move)."""
+    bad = edited(MODBUS, "robot.modbus.number", "int16")
+    with pytest.raises(ConfigError, match=r"robot\.modbus\.scale=10000 with "
+                                          r"robot\.modbus\.number='int16' carries at most"):
+        parse_cell(bad)
+    parse_cell(edited(bad, "robot.modbus.scale", 100))  # 327 mm: the workspace fits

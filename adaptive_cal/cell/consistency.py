@@ -43,6 +43,9 @@ def check_cell(cell) -> None:
                     f"workspace.{axis}={list(box)} does not hold the touchable plate "
                     f"[{lo + m:g}, {hi - m:g}] (workplane.{axis}={[lo, hi]} inside "
                     f"edge_margin_mm={m:g}): widen the workspace, or narrow the workplane")
+        if r.adapter == "modbus" and r.modbus is not None:  # every target fits the registers
+            r.modbus.check_reach({"x_mm": ws.x_mm, "y_mm": ws.y_mm, "z_mm": ws.z_mm},
+                                 "robot.modbus")
     if (r.adapter == "sim") != (p.adapter == "sim"):
         raise ValueError(f"robot.adapter={r.adapter!r} with probe.adapter={p.adapter!r}: the "
                          "simulated robot and probe only exist together; set both to 'sim'")
