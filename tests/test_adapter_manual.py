@@ -24,9 +24,11 @@ def test_point_shown_and_typed_reading_returned_through_the_cycle():
 
 def test_out_of_range_and_nan_asked_again_then_bad_sample():
     cell, out = manual("nan\n12\n-1\n")
-    with pytest.raises(BadSample, match="no valid reading in 3"):
+    with pytest.raises(BadSample, match="no valid reading in 3") as refused:
         cell.read()
     assert "outside the probe range" in out.getvalue()
+    # what was typed is named, in the message and the raw bytes the log shows
+    assert "'nan', '12', '-1'" in str(refused.value) and refused.value.raw == b"nan | 12 | -1"
 
 
 @pytest.mark.parametrize("text, match", [("q\n", "stopped by the operator"), ("", "input ended")])

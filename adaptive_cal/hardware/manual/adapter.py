@@ -54,8 +54,10 @@ class ManualCell:
         x, y, z = self.pose
         extra = f" {self.prompt}" if self.prompt else ""
         self.out.write(f"next point: x={x:.3f} y={y:.3f} mm, probe reference z={z:.3f} mm{extra}\n")
+        answers = []
         for _ in range(self.attempts):
             line = self._ask("reading in mm (q to stop): ").strip()
+            answers.append(line)
             if line.lower() in ("q", "quit", "stop"):
                 raise AdapterError("manual adapter: stopped by the operator; continue the run "
                                    "later with --resume")
@@ -71,7 +73,8 @@ class ManualCell:
                 self.out.write(f"  {value} mm is outside the probe range {list(self.range_mm)}\n")
                 continue
             return Sample(value, self.clock(), line.encode())
-        raise BadSample(f"manual adapter: no valid reading in {self.attempts} answers")
+        raise BadSample(f"manual adapter: no valid reading in {self.attempts} answers "
+                        f"({', '.join(map(repr, answers))})", " | ".join(answers).encode())
 
     def close(self) -> None:
         pass
