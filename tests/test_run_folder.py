@@ -92,15 +92,21 @@ def test_resume_continues_from_the_last_seq_plus_one(tmp_path):
     assert r["touches"] == 9
 
 
-def test_a_cut_last_row_is_repaired_and_resume_continues(tmp_path):
+def test_a_cut_last_row_is_repaired_and_resume_continues(tmp_path, capsys):
     cell, out = sim_cell(), tmp_path / "run"
     session.run(cell, out, progress=False, max_new_touches=5)
     rec_path = out / "recording.csv"
     whole = rec_path.read_text()
     with open(rec_path, "a") as f:
-        f.write("5,31.2,12.5")  # a crash mid-write
-    with pytest.warns(UserWarning, match="cut"):
+        f.write("5,31.2,12.5")  # a crash mid-write: the required numbers are not all there
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # said as a message line, not a Python warning
         r = session.run(cell, out, resume=True, progress=False, max_new_touches=2)
+    err = capsys.readouterr().err
+    assert f"{rec_path}:{whole.count(chr(10)) + 1}: the last row was cut by a crash" in err
+    assert "dropped, a required number is missing" in err and "Warning" not in err
+    assert (out / "recording.cut.txt").read_text().endswith("\n5,31.2,12.5\n")  # kept aside
     rec = read_recording(rec_path)
     assert rec.seq.tolist() == list(range(7)) and r["touches"] == 7
     assert rec_path.read_text().startswith(whole)  # the rows before are untouched

@@ -9,7 +9,6 @@ every touch and ``--resume`` continues it: no touch repeated, none lost.
 from __future__ import annotations
 
 import signal
-import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,8 @@ import numpy as np
 from adaptive_cal.cell.build import survey_plan, touch_floor
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
-from adaptive_cal.formats.recording import RecordingWriter, read_recording, repair_cut_row
+from adaptive_cal.formats.recording import (RecordingWriter, read_recording, repair_cut_row_said,
+                                            say)
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
@@ -127,10 +127,9 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     state = sv.start(plan, prior=prior, hyper=hyper)
     start_t, next_seq = 0.0, 0
     if resume:
-        cut = repair_cut_row(paths.recording)
-        if cut is not None:
-            warnings.warn(f"{paths.recording}: its last row was cut by a crash mid-write and is "
-                          f"dropped: {cut[:80]!r}", stacklevel=2)
+        said = repair_cut_row_said(paths.recording)  # a message line, not a Python warning
+        if said is not None:
+            say([said])
         state, start_t, next_seq, fused_t_s = replay(plan, state, paths.recording)
         done = plan.stop(sv.status(plan, state))
         saved = _saved_result(paths.out)
