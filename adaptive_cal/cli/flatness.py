@@ -85,6 +85,9 @@ def map_flatness(args) -> dict | None:
     plan = survey_plan(cell)
     rec = read_recording(rec_path)
     if args.robot:
+        from adaptive_cal.report.replay import for_replay
+
+        rec = for_replay(rec, cell, args.robot)  # judged as the run judges a reading
         state = sv.replay(plan, sv.start(plan), rec)
         belief, noise_mm, source = state.belief, state.hyper.noise_std_mm, f"replayed with {args.robot}"
     else:

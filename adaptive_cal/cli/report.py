@@ -114,7 +114,9 @@ def _from_recording(recording, cell_file, out) -> "Path":
 
     cell = load_cell(cell_file)
     plan = survey_plan(cell)
-    rec = read_recording(recording)
+    from adaptive_cal.report.replay import for_replay
+
+    rec = for_replay(read_recording(recording), cell, cell_file)  # as the run judges a reading
     if rec.fused.sum() < 4:
         raise UserError(f"{recording}: {int(rec.fused.sum())} fused touches; a report needs at "
                         "least 4")

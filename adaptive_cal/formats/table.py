@@ -149,5 +149,6 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
     return {"seq": np.arange(n, dtype=float), "t_s": np.full(n, np.nan),
             "x_mm": np.array(x), "y_mm": np.array(y), "z_mm": np.array(z) if z else np.zeros(n),
             "reading_mm": np.array(v), "flags": tuple(flags),
-            "meta": {"source": f"table {Path(path).name}"}, "path": str(path),
+            "meta": {"source": f"table {Path(path).name}", "column": value_name},
+            "path": str(path),
             "notes": tuple(notes)}
