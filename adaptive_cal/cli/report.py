@@ -62,9 +62,14 @@ def command(args) -> int:
     given = Path(args.run_dir)
     if given.is_file():
         if not args.robot:
-            raise UserError(f"{given} is a file; report wants the run folder, adaptive-cal "
-                            f"report {given.parent}, or, for a bare recording, the cell file it "
-                            f"was taken with: adaptive-cal report {given} --robot CELL.yaml")
+            folder = given.parent
+            if given.name == "recording.csv" and (folder / "cell.yaml").is_file():
+                raise UserError(f"{given} is a file; report wants the run folder it is in "
+                                f"(adaptive-cal report {folder}), or, to replay the recording "
+                                f"with a cell file: adaptive-cal report {given} --robot CELL.yaml")
+            raise UserError(f"{given} is a file, a bare recording: report replays it with the "
+                            f"cell file it was taken with: adaptive-cal report {given} --robot "
+                            "CELL.yaml (or give a run folder, which holds its own cell.yaml)")
         check_recording(str(given))
         check_cell_file(args.robot)
         refuse_input_as_output("--out", args.out or given.with_suffix(".html"),

@@ -69,6 +69,8 @@ def command(args) -> int:
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
         created = (folders, before)
     correction = _correction(args)
+    if args.prior_from:
+        _check_prior_from(Path(args.prior_from), correction)
     if args.resume:
         try:
             was, c = recheck.saved_prior(out, True, args.prior_from, correction)
@@ -151,6 +153,24 @@ def _same_cell(out: Path, given: Path) -> None:
         print(f"resuming with {given}, which differs from {out / 'cell.yaml'} only in "
               f"{', '.join(differ)} (neither the map nor the touches change; {out / 'cell.yaml'} "
               "is kept as it is)")
+
+
+def _check_prior_from(prior: Path, correction) -> None:
+    """--prior-from RUN_DIR must be a run folder with its map (and, for the proposed correction,
+    its result.json): say so plainly, not as an OS error on a file in it."""
+    if not prior.exists():
+        raise UserError(f"--prior-from {prior}: no such run folder")
+    if not prior.is_dir():
+        raise UserError(f"--prior-from {prior}: a file, not a run folder (give the folder an "
+                        "earlier 'adaptive-cal run --out DIR' wrote)")
+    if not (prior / "belief.npz").is_file():
+        raise UserError(f"--prior-from {prior}: not a run folder with a map, it has no "
+                        "belief.npz (give the folder an earlier 'adaptive-cal run --out DIR' "
+                        "wrote)")
+    if correction == "proposed" and not (prior / "result.json").is_file():
+        raise UserError(f"--prior-from {prior}: it has no result.json, so no proposed tilt "
+                        "correction to assume applied; pass the applied one as "
+                        "--correction-applied RX,RY (deg), or none")
 
 
 def _correction(args):
