@@ -13,7 +13,7 @@ from adaptive_cal.analysis.explain.candidates import (DEFECT_MAX_SHARE, DEFECT_M
                                                       score_effect)
 from adaptive_cal.analysis.explain.evidence import log_evidence_columns_mixture
 from adaptive_cal.analysis.explain.design import build_design
-from adaptive_cal.analysis.explain.identify import _gap_touches
+from adaptive_cal.analysis.explain.identify import _approach_plane, _gap_touches
 from adaptive_cal.analysis.explain.locate import peaks, smoothing_grid, where
 from adaptive_cal.formats.recording import Recording
 from adaptive_cal.effects.plate import defect_regressor_sparse
@@ -47,17 +47,24 @@ def _designs():
 
 
 def _gap_touches_loop(ctx, count=4):
-    """The loop before issue 15 item 8 (the reference): distances to every touch, every time."""
+    """The loop before issue 15 item 8 (the reference): distances to every touch, every time;
+    the fill distance over the whole plate, the touches among the places the cell allows, each
+    at the height of the plane fitted to the last round (``identify._approach_plane``)."""
     d = ctx.design
     gx, gy = effects.defect_centres(d.geometry, 10.0)
     px, py = list(d.features.x_mm), list(d.features.y_mm)
-    touches, fill0 = [], None
+    fill0 = float(np.max(np.min(np.hypot(gx[:, None] - np.asarray(px),
+                                         gy[:, None] - np.asarray(py)), 1)))
+    if d.allows is not None:
+        ok = np.array([d.allows(float(x), float(y)) for x, y in zip(gx, gy)], bool)
+        gx, gy = gx[ok], gy[ok]
+    (a, b, c), indication = _approach_plane(d)
+    touches = []
     for k in range(count):
         dist = np.min(np.hypot(gx[:, None] - np.asarray(px), gy[:, None] - np.asarray(py)), 1)
         i = int(np.argmax(dist))
-        fill0 = float(dist[i]) if fill0 is None else fill0
         touches.append({"x_mm": float(gx[i]), "y_mm": float(gy[i]),
-                        "z_mm": float(np.median(d.z_mm)),
+                        "z_mm": round(float(a * gx[i] + b * gy[i] + c - indication), 4),
                         "order": int((d.round_index == d.rounds - 1).sum()) + k})
         px.append(gx[i]), py.append(gy[i])
     return {"touches": touches, "fill_distance_mm": fill0}
