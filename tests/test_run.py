@@ -269,11 +269,14 @@ def test_dry_run_moves_nothing_and_lists_the_runs_own_first_touches(tmp_path, ca
                     "keep_outs": [{"x_mm": [260, 310], "y_mm": [60, 110]}]}},
      "keep_outs[0] x_mm=[260.0, 310.0] y_mm=[60.0, 110.0] lies wholly outside the workplane"),
     ({"workplane": None}, "workplane"),
-    # 200,000 candidates x 1,600 coefficients: 2.6 GB of rows a decision, refused, not an
+    # 400,000 candidates x 576 coefficients: 1.8 GB of rows a decision, refused, not an
     # out-of-memory 'internal error' from JAX
-    ({"model": {"knots_x": 40, "knots_y": 40, "tilt_std_deg": 1.0, "offset_std_mm": 0.5},
-      "plan": {"stop": {"mean_std_mm": 0.004, "max_touches": 120}, "candidates": 200000}},
-     "plan.candidates=200000 with 1600 spline coefficients"),
+    ({"model": {"knots_x": 24, "knots_y": 24, "tilt_std_deg": 1.0, "offset_std_mm": 0.5},
+      "plan": {"stop": {"mean_std_mm": 0.004, "max_touches": 120}, "candidates": 400000}},
+     "plan.candidates=400000 with 576 spline coefficients"),
+    # 40 x 40 knots: a decision would take several seconds
+    ({"model": {"knots_x": 40, "knots_y": 40, "tilt_std_deg": 1.0, "offset_std_mm": 0.5}},
+     "model.knots_x x knots_y = 40 x 40 = 1600 spline coefficients: at most 576"),
 ])
 def test_bad_cell_files_name_the_key(tmp_path, patch, key, capsys):
     import yaml

@@ -19,6 +19,10 @@ from adaptive_cal.planning.stopping import AtLeast, MaxStdBelow, MeanStdBelow, S
 
 EVAL_POINTS = 41  # the evaluation grid over the plate is EVAL_POINTS x EVAL_POINTS
 GROW_CAP = 160  # a model grows (knots refined once) only up to this many coefficients
+# spline coefficients the coarse model may have: at 24 x 24 = 576 a decision took 0.55 s on one
+# core and every fourth (a hyper-parameter refit) 3.1 s, about a touch's time; 32 x 32: 1.4 and
+# 8.9 s, and a 64 x 64 dry run did not finish in a minute (2026-11-24)
+MAX_COEFFICIENTS = 576
 MAX_CANDIDATE_ENTRIES = 200_000_000  # candidates x coefficients: the basis rows scored each
 # decision (and a product as large) at 8 bytes an entry, 1.6 GB each; 10^6 candidates pass at
 # the grown model's 160 coefficients
@@ -49,6 +53,12 @@ def knots_for(cell: Cell) -> tuple[np.ndarray, np.ndarray]:
         else:
             k = default_knots(lo, hi, m.form_tolerance_mm, m.max_curvature_per_mm)
         out.append(k)
+    nx, ny = len(out[0]), len(out[1])
+    if nx * ny > MAX_COEFFICIENTS:
+        raise ConfigError(
+            f"model.knots_x x knots_y = {nx} x {ny} = {nx * ny} spline coefficients: at most "
+            f"{MAX_COEFFICIENTS} (24 x 24; a decision then takes about a touch's time, 0.5-3 s "
+            "on one core, the covariance being coefficients x coefficients): give fewer knots")
     return out[0], out[1]
 
 
