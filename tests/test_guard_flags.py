@@ -85,10 +85,20 @@ def test_an_unknown_word_is_kept_said_once_and_changes_nothing(tmp_path, capsys)
     assert capsys.readouterr().err == ""  # once
 
 
-@pytest.mark.parametrize("word", ["outlier=1", "outlier=abc", "outlier=-0.1", "outlier=nan"])
+@pytest.mark.parametrize("word", ["outlier=1.5", "outlier=abc", "outlier=-0.1", "outlier=nan"])
 def test_an_outlier_probability_that_is_not_one_is_refused_with_its_line(tmp_path, word):
     with pytest.raises(RecordingError, match=rf"rec.csv:7: column flags: flag '{word}'"):
         read_recording(_recording(tmp_path, bad_flags=word))
+
+
+def test_an_outlier_probability_of_one_is_what_the_run_writes_for_p_from_0_995(tmp_path):
+    """gate.outlier_flag writes two decimals: a reading judged p >= 0.995 carries outlier=1.00
+    (weight 0), and its recording must read back."""
+    from adaptive_cal.planning.gate import outlier_flag
+    word = outlier_flag(0.997)[0]
+    assert word == "outlier=1.00"
+    rec = read_recording(_recording(tmp_path, bad_flags=word))
+    assert word in rec.flags[3]
 
 
 def test_outlier_weights_are_read_with_spaces(tmp_path):

@@ -45,7 +45,8 @@ def parse_flags(text: str, where: str, error=ValueError) -> tuple[frozenset[str]
     """The flag words of a ``flags`` cell (``;``-separated) and those this tool does not know.
     Words are stripped of white space and lower-cased (``REJECTED``, `` rejected `` are
     ``rejected``); an unknown word is kept (it changes nothing: it is not one of NOT_FUSED).
-    ``outlier=P`` must carry a probability 0 <= P < 1 (the reading's weight is 1 - P): else
+    ``outlier=P`` must carry a probability 0 <= P <= 1 (the reading's weight is 1 - P; the run
+    writes two decimals, so 1.00 for p >= 0.995): else
     ``error`` is raised naming ``where`` and the word."""
     words, unknown = set(), []
     for word in text.split(";"):
@@ -58,9 +59,9 @@ def parse_flags(text: str, where: str, error=ValueError) -> tuple[frozenset[str]
                 p = float(value)
             except ValueError:
                 p = math.nan
-            if not 0 <= p < 1:
+            if not 0 <= p <= 1:
                 raise error(f"{where}: flag {word!r}: the outlier probability must be a number "
-                            "from 0 to below 1 (the reading's weight is 1 - p)")
+                            "from 0 to 1 (the reading's weight is 1 - p)")
             word = OUTLIER_FLAG + value
         elif word not in KNOWN_FLAGS:
             unknown.append(word)
