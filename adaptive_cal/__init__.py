@@ -55,7 +55,7 @@ _LAZY = {
     "InvalidReading": "adaptive_cal.planning.robust",
     "run_session": "adaptive_cal.run.session:run",
     "read_recording": "adaptive_cal.formats.recording",
-    "RecordingWriter": "adaptive_cal.formats.recording",
+    "RecordingWriter": "adaptive_cal.formats.writing",
     "explain": "adaptive_cal.analysis.explain",
 }
 

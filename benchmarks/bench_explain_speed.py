@@ -91,7 +91,7 @@ def cli_40(python: str) -> dict:
     """Wall time of the CLI on 40 rows, Python start-up included."""
     import yaml
 
-    from adaptive_cal.formats.recording import RecordingWriter
+    from adaptive_cal.formats.writing import RecordingWriter
     from adaptive_cal.simulation.concealed import BASE_XY_MM, WORKPLANE, ZERO_MM
 
     rec, _ = random_recording(40)

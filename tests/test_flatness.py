@@ -216,7 +216,7 @@ def test_compare_rounds_normal_closed_form():
 # -- flatness of a recording with intervals (analysis.flatness_intervals) ----------------------
 
 def _write(path, x, y, z_mm, reading_mm, meta):
-    from adaptive_cal.formats.recording import RecordingWriter
+    from adaptive_cal.formats.writing import RecordingWriter
 
     w = RecordingWriter(path, meta)
     for i, (xi, yi, zi, ri) in enumerate(zip(x, y, z_mm, reading_mm)):
@@ -277,7 +277,7 @@ def test_flatness_json_is_valid_json_off_grid(tmp_path, capsys):
     import json
 
     from adaptive_cal.cli import main
-    from adaptive_cal.formats.recording import RecordingWriter
+    from adaptive_cal.formats.writing import RecordingWriter
 
     rng = np.random.default_rng(4)
     path = tmp_path / "recording.csv"

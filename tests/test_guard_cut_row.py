@@ -7,8 +7,8 @@ import warnings
 
 import pytest
 
-from adaptive_cal.formats.recording import (cut_file, read_recording, repair_cut_row,
-                                            repair_cut_row_said)
+from adaptive_cal.formats.recording import read_recording
+from adaptive_cal.formats.writing import cut_file, repair_cut_row, repair_cut_row_said
 from adaptive_cal.run import session
 
 from helpers import sim_cell

@@ -19,7 +19,8 @@ import yaml
 
 from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.cli import main
-from adaptive_cal.formats.recording import RecordingWriter, read_recording, repair_cut_row
+from adaptive_cal.formats.recording import read_recording
+from adaptive_cal.formats.writing import RecordingWriter, repair_cut_row
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.run import folder, results, session
 

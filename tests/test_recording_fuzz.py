@@ -21,7 +21,8 @@ import pytest
 import yaml
 
 from adaptive_cal.cli import main
-from adaptive_cal.formats.recording import RecordingError, read_recording, repair_cut_row
+from adaptive_cal.formats.recording import RecordingError, read_recording
+from adaptive_cal.formats.writing import repair_cut_row
 from adaptive_cal.run import session
 
 from helpers import SIM_CELL

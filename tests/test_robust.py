@@ -10,7 +10,8 @@ import pytest
 
 import adaptive_cal
 from adaptive_cal.cell.build import survey_plan
-from adaptive_cal.formats.recording import RecordingWriter, read_recording, surface_height_mm
+from adaptive_cal.formats.recording import read_recording, surface_height_mm
+from adaptive_cal.formats.writing import RecordingWriter
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.planning import gate, survey as sv
 from adaptive_cal.planning.robust import InvalidReading

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from adaptive_cal.cli import main
-from adaptive_cal.formats.recording import read_recording, repair_cut_row
+from adaptive_cal.formats.recording import read_recording
+from adaptive_cal.formats.writing import repair_cut_row
 from adaptive_cal.run import session
 from adaptive_cal.run.folder import (LOCK_NAME, RunFolderBusy, finite_json, replace_atomically,
                                      run_lock)

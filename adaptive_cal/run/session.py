@@ -19,8 +19,8 @@ import numpy as np
 from adaptive_cal.cell.build import survey_plan, touch_floor
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
-from adaptive_cal.formats.recording import (RecordingWriter, read_recording, repair_cut_row_said,
-                                            say)
+from adaptive_cal.formats.recording import read_recording, say
+from adaptive_cal.formats.writing import RecordingWriter, repair_cut_row_said
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan

@@ -6,8 +6,9 @@ Modules: design (features, nominal, nuisance), evidence (marginal likelihood, LO
 parameters averaged over its refined grid: calibrated intervals), suspects (readings that disagree with every model),
 locate (mismatch by axis), structure (structure left after the library: the
 ``unexplained`` verdict), spans (directional identifiability), identify (aliasing and suggested
-touches), rounds (flatness change vs noise), core (the pipeline), summary (the explained cell
-file). The figures are in ``adaptive_cal.report.explain_figures``; the concealed-effect recordings
+touches), rounds (flatness change vs noise), params (a candidate's parameters, sds and
+intervals), beside (the other candidates judged with the verdict in the model), core (the
+pipeline), summary (the explained cell file). The figures are in ``adaptive_cal.report.explain_figures``; the concealed-effect recordings
 in ``adaptive_cal.simulation.concealed``. The physics is ``adaptive_cal.effects``.
 """
 from adaptive_cal.analysis.explain.core import (THRESHOLD, Explanation, belief_rows, effect_params,

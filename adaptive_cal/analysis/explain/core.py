@@ -25,10 +25,11 @@ from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.recording import Recording
 from adaptive_cal.analysis.explain.averaging import averaged
-from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
+from adaptive_cal.analysis.explain.beside import beside_verdict
+from adaptive_cal.analysis.explain.params import effect_params, summary as _summary
+from adaptive_cal.analysis.explain.candidates import Candidate, Context
 from adaptive_cal.analysis.explain.design import Design, build_design
-from adaptive_cal.analysis.explain.evidence import (Projector, log_evidence, loo_residuals,
-                                                    prior_precision)
+from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
 from adaptive_cal.analysis.explain.heavy import heavy_tailed
 from adaptive_cal.analysis.explain.identify import not_identifiable
 from adaptive_cal.analysis.explain.locate import locate
@@ -37,7 +38,6 @@ from adaptive_cal.analysis.explain.spans import covering
 from adaptive_cal.analysis.explain.structure import residual_structure, structure_probability
 from adaptive_cal.analysis.explain.suspects import model_probabilities, screened
 
-Z95 = 1.959963984540054  # the normal 97.5 % quantile
 THRESHOLD = 1.0  # log Bayes factor against none; on 1,200 nulls: FP 3.75 % (docs/explain.md)
 # A runner-up is ``ambiguous_with`` the verdict while the two's posterior odds (the probabilities
 # explain reports, ``verdict_probabilities``) are below 9 : 1 -- the verdict's probability
@@ -59,64 +59,6 @@ class Explanation:
     winner: Candidate | None
     residual_before: np.ndarray
     residual_after: np.ndarray
-
-
-def effect_params(cand: Candidate, design: Design, *, intervals_95: bool = False):
-    """Parameters and standard deviations in the effect table's names and signs.
-
-    Shared effects give numbers; effects fitted per round give one number per round. The sds
-    are calibrated (``averaging``): a searched effect's are equivalent-normal sds of its refined
-    grid posterior (``intervals``); a plain effect's come from its posterior averaged over the
-    prior scale, and form's pv_mm from that posterior by the delta method (its interval clipped
-    at zero). ``intervals_95``: also return the 95 % intervals (name -> [low, high], per round a
-    list of them) as a third value.
-    """
-    effect = effects.get(cand.effect)
-    names = cand.names
-    k = len(names)
-    blocks = 1 if cand.sharing == "shared" else design.rounds
-    mean = cand.mean.reshape(blocks, k)
-    std = np.sqrt(np.diag(cand.cov)).reshape(blocks, k)
-    params, stds, ivs = [], [], []
-    for b in range(blocks):
-        cov = cand.cov[b * k:(b + 1) * k, b * k:(b + 1) * k]
-        iv = {n: [float(m - Z95 * sd), float(m + Z95 * sd)] for n, m, sd in zip(names, mean[b], std[b])}
-        if effect.derive is not None:  # form: pv_mm from the shape coefficients
-            p, grads = effect.derive(mean[b], design.geometry)
-            s = {n: float(np.sqrt(g @ cov @ g)) for n, g in grads.items()}
-            iv.update({n: [max(p[n] - Z95 * s[n], 0.0), p[n] + Z95 * s[n]] for n in grads})
-        else:
-            p, s = {}, {}
-        p.update({n: float(v) for n, v in zip(names, mean[b])})
-        s.update({n: float(v) for n, v in zip(names, std[b])})
-        s.update(cand.param_std)
-        iv.update(cand.interval_95)
-        p.update(cand.fixed)
-        s.update({n: cand.nonlinear_std.get(n, 0.0) for n in cand.fixed})
-        iv.update({n: [p[n] - Z95 * s[n], p[n] + Z95 * s[n]] for n in cand.fixed})
-        params.append(p), stds.append(s), ivs.append(iv)
-    if blocks == 1:
-        out = params[0], stds[0], ivs[0]
-    else:
-        out = ({n: [p[n] for p in params] for n in params[0]},
-               {n: [s[n] for s in stds] for n in stds[0]},
-               {n: [i[n] for i in ivs] for n in ivs[0]})
-    return out if intervals_95 else out[:2]
-
-
-def _summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
-    effect = effects.get(cand.effect)
-    text = effect.summary(params, stds)
-    if cand.fixed:
-        text += " at " + ", ".join(f"{k} = {v:g} (+- {cand.nonlinear_std.get(k, 0):.2g})"
-                                   for k, v in cand.fixed.items())
-        text += f"; look-elsewhere penalty {cand.look_elsewhere:.2f} over {cand.searched} values"
-    if design.rounds > 1 and cand.log_bf_shared_vs_per_round is not None:
-        text += (f"; {cand.sharing.replace('_', ' ')} (log BF shared vs per round "
-                 f"{cand.log_bf_shared_vs_per_round:.2f})")
-    if effect.axis == "time" and not all(design.time_known):
-        text += "; t_s blank: time taken as seq x robot.touch_time_s"
-    return text + f"; log BF vs none {cand.log_bf:.2f}"
 
 
 def _calibration(ctx: Context, sigma: float) -> list[dict]:
@@ -225,58 +167,6 @@ def _separated(entries: list[dict], verdict: str, ambiguous: list[str]) -> list[
     if ambiguous:
         return entries
     return [e for e in entries if e["effect"] != verdict or e.get("not_testable")]
-
-
-def context_given(ctx: Context, winner: Candidate) -> Context:
-    """The null model with the verdict's columns added to the nuisance (flat prior): a second
-    candidate scored in it answers "is it there as well", not "does it explain the residual
-    instead" -- what a cell file with the verdict among ``simulation.unknown`` would ask."""
-    d = ctx.design
-    N = np.hstack([ctx.nuisance, winner.columns])
-    proj = Projector.of(N)
-    yt = proj(d.target)
-    m = d.n - proj.rank
-    lz0, w0 = log_evidence(np.zeros((d.n, 0)), yt, np.zeros(0), m)
-    return Context(d, N, proj, yt, m, lz0, w0)
-
-
-def beside_verdict(ctx: Context, winner: Candidate, cands: list[Candidate],
-                   left_out: list[dict], design: Design, threshold: float,
-                   serial: dict | None) -> list[dict]:
-    """Every other candidate scored again with the verdict in the model (``context_given``).
-    A ``left_out`` entry gets ``given_verdict`` {``log_bayes_factor``, ``left_out`` (above the
-    threshold), ``params``, ``params_std``}: each entry of ``left_out`` beats ``none`` alone,
-    and most only stand in for the verdict's residual (Cheng's rounds: a warm-up of -808 um at
-    log BF 36.8 against none is 1.5 beside the form, at -114 um). A candidate below the
-    threshold alone that passes it beside the verdict -- an effect hidden by a larger one (a
-    200 um bump under Cheng's 0.6 mm form: 0.5 alone, 9.5 beside it) -- is appended to
-    ``left_out`` with its fit beside the verdict. Evidence scaled for serially correlated
-    readings as the main scores are; not lowered for heavy-tailed noise (``readings.noise``).
-    Returns ``left_out``."""
-    given = context_given(ctx, winner)
-    factor = serial["evidence_factor"] if serial else 1.0
-    alone = {c.effect: c for c in cands}
-    listed = {e["effect"]: e for e in left_out}
-    for c in score_candidates(given, skip=frozenset(design.untestable) | {winner.effect}):
-        lbf = c.log_bf * (factor if c.log_bf > 0 else 1.0)
-        e = listed.get(c.effect)
-        if e is None and lbf <= threshold:
-            continue
-        if lbf > threshold:
-            c = averaged(given, replace(c, log_bf=lbf))
-        params, stds, iv95 = effect_params(c, design, intervals_95=True)
-        gv = {"log_bayes_factor": float(lbf), "left_out": bool(lbf > threshold),
-              "params": params, "params_std": stds}
-        if e is not None:
-            e["given_verdict"] = gv
-            continue
-        first = alone.get(c.effect)
-        left_out.append({"effect": c.effect, "params": params, "params_std": stds,
-                         "parameter_interval_95": iv95,
-                         "log_bayes_factor": float(first.log_bf if first else float("nan")),
-                         "summary": _summary(c, params, stds, design) + " (beside the verdict)",
-                         "sharing": c.sharing, "given_verdict": gv})
-    return left_out
 
 
 def explain_design(design: Design, *, threshold: float = THRESHOLD,

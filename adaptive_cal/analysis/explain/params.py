@@ -1,0 +1,69 @@
+"""A candidate's parameters as the effect table names and signs them, with their standard
+deviations and 95 % intervals (``effect_params``), and its one-line summary (``summary``)."""
+from __future__ import annotations
+
+import numpy as np
+
+from adaptive_cal import effects
+from adaptive_cal.analysis.explain.candidates import Candidate
+from adaptive_cal.analysis.explain.design import Design
+
+Z95 = 1.959963984540054  # the normal 97.5 % quantile
+
+
+def effect_params(cand: Candidate, design: Design, *, intervals_95: bool = False):
+    """Parameters and standard deviations in the effect table's names and signs.
+
+    Shared effects give numbers; effects fitted per round give one number per round. The sds
+    are calibrated (``averaging``): a searched effect's are equivalent-normal sds of its refined
+    grid posterior (``intervals``); a plain effect's come from its posterior averaged over the
+    prior scale, and form's pv_mm from that posterior by the delta method (its interval clipped
+    at zero). ``intervals_95``: also return the 95 % intervals (name -> [low, high], per round a
+    list of them) as a third value.
+    """
+    effect = effects.get(cand.effect)
+    names = cand.names
+    k = len(names)
+    blocks = 1 if cand.sharing == "shared" else design.rounds
+    mean = cand.mean.reshape(blocks, k)
+    std = np.sqrt(np.diag(cand.cov)).reshape(blocks, k)
+    params, stds, ivs = [], [], []
+    for b in range(blocks):
+        cov = cand.cov[b * k:(b + 1) * k, b * k:(b + 1) * k]
+        iv = {n: [float(m - Z95 * sd), float(m + Z95 * sd)] for n, m, sd in zip(names, mean[b], std[b])}
+        if effect.derive is not None:  # form: pv_mm from the shape coefficients
+            p, grads = effect.derive(mean[b], design.geometry)
+            s = {n: float(np.sqrt(g @ cov @ g)) for n, g in grads.items()}
+            iv.update({n: [max(p[n] - Z95 * s[n], 0.0), p[n] + Z95 * s[n]] for n in grads})
+        else:
+            p, s = {}, {}
+        p.update({n: float(v) for n, v in zip(names, mean[b])})
+        s.update({n: float(v) for n, v in zip(names, std[b])})
+        s.update(cand.param_std)
+        iv.update(cand.interval_95)
+        p.update(cand.fixed)
+        s.update({n: cand.nonlinear_std.get(n, 0.0) for n in cand.fixed})
+        iv.update({n: [p[n] - Z95 * s[n], p[n] + Z95 * s[n]] for n in cand.fixed})
+        params.append(p), stds.append(s), ivs.append(iv)
+    if blocks == 1:
+        out = params[0], stds[0], ivs[0]
+    else:
+        out = ({n: [p[n] for p in params] for n in params[0]},
+               {n: [s[n] for s in stds] for n in stds[0]},
+               {n: [i[n] for i in ivs] for n in ivs[0]})
+    return out if intervals_95 else out[:2]
+
+
+def summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
+    effect = effects.get(cand.effect)
+    text = effect.summary(params, stds)
+    if cand.fixed:
+        text += " at " + ", ".join(f"{k} = {v:g} (+- {cand.nonlinear_std.get(k, 0):.2g})"
+                                   for k, v in cand.fixed.items())
+        text += f"; look-elsewhere penalty {cand.look_elsewhere:.2f} over {cand.searched} values"
+    if design.rounds > 1 and cand.log_bf_shared_vs_per_round is not None:
+        text += (f"; {cand.sharing.replace('_', ' ')} (log BF shared vs per round "
+                 f"{cand.log_bf_shared_vs_per_round:.2f})")
+    if effect.axis == "time" and not all(design.time_known):
+        text += "; t_s blank: time taken as seq x robot.touch_time_s"
+    return text + f"; log BF vs none {cand.log_bf:.2f}"
