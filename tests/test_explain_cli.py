@@ -126,3 +126,17 @@ def test_the_json_is_written_before_the_terminal_lines(tmp_path, cheng_round0, m
     out = tmp_path / "r.json"
     assert main(["explain", str(cheng_round0), "--robot", str(CELL), "--json", str(out)]) == 0
     assert json.loads(out.read_text())["verdict"] == "form"
+
+
+def test_a_touch_the_run_refused_off_the_workplane_does_not_refuse_the_recording(tmp_path, capsys):
+    """A row flagged invalid;rejected (tell refused its position) is not used, so its position
+    is not held against the recording; the same row unflagged is refused, naming it."""
+    rows = [r + [""] for r in _grid_rows()]
+    rows[7] = [7, "", 300.0, 0.0, 0, 0.0, "invalid;rejected"]
+    header = "seq,t_s,x_mm,y_mm,z_mm,reading_mm,flags"
+    ok = _write(tmp_path / "ok.csv", rows, header)
+    assert main(["explain", str(ok), "--robot", str(CELL), "--no-figures"]) == 0
+    rows[7][-1] = ""
+    bad = _write(tmp_path / "bad.csv", rows, header)
+    assert main(["explain", str(bad), "--robot", str(CELL), "--no-figures"]) == 2
+    assert "seq 7" in capsys.readouterr().err
