@@ -30,3 +30,17 @@ def drive(plan, opened, limit=500, state=None):
     state, _ = run_loop(plan, state if state is not None else sv.start(plan), opened.cycle,
                         stop=stop)
     return state
+
+
+def wait_listening(port: int, host: str = "127.0.0.1", timeout_s: float = 10.0) -> None:
+    """Until a server thread that binds and listens on its own accepts on ``port``."""
+    import socket
+    import time
+
+    t = time.monotonic()
+    while time.monotonic() - t < timeout_s:
+        try:
+            socket.create_connection((host, port), timeout=0.5).close()
+            return
+        except OSError:
+            time.sleep(0.02)

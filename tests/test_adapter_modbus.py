@@ -10,6 +10,7 @@ from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.simulation.emulator.plc import PlcServer
 from adaptive_cal.simulation.emulator.robot import EmulatedRobot
 from tests.conftest import ROOT
+from tests.helpers import wait_listening
 
 CELL = load_cell(ROOT / "configs" / "cell-modbus-emulated.yaml")
 
@@ -215,13 +216,7 @@ class JobMirrorPlc:
         self.io, self.moves, self.stop = {"in1": 0, "ot1": 0}, [], threading.Event()
         for f in (self.ladder, self.job):
             threading.Thread(target=f, daemon=True).start()
-        t = time.monotonic()
-        while time.monotonic() - t < 10:
-            try:
-                socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
-                break
-            except OSError:
-                time.sleep(0.02)
+        wait_listening(self.port)
 
     def ladder(self):
         while not self.stop.wait(0.003):

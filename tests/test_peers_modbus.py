@@ -13,6 +13,7 @@ from adaptive_cal.hardware.modbus.registers import resolve
 from adaptive_cal.simulation.emulator.plc import PlcServer
 from adaptive_cal.simulation.emulator.robot import EmulatedRobot
 from tests.conftest import ROOT
+from tests.helpers import wait_listening
 
 pyModbusTCP = pytest.importorskip("pyModbusTCP")
 modbus_tk = pytest.importorskip("modbus_tk")
@@ -87,13 +88,7 @@ class TkPlc:
         self.server.start()
         self.thread = threading.Thread(target=self.scan, daemon=True)
         self.thread.start()
-        t = time.monotonic()  # the server thread binds and listens on its own: wait until it accepts
-        while time.monotonic() - t < 10:
-            try:
-                socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
-                break
-            except OSError:
-                time.sleep(0.02)
+        wait_listening(self.port)
 
     def mm(self, d):
         lo, hi = self.slave.get_values("d", 0x1000 + d, 2)
