@@ -29,6 +29,9 @@ def test_report_on_a_recording_asks_for_its_run_folder(tmp_path):
     run = tmp_path / "runs" / "first"
     run.mkdir(parents=True)
     (run / "recording.csv").write_text((CHENG / "round0_initial.csv").read_text())
+    # a folder with only a recording in it is no run folder: replay it with its cell file
+    _fails(_cli("report", run / "recording.csv"), "a bare recording", "--robot CELL.yaml")
+    (run / "cell.yaml").write_text((ROOT / "configs" / "cheng2025-cell.yaml").read_text())
     _fails(_cli("report", run / "recording.csv"), "is a file; report wants the run folder",
            f"adaptive-cal report {run}")
 

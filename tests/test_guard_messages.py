@@ -36,8 +36,9 @@ def test_report_on_a_run_folders_recording_suggests_the_folder(tmp_path, capsys)
 @pytest.mark.parametrize("prior, said", [
     ("nothere", "--prior-from nothere: no such run folder"),
     ("afile.csv", "--prior-from afile.csv: a file, not a run folder"),
-    ("empty", "--prior-from empty: not a run folder with a map, it has no belief.npz"),
+    ("empty", "--prior-from empty: it has no result.json"),  # the proposed correction's
     ("nores", "--prior-from nores: it has no result.json"),
+    ("nomap", "--prior-from nomap: not a run folder with a map, it has no belief.npz"),
 ])
 def test_prior_from_that_is_no_run_folder_is_said_plainly(tmp_path, monkeypatch, capsys, prior,
                                                           said):
@@ -46,6 +47,8 @@ def test_prior_from_that_is_no_run_folder_is_said_plainly(tmp_path, monkeypatch,
     Path("empty").mkdir()
     Path("nores").mkdir()
     Path("nores/belief.npz").write_bytes(b"")
+    Path("nomap").mkdir()
+    Path("nomap/result.json").write_text("{}")
     assert main(["run", "--robot", CELL, "--out", "new", "--prior-from", prior,
                  "--no-progress"]) == 2
     err = capsys.readouterr().err

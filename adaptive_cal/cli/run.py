@@ -69,7 +69,7 @@ def command(args) -> int:
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
         created = (folders, before)
     correction = _correction(args)
-    if args.prior_from:
+    if args.prior_from and not args.resume:  # a resume keeps its own prior (recheck.saved_prior)
         _check_prior_from(Path(args.prior_from), correction)
     if args.resume:
         try:
@@ -163,14 +163,14 @@ def _check_prior_from(prior: Path, correction) -> None:
     if not prior.is_dir():
         raise UserError(f"--prior-from {prior}: a file, not a run folder (give the folder an "
                         "earlier 'adaptive-cal run --out DIR' wrote)")
-    if not (prior / "belief.npz").is_file():
-        raise UserError(f"--prior-from {prior}: not a run folder with a map, it has no "
-                        "belief.npz (give the folder an earlier 'adaptive-cal run --out DIR' "
-                        "wrote)")
     if correction == "proposed" and not (prior / "result.json").is_file():
         raise UserError(f"--prior-from {prior}: it has no result.json, so no proposed tilt "
                         "correction to assume applied; pass the applied one as "
                         "--correction-applied RX,RY (deg), or none")
+    if not (prior / "belief.npz").is_file():
+        raise UserError(f"--prior-from {prior}: not a run folder with a map, it has no "
+                        "belief.npz (give the folder an earlier 'adaptive-cal run --out DIR' "
+                        "wrote)")
 
 
 def _correction(args):
