@@ -49,13 +49,15 @@ def left_out_line(e: dict, units: dict, verdict: str | None = None) -> str:
         params, stds = e.get("params", {}), e.get("params_std", {})
     values = ", ".join(quantity(k, v, stds.get(k), units.get(k, "")) for k, v in params.items())
     notes = "; ".join(_notes(e.get("summary", "")) if not (given and given["left_out"]) else [])
-    against = f"log Bayes factor {e['log_bayes_factor']:.1f} against none"
+    alone = e.get("log_bayes_factor")
+    against = ("log Bayes factor " + ("-" if alone is None else f"{alone:.1f}") + " against none")
     if not given:
         return (f"  left out: {e['effect']}: {values}" + (f"; {notes}" if notes else "")
                 + f"; evidence: {against}")
     beside = f"{given['log_bayes_factor']:.1f} with {verdict} in the model"
     if given["left_out"]:
-        why = (f"hidden by {verdict}" if not e["log_bayes_factor"] >= given["log_bayes_factor"]
+        why = (f"clearer with {verdict} in the model" if alone is None
+               or alone < given["log_bayes_factor"]
                else f"where it takes up part of what {verdict} explains")
         return (f"  left out as well, beside {verdict}: {e['effect']}: {values}; evidence: "
                 f"log Bayes factor {beside} ({against} alone, {why})")

@@ -36,7 +36,8 @@ def beside_verdict(ctx: Context, winner: Candidate, cands: list[Candidate],
     and most only stand in for the verdict's residual (Cheng's rounds: a warm-up of -808 um at
     log BF 36.8 against none is 1.5 beside the form, at -114 um). A candidate below the
     threshold alone that passes it beside the verdict -- an effect hidden by a larger one (a
-    200 um bump under Cheng's 0.6 mm form: 0.5 alone, 9.5 beside it) -- is appended to
+    200 um bump under Cheng's 0.6 mm form: 0.5 alone, 1.5 beside it after the serial-correlation
+    scaling, 9.5 before) -- is appended to
     ``left_out`` with its fit beside the verdict. Evidence scaled for serially correlated
     readings as the main scores are; not lowered for heavy-tailed noise (``readings.noise``).
     Returns ``left_out``."""
@@ -60,7 +61,7 @@ def beside_verdict(ctx: Context, winner: Candidate, cands: list[Candidate],
         first = alone.get(c.effect)
         left_out.append({"effect": c.effect, "params": params, "params_std": stds,
                          "parameter_interval_95": iv95,
-                         "log_bayes_factor": float(first.log_bf if first else float("nan")),
+                         "log_bayes_factor": float(first.log_bf) if first else None,
                          "summary": summary(c, params, stds, design) + " (beside the verdict)",
                          "sharing": c.sharing, "given_verdict": gv})
     return left_out
