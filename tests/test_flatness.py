@@ -307,3 +307,19 @@ def test_flatness_text_says_what_each_answer_is_of(cheng_round0, capsys):
     assert "flatness of the whole plate (from the map): needs a map" in out
     assert "--robot CELL.yaml" in out
     assert "max - min with the tilt included (not flatness)" in out
+
+
+def test_touches_on_one_line_have_no_minimum_zone():
+    """A vertical plane through a line of touches holds them all (zero width, and the zone's
+    slopes infinite: the fuzzed recordings' divide-by-zero); refused, saying why."""
+    from adaptive_cal.analysis.flatness import minimum_zone_mm
+
+    x = np.linspace(-200.0, 200.0, 12)
+    z = 1e-3 * np.sin(x / 50.0)
+    with pytest.raises(ValueError, match="lie on one line in x, y"):
+        minimum_zone_mm(x, 0.5 * x + 3.0, z)
+    # off the line by 1 mm at one touch: a plate zone, finite, no wider than the points' spread
+    y = 0.5 * x + 3.0
+    y[5] += 1.0
+    zone = minimum_zone_mm(x, y, z)
+    assert np.isfinite([zone.value_mm, zone.a, zone.b]).all() and zone.value_mm <= np.ptp(z)

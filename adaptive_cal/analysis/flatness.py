@@ -154,6 +154,11 @@ def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
     """
     x_mm, y_mm, z_mm = _as_arrays(x_mm, y_mm, z_mm)
     centre = np.array([x_mm.mean(), y_mm.mean(), z_mm.mean()])
+    xy = np.column_stack([x_mm - centre[0], y_mm - centre[1]])
+    if np.linalg.matrix_rank(xy, tol=1e-6 * max(float(np.abs(xy).max(initial=0.0)), 1e-12)) < 2:
+        # a vertical plane through the line holds every point: zero width, no plate zone
+        raise ValueError(f"the {len(x_mm)} touched points lie on one line in x, y: a flatness "
+                         "zone needs touches that span the plate")
     points = _hull_points(np.column_stack([x_mm, y_mm, z_mm]) - centre)
     a, b, _ = _plane_coefficients(*points.T)
     normal = np.array([-a, -b, 1.0]) / np.sqrt(1.0 + a**2 + b**2)
