@@ -153,3 +153,17 @@ def test_a_cell_that_moves_a_real_probe_must_give_its_workspace(config):
     del data["workspace"]
     with pytest.raises(ConfigError, match=r"\n  robot.adapter: .*give a workspace block"):
         parse_cell(data)
+
+
+def test_a_yes_no_is_no_number_but_yaml_exponents_without_a_dot_are():
+    """YAML reads `true`, `yes`, `on` as a bool, and pydantic would take it as 1: refused naming
+    the key. PyYAML reads `4e-3` (no dot) as text; a cell file that writes it means 0.004."""
+    from helpers import sim_cell
+
+    assert yaml.safe_load("v: 4e-3")["v"] == "4e-3"  # the YAML quirk itself
+    for value in (True, False):
+        with pytest.raises(ConfigError, match=r"plan\.stop: max_touches: (True|False) is a "
+                                              r"yes/no, not a number"):
+            sim_cell(plan={"stop": {"max_touches": value}})
+    stop = yaml.safe_load("mean_std_mm: 4e-3\nmax_touches: 40")
+    assert sim_cell(plan={"stop": stop}).plan.stop.mean_std_mm == 0.004

@@ -5,16 +5,39 @@ marks "(verify)" is a field, not a constant in the code.
 """
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict
+import typing
+
+from pydantic import BaseModel, ConfigDict, model_validator
 
 # the rates a UART and pyserial both accept; anything else is a typo
 BAUD_RATES = (300, 600, 1200, 2400, 4800, 9600, 14400, 19200, 38400, 57600, 115200, 230400)
 
 
+def _numeric(annotation) -> bool:
+    """A number field (int or float, optional or not; not one that also takes text or a bool)."""
+    args = typing.get_args(annotation) or (annotation,)
+    kinds = {a for a in args if a is not type(None)}
+    return bool(kinds) and any(a in (int, float) for a in kinds) and not any(
+        a in (str, bool) or typing.get_origin(a) is typing.Literal for a in kinds)
+
+
 class Strict(BaseModel):
-    """Base for config blocks: immutable, unknown keys are an error (a typo must fail)."""
+    """Base for config blocks: immutable, unknown keys are an error (a typo must fail), and a
+    yes/no is no number: ``max_touches: true`` (YAML's yes, on, true) is refused naming the key,
+    not read as 1. Text that reads as a number stays allowed: PyYAML leaves ``4e-3`` (no dot)
+    a string, and a cell file that writes it means the number."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _numbers_are_numbers(cls, data):
+        if isinstance(data, dict):
+            for name, field in cls.model_fields.items():
+                v = data.get(name)
+                if isinstance(v, bool) and _numeric(field.annotation):
+                    raise ValueError(f"{name}: {v!r} is a yes/no, not a number")
+        return data
 
 
 def check_host(v: str) -> str:
