@@ -93,6 +93,8 @@ def test_dry_run_prints_approach_heights_expected_touches_and_robot_time():
 @pytest.mark.parametrize("argv, words", [
     (["flatness", CHENG / "round0_initial.csv", "--samples", "-5"], "--samples: -5 is below 2"),
     (["flatness", CHENG / "round0_initial.csv", "--samples", "1"], "--samples: 1 is below 2"),
+    (["flatness", CHENG / "round0_initial.csv", "--samples", "100000000"],
+     "--samples: 100000000 is above 100000"),
     (["study", ROOT / "configs" / "study-smoke.yaml", "--json", "x.json", "--workers", "-2"],
      "--workers: -2 is below 0"),
     (["study", ROOT / "configs" / "study-smoke.yaml", "--json", "x.json", "--plates", "-3"],

@@ -257,6 +257,21 @@ def test_dry_run_moves_nothing_and_lists_the_runs_own_first_touches(tmp_path, ca
     np.testing.assert_allclose(listed[:3], np.asarray(state.touched_xy_mm)[:3], atol=0.006)
 
 
+def test_dry_run_refuses_what_the_run_would_and_does_not_pretend_to_resume(tmp_path, capsys):
+    """A stroke no point fits: the run refuses before its first touch, and so does the dry run
+    (it printed 'about 0 touches' and exited 0); --dry-run with --resume is refused, not
+    ignored."""
+    import yaml
+    data = load_yaml(SIM_CELL)
+    data["probe"]["usable_mm"] = [4.99, 5.01]
+    f = tmp_path / "narrow.yaml"
+    f.write_text(yaml.safe_dump(data))
+    assert main(["run", "--robot", str(f), "--dry-run"]) == 2
+    assert "no allowed point can be promised" in capsys.readouterr().err
+    assert main(["run", "--robot", str(SIM_CELL), "--resume", str(tmp_path), "--dry-run"]) == 2
+    assert "does not continue --resume" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("patch,key", [
     ({"workplane": {"x_mm": [-225, 225], "y_mm": [-185, 185], "colour": 1}}, "workplane.colour"),
     ({"probe": {"noise_std_mm": 0}}, "probe.noise_std_mm"),

@@ -25,9 +25,10 @@ class DefaultsShown(argparse.HelpFormatter):
         return text
 
 
-def at_least(minimum: int):
-    """argparse type: an integer of at least ``minimum``; argparse names the option and the value
-    ("argument --seed: -1 is below 0") instead of failing later inside numpy."""
+def at_least(minimum: int, maximum: int | None = None, why: str = ""):
+    """argparse type: an integer of at least ``minimum`` (and at most ``maximum``: ``why`` says
+    why); argparse names the option and the value ("argument --seed: -1 is below 0") instead of
+    failing later inside numpy, or running for hours."""
     def parse(text: str) -> int:
         try:
             value = int(text)
@@ -35,6 +36,8 @@ def at_least(minimum: int):
             raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
         if value < minimum:
             raise argparse.ArgumentTypeError(f"{value} is below {minimum}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"{value} is above {maximum}{why}")
         return value
     return parse
 

@@ -23,9 +23,11 @@ def add_arguments(p) -> None:
     p.add_argument("--compare", metavar="OTHER.csv", help="a later round: probability that its "
                    "flatness (of the touched points) is larger, and the interval of the difference")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
-    p.add_argument("--samples", type=at_least(2), default=None, help="posterior samples for the "
-                   "intervals (default: 200 with a map, as in run, so the digits are the run's; 400 "
-                   "for a bare recording)%(default).0s")
+    p.add_argument("--samples", type=at_least(2, 100_000, " (each sample is a whole minimum-zone "
+                                              "fit: 100,000 take minutes)"),
+                   default=None, help="posterior samples for the intervals (default: 200 with a "
+                   "map, as in run, so the digits are the run's; 400 for a bare recording; fewer than "
+                   "40 make a coarse 95 %% interval)%(default).0s")
     p.add_argument("--seed", type=at_least(0), default=0, help="seed of the posterior samples")
 
 

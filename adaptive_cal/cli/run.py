@@ -36,6 +36,10 @@ def command(args) -> int:
     if args.dry_run:
         if not args.robot:
             raise UserError("--dry-run needs --robot CELL.yaml")
+        if args.resume or args.prior_from:
+            raise UserError(f"--dry-run plans a fresh run from the cell file; it does not "
+                            f"continue {'--resume' if args.resume else '--prior-from'} (leave "
+                            "--dry-run out to run it)")
         return _dry_run(load_cell(args.robot))
     if args.resume:
         out = Path(args.resume)
@@ -275,6 +279,11 @@ def _dry_run(cell) -> int:
 
     plan = survey_plan(cell)
     touches, travel_mm, why, targets = _forecast(plan, cell)
+    if not targets:  # as the run would say before its first touch
+        raise UserError("no allowed point can be promised to land inside the usable probe "
+                        f"stroke {list(cell.probe.usable_mm)} mm: the prior is too wide for the "
+                        "stroke. Level the plate first, or narrow model.offset_std_mm / "
+                        "tilt_std_deg")
     targets = targets[:20]
     print(f"dry run: the first {len(targets)} touches as planned when every reading lands where "
           "the belief expects it; nothing moves.\nThe plan adapts as readings arrive, and each "
