@@ -113,24 +113,16 @@ def map_flatness(args) -> dict | None:
 
 def check_belief(folder, surface, data, command: str = "flatness") -> None:
     """UserError unless the map in ``folder``/belief.npz (``data``) is one the folder's cell.yaml
-    gives (``surface``: its spline): the same knots, and a mean and covariance of their size. A
-    run resumed with another cell, or a cell.yaml edited since, would be read as another map."""
+    gives (``surface``: its spline; ``run.results.belief_mismatch``). A run resumed with another
+    cell, or a cell.yaml edited since, would be read as another map."""
     from pathlib import Path
 
-    import numpy as np
+    from adaptive_cal.run.results import belief_mismatch
 
     folder = Path(folder)
-    k = (len(surface.sx.knots), len(surface.sy.knots))
-    try:
-        kx, ky = np.asarray(data["knots_x"], float), np.asarray(data["knots_y"], float)
-        mean, cov = np.asarray(data["mean"]), np.asarray(data["cov"])
-        fits = (kx.shape == (k[0],) and ky.shape == (k[1],) and np.allclose(kx, surface.sx.knots)
-                and np.allclose(ky, surface.sy.knots) and mean.shape == (k[0] * k[1],)
-                and cov.shape == (k[0] * k[1],) * 2)
-        have = f"{kx.size} x {ky.size}" + ("" if (kx.size, ky.size) != k else " at other places")
-    except (KeyError, ValueError, TypeError):
-        fits, have = False, "unreadable"
-    if not fits:
+    have = belief_mismatch(surface, data)
+    if have is not None:
+        k = (len(surface.sx.knots), len(surface.sy.knots))
         raise UserError(
             f"{folder / 'belief.npz'} does not match {folder / 'cell.yaml'}: the map's knots are "
             f"{have}, the cell file gives {k[0]} x {k[1]} (its workplane or "

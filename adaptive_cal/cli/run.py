@@ -280,10 +280,9 @@ def _dry_run(cell) -> int:
     plan = survey_plan(cell)
     touches, travel_mm, why, targets = _forecast(plan, cell)
     if not targets:  # as the run would say before its first touch
-        raise UserError("no allowed point can be promised to land inside the usable probe "
-                        f"stroke {list(cell.probe.usable_mm)} mm: the prior is too wide for the "
-                        "stroke. Level the plate first, or narrow model.offset_std_mm / "
-                        "tilt_std_deg")
+        from adaptive_cal.run.session import no_admissible_point
+
+        raise UserError(no_admissible_point(cell))
     targets = targets[:20]
     print(f"dry run: the first {len(targets)} touches as planned when every reading lands where "
           "the belief expects it; nothing moves.\nThe plan adapts as readings arrive, and each "

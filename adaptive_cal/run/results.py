@@ -156,10 +156,24 @@ def read_belief(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no saved belief (is {run_dir} a finished run?)")
     data = read_npz(path)
-    surface = plan_model(cell).surface
-    if (len(data["knots_x"]) != len(surface.sx.knots) or len(data["knots_y"]) != len(surface.sy.knots)
-            or not np.allclose(data["knots_x"], surface.sx.knots)
-            or not np.allclose(data["knots_y"], surface.sy.knots)):
+    if belief_mismatch(plan_model(cell).surface, data) is not None:
         raise ValueError(f"{path}: the earlier run used other knots; give the cell file the same "
                          "model.knots_x / knots_y")
     return bl.Belief(data["mean"], data["cov"]), Hyper(*data["hyper"].tolist())
+
+
+def belief_mismatch(surface, data) -> str | None:
+    """None when a saved belief (``data``: belief.npz's arrays) is a map on ``surface``'s spline:
+    the same knots, a mean and covariance of their size; else what its knots are ("7 x 6",
+    "8 x 7 at other places" or "unreadable")."""
+    k = (len(surface.sx.knots), len(surface.sy.knots))
+    try:
+        kx, ky = np.asarray(data["knots_x"], float), np.asarray(data["knots_y"], float)
+        mean, cov = np.asarray(data["mean"]), np.asarray(data["cov"])
+        fits = (kx.shape == (k[0],) and ky.shape == (k[1],) and np.allclose(kx, surface.sx.knots)
+                and np.allclose(ky, surface.sy.knots) and mean.shape == (k[0] * k[1],)
+                and cov.shape == (k[0] * k[1],) * 2)
+    except (KeyError, ValueError, TypeError):
+        return "unreadable"
+    return None if fits else (
+        f"{kx.size} x {ky.size}" + ("" if (kx.size, ky.size) != k else " at other places"))

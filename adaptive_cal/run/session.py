@@ -39,6 +39,13 @@ class NoAdmissiblePoint(AdapterError):
     """No allowed point can be promised to land inside the probe stroke."""
 
 
+def no_admissible_point(cell: Cell) -> str:
+    """Why a run (or its dry run) cannot make its first touch: no point the prior allows."""
+    return ("no allowed point can be promised to land inside the usable probe stroke "
+            f"{list(cell.probe.usable_mm)} mm: the prior is too wide for the stroke. Level the "
+            "plate first, or narrow model.offset_std_mm / tilt_std_deg")
+
+
 @dataclass(frozen=True)
 class RunPaths:
     """The files of a run's output folder (and its lock, ``run.folder.LOCK_NAME``)."""
@@ -179,10 +186,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         try:
             stopped = loop.run()
             if stopped == NO_ADMISSIBLE_POINT:
-                stopped, error = "interrupted", NoAdmissiblePoint(
-                    "no allowed point can be promised to land inside the usable probe stroke "
-                    f"{list(cell.probe.usable_mm)} mm: the prior is too wide for the stroke. "
-                    "Level the plate first, or narrow model.offset_std_mm / tilt_std_deg")
+                stopped, error = "interrupted", NoAdmissiblePoint(no_admissible_point(cell))
         except KeyboardInterrupt:
             stopped = "interrupted"
         except AdapterError as e:  # a device stopped the run: report what was measured, then raise
