@@ -1,4 +1,4 @@
-"""report and explain never write an output over one of their inputs or over a run folder's
+"""report, explain and compensate never write an output over one of their inputs or over a run folder's
 measurement (recording.csv, result.json, belief.npz, cell.yaml): refused naming the option and
 the file, and the file is left byte for byte as it was."""
 import os
@@ -26,6 +26,7 @@ def folder(tmp_path):
     (run / "belief.npz").write_bytes(b"PK\x05\x06" + bytes(18))
     (tmp_path / "rec.csv").write_text(REC)
     shutil.copyfile(ROOT / "configs" / "sim-cell.yaml", tmp_path / "cell.yaml")
+    shutil.copyfile(ROOT / "configs" / "engrave-example.gcode", tmp_path / "prog.gcode")
     return tmp_path
 
 
@@ -50,6 +51,11 @@ def _contents(d: Path) -> dict:
     # --out DIR writes DIR/<cell>-explained.yaml: here that is the recording
     (["explain", "cell-explained.yaml", "--robot", "cell.yaml", "--out", "."], "--out",
      "cell-explained.yaml"),
+    # compensate: the program, and the map's run folder (one refusal for all three commands)
+    (["compensate", "prog.gcode", "--map", "run1", "--out", "prog.gcode"], "--out", "prog.gcode"),
+    (["compensate", "prog.gcode", "--map", "run1", "--out", "run1/recording.csv"], "--out",
+     "run1/recording.csv"),
+    (["compensate", "--map", "run1", "--grid", "run1/cell.yaml"], "--grid", "run1/cell.yaml"),
 ])
 def test_an_output_over_an_input_is_refused_and_nothing_changes(folder, argv, option, target,
                                                                 capsys, monkeypatch):

@@ -39,7 +39,7 @@ def add_arguments(p) -> None:
 def command(args) -> int:
     from pathlib import Path
 
-    from adaptive_cal.cli.common import UserError
+    from adaptive_cal.cli.common import UserError, refuse_input_as_output
 
     if args.grid and (args.program or args.out):
         raise UserError("--grid writes the map alone: give either PROGRAM --out OUT or --grid "
@@ -50,8 +50,10 @@ def command(args) -> int:
     if args.heights_only and not args.grid:
         raise UserError("--heights-only shapes the --grid file: give --grid OUT.csv with it")
     check_tolerance(args.tolerance_mm)
-    if args.program and Path(args.out).resolve() == Path(args.program).resolve():
-        raise UserError(f"--out {args.out} is PROGRAM itself: write the output to another file")
+    if args.program:  # neither PROGRAM nor the map's run folder is overwritten
+        refuse_input_as_output("--out", args.out, [args.program], [args.map])
+    if args.grid:
+        refuse_input_as_output("--grid", args.grid, [], [args.map])
     if args.program and not Path(args.program).is_file():
         raise UserError(f"PROGRAM {args.program}: no such file")
 

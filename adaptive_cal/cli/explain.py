@@ -39,7 +39,7 @@ def _print(report: dict) -> None:
 def _refuse_overwrite(args) -> None:
     """--json and the files --out writes (the explained cell file, the figures) must not be a
     recording, the cell file or a run folder's measurement: they would overwrite it."""
-    from adaptive_cal.cli.report import refuse_input_as_output
+    from adaptive_cal.cli.common import refuse_input_as_output
 
     inputs = [*args.recordings, args.robot]
     if args.json:

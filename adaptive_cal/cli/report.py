@@ -5,43 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-#: a run folder's measurement: never overwritten by an output of report or explain
-RUN_FILES = ("recording.csv", "result.json", "belief.npz", "cell.yaml")
-
-
-def _same(a: Path, b: Path) -> bool:
-    if a.resolve() == b.resolve():
-        return True
-    try:
-        return a.exists() and b.exists() and a.samefile(b)  # a hard link
-    except OSError:
-        return False
-
-
-def refuse_input_as_output(option: str, out, inputs, folders=(), also=()) -> None:
-    """Raise UserError when the output ``out`` of ``option`` is one of the ``inputs`` (same file,
-    resolved, links followed) or one of the measurement files of a run folder: the ``folders``
-    given, and the folder of an input that is a run folder's recording.csv (and the names in
-    ``also`` there). Writing there would overwrite the measurement itself."""
-    from adaptive_cal.cli.common import UserError
-
-    out = Path(out)
-    protected = []  # (path, what it is)
-    for given in inputs:
-        if given is None:
-            continue
-        given = Path(given)
-        protected.append((given, "an input of this command"))
-        if given.name == "recording.csv" and (given.parent / "cell.yaml").exists():
-            folders = (*folders, given.parent)
-    for folder in folders:
-        protected += [(Path(folder) / name, f"part of the run folder {folder}")
-                      for name in (*RUN_FILES, *also)]
-    for path, what in protected:
-        if _same(out, path):
-            raise UserError(f"{option} {out} is {path} itself ({what}): writing there would "
-                            "destroy it; write the output to another file")
-
 
 def add_arguments(p) -> None:
     p.add_argument("run_dir", metavar="DIR|RECORDING.csv", help="a run folder written by "
@@ -57,7 +20,8 @@ def add_arguments(p) -> None:
 
 
 def command(args) -> int:
-    from adaptive_cal.cli.common import UserError, check_cell_file, check_recording
+    from adaptive_cal.cli.common import (UserError, check_cell_file, check_recording,
+                                         refuse_input_as_output)
 
     given = Path(args.run_dir)
     if given.is_file():
