@@ -99,3 +99,17 @@ def test_the_cli_says_so_with_exit_2(tmp_path):
                        env=env, timeout=300, cwd=ROOT)
     assert p.returncode == 2, p.stderr
     assert f"{a} and {a} are the same file" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_a_touch_off_the_workplane_is_refused_naming_it(tmp_path):
+    # one check (Workplane.first_outside) for replay and explain: the first fused touch off the
+    # plate, its column and value, and how many such touches there are
+    xy = [(x, y) for y in (-150, 0, 150) for x in (-200, -60, 60, 200)]
+    xy[5] = (-60, 900.0)
+    xy[7] = (260.0, 0)  # x and y both: x is named first, counting x only
+    with pytest.raises(RecordingError, match=r"touch seq 7: column x_mm = 260 lies outside the "
+                       r"workplane x_mm \[-225, 225\] of the cell file \(1 such touches\)"):
+        build_design([read_recording(_write(tmp_path / "r.csv", xy))], sim_cell())
+    wp = sim_cell().workplane
+    assert wp.first_outside([0.0, 225.0 + 1e-10], [-185.0, 185.0]) is None  # round-off allowed
+    assert wp.first_outside([0.0, 1.0], [186.0, -300.0]) == ("y_mm", 0, 2)

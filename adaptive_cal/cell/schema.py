@@ -9,6 +9,7 @@ import math
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from adaptive_cal import effects as effect_library
@@ -93,6 +94,18 @@ class Workplane(Block):
     @property
     def area_mm2(self) -> float:
         return (self.x_mm[1] - self.x_mm[0]) * (self.y_mm[1] - self.y_mm[0])
+
+    def first_outside(self, x, y) -> tuple[str, int, int] | None:
+        """Of the points (x, y) (arrays, mm), the first one outside the plate's extent (round-off
+        of 1e-9 mm allowed): (its column "x_mm" or "y_mm", its index, how many lie outside in
+        that column), or None when the plate holds them all. The check replay and explain make
+        before they use a recording's touches."""
+        for c, values, (lo, hi) in (("x_mm", x, self.x_mm), ("y_mm", y, self.y_mm)):
+            values = np.asarray(values, float)
+            bad = np.flatnonzero((values < lo - 1e-9) | (values > hi + 1e-9))
+            if bad.size:
+                return c, int(bad[0]), int(bad.size)
+        return None
 
     def allows(self, x: float, y: float) -> bool:
         """True if (x, y) lies inside the margin and outside every keep-out."""

@@ -51,18 +51,17 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
     outside the workplane."""
     where = rec.path or "the recording"
     used = rec.fused
-    wp = cell.workplane
-    for c, (lo, hi) in (("x_mm", wp.x_mm), ("y_mm", wp.y_mm)):
-        values = getattr(rec, c)
-        bad = np.flatnonzero(used & ((values < lo - 1e-9) | (values > hi + 1e-9)))
-        if bad.size:
-            i = int(bad[0])
-            line = line_of(rec.path, i)
-            raise RecordingError(
-                f"{where}{f':{line}' if line else ''}: touch seq {int(rec.seq[i])}: column {c} = "
-                f"{values[i]:g} lies outside the workplane {c} [{lo:g}, {hi:g}] of {cell_file} "
-                f"({bad.size} such touch{'es' * (bad.size != 1)}): is the recording of this "
-                "cell?")
+    off = cell.workplane.first_outside(rec.x_mm[used], rec.y_mm[used])
+    if off is not None:
+        c, j, count = off
+        i = int(np.flatnonzero(used)[j])
+        lo, hi = getattr(cell.workplane, c)
+        line = line_of(rec.path, i)
+        raise RecordingError(
+            f"{where}{f':{line}' if line else ''}: touch seq {int(rec.seq[i])}: column {c} = "
+            f"{getattr(rec, c)[i]:g} lies outside the workplane {c} [{lo:g}, {hi:g}] of "
+            f"{cell_file} ({count} such touch{'es' * (count != 1)}): is the recording of this "
+            "cell?")
     if rec.meta.get("column") in HEIGHT_COLUMNS:
         return rec
     lo, hi = cell.probe.usable_mm

@@ -124,14 +124,13 @@ def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
             "rejected)")
         raise RecordingError(f"{label}: {held}; explain needs at least {MIN_ROWS_PER_ROUND} fused "
                              "rows per recording (tilt, one effect and the noise)")
-    for c, lo, hi in (("x_mm", *wp.x_mm), ("y_mm", *wp.y_mm)):
-        values = getattr(fused, c)  # a row the run refused (flagged invalid) is not used
-        bad = np.flatnonzero((values < lo - 1e-9) | (values > hi + 1e-9))
-        if bad.size:
-            i = int(bad[0])
-            raise RecordingError(
-                f"{label}: touch seq {int(fused.seq[i])}: column {c} = {values[i]:g} lies outside "
-                f"the workplane {c} [{lo:g}, {hi:g}] of the cell file ({bad.size} such touches)")
+    off = wp.first_outside(fused.x_mm, fused.y_mm)  # a row the run refused (flagged invalid)
+    if off is not None:  # is not used
+        c, i, count = off
+        lo, hi = getattr(wp, c)
+        raise RecordingError(
+            f"{label}: touch seq {int(fused.seq[i])}: column {c} = {getattr(fused, c)[i]:g} lies "
+            f"outside the workplane {c} [{lo:g}, {hi:g}] of the cell file ({count} such touches)")
     if np.ptp(fused.x_mm) <= 0 or np.ptp(fused.y_mm) <= 0:
         raise RecordingError(f"{label}: all touches share one x or one y: the tilt cannot be "
                              "calibrated (columns x_mm, y_mm)")
