@@ -7,7 +7,7 @@ from pathlib import Path
 
 from adaptive_cal.study.config import Study
 from adaptive_cal.study.plates import plate_cell, sample_plate
-from adaptive_cal.study.summary import table
+from adaptive_cal.study.summary import count, table
 
 
 DOC = """# Simulation studies
@@ -26,7 +26,7 @@ rewritten in seconds; a fresh 40-plate run took 63 minutes on the 2-core develop
 (2026-11-23, partly shared with other jobs), with the lower bound on 20 plates (11 minutes on
 2026-11-21, before the planner's self-checks and robot-time cost landed).
 
-## Headline ({plates} plates of `{study_file}`)
+## Headline ({plates} of `{study_file}`)
 
 Plates: tilt uniform in +-{tilt} deg about each axis, form (bow, twist, warp with random
 weights) {pv0}-{pv1} mm peak to valley, reading noise {n0}-{n1} um. Every strategy runs on the
@@ -104,9 +104,9 @@ def targets_section(summary: dict, results: Path) -> str:
         best = f"{rw:.2f} x the relaxed optimal design rounded up to whole touches, " \
             if rw else ""
         lines.append(f"* adaptive at most 1.2 x the best lower bound computed: {best}{r:.2f} x "
-                     f"the relaxed design itself, mean of per-plate ratios on {lb['plates']} "
-                     f"plates ({mark((rw or r) <= 1.2)}; same hyper-parameters as the run ended "
-                     "with, candidate grid of the bound)")
+                     f"the relaxed design itself, mean of per-plate ratios on "
+                     f"{count(lb['plates'])} ({mark((rw or r) <= 1.2)}; same hyper-parameters as "
+                     "the run ended with, candidate grid of the bound)")
         if lb.get("adaptive_over_relaxed_whole_at_stop"):
             lines.append(f"  Under the hyper-parameters the planner held when it stopped (a run goes "
                          f"on past its stop until the true error meets the target, and refits on "
@@ -120,7 +120,7 @@ def targets_section(summary: dict, results: Path) -> str:
                          "the integrated variances under the sigma points it held at its stop, "
                          "which the mixture's variance can only exceed), in whole touches: "
                          f"adaptive {m:.2f} x ({mark(m <= 1.2)}); "
-                         f"{lb['adaptive_below_marginal_plates']} of {lb['plates']} plates "
+                         f"{lb['adaptive_below_marginal_plates']} of {count(lb['plates'])} "
                          "stopped below it (possible only for a stop between refits, where new "
                          "readings are fused under one noise).")
         if lb.get("greedy_known_touches"):
@@ -133,7 +133,7 @@ def targets_section(summary: dict, results: Path) -> str:
             rl = (json.loads(replication.read_text()).get("lower_bound") or {})
             rr, rw = rl.get("adaptive_over_relaxed"), rl.get("adaptive_over_relaxed_whole")
             if rr:
-                lines.append(f"  Replication `{replication.name}` ({rl['plates']} plates): "
+                lines.append(f"  Replication `{replication.name}` ({count(rl['plates'])}): "
                              + (f"{rw:.2f} x in whole touches, " if rw else "")
                              + f"{rr:.2f} x relaxed ({mark((rw or rr) <= 1.2)}); ratio of means "
                              f"{rl['adaptive_stop_touches_same_plates'] / rl['relaxed_touches']:.2f}"
@@ -149,7 +149,7 @@ def targets_section(summary: dict, results: Path) -> str:
         a = json.loads(cov.read_text())["strategies"]["adaptive"]
         c = a["coverage95_mean"]
         lines.append(f"* coverage95 of adaptive in 0.93-0.97 over >= 200 plates: {c:.3f} over "
-                     f"{a['plates']} plates ({mark(0.93 <= c <= 0.97 and a['plates'] >= 200)})")
+                     f"{count(a['plates'])} ({mark(0.93 <= c <= 0.97 and a['plates'] >= 200)})")
         if c < 0.93:
             lines.append("  The posterior is overconfident at the stop: the true RMS error is "
                          f"{a['true_rms_mm_mean'] / a['stop_mean_std_mm_mean']:.2f} x the "
@@ -227,7 +227,7 @@ def benchmarks_section(results: Path) -> str:
                   f"fixed hyper-parameters, {v['touches_per_plate']} touches per plate: jax.vmap "
                   f"{v['vmap_plates_per_s']:.1f} plate-runs/s against a Python loop "
                   f"{v['loop_plates_per_s']:.2f} plate-runs/s. The adaptive planner on "
-                  f"{k['plates']} plates: in-process {k['in_process_plates_per_s']:.2f}, Dask 1 "
+                  f"{count(k['plates'])}: in-process {k['in_process_plates_per_s']:.2f}, Dask 1 "
                   f"worker {k['workers_1_plates_per_s']:.2f}, 2 workers "
                   f"{k['workers_2_plates_per_s']:.2f} plate-runs/s ({t['machine']}). End to end "
                   f"(readings drawn per touch, records built) the fixed design runs at "
@@ -297,7 +297,7 @@ def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_
     probe = _planner_probe(study, base)
     text = DOC.format(minutes=max(1, round((summary.get("wall_s") or 60) / 60)),
                       study_file=study_file, json_file=json_file, out_dir=out_dir,
-                      doc_file=str(path), plates_arg=plates_arg, plates=summary["plates"],
+                      doc_file=str(path), plates_arg=plates_arg, plates=count(summary["plates"]),
                       tilt=p.tilt_deg, pv0=p.form_pv_mm[0], pv1=p.form_pv_mm[1],
                       n0=p.noise_std_mm[0] * 1e3, n1=p.noise_std_mm[1] * 1e3,
                       bound=study.bound.mean_std_mm * 1e3, budget=study.bound.max_touches,
