@@ -34,7 +34,7 @@ def test_cli_on_the_reference_rounds(tmp_path, cheng_round0, cheng_round1, capsy
     for name in ("residual_map.png", "residual_vs_position.png", "fitted_effect.png"):
         assert (out / name).stat().st_size > 1000
     text = capsys.readouterr().out
-    assert "verdict: form" in text and "flatness 0.5417 -> 0.5960" in text
+    assert "verdict: form" in text and "flatness (least squares) 541.7 -> 596.0 um" in text
 
 
 def _write(path, rows, header="seq,t_s,x_mm,y_mm,z_mm,reading_mm"):

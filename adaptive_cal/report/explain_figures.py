@@ -24,21 +24,38 @@ def _map(ax, fig, x, y, r_um, title, lim):
     fig.colorbar(sc, ax=ax, label="residual (um)", shrink=0.8)
 
 
+def nothing_removed(explanation: Explanation) -> str | None:
+    """Why there is no "after" (verdict none, or unexplained with no library model): the
+    after residual is the before residual, so the figures show it once and say so."""
+    if explanation.winner is not None:
+        return None
+    verdict = explanation.findings["verdict"]
+    return (f"verdict {verdict}: nothing removed, the residual is the calibrated nominal's"
+            if verdict == "none" else
+            f"verdict {verdict}: no library effect fitted, nothing removed")
+
+
 def residual_maps(explanation: Explanation) -> Figure:
-    """Calibrated nominal | with the verdict, one row per round (um, one colour scale)."""
+    """Calibrated nominal | with the verdict, one row per round (um, one colour scale); the
+    nominal alone, one column, when nothing was removed (``nothing_removed``)."""
     d = explanation.context.design
     f = d.features
     before, after = 1e3 * explanation.residual_before, 1e3 * explanation.residual_after
     lim = float(np.abs(before).max()) or 1.0
-    fig = Figure(figsize=(11, 3.8 * d.rounds))
-    axes = fig.subplots(d.rounds, 2, squeeze=False)
+    none = nothing_removed(explanation)
+    cols = 1 if none else 2
+    fig = Figure(figsize=(5.8 if none else 11, 3.8 * d.rounds + (0.4 if none else 0)))
+    axes = fig.subplots(d.rounds, cols, squeeze=False)
     verdict = explanation.findings["verdict"]
     for r in range(d.rounds):
         rows = d.round_index == r
         _map(axes[r, 0], fig, f.x_mm[rows], f.y_mm[rows], before[rows],
              f"round {r}: calibrated nominal (rms {np.sqrt(np.mean(before[rows] ** 2)):.1f} um)", lim)
-        _map(axes[r, 1], fig, f.x_mm[rows], f.y_mm[rows], after[rows],
-             f"with {verdict} (rms {np.sqrt(np.mean(after[rows] ** 2)):.1f} um)", lim)
+        if not none:
+            _map(axes[r, 1], fig, f.x_mm[rows], f.y_mm[rows], after[rows],
+                 f"with {verdict} (rms {np.sqrt(np.mean(after[rows] ** 2)):.1f} um)", lim)
+    if none:
+        fig.suptitle(none, fontsize=9)
     fig.tight_layout()
     return fig
 
@@ -70,20 +87,25 @@ def _axis_values(explanation: Explanation, axis: str) -> tuple[np.ndarray, str]:
 
 
 def residual_against(explanation: Explanation, axis: str) -> Figure:
-    """Residual before and after against one axis, with that axis's F-test p-value."""
+    """Residual before and after against one axis, with that axis's F-test p-value; before
+    alone, labelled why, when nothing was removed (``nothing_removed``)."""
     rep = explanation.findings
     values, label = _axis_values(explanation, axis)
     before, after = 1e3 * explanation.residual_before, 1e3 * explanation.residual_after
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
     jitter = 0.05 * np.sign(before) if axis == "direction" else 0.0
+    none = nothing_removed(explanation)
     ax.scatter(values + jitter, before, s=18, label="before", alpha=0.7)
-    ax.scatter(values - jitter, after, s=18, label=f"after ({rep['verdict']})", alpha=0.7)
+    if not none:
+        ax.scatter(values - jitter, after, s=18, label=f"after ({rep['verdict']})", alpha=0.7)
     ax.axhline(0, color="k", lw=0.5)
     p = rep["mismatch"]["by"][axis].get("p_value")
     ax.set(xlabel=label, ylabel="residual (um)",
-           title=f"residual against {axis}" + (f" (F-test p = {p:.2g})" if p is not None else ""))
-    ax.legend()
+           title=f"residual against {axis}" + (f" (F-test p = {p:.2g})" if p is not None else "")
+           + (f"\n{none}" if none else ""))
+    if not none:
+        ax.legend()
     fig.tight_layout()
     return fig
 

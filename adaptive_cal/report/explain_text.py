@@ -12,20 +12,38 @@ LATERAL = {"x_mm", "y_mm", "radius_mm"}  # positions and sizes on the plate stay
 LABELS = {"pv_mm": "peak-to-valley", "bow_x": "bow in x", "bow_y": "bow in y"}
 
 
+def fixed(value: float, decimals: int, sign: str = "") -> str:
+    """``value`` to ``decimals`` places, never "-0.0" (a value that rounds to zero has no sign)."""
+    text = f"{value:{sign}.{decimals}f}"
+    return text if float(text) != 0 else f"{0.0:{sign}.{decimals}f}"
+
+
+def _pm(value: float, std: float | None, sign: str = "", alone: int = 3) -> str:
+    """"value +- std" with the sd to 2 significant digits and the value to the same decimal
+    place (e.g. "10 +- 82", "0.051 +- 0.012"); without an sd the value to ``alone``
+    significant digits."""
+    import math
+
+    if std is None or not math.isfinite(std) or std <= 0:
+        return f"{value:{sign}.{alone}g}" if value != 0 else f"{0.0:{sign}g}"
+    decimals = max(0, 1 - math.floor(math.log10(std)))
+    return f"{fixed(value, decimals, sign)} +- {std:.{decimals}f}"
+
+
 def quantity(name: str, value: float, std: float | None, unit: str) -> str:
     """One fitted parameter in the unit an engineer reads: heights in um, positions in mm."""
     label = LABELS.get(name, re.sub(r"_(mm|s|deg|mm_per_s)$", "", name).replace("_", " "))
     pm = lambda scale, fmt: "" if std is None else f" +- {std * scale:{fmt}}"  # noqa: E731
     if unit == "mm" and name not in LATERAL:
         sign = "" if name == "pv_mm" else "+"
-        return f"{label} {value * 1e3:{sign}.1f}{pm(1e3, '.1f')} um"
+        return f"{label} {fixed(value * 1e3, 1, sign)}{pm(1e3, '.1f')} um"
     if unit == "mm":
-        return f"{label} {value:.0f}{pm(1, '.0f')} mm"
+        return f"{label} {fixed(value, 0)}{pm(1, '.0f')} mm"
     if unit == "mm/s" or name.endswith("_mm_per_s"):
-        return f"{label} {value * 1e3:+.3g}{pm(1e3, '.2g')} um/s"
+        return f"{label} {_pm(value * 1e3, None if std is None else std * 1e3, '+')} um/s"
     if unit in ("s", "deg"):
-        return f"{label} {value:.3g}{pm(1, '.2g')} {unit}"
-    return f"{label} {value:+.4g}{pm(1, '.2g')}" + (f" {unit}" if unit and unit != "-" else "")
+        return f"{label} {_pm(value, std)} {unit}"
+    return f"{label} {_pm(value, std, '+', 4)}" + (f" {unit}" if unit and unit != "-" else "")
 
 
 def _notes(summary: str) -> list[str]:
@@ -33,7 +51,7 @@ def _notes(summary: str) -> list[str]:
     parts = [p.strip() for p in summary.split(";")][1:]
     parts = [p for p in parts if not p.startswith("log BF vs none")]
     parts = [re.sub(r"^shared \(log BF shared vs per round ([-+0-9.e]+)\)",
-                    lambda m: f"the same in every round (log Bayes factor {float(m[1]):.1f} over "
+                    lambda m: f"the same in every round (log Bayes factor {fixed(float(m[1]), 1)} over "
                               "one per round)", p) for p in parts]
     return [p.replace("log BF", "log Bayes factor") for p in parts]
 
@@ -50,11 +68,11 @@ def left_out_line(e: dict, units: dict, verdict: str | None = None) -> str:
     values = ", ".join(quantity(k, v, stds.get(k), units.get(k, "")) for k, v in params.items())
     notes = "; ".join(_notes(e.get("summary", "")) if not (given and given["left_out"]) else [])
     alone = e.get("log_bayes_factor")
-    against = ("log Bayes factor " + ("-" if alone is None else f"{alone:.1f}") + " against none")
+    against = ("log Bayes factor " + ("-" if alone is None else fixed(alone, 1)) + " against none")
     if not given:
         return (f"  left out: {e['effect']}: {values}" + (f"; {notes}" if notes else "")
                 + f"; evidence: {against}")
-    beside = f"{given['log_bayes_factor']:.1f} with {verdict} in the model"
+    beside = f"{fixed(given['log_bayes_factor'], 1)} with {verdict} in the model"
     if given["left_out"]:
         why = (f"clearer with {verdict} in the model" if alone is None
                or alone < given["log_bayes_factor"]
@@ -90,7 +108,7 @@ def readings_lines(report: dict, shown: int = 5) -> list[str]:
     noise = readings.get("noise") or {}
     if noise.get("distribution") == "student_t":
         out.append(f"reading noise: heavy-tailed (Student-t, {noise['dof']:g} dof; log likelihood "
-                   f"ratio {noise['log_lr_vs_gaussian']:.1f} against Gaussian): every effect "
+                   f"ratio {fixed(noise['log_lr_vs_gaussian'], 1)} against Gaussian): every effect "
                    "is judged against heavy-tailed noise")
     serial = noise.get("serial")
     if serial:
@@ -98,6 +116,27 @@ def readings_lines(report: dict, shown: int = 5) -> list[str]:
                    f"): every log Bayes factor scaled by {serial['evidence_factor']:.2f}, the "
                    "readings' effective share")
     return out
+
+
+NONE = "no left-out effect is supported by the data"  # the report's words for verdict none
+
+
+def none_line(report: dict) -> str:
+    """Why the verdict is none: the best candidate's log Bayes factor against none and the one a
+    verdict needs, and where the rest of the probability is (none's prior is 1/2)."""
+    cands = [c for c in report.get("candidates") or [] if c.get("log_bayes_factor") is not None]
+    if not cands:
+        return f"  {NONE}: no candidate effect was tested"
+    best = max(cands, key=lambda c: c["log_bayes_factor"])
+    need = (report.get("threshold") or {}).get("log_bayes_factor")
+    line = (f"  {NONE}: the best candidate, {best['effect']}, has log Bayes factor "
+            f"{fixed(best['log_bayes_factor'], 2, '+')} against none"
+            + (f" (a verdict needs above {need:.1f})" if need is not None else ""))
+    p = report.get("verdict_probability")
+    if p is not None:
+        line += (f"; the other {fixed(1 - p, 2)} of the probability is spread over the "
+                 f"{len(cands)} candidate{'s' * (len(cands) != 1)} (none starts at 1/2)")
+    return line
 
 
 def verdict_lines(report: dict) -> list[str]:
@@ -110,6 +149,8 @@ def verdict_lines(report: dict) -> list[str]:
     said = [f"{kind} {p:.2f}"] if p is not None else []
     said += [f"cannot be told apart from {', '.join(amb)} on this design"] if amb else []
     out = [f"verdict: {report['verdict']}" + (f" ({'; '.join(said)})" if said else "")]
+    if report["verdict"] == "none":
+        out.append(none_line(report))
     u = report.get("unexplained")
     if u:
         near = (f"; the nearest library effect, {u['nearest_library_effect']}, explains "
@@ -117,6 +158,31 @@ def verdict_lines(report: dict) -> list[str]:
         out.append(f"  unexplained structure along {u['axis']}: {u['detail']}{near}")
         out.extend(f"    near x {w['x_mm']:g}, y {w['y_mm']:g} mm: residual "
                    f"{1e3 * w['residual_mm']:+.1f} um" for w in u["where"])
+    return out
+
+
+def rounds_lines(r: dict) -> list[str]:
+    """The flatness of two rounds (um) and the test of "plate unchanged": the band noise alone
+    puts the change in, its p-value and the repeatability behind it; and where the interval of
+    the change itself is (``flatness --compare``, a different statistic with its own noise)."""
+    if "flatness_mm" not in r:
+        return []
+    a, b = (1e3 * v for v in r["flatness_mm"])
+    out = [f"rounds: flatness (least squares) {a:.1f} -> {b:.1f} um, change "
+           f"{fixed(1e3 * r['change_mm'], 1, '+')} um"]
+    if "p_value" not in r:
+        return out + ([f"  {r['note']}"] if r.get("note") else [])
+    lo, hi = r["null_change_95_mm"]
+    n = r.get("matched_points")
+    at = f"the same {n} points" if n else "the same points"
+    out[0] += (f"; test of \"plate unchanged\" (only its tilt moved): p = {r['p_value']:.3f}, "
+               + ("larger than the noise" if r.get("exceeds_noise") else "within the noise"))
+    out += [f"  if unchanged, noise alone puts the change within {fixed(1e3 * lo, 1, '+')} .. "
+            f"{fixed(1e3 * hi, 1, '+')} um (95 %); repeatability {1e3 * r['repeatability_mm']:.1f} "
+            f"um, from the two rounds' difference at {at} (form both share cancels in it)",
+            "  not an interval of the change: adaptive-cal flatness FIRST.csv --compare LATER.csv "
+            "gives that, from each round's own fit (its reading noise, the scatter about that "
+            "fit, is larger)"]
     return out
 
 
@@ -155,13 +221,7 @@ def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
     out.append(f"fit: RMS residual {1e3 * fit['rms_before_mm']:.1f} -> {1e3 * fit['rms_after_mm']:.1f}"
                f" um, leave-one-out {1e3 * fit['cv_rms_before_mm']:.1f} -> "
                f"{1e3 * fit['cv_rms_after_mm']:.1f} um")
-    r = report.get("rounds") or {}
-    if "p_value" in r:
-        lo, hi = r["null_change_95_mm"]
-        out.append(f"rounds: flatness {r['flatness_mm'][0]:.4f} -> {r['flatness_mm'][1]:.4f} mm, "
-                   f"change {1e3 * r['change_mm']:+.1f} um; noise alone gives 95 % within "
-                   f"{1e3 * lo:+.1f} .. {1e3 * hi:+.1f} um (repeatability "
-                   f"{1e3 * r['repeatability_mm']:.1f} um), p = {r['p_value']:.3f}")
+    out.extend(rounds_lines(report.get("rounds") or {}))
     if report.get("model"):
         out.append(f"model: {report['model']}")
     out.append("terms (log Bayes factor, canonical correlation, regressor, sd): docs/explain.md")

@@ -1,16 +1,21 @@
 """Round to round: is a change of flatness between rounds larger than the measurement noise?
 
 Flatness as the paper defines it (Cheng et al. eq. 5, ``analysis.flatness.ls_flatness_mm``):
-least-squares plane through the readings of one round, then max - min of the residuals,
-measured normal to the plane. Under the hypothesis that the plate did not change between rounds
-(only its tilt did), the same touch points carry the same surface height h_i in every round:
+least-squares plane through the surface heights of one round (reading + z: the height up to the
+probe zero, which no flatness sees), then max - min of the residuals, measured normal to the
+plane. Under the hypothesis that the plate did not change between rounds (only its tilt did),
+the same touch points carry the same surface height h_i in every round:
 
-    reading_ri = plane_r(x_i, y_i) + h_i + e_ri,   e_ri ~ N(0, sigma^2).
+    height_ri = plane_r(x_i, y_i) + h_i + e_ri,   e_ri ~ N(0, sigma^2).
 
 sigma (the repeatability) follows from the difference of two rounds at the same points after a
-plane is removed: var = 2 sigma^2 with n - 3 degrees of freedom. A parametric bootstrap of both
-rounds from the shared surface gives the distribution of the flatness change the noise alone
-makes; the observed change is compared with it (two-sided p-value and 95 % interval).
+plane is removed: var = 2 sigma^2 with n - 3 degrees of freedom. Whatever is the same in both
+rounds (the form, however fine) cancels in it, so it is smaller than ``flatness``'s reading
+noise, which is the scatter of one round about a smooth surface fitted to that round alone. A
+parametric bootstrap of both rounds from the shared surface gives the distribution of the
+flatness change the noise alone makes: its 95 % band and the two-sided p-value of the observed
+change (on the points both rounds share) are a test of "unchanged", not an interval of the
+change (``adaptive-cal flatness --compare`` gives that one).
 """
 from __future__ import annotations
 
@@ -40,7 +45,8 @@ def _matched(design: Design, a: int, b: int):
 def flatness_change(design: Design, rng: np.random.Generator, a: int = 0, b: int = 1,
                     draws: int = 4000) -> dict:
     """Flatness of rounds a and b and whether their difference exceeds the noise."""
-    f, z = design.features, design.reading_mm
+    f = design.features
+    z = design.reading_mm + design.z_mm  # the height up to the probe zero (not the reading)
     ia, ib = _matched(design, a, b)
     out = {"rounds": [a, b]}
     flat = [ls_flatness_mm(f.x_mm[design.round_index == r], f.y_mm[design.round_index == r],
@@ -60,11 +66,15 @@ def flatness_change(design: Design, rng: np.random.Generator, a: int = 0, b: int
     fa = ls_flatness_samples_mm(x, y, sims[:, 0])
     fb = ls_flatness_samples_mm(x, y, sims[:, 1])
     null = fb - fa
-    obs = flat[1] - flat[0]
+    # the observed change on the points the bootstrap draws (all of them when the rounds share
+    # every point), so the test compares like with like
+    obs = ls_flatness_mm(x, y, z[ib]) - ls_flatness_mm(x, y, z[ia])
     lo, hi = np.quantile(null, [0.025, 0.975])
     out.update({
         "repeatability_mm": sigma,
         "repeatability_dof": n - 3,
+        "matched_points": int(n),
+        "matched_change_mm": float(obs),
         "null_change_std_mm": float(null.std()),
         "null_change_95_mm": [float(lo), float(hi)],
         "p_value": float((np.sum(np.abs(null) >= abs(obs)) + 1) / (draws + 1)),
