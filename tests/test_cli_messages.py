@@ -67,11 +67,11 @@ def test_compare_prints_a_table_with_units_and_p_worse():
     assert p.returncode == 0, p.stderr
     lines = p.stdout.splitlines()
     head = lines.index("change from round0_initial.csv to round1_first_correction.csv "
-                       "(later minus earlier; mm):")
+                       "(later minus earlier; um):")
     assert "P(worse)" in lines[head + 1] and "95 % interval of change" in lines[head + 1]
     ls = lines[head + 2].split()
     assert ls[:2] == ["least", "squares"]
-    assert ls[2:5] == ["0.5417", "0.5960", "+0.0544"]
+    assert ls[2:5] == ["541.7", "596.0", "+54.4"]  # um, as each round's own lines
     assert ls[-4:] == ["0.78", "within", "the", "noise"]
     assert lines[head + 4].startswith("  range (tilt incl.)") and lines[head + 4].endswith("smaller")
     assert "{" not in p.stdout  # no raw dicts

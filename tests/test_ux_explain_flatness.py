@@ -101,3 +101,35 @@ def test_explain_figures_with_verdict_none_show_no_after(tmp_path):
     fig = residual_against(e, "position")
     ax = fig.axes[0]
     assert len(ax.collections) == 1 and "nothing removed" in ax.get_title()
+
+
+def test_compare_table_is_in_um_and_names_its_interval():
+    from adaptive_cal.cli.flatness import compare_table
+
+    def side(name, ls, mz, rg):
+        return {"recording": name, "flatness_mm": {"least_squares": {"value": ls},
+                                                   "minimum_zone": {"value": mz},
+                                                   "range": {"value": rg}}}
+
+    change = {k: {"diff_ci95": [lo, hi], "p_b_greater": p} for k, lo, hi, p in (
+        ("least_squares", -0.0598, 0.1392, 0.78), ("minimum_zone", -0.0423, 0.1062, 0.81),
+        ("range", -5.5551, -5.3201, 0.0))}
+    lines = compare_table({"first": side("a.csv", 0.54172, 0.4946, 6.4311),
+                           "second": side("b.csv", 0.59604, 0.5281, 0.98), "change": change})
+    assert lines[0].endswith("(later minus earlier; um):")
+    assert lines[2].split()[2:7] == ["541.7", "596.0", "+54.3", "-59.8", ".."]
+    assert "+139.2" in lines[2] and "6431.1" in lines[4]
+    text = " ".join(line.strip() for line in lines[5:])
+    assert "the interval of the change given the two recordings" in text
+    assert "(not a p-value)" in text
+    assert 'A test of "plate unchanged" with a p-value instead: adaptive-cal explain' in text
+
+
+def test_bare_recording_spread_and_average_range_in_um(cheng_round0, capsys):
+    from adaptive_cal.cli import main
+
+    assert main(["flatness", str(cheng_round0), "--samples", "40"]) == 0
+    out = capsys.readouterr().out
+    spread = next(line for line in out.splitlines() if "height spread" in line)
+    assert spread.endswith(" um)") and "6431.1 um (95 % " in spread and " mm" not in spread
+    assert "average range (Cheng Table 8, tilt included) x 5661.6 um, y 687.6 um" in out

@@ -132,7 +132,7 @@ def check_belief(folder, surface, data, command: str = "flatness") -> None:
 
 
 def _one(r: dict, say_no_plate: bool = True) -> list[str]:
-    from adaptive_cal.analysis.flatness_answer import answer_lines
+    from adaptive_cal.analysis.flatness_answer import answer_lines, value_text
 
     t = r["tilt"]
     if "map" in r:  # both answers, the tilt of the whole plate's map
@@ -148,11 +148,11 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
     lines += ["  " + line for line in answer_lines({"touched_flatness_mm": touched},
                                                       no_plate=NO_PLATE if say_no_plate else None)]
     lines.append(f"  height spread of the touched points, max - min with the tilt included (not "
-                 f"flatness): {r['flatness_mm']['range']['value']:.4f} mm")
+                 f"flatness): {value_text(r['flatness_mm']['range'])}")
     a = r["average_range_mm"]
     lines.append("  average range (Cheng Table 8, tilt included) " + ", ".join(
-        f"{k} {a[k]:.4f} mm" if a[k] is not None else f"{k} n/a (touches not on a grid along {k})"
-        for k in ("x", "y")))
+        f"{k} {a[k] * 1e3:.1f} um" if a[k] is not None
+        else f"{k} n/a (touches not on a grid along {k})" for k in ("x", "y")))
     return lines
 
 
@@ -170,23 +170,32 @@ def _verdict(c: dict) -> str:
 
 
 def compare_table(out: dict) -> list[str]:
-    """The change between two recordings as a table in mm, with P(worse) = P(later > earlier)."""
+    """The change between two recordings as a table in um, with P(worse) = P(later > earlier),
+    and what its interval is (of the change, given the data), beside explain's test of
+    "unchanged" (a band of the change under no change, and a p-value)."""
     from pathlib import Path
 
     a, b = out["first"], out["second"]
+    um = lambda v, sign="": f"{v * 1e3:{sign}.1f}"  # noqa: E731
     lines = [f"change from {Path(a['recording']).name} to {Path(b['recording']).name} "
-             "(later minus earlier; mm):",
+             "(later minus earlier; um):",
              f"  {'figure':<19}{'earlier':>9}{'later':>9}{'change':>9}   {'95 % interval of change':<26}"
              f"{'P(worse)':>8}  verdict"]
     for k in ("least_squares", "minimum_zone", "range"):
         c = out["change"][k]
         va, vb = a["flatness_mm"][k]["value"], b["flatness_mm"][k]["value"]
         lo, hi = c["diff_ci95"]
-        lines.append(f"  {LABELS[k]:<19}{va:>9.4f}{vb:>9.4f}{vb - va:>+9.4f}   "
-                     f"{f'{lo:+.4f} .. {hi:+.4f}':<26}{c['p_b_greater']:>8.2f}  {_verdict(c)}")
-    lines += ["  P(worse): the probability that the later flatness is larger (over predicted repeat",
-              "  measurements). Range: max - min of the heights, the tilt included (not flatness):",
-              "  a corrected tilt shows there."]
+        lines.append(f"  {LABELS[k]:<19}{um(va):>9}{um(vb):>9}{um(vb - va, '+'):>9}   "
+                     f"{f'{um(lo, chr(43))} .. {um(hi, chr(43))}':<26}{c['p_b_greater']:>8.2f}  "
+                     f"{_verdict(c)}")
+    lines += ["  95 % interval of change: the interval of the change given the two recordings, over",
+              "  predicted repeat measurements of each round from its own fit (the reading noise above",
+              "  is each round's scatter about a smooth surface fitted to it alone). P(worse): the",
+              "  probability that the later figure is larger (not a p-value). Range: max - min of the",
+              "  heights, the tilt included (not flatness): a corrected tilt shows there.",
+              "  A test of \"plate unchanged\" with a p-value instead: adaptive-cal explain FIRST.csv",
+              "  LATER.csv --robot CELL.yaml (its repeatability, from the rounds' difference at the",
+              "  same points, leaves out the form both share, so it is smaller)."]
     return lines
 
 
