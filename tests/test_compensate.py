@@ -225,6 +225,8 @@ def test_engraving_follows_the_true_plate_within_tolerance_where_the_map_is_conf
     assert main(["compensate", str(EXAMPLE), "--map", str(run_dir), "--out", str(out),
                  "--frame", frame]) == 0
     assert "points added by splitting" in capsys.readouterr().out
+    # the header in the file's unit (mm) with the terminal's (um) beside it
+    assert "tolerance 0.01 mm = 10 um)" in out.read_text().splitlines()[0]
     hmap = load_map(run_dir)
     a, b, c = hmap.plane_abc if frame == "corrected" else (0, 0, 0)
     true = lambda x, y: truth(x, y) - (a * x + b * y + c)

@@ -163,7 +163,8 @@ def _program(hmap, args) -> int:
                                   f"tolerance {T * 1e3:.4g} um" for w in result.wide}
     where = str(args.map).replace("(", "[").replace(")", "]")
     text = write_toolpath(path, result.pieces, marks, header_comment=(
-        f"adaptive-cal compensate: map {where}, frame {args.frame}, tolerance {T:g} mm"))
+        f"adaptive-cal compensate: map {where}, frame {args.frame}, tolerance {T:g} mm "
+        f"= {T * 1e3:.4g} um"))  # the file's unit and the terminal's; no nested parentheses
     Path(args.out).write_text(text, encoding="utf-8", newline="")
     print(f"{name}: {result.cuts} cutting moves, {result.rapids} rapids; frame {args.frame}, "
           f"tolerance {T * 1e3:.4g} um")
