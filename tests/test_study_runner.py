@@ -34,7 +34,11 @@ def _strip(records):
 
 def test_dask_local_cluster_equals_in_process(tmp_path):
     study, base = _small()
-    local = run_study(study, base, tmp_path / "a.jsonl")
+    calls = []
+    local = run_study(study, base, tmp_path / "a.jsonl", progress=lambda d, t: calls.append((d, t)))
+    # runs (strategy x plate): 0 at the start, then each adaptive plate, then each fixed design's
+    # batch of 2 plates
+    assert calls == [(0, 6), (1, 6), (2, 6), (4, 6), (6, 6)]
     client = connect(None, 2)
     try:
         assert len(client.scheduler_info()["workers"]) == 2
@@ -65,7 +69,7 @@ def test_interrupted_study_keeps_finished_plates(tmp_path):
         f.write('{"cut": ')  # a line cut by the interruption
     calls = []
     again = run_study(study, base, path, progress=lambda d, t: calls.append((d, t)))
-    assert calls == [(1, 1)]  # only the missing plate ran
+    assert calls == [(0, 1), (1, 1)]  # only the missing plate ran
     assert len(again) == 2 and again[0] == first[0]
     lines = path.read_text().splitlines()
     assert json.loads(lines[0])["study_key"] and len(lines) == 3
@@ -101,14 +105,21 @@ def test_vmap_equals_loop():
         np.testing.assert_allclose(fin_v[k], fin_l[k], rtol=1e-7, atol=1e-12)
 
 
-def test_cli_writes_summary_table_and_plots(tmp_path):
+def test_cli_writes_summary_table_and_plots(tmp_path, capsys):
     from adaptive_cal.cli import main
 
     out = tmp_path / "out.json"
     code = main(["study", str(SMOKE), "--plates", "1", "--strategies", "paper,grid", "--json",
-                 str(out), "--out", str(tmp_path / "dir"), "--doc", str(tmp_path / "study.md"),
-                 "--quiet"])
+                 str(out), "--out", str(tmp_path / "dir"), "--doc", str(tmp_path / "study.md")])
     assert code == 0
+    # progress on stderr: the start line, then each run (in-process: one strategy on one plate)
+    # with the time taken; stdout holds the table alone
+    std = capsys.readouterr()
+    err = std.err.splitlines()
+    assert err[0] == "study smoke: 1 plate x 2 strategies = 2 runs in this process (1 worker)"
+    assert err[1].startswith("study smoke: 1/2 runs done, ") and err[1].endswith(" s left")
+    assert err[2].startswith("study smoke: 2/2 runs done, ") and len(err) == 3
+    assert std.out.startswith("bound: ") and "runs done" not in std.out
     summary = json.loads(out.read_text())
     for name in ("paper", "grid"):
         s = summary["strategies"][name]

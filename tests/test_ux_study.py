@@ -109,3 +109,33 @@ def test_table_says_how_it_counts_plates_that_missed_and_the_closure_touch():
     summary["bound"]["true_rms_mm"] = None
     text = table(summary)
     assert "reached: every plate, every strategy" in text and "true RMS error 10.0 um" in text
+
+
+def test_progress_reports_runs_time_taken_and_time_left():
+    import io
+
+    from adaptive_cal.cli.study import Progress
+
+    now = [100.0]
+    stream = io.StringIO()
+    p = Progress("smoke", 10, "DIR/plates.jsonl", stream=stream, clock=lambda: now[0])
+    now[0] = 103.0  # a cluster's start: in the time taken, not in the time per run
+    p(0, 6)
+    now[0] = 133.0
+    p(2, 6)
+    now[0] = 163.0
+    p(6, 6)
+    p.close()
+    assert stream.getvalue().splitlines() == [
+        "study smoke: 4 of 10 runs already in DIR/plates.jsonl, 6 to run",
+        "study smoke: 2/6 runs done, 33 s, about 60 s left",
+        "study smoke: 6/6 runs done, 63 s"]
+
+
+def test_study_help_names_the_per_plate_file_without_out(capsys):
+    from adaptive_cal.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["study", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "OUT.json.plates.jsonl" in text and "DIR/plates.jsonl" in text

@@ -2,8 +2,10 @@
 synthetic plates under every strategy, a lower bound on touches, tables and plots.
 
 Plates finished are appended to DIR/plates.jsonl (or OUT.json's name + .plates.jsonl) as they
-finish; an interrupted study keeps them and a rerun skips them. The work is the library's
-(``adaptive_cal.study``); this module parses arguments and prepares Dask workers.
+finish; an interrupted study keeps them and a rerun skips them. Progress goes to stderr (a start
+line, then runs finished with the time taken and a rough time left), the table to stdout. The
+work is the library's (``adaptive_cal.study``); this module parses arguments, prepares Dask
+workers and reports progress.
 """
 from __future__ import annotations
 
@@ -18,8 +20,11 @@ from adaptive_cal.cli.common import at_least
 
 def add_arguments(p) -> None:
     p.add_argument("study", help="study file (YAML), e.g. configs/study-tilts.yaml")
-    p.add_argument("--json", required=True, metavar="OUT.json", help="summary (JSON)")
-    p.add_argument("--out", metavar="DIR", help="per-plate records, table (markdown) and plots")
+    p.add_argument("--json", required=True, metavar="OUT.json",
+                   help="summary (JSON); without --out the per-plate records go beside it, to "
+                   "OUT.json.plates.jsonl")
+    p.add_argument("--out", metavar="DIR",
+                   help="per-plate records (DIR/plates.jsonl), table (DIR/table.md) and plots")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask scheduler (tcp://host:port); workers need OPENBLAS_NUM_THREADS=1")
     p.add_argument("--workers", type=at_least(0), default=0,
@@ -30,7 +35,7 @@ def add_arguments(p) -> None:
     p.add_argument("--doc", metavar="PAGE.md", help="write the study page (docs/study.md)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override one study key, e.g. --set bound.true_rms_mm=0.01 (YAML value)")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
 def worker_setup() -> None:
@@ -48,6 +53,70 @@ def worker_setup() -> None:
         pass
 
 
+def _duration(s: float) -> str:
+    """Seconds as a person reads them: "45 s", "12 min", "2.5 h"."""
+    if s < 90:
+        return f"{s:.0f} s"
+    if s < 90 * 60:
+        return f"{s / 60:.0f} min"
+    return f"{s / 3600:.1f} h"
+
+
+def _count(n: int, noun: str, plural: str = "") -> str:
+    return f"{n} {noun if n == 1 else plural or noun + 's'}"
+
+
+class Progress:
+    """A study's progress on ``stream`` (stderr): the start line at once, then the runs (one
+    strategy on one plate) finished with the time taken and a rough time left, from the mean time
+    a run has taken so far. A terminal gets one line rewritten, a log one line a report."""
+
+    def __init__(self, name: str, runs: int, checkpoint: Path, stream=None,
+                 clock=time.monotonic):
+        self.name, self.runs, self.checkpoint = name, runs, checkpoint
+        self.stream = sys.stderr if stream is None else stream
+        self.clock = clock
+        self.t0 = self.t_run = clock()
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.open = False  # a terminal line not yet ended
+
+    def say(self, text: str) -> None:
+        print(text, file=self.stream, flush=True)
+
+    def __call__(self, done: int, total: int) -> None:
+        now = self.clock()
+        if done == 0:  # the runs are about to start: those the checkpoint holds are skipped
+            self.t_run = now
+            if total < self.runs:
+                self.say(f"study {self.name}: {self.runs - total} of {_count(self.runs, 'run')} "
+                         f"already in {self.checkpoint}, {total} to run")
+            return
+        text = (f"study {self.name}: {done}/{_count(total, 'run')} done, "
+                f"{_duration(now - self.t0)}")
+        if done < total:
+            text += f", about {_duration((now - self.t_run) / done * (total - done))} left"
+        if self.tty:
+            print("\r" + text.ljust(72), end="" if done < total else "\n", file=self.stream,
+                  flush=True)
+            self.open = done < total
+        else:
+            self.say(text)
+
+    def close(self) -> None:
+        """End a terminal line left open (an interrupted study)."""
+        if self.open:
+            print(file=self.stream, flush=True)
+            self.open = False
+
+
+def _where(args) -> str:
+    if args.scheduler:
+        return f"on the Dask scheduler at {args.scheduler}"
+    if args.workers:
+        return f"on {_count(args.workers, 'worker')} (Dask LocalCluster)"
+    return "in this process (1 worker)"
+
+
 def command(args) -> int:
     from adaptive_cal.study.config import load_study
     from adaptive_cal.study.doc import write_doc
@@ -62,6 +131,12 @@ def command(args) -> int:
     out_dir = Path(args.out) if args.out else None
     checkpoint = (out_dir / "plates.jsonl" if out_dir
                   else out_json.with_name(out_json.name + ".plates.jsonl"))
+    runs = study.plates * len(study.strategies)
+    progress = Progress(study.name, runs, checkpoint)
+    if not args.quiet:
+        progress.say(f"study {study.name}: {_count(study.plates, 'plate')} x "
+                     f"{_count(len(study.strategies), 'strategy', 'strategies')} = "
+                     f"{_count(runs, 'run')} {_where(args)}")
     client = None
     if args.scheduler or args.workers:
         from adaptive_cal.cli.common import UserError
@@ -71,23 +146,15 @@ def command(args) -> int:
             client = connect(args.scheduler, max(args.workers, 1))
         except SchedulerError as e:  # the address given is wrong or down: the user's to fix
             raise UserError(f"--scheduler {args.scheduler}: {e}") from None
-    t0 = time.monotonic()
-
-    def progress(done: int, total: int) -> None:
-        if not args.quiet:
-            print(f"\rstudy {study.name}: {done}/{total} tasks, {time.monotonic() - t0:.0f} s",
-                  end="", file=sys.stderr, flush=True)
-
     try:
         records = run_study(study, base, checkpoint, client=client, worker_setup=worker_setup,
-                            progress=progress)
+                            progress=None if args.quiet else progress)
     finally:
+        progress.close()
         if client is not None:
             client.close()
-    if not args.quiet:
-        print(file=sys.stderr)
     summary = summarise(study, records)
-    summary["wall_s"] = round(time.monotonic() - t0, 1)
+    summary["wall_s"] = round(time.monotonic() - progress.t0, 1)
     out_json.parent.mkdir(parents=True, exist_ok=True)
     out_json.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     if out_dir:

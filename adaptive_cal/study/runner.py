@@ -64,24 +64,39 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
     """Run every plate not yet in ``checkpoint``; returns all records. ``client``: a Dask client
     (None: in-process, float64 already on). ``worker_setup``: called in the worker before each
     task (e.g. ``adaptive_cal.use_float64``: a fresh worker process has JAX in float32, and a
-    task refuses to run so). ``limit`` stops after that many new tasks (tests of interruption)."""
+    task refuses to run so). ``progress(done, total)``: runs (one strategy on one plate) finished
+    of those still to do, called with 0 before the first and after each one in-process (a Dask
+    task reports a plate's per-plate strategies, or one fixed design's plates, at once).
+    ``limit`` stops after that many new tasks (tests of interruption)."""
     parse_cell(base)  # fails early on a bad cell
     key = study_key(study, base)
     ck = Checkpoint(checkpoint, key)
     try:
         per_plate, fixed = _jobs(study, ck.done())
         data = study.model_dump(mode="json")
-        total, finished = len(per_plate) + len(fixed), 0
+        total = sum(map(len, per_plate.values())) + sum(map(len, fixed.values()))
+        finished = 0
+
+        def tick(n: int) -> None:
+            nonlocal finished
+            finished += n
+            if progress:
+                progress(finished, total)
+
+        if progress:
+            progress(0, total)
         tasks = [(plate_task, (data, base, i, todo)) for i, todo in per_plate.items()]
         tasks += [(fixed_batch_task, (data, base, idx, s)) for s, idx in fixed.items()]
         if limit is not None:
             tasks = tasks[:limit]
         if client is None:
             for fn, args in tasks:
-                ck.add(fn(*args))
-                finished += 1
-                if progress:
-                    progress(finished, total)
+                if fn is plate_task:
+                    ck.add(fn(*args, report=lambda rec: tick(1)))
+                else:
+                    recs = fn(*args)
+                    ck.add(recs)
+                    tick(len(recs))
         else:
             from dask.distributed import as_completed
 
@@ -89,10 +104,9 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
                        for fn, args in tasks]
             try:
                 for fut in as_completed(futures):
-                    ck.add(fut.result())
-                    finished += 1
-                    if progress:
-                        progress(finished, total)
+                    recs = fut.result()
+                    ck.add(recs)
+                    tick(len(recs))
             finally:
                 for f in futures:
                     f.cancel()

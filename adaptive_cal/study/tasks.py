@@ -64,8 +64,10 @@ def lower_bounds(study: Study, cell, model, rec: dict) -> dict:
     return out
 
 
-def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) -> list[dict]:
-    """Every per-plate strategy of ``todo`` on plate ``index``."""
+def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...],
+               report: Callable[[dict], None] | None = None) -> list[dict]:
+    """Every per-plate strategy of ``todo`` on plate ``index``. ``report``: called with each
+    record as it is made (progress in-process; a Dask task reports when it returns)."""
     require_float64()
     from adaptive_cal.study.strategies import Context, run_grid, run_paper, run_planner, run_random
 
@@ -74,7 +76,7 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) 
     cell = plate_cell(study, base, plate)
     ctx = Context.create(study, plate, cell)
     target = study.bound.true_mm
-    out = []
+    out = _Reported(report)
     paper_rms = None
     learned = study.estimator == "learned"
     if "paper" in study.strategies and ("paper" in todo or "adaptive" in todo):
@@ -98,7 +100,20 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...]) 
             out.append(run_grid(ctx, target))
         elif name == "random" and learned:
             out.append(run_random(ctx, target))
-    return out
+    return list(out)
+
+
+class _Reported(list):
+    """A list of records that tells ``report`` of each one appended."""
+
+    def __init__(self, report: Callable[[dict], None] | None):
+        super().__init__()
+        self.report = report
+
+    def append(self, rec: dict) -> None:
+        super().append(rec)
+        if self.report is not None:
+            self.report(rec)
 
 
 def fixed_batch_task(study_data: dict, base: dict, indices: list[int], strategy: str,
