@@ -16,6 +16,9 @@ from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, ConfigError, Simulation
 from adaptive_cal.formats.recording import MAX_ROWS, Recording, RecordingError
 
+# what explain says where t_s is blank (``touch_times``, ``time_note``)
+TIME_FILLED = "their times filled between the nearest rows with a time"
+TIME_FROM_SEQ = "time taken as seq x robot.touch_time_s"
 MIN_ROWS_PER_ROUND = 8  # tilt (3) + an effect with up to 4 parameters + a noise estimate
 
 
@@ -35,6 +38,8 @@ class Design:
     paths: tuple[str, ...]
     noise_floor_mm: float = 0.0  # the probe's stated noise (cell file), 0 where not stated
     noise_stated_mm: float = 0.0  # the largest noise the cell file states, 0 where not stated
+    # how the times of rows with t_s blank were taken (``time_note``), "" where none is blank
+    time_blank: str = ""
     # the cell's rule for a point a run may touch (workplane.allows: inside the edge margin,
     # outside every keep-out), the one the planner's candidate grid is built with; None: any
     # point of the workplane
@@ -182,18 +187,22 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     if total > MAX_ROWS:  # the reader's limit, also for recordings built in memory
         raise RecordingError(f"{total} rows in {len(recordings)} recording(s); explain takes at "
                              f"most {MAX_ROWS} rows at once: split the recordings by round")
+    recordings = [part for rec in recordings for part in split_rounds(rec)]
     _refuse_repeats(recordings)
     cols = {k: [] for k in ("x", "y", "t", "d", "z", "r", "seq", "read")}
-    known = []
+    known, blank_rows, none_known = [], [], []
     for i, rec in enumerate(recordings):
         label = rec.path or f"recording {i}"
         _check_recording(rec, cell, label)
         keep = rec.fused
+        # arrival and time from every row the robot went to: a rejected or gated touch was a
+        # move, and its time is on the clock (only then are the used rows selected)
+        direction = arrival(rec)[keep]
+        t = touch_times(rec, cell.robot.touch_time_s)[keep]
+        known.append(bool(np.all(np.isfinite(rec.t_s))))
+        blank_rows.append(int(np.count_nonzero(~np.isfinite(rec.t_s))))
+        none_known.append(not np.any(np.isfinite(rec.t_s)))
         rec = rec.select(keep)
-        direction = rec.direction
-        time_known = bool(np.all(np.isfinite(rec.t_s)))
-        t = rec.t_s if time_known else rec.seq * cell.robot.touch_time_s
-        known.append(time_known)
         for k, v in (("x", rec.x_mm), ("y", rec.y_mm), ("t", np.asarray(t, float)),
                      ("d", direction), ("z", rec.z_mm), ("r", np.full(len(rec), i)),
                      ("seq", rec.seq), ("read", rec.reading_mm)):
@@ -214,7 +223,80 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     return Design(feats, geometry, cat["r"].astype(int), cat["seq"].astype(int), cat["z"],
                   cat["read"], nominal, tuple(known), unknown,
                   tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)),
-                  stated_noise_mm(cell), stated_noise_mm(cell, high=True), cell.workplane.allows)
+                  stated_noise_mm(cell), stated_noise_mm(cell, high=True),
+                  time_note(blank_rows, none_known), cell.workplane.allows)
+
+
+def time_note(blank_rows: list[int], none_known: list[bool]) -> str:
+    """What explain says about blank t_s: per recording (round), its count of blank rows and
+    whether it has no time at all (``touch_times``)."""
+    if not any(blank_rows):
+        return ""
+    parts = []
+    if any(none_known):
+        parts.append(f"t_s blank throughout: {TIME_FROM_SEQ}")
+    partly = sum(b for b, none in zip(blank_rows, none_known) if not none)
+    if partly:
+        parts.append(f"t_s blank on {partly} row{'s' * (partly != 1)}: {TIME_FILLED}")
+    return "; ".join(parts)
+
+
+def split_rounds(rec: Recording) -> list[Recording]:
+    """A recording whose optional ``round`` column takes several values holds several rounds
+    (DESIGN.md's optional columns): one recording per value, in the order they first appear,
+    each named ``PATH (round V)`` -- as if each round had been given as its own file (its own
+    tilt, its own directions of arrival). One value or no such column: the recording itself."""
+    r = rec.extra.get("round")
+    if r is None:
+        return [rec]
+    r = np.asarray(r, float)
+    values = list(dict.fromkeys(v for v in r.tolist() if np.isfinite(v)))
+    if len(values) <= 1:
+        return [rec]
+    if not np.all(np.isfinite(r)):
+        where = rec.path or "the recording"
+        raise RecordingError(f"{where}: column round is blank on {int(np.sum(~np.isfinite(r)))} "
+                             f"row(s) while it holds rounds {', '.join(f'{v:g}' for v in values)}: "
+                             "every row must say its round")
+    out = []
+    for v in values:
+        part = rec.select(r == v)
+        out.append(replace(part, path=f"{rec.path or 'recording'} (round {v:g})"))
+    return out
+
+
+def arrival(rec: Recording) -> np.ndarray:
+    """Direction of arrival along x of every row (``Recording.direction``) over the moves the
+    robot made: every row but those the run refused before moving (flagged ``invalid`` for a
+    place off the workplane or inside a keep-out -- not ``nonfinite``, a reading the probe did
+    take). Rows the belief does not fuse (rejected, gated) were moves all the same: dropping
+    them first would give the next row the direction of a move it did not make."""
+    flags = rec.flags or ()
+    moved = np.ones(len(rec), bool)
+    if flags:
+        moved = np.array([not ("invalid" in f and "nonfinite" not in f) for f in flags], bool)
+    d = np.zeros(len(rec))
+    d[moved] = rec.select(moved).direction
+    return d
+
+
+def touch_times(rec: Recording, touch_time_s: float) -> np.ndarray:
+    """Time of every row: t_s; blank throughout, seq x ``touch_time_s`` (robot.touch_time_s);
+    blank on some rows (DESIGN.md: t_s may be blank when unknown), those rows filled linearly
+    between the nearest rows with a time, by row order, and beyond the first or last time at
+    ``touch_time_s`` a row -- so one blank time does not discard every known one."""
+    t = np.asarray(rec.t_s, float)
+    ok = np.isfinite(t)
+    if ok.all():
+        return t
+    if not ok.any():
+        return rec.seq * touch_time_s
+    i = np.arange(len(t), dtype=float)
+    ki, kt = i[ok], t[ok]
+    filled = np.interp(i, ki, kt)
+    filled[i < ki[0]] = kt[0] - (ki[0] - i[i < ki[0]]) * touch_time_s
+    filled[i > ki[-1]] = kt[-1] + (i[i > ki[-1]] - ki[-1]) * touch_time_s
+    return np.where(ok, t, filled)
 
 
 def stated_noise_mm(cell: Cell, high: bool = False) -> float:

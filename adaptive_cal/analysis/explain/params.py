@@ -65,5 +65,5 @@ def summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
         text += (f"; {cand.sharing.replace('_', ' ')} (log BF shared vs per round "
                  f"{cand.log_bf_shared_vs_per_round:.2f})")
     if effect.axis == "time" and not all(design.time_known):
-        text += "; t_s blank: time taken as seq x robot.touch_time_s"
+        text += "; " + design.time_blank
     return text + f"; log BF vs none {cand.log_bf:.2f}"
