@@ -20,8 +20,12 @@ plate, which the map's bands must carry. Checks (each at a stated level; ALPHA i
 
 Unresolved variance at a point: the projection variance of the learned form there, plus the
 region's s_k^2 = max(0, mean_k(e_i^2 - q_i - r_p)) (unbiased for an extra white term), kept
-only where a check 1-4 fails (else 0): the bands and the stop statistic add it
-(``planning.survey.status``), and the stop never fires while a check fails.
+only where a check 1-4 fails (else 0) -- except in a model that grew (``suspect``: the coarse
+knots failed their checks, ``planning.survey.refit``), which keeps it in every region while
+its checks pass (the plate's mean excess where a region has too few readings): the bands and
+the stop statistic add it (``planning.survey.status``), and the stop never fires while a check
+fails. So with every check passing the bands still carry the form's finer part, and a grown
+model's excess too; the summary says which (``Adequacy._widened_by``).
 
 What the checks cannot see (``unseen_rms``): structure finer than the touches' spacing looks
 like noise. With a stated span [lo, hi] the probe may be as good as lo, so the learned noise can
@@ -57,6 +61,7 @@ from adaptive_cal.gaussian import checks
 ALPHA = 0.01  # false-alarm level of the whole check on an adequate model (split below)
 MIN_READINGS = 3  # a region is tested with at least this many readings
 NEGLIGIBLE_MM = 0.5e-3  # unresolved RMS below this is not reported (still in the stds)
+SHOWN_REGIONS = 3  # the summary names this many regions, then says how many more
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,16 +149,41 @@ class Adequacy:
             return (f"{head}; structure finer than the touches' spacing up to about "
                     f"{self.unseen_rms_mm * 1e3:.1f} um RMS would pass these checks (the probe's "
                     "stated noise span leaves room for it)")
-        failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
-        head = f"model inadequate ({failed})" if not self.adequate else \
-            "model adequate, bands widened"
-        parts = [f"{head}: structure finer than "
-                 f"{self.knot_spacing_mm:.0f} mm, about {self.unresolved_rms_mm * 1e3:.1f} um "
-                 "RMS unresolved"]
-        for w in self.where()[:3]:
+        knots = f"{self.knot_spacing_mm:.0f} mm"
+        if not self.adequate:
+            failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
+            parts = [f"model inadequate ({failed}): structure finer than {knots}, about "
+                     f"{self.unresolved_rms_mm * 1e3:.1f} um RMS unresolved"]
+        else:
+            parts = [f"model checks pass; bands widened by about "
+                     f"{self.unresolved_rms_mm * 1e3:.1f} um RMS: {self._widened_by(knots)}"]
+        where = self.where()
+        for w in where[:SHOWN_REGIONS]:
             parts.append(f"x {w['x_mm'][0]:.0f}..{w['x_mm'][1]:.0f} mm, y {w['y_mm'][0]:.0f}.."
                          f"{w['y_mm'][1]:.0f} mm: {w['unresolved_rms_mm'] * 1e3:.1f} um")
+        if len(where) > SHOWN_REGIONS:
+            more = len(where) - SHOWN_REGIONS
+            parts[-1] += f" (and {more} more region{'s' * (more != 1)})"
         return "; ".join(parts)
+
+    def _widened_by(self, knots: str) -> str:
+        """What widens the bands of a model whose checks all pass (module docstring): the
+        learned form's part finer than the knots (always in the bands), and, only in a model
+        that grew (the coarse knots failed their checks: ``assess(suspect=True)``; else a
+        region's variance is 0 while every check passes), the readings' leave-one-out excess
+        over the model's own spread, carried as structure finer than the refined knots."""
+        out = []
+        grown = float(np.sqrt(self.region_var_mm2.mean()))
+        form = float(np.sqrt(self.form_var_mm2))
+        if grown > 0.0:
+            out.append(f"the coarse knots failed their checks, so the model grew {knots} knots "
+                       f"and carries the readings' scatter beyond the model and the probe noise, "
+                       f"about {grown * 1e3:.1f} um RMS (the plate's mean where a region has "
+                       f"fewer than {MIN_READINGS} readings), as structure finer than them")
+        if form >= NEGLIGIBLE_MM or not out:
+            out.append(f"the learned form's part finer than the {knots} knots, about "
+                       f"{form * 1e3:.1f} um RMS")
+        return "; ".join(out)
 
     def as_dict(self) -> dict:
         return {"adequate": self.adequate, "checks": self.checks,
