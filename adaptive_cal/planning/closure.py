@@ -82,11 +82,14 @@ class Closure:
         """One line for the terminal and the report."""
         if not self.made:
             return f"closure touch not made: {self.why}"
-        when = f" after {self.elapsed_s:.0f} s" if self.elapsed_s is not None else ""
+        # elapsed_s is on the recording's clock (its t_s column), from the first reading there
+        # to the repeat: not result.json's robot_time_s, an estimate from travel and touch time
+        when = (f", touched again {self.elapsed_s:.0f} s after its first reading on the "
+                "recording's clock (t_s),") if self.elapsed_s is not None else ""
         start = (f"the run's first {self.first_readings} readings there"
                  if self.first_readings > 1 else "the run's first reading")
-        head = (f"closure: the first place (x {self.x_mm:.1f}, y {self.y_mm:.1f} mm) read "
-                f"{self.difference_mm * 1e3:+.1f} um against {start}{when} (sd "
+        head = (f"closure: the first place (x {self.x_mm:.1f}, y {self.y_mm:.1f} mm){when} read "
+                f"{round(self.difference_mm * 1e3, 1) + 0.0:+.1f} um against {start} (sd "
                 f"{self.sd_mm * 1e3:.1f} um, p {self.p:.2g})")
         if self.passed:
             return f"{head}: no drift seen"
