@@ -25,6 +25,18 @@ def plain_text(text: str) -> str:
     return text.replace("$", r"\$")
 
 
+def incomplete_text(gap: str | None, width: int = 70) -> str:
+    """The mark of an unfinished run's figure ("INCOMPLETE: interrupted after 20 touches; ...
+    -- not a result", wrapped to ``width``), from ``report.status.missing(result)``, the line
+    the terminal and the HTML open with; "" for a finished run (``gap`` None)."""
+    if not gap:
+        return ""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(f"INCOMPLETE: {gap} -- not a result, the map is provisional",
+                                    width))
+
+
 def _plate_axes(ax, workplane_x_mm: Range, workplane_y_mm: Range) -> None:
     ax.set_xlim(*workplane_x_mm)
     ax.set_ylim(*workplane_y_mm)
@@ -85,13 +97,16 @@ def _detrend_grid(x_grid_mm, y_grid_mm, mean_mm) -> np.ndarray:
 def surface_figure(x_grid_mm, y_grid_mm, mean_mm, std_mm, touches_xy_mm,
                    workplane_x_mm: Range, workplane_y_mm: Range,
                    keep_outs: Sequence[tuple[Range, Range]] = (), next_xy_mm=None,
-                   title: str = "", remove_tilt: bool = True) -> Figure:
+                   title: str = "", remove_tilt: bool = True, incomplete: str | None = None
+                   ) -> Figure:
     """Posterior mean height (left) and posterior std (right) over the plate, in um.
 
     ``mean_mm`` and ``std_mm`` are (nx, ny) on the grid ``x_grid_mm`` (nx,) x ``y_grid_mm`` (ny,).
     With ``remove_tilt`` the least-squares plane of the mean map is subtracted (the title says
     so). Touches are drawn on both panels and numbered by seq on the mean panel when there are at
-    most 80; keep-outs are hatched; ``next_xy_mm`` is a star.
+    most 80; keep-outs are hatched; ``next_xy_mm`` is a star. ``incomplete``: what an unfinished
+    run misses (``report.status.missing``), said in red under the title (``incomplete_text``):
+    the PNG is copied into other documents without the terminal's or the page's warning.
     """
     x_grid_mm = np.asarray(x_grid_mm, dtype=np.float64)
     y_grid_mm = np.asarray(y_grid_mm, dtype=np.float64)
@@ -130,12 +145,18 @@ def surface_figure(x_grid_mm, y_grid_mm, mean_mm, std_mm, touches_xy_mm,
         unique = dict(zip(labels, handles))
         ax_std.legend(unique.values(), unique.keys(), loc="upper right", fontsize=7, framealpha=0.8)
     suffix = " (tilt removed)" if remove_tilt else ""
-    fig.suptitle(f"{plain_text(title)}{suffix}" if title else f"workplane{suffix}")
+    head = f"{plain_text(title)}{suffix}" if title else f"workplane{suffix}"
+    mark = incomplete_text(incomplete, width=110)
+    if mark:
+        fig.suptitle(f"{head}\n{plain_text(mark)}", color="#b00000", fontweight="bold")
+    else:
+        fig.suptitle(head)
     return fig
 
 
 def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
-                       bound_max_mm=None, true_rms_mm=None, refits=(), floor_touches=0) -> Figure:
+                       bound_max_mm=None, true_rms_mm=None, refits=(), floor_touches=0,
+                       incomplete: str | None = None) -> Figure:
     """Posterior std against touches: RMS/mean std and max std over the plate (um, log y).
 
     Bounds (stopping thresholds) are dashed horizontal lines in the colour of their curve;
@@ -143,7 +164,8 @@ def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
     the truth, is drawn as a dotted curve. ``refits``: touch counts at which the
     hyper-parameters were refitted (thin grey lines: the std may jump there, when the learned
     form amplitude or noise changes); ``floor_touches``: no bound stops the run before this many
-    touches (a shaded band).
+    touches (a shaded band); ``incomplete``: what an unfinished run misses, said in red in the
+    title (as ``surface_figure``).
     """
     touches = np.asarray(touches, dtype=np.float64)
     fig = Figure(figsize=(7.0, 4.5), layout="constrained")
@@ -170,7 +192,12 @@ def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
     ax.set_ylabel("posterior std (um)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title("convergence")
+    mark = incomplete_text(incomplete)
+    if mark:
+        ax.set_title(f"convergence\n{plain_text(mark)}", color="#b00000", fontweight="bold",
+                     fontsize=10)
+    else:
+        ax.set_title("convergence")
     return fig
 
 

@@ -40,7 +40,9 @@ from adaptive_cal.report.sections import (cards, cell_section, escape, explain_s
 # -- figures ---------------------------------------------------------------------------------
 def _png(fig: Figure) -> str:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
+    # "tight": the canvas grows to hold what lies outside the axes (the touches figure's
+    # legend on the right; constrained layout with an equal aspect cut it and the y label)
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight", pad_inches=0.1)
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
@@ -110,7 +112,8 @@ def belief_png(data, cell: Cell, rec, result: dict) -> str:
     # every touch, so the numbers are the recording's seq (a retake lands where its gated touch did)
     fig = plots.surface_figure(gx, gy, mean.reshape(xx.shape), np.sqrt(np.maximum(var, 0)).reshape(xx.shape),
                                np.c_[rec.x_mm, rec.y_mm], wp.x_mm, wp.y_mm,
-                               keep_outs=[(k.x_mm, k.y_mm) for k in wp.keep_outs], title=cell.name)
+                               keep_outs=[(k.x_mm, k.y_mm) for k in wp.keep_outs], title=cell.name,
+                               incomplete=missing(result))
     return _png(fig)
 
 

@@ -52,7 +52,28 @@ def _table(rows, head=None, cls="") -> str:
 
 
 def _um(mm) -> str:
-    return "-" if mm is None else f"{mm * UM:.1f} um"
+    return "-" if mm is None else f"{round(mm * UM, 1) + 0.0:.1f} um"
+
+
+def signed(value: float, digits: int) -> str:
+    """``value`` with its sign and ``digits`` decimals, never "-0.0..." (a value that rounds to
+    zero prints "+0.0...")."""
+    return f"{round(value, digits) + 0.0:+.{digits}f}"  # -0.0 + 0.0 is +0.0
+
+
+def percent(share: float) -> str:
+    """A share as the outputs write percentages: "98 %" (a space, as in "95 % band")."""
+    return f"{share * 100:.0f} %"
+
+
+#: stop reasons in words where they differ from the name with spaces (the names are result.json's
+#: stable interface; "mean_std_bound" is the bound on the RMS std over the plate)
+REASON_WORDS = {"mean_std_bound": "RMS std bound"}
+
+
+def reason_text(why: str) -> str:
+    """A stop reason in words: "RMS std bound", "touch budget", ..."""
+    return REASON_WORDS.get(why, why.replace("_", " "))
 
 
 def cell_section(cell: Cell, result: dict) -> str:
@@ -80,15 +101,17 @@ def _robot_time(result: dict) -> str:
     """Touches and robot time side by side (result.json before robot time was written: '-')."""
     if result.get("robot_time_s") is None:
         return "-"
+    how = result.get("robot_time_is")
     return (f"about {result['robot_time_s'] / 60:.1f} min for {result['touches']} touches "
-            f"({result['travel_mm'] / 1000:.1f} m of travel)")
+            f"({result['travel_mm'] / 1000:.1f} m of travel)"
+            + (f"; {escape(how)}" if how else ""))
 
 
 def run_section(result: dict) -> str:
     p, h = result["posterior"], result.get("hyper", {})
     rows = [("touches", f"{result['touches']} ({result['fused']} fused)"),
-            ("robot time", _robot_time(result)),
-            ("stopped because", escape(result["stopped_because"].replace("_", " "))),
+            ("robot time (estimate)", _robot_time(result)),
+            ("stopped because", escape(reason_text(result["stopped_because"]))),
             ("posterior std over the plate", f"RMS {_um(p['mean_std_mm'])}, max {_um(p['max_std_mm'])}"),
             ("reading noise (learned)", _um(h.get("noise_std_mm"))),
             ("form prior (learned)", f"amplitude {_um(h.get('form_std_mm'))}, length scale "
@@ -96,7 +119,8 @@ def run_section(result: dict) -> str:
     if "truth" in result:
         t = result["truth"]
         rows.append(("simulated cell: true error", f"RMS {_um(t['rms_error_mm'])}, max "
-                     f"{_um(t['max_error_mm'])}; the 95 % band covers {t['coverage95']:.0%} of the plate"))
+                     f"{_um(t['max_error_mm'])}; the 95 % band covers {percent(t['coverage95'])} of the "
+                     "plate"))
     return "<h2>The run</h2>" + _table(rows, cls="kv") + model_section(result)
 
 
@@ -138,22 +162,26 @@ def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = No
     R = rotation(rx, ry)
     sx, sy = tilt.get("rx_std_deg"), tilt.get("ry_std_deg")
     pm = lambda s: "" if s is None else f" &plusmn; {s:.4f}"
-    rows = [("rx (about the user frame's x axis)", f"<b>{rx:+.4f} deg</b>{pm(sx)} ({np.radians(rx):+.6f} rad)"),
-            ("ry (about the rotated y axis)", f"<b>{ry:+.4f} deg</b>{pm(sy)} ({np.radians(ry):+.6f} rad)"),
-            ("fitted plane z = a x + b y + c", f"a {tilt['a']:+.6f} mm/mm, b {tilt['b']:+.6f} mm/mm, "
-                                              f"c {tilt['c']:+.4f} mm"),
-            ("height change over 100 mm", f"along x {tilt['a'] * 100 * UM:+.1f} um, along y "
-                                          f"{tilt['b'] * 100 * UM:+.1f} um")]
+    rows = [("rx (about the user frame's x axis)",
+             f"<b>{signed(rx, 4)} deg</b>{pm(sx)} ({signed(np.radians(rx), 6)} rad)"),
+            ("ry (about the rotated y axis)",
+             f"<b>{signed(ry, 4)} deg</b>{pm(sy)} ({signed(np.radians(ry), 6)} rad)"),
+            ("fitted plane z = a x + b y + c", f"a {signed(tilt['a'], 6)} mm/mm, b "
+                                              f"{signed(tilt['b'], 6)} mm/mm, "
+                                              f"c {signed(tilt['c'], 4)} mm"),
+            ("height change over 100 mm", f"along x {signed(tilt['a'] * 100 * UM, 1)} um, along y "
+                                          f"{signed(tilt['b'] * 100 * UM, 1)} um")]
     if spread:
         rows.append((SPREAD.replace(" (not flatness)", ", whole plate"), escape(value_text(spread))))
-    matrix = "<br>".join("[" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in R)
+    matrix = "<br>".join("[" + "  ".join(signed(v, 6) for v in row) + "]" for row in R)
     head = ("<h2>Tilt correction for the controller (provisional)</h2><p><b>Provisional:</b> the "
             "run did not finish (see the top of the page); apply it only after the run meets its "
             "bound.</p>" if provisional else "<h2>Tilt correction for the controller</h2>")
     return (head + "<p>Rotate the user frame so its z axis is the plate normal:</p>"
-            f"<pre class='code'>frame_new = frame_nominal * rotx({rx:+.4f} deg) * roty({ry:+.4f} deg)\n"
-            f"# RoboDK (radians): frame_new = frame_nominal * rotx({np.radians(rx):+.6f}) * "
-            f"roty({np.radians(ry):+.6f})</pre>"
+            f"<pre class='code'>frame_new = frame_nominal * rotx({signed(rx, 4)} deg) * "
+            f"roty({signed(ry, 4)} deg)\n"
+            f"# RoboDK (radians): frame_new = frame_nominal * rotx({signed(np.radians(rx), 6)}) * "
+            f"roty({signed(np.radians(ry), 6)})</pre>"
             + _table(rows, cls="kv")
             + f"<p>rotx(rx) roty(ry), the rotation to multiply on the right (no translation):</p>"
               f"<pre class='code'>{matrix}</pre>"
@@ -238,8 +266,8 @@ def explain_section(run_dir: Path) -> str:
         lo, hi = r["null_change_95_mm"]
         real = "larger than" if r.get("exceeds_noise") else "within"
         parts.append(f"<p>Rounds: flatness {r['flatness_mm'][0]:.4f} &rarr; {r['flatness_mm'][1]:.4f} "
-                     f"mm, change {r['change_mm']:+.4f} mm; noise alone gives 95 % within "
-                     f"[{lo:+.4f}, {hi:+.4f}] mm (repeatability {_um(r['repeatability_mm'])}), "
+                     f"mm, change {signed(r['change_mm'], 4)} mm; noise alone gives 95 % within "
+                     f"[{signed(lo, 4)}, {signed(hi, 4)}] mm (repeatability {_um(r['repeatability_mm'])}), "
                      f"p = {r['p_value']:.3f}: the change is <b>{real}</b> what noise gives.</p>")
     ni = findings.get("not_identifiable", [])
     if ni:
@@ -256,7 +284,7 @@ def cards(result: dict, run_dir: Path | None) -> str:
     t, ls, p = result["tilt"], result["flatness_mm"]["least_squares"], result["posterior"]
     tilt_label = "tilt correction" + (" (provisional)" if missing(result) else "")
     text = value_text(ls).split(" (", 1)
-    cards = [(f"rx {t['rx_deg']:+.4f} deg<br>ry {t['ry_deg']:+.4f} deg", tilt_label),
+    cards = [(f"rx {signed(t['rx_deg'], 4)} deg<br>ry {signed(t['ry_deg'], 4)} deg", tilt_label),
              (escape(text[0]), f"flatness {PLATE}, least squares"
               + (f" ({escape(text[1])}" if len(text) > 1 else "")),
              (f"{_um(p['mean_std_mm'])}", f"RMS posterior std after {result['touches']} touches")]
