@@ -192,14 +192,14 @@ def test_the_progress_bar_shows_each_bound_with_its_unit():
     bar = SimpleNamespace(set_postfix_str=lambda text, refresh: shown.append(text),
                           update=lambda n: None)
     session._update(bar, sim_cell(), Status(touches=3, mean_std_mm=0.0039, max_std_mm=0.0102))
-    assert shown == ["mean std 3.9 um / bound 4.0 um, max std 10.2 um"]
+    assert shown == ["RMS std 3.9 um / bound 4.0 um, max std 10.2 um, bound met"]
     # why the run goes on past a met bound: the touch floor, then a model that fails its checks
     session._update(bar, sim_cell(), Status(23, 0.0039, 0.0102), floor=30)
     assert shown[-1].endswith(", bound met, going on to the touch floor of 30")
     session._update(bar, sim_cell(), Status(31, 0.0039, 0.0102, adequate=False), floor=30)
     assert shown[-1].endswith(", bound met, going on: the model's self-checks fail")
     session._update(bar, sim_cell(), Status(23, 0.0041, 0.0102), floor=30)
-    assert shown[-1] == "mean std 4.1 um / bound 4.0 um, max std 10.2 um"
+    assert shown[-1] == "RMS std 4.1 um / bound 4.0 um, max std 10.2 um"
 
 
 def test_replaced_files_keep_the_usual_permissions(tmp_path):

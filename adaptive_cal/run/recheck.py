@@ -130,7 +130,8 @@ def disagreement(carried: dict, surprises: list[int]) -> str:
     """Why a re-check stopped early, and what to do, in one sentence for the terminal."""
     c = carried["correction_deg"]
     return (f"the plate is not where the earlier run's belief puts it in the frame assumed "
-            f"({carried['assumed']}: rx {c['rx']:+.4f} deg, ry {c['ry']:+.4f} deg): "
+            f"({carried['assumed']}: rx {round(c['rx'], 4) + 0.0:+.4f} deg, ry "
+            f"{round(c['ry'], 4) + 0.0:+.4f} deg): "  # + 0.0: never "-0.0000"
             f"{len(surprises)} readings (seq {', '.join(map(str, surprises))}) were confirmed by "
             "their retake far outside its band. Not a result: give the correction that was "
             "really applied (--correction-applied proposed | none | RX,RY), or map from scratch "

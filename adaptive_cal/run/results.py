@@ -20,6 +20,7 @@ from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import robot_time_s
+from adaptive_cal.report.status import missing
 from adaptive_cal.run.folder import finite_json, replace_atomically, write_json
 from adaptive_cal.run.truth import state_truth_error
 
@@ -55,6 +56,7 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
         # touch at robot.speed_mm_per_s, plus robot.touch_time_s per touch (an estimate)
         "robot_time_s": robot_s,
         "travel_mm": travel_mm,
+        "robot_time_is": robot_time_is(plan.speed_mm_per_s, plan.touch_time_s),
         "stopped_because": stopped_because,
         "bound": {"mean_std_mm": stop.mean_std_mm, "max_std_mm": stop.max_std_mm,
                   "max_touches": stop.max_touches},
@@ -64,7 +66,7 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
         "knots_mm": {"x": surface.sx.knots.tolist(), "y": surface.sy.knots.tolist(),
                      "ends": surface.sx.ends},
     }
-    result["model"] = model_block(state, status)
+    result["model"] = model_block(state, status, plan)
     # the closure touch's verdict (planning.closure), or None when none was made
     result["closure"] = state.closure.as_dict() if state.closure is not None else None
     xyz = (touched_heights(plan, recording)
@@ -72,9 +74,25 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
                                   xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
                                   SAMPLES))
+    # the units of the tilt's plane (its keys a, b, c stay as they are: a stable interface)
+    result["tilt"] = {**result["tilt"], "plane_is": TILT_PLANE_IS}
     if truth is not None:
         result["truth"] = state_truth_error(plan, state, truth)
     return finite_json(result)
+
+
+#: result.json's tilt.plane_is: what a, b and c are, with their units
+TILT_PLANE_IS = ("least-squares plane z = a x + b y + c of the map in the workplane frame: a and "
+                 "b slopes along x and y (mm/mm), c the height at the frame origin (mm, from "
+                 "where the probe reads its zero); rx_deg, ry_deg the correction rotx(rx) "
+                 "roty(ry) (deg), *_std_deg their posterior std (deg)")
+
+
+def robot_time_is(speed_mm_per_s: float, touch_time_s: float) -> str:
+    """What result.json's robot_time_s is: an estimate, not a clock."""
+    return (f"estimate: straight travel from the plate centre through every touch at "
+            f"{speed_mm_per_s:g} mm/s (robot.speed_mm_per_s) plus {touch_time_s:g} s per touch "
+            "(robot.touch_time_s); the recording's t_s is the cell's own clock")
 
 
 def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path,
@@ -91,28 +109,47 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     status = sv.status(plan, state)
     # the figures first: result.json, written last, marks the results complete (a kill while
     # drawing leaves the old result.json, so --resume does not take the run as finished)
-    write_figures(cell, plan, state, out, history or [status], true_rms_mm, refits)
+    write_figures(cell, plan, state, out, history or [status], true_rms_mm, refits,
+                  incomplete=missing(result))
     write_json(out / "result.json", result)  # atomic; NaN / inf as null
     return finite_json(result)
 
 
-def model_block(state: sv.SurveyState, status) -> dict:
+def model_block(state: sv.SurveyState, status, plan: SurveyPlan | None = None) -> dict:
     """result.json's "model": whether the spline's self-checks pass, each check, the RMS of the
     structure finer than the spline (mm, included in the posterior stds) and where the map
-    should not be trusted (``planning.adequacy``)."""
+    should not be trusted (``planning.adequacy``). A model not checked (too few readings, or
+    hyper-parameters not learned: a re-check) still says where the map is extrapolated, as a
+    checked one does (``plan``: the workplane and the box touches reach)."""
     if state.adequacy is None:
+        summary = ("model not checked yet (too few fused readings for its self-checks)"
+                   if not status.adequate else "model not checked (the hyper-parameters are "
+                   "not learned: fixed, or carried by --prior-from)")
+        ext = _extrapolated(plan) if plan is not None else None
         return {"adequate": status.adequate, "checks": {}, "unresolved_rms_mm": 0.0,
-                "where": [], "summary": "model not checked yet (too few fused readings for "
-                "its self-checks)" if not status.adequate else "model not checked (the "
-                "hyper-parameters are not learned: fixed, or carried by --prior-from)"}
+                "where": [], "extrapolated": ext,
+                "summary": summary if ext is None else f"{summary}; {ext['text']}"}
     return state.adequacy.as_dict()
 
 
+def _extrapolated(plan: SurveyPlan) -> dict | None:
+    """``Adequacy.extrapolated`` of the plan's workplane and reachable box, without checks: it
+    reads those two boxes alone."""
+    from adaptive_cal.planning.adequacy import Adequacy
+
+    none = np.zeros((1, 1))
+    return Adequacy(True, {}, none, np.zeros(2), np.zeros(2), 0.0, none,
+                    plate_mm=tuple(map(tuple, plan.plate_mm)),
+                    reach_mm=tuple(map(tuple, plan.bounds_mm))).extrapolated()
+
+
 def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path, history,
-                  true_rms_mm=None, refits=()) -> None:
+                  true_rms_mm=None, refits=(), incomplete: str | None = None) -> None:
     """surface.png (mean and std maps, touches numbered by seq) and convergence.png (std against
     touches; ``true_rms_mm`` per history entry when the truth is known; the refits (touch
-    counts) and the touch floor of the stop rule marked)."""
+    counts) and the touch floor of the stop rule marked). ``incomplete``: what an unfinished run
+    misses (``report.status.missing`` of its result, the terminal's INCOMPLETE line), marked
+    in both titles."""
     from adaptive_cal.report import figures as plots
 
     wp = cell.workplane
@@ -120,7 +157,7 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     keep = [(k.x_mm, k.y_mm) for k in wp.keep_outs]
     touched = np.array(state.touched_xy_mm, float).reshape(-1, 2)  # numbered as in the recording
     fig = plots.surface_figure(gx, gy, mean, std, touched, wp.x_mm, wp.y_mm,
-                               keep_outs=keep, title=cell.name)
+                               keep_outs=keep, title=cell.name, incomplete=incomplete)
     _save(fig, out / "surface.png")
     h = history
     stop = cell.plan.stop
@@ -130,7 +167,8 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
                                    bound_mean_mm=stop.mean_std_mm, bound_max_mm=stop.max_std_mm,
                                    true_rms_mm=true_rms_mm, refits=refits,
                                    floor_touches=touch_floor(cell, plan.model.form_surface.size,
-                                                             informed_prior=state.prior is not None))
+                                                             informed_prior=state.prior is not None),
+                                   incomplete=incomplete)
     _save(fig, out / "convergence.png")
 
 

@@ -9,6 +9,7 @@ every touch and ``--resume`` continues it: no touch repeated, none lost.
 from __future__ import annotations
 
 import signal
+import sys
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -142,6 +143,10 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         saved = _saved_result(paths.out)
         if done and saved is not None and saved.get("touches") == state.touches:
             return {**saved, "already_finished": done}  # finished: nothing to do or rewrite
+        # what is resumed, before the bar (which would otherwise be the only sign of it)
+        print(f"resuming {paths.out}: {state.touches} touch{'es' * (state.touches != 1)} in "
+              f"{paths.recording.name} ({state.fused} fused), going on from seq {next_seq}",
+              file=sys.stderr, flush=True)
     else:
         fused_t_s = None
     start_touch = state.touches
@@ -195,7 +200,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             writer.close()
             opened.close()
             if bar is not None:
-                bar.close()
+                _close_bar(bar, stopped)
     state = loop.state
     result = None
     if error is None or state.touches:
@@ -231,12 +236,26 @@ def _progress(enabled: bool, cell: Cell, initial: int):
                 desc="touches", dynamic_ncols=True)
 
 
+#: the stop reasons of a run that met its bound: the bar closes full, not at a share of the budget
+BOUND_MET = ("mean_std_bound", "max_std_bound")
+
+
+def _close_bar(bar, stopped: str | None) -> None:
+    """Close the bar. A run that stopped on its bound ends it full (its total set to the touches
+    made, the last text -- "bound met" -- kept): at "26% 31/120" of the budget it would read as
+    aborted. Any other stop leaves it where the run stopped."""
+    if stopped in BOUND_MET:
+        bar.total = bar.n  # close() draws the bar once more
+    bar.close()
+
+
 def _update(bar, cell: Cell, s, floor: int = 0) -> None:
-    """The bar's text: each std with its bound and unit, e.g. ``mean std 3.9 um / bound 4.0 um``,
-    and why the run goes on when a bound is met (the touch floor, or a model the self-checks
-    call inadequate)."""
+    """The bar's text: each std with its bound and unit, e.g. ``RMS std 3.9 um / bound 4.0 um``
+    (the RMS over the plate: result.json's ``mean_std_mm``), and, once a bound is met, "bound
+    met" or why the run goes on (the touch floor, or a model the self-checks call
+    inadequate)."""
     stop, parts, met = cell.plan.stop, [], False
-    for what, value, bound in (("mean std", s.mean_std_mm, stop.mean_std_mm),
+    for what, value, bound in (("RMS std", s.mean_std_mm, stop.mean_std_mm),
                                ("max std", s.max_std_mm, stop.max_std_mm)):
         parts.append(f"{what} {value * 1e3:.1f} um"
                      + (f" / bound {bound * 1e3:.1f} um" if bound else ""))
@@ -245,5 +264,7 @@ def _update(bar, cell: Cell, s, floor: int = 0) -> None:
         parts.append(f"bound met, going on to the touch floor of {floor}")
     elif met and not s.adequate:
         parts.append("bound met, going on: the model's self-checks fail")
+    elif met:
+        parts.append("bound met")
     bar.set_postfix_str(", ".join(parts), refresh=False)
     bar.update(1)
