@@ -87,8 +87,11 @@ def command(args) -> int:
             c = recheck.applied_correction(Path(args.prior_from), correction)
         except ValueError as e:
             raise UserError(str(e)) from None
+        from adaptive_cal.report.sections import signed
+
         print(f"re-check from {args.prior_from}: correction assumed applied ({c['assumed']}): "
-              f"rx {c['correction_deg']['rx']:+.4f} deg, ry {c['correction_deg']['ry']:+.4f} deg")
+              f"rx {signed(c['correction_deg']['rx'], 4)} deg, ry "
+              f"{signed(c['correction_deg']['ry'], 4)} deg")
     try:
         # the cell file is copied only once the session holds the folder's lock
         result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,
@@ -109,7 +112,7 @@ def command(args) -> int:
         print(f"{out} is already finished ({result['already_finished']} after "
               f"{result['touches']} touches): nothing to do, nothing changed")
         return 0
-    _summary(result, out)
+    _summary(result, out, cell)
     if result.get("prior_from", {}).get("disagreement"):
         print(f"re-check stopped: {result['prior_from']['disagreement']}")
         return 1
@@ -244,8 +247,11 @@ def _has_touches(rec: Path) -> bool:
     return len(rows) > 1  # the header, then one row per touch
 
 
-def _summary(r: dict, out: Path) -> None:
+def _summary(r: dict, out: Path, cell=None) -> None:
+    """The run's summary on stdout; ``cell``: the cell run (its robot speed and touch time, the
+    model of the estimated robot time)."""
     from adaptive_cal.analysis.flatness_answer import answer_lines
+    from adaptive_cal.report.sections import percent, signed
     from adaptive_cal.report.status import missing, next_step
 
     gap = missing(r)
@@ -257,18 +263,22 @@ def _summary(r: dict, out: Path) -> None:
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
         r.get('model', {}).get('summary') or 'model: not checked',
         *([r["closure"]["text"]] if r.get("closure") else []),
-        f"tilt correction{' (provisional)' if gap else ''}: rx {t['rx_deg']:+.4f} deg, "
-        f"ry {t['ry_deg']:+.4f} deg (a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm, c {t['c']:+.4f} mm)",
+        f"tilt correction{' (provisional)' if gap else ''}: rx {signed(t['rx_deg'], 4)} deg, "
+        f"ry {signed(t['ry_deg'], 4)} deg (a {signed(t['a'], 6)}, b {signed(t['b'], 6)} mm/mm, "
+        f"c {signed(t['c'], 4)} mm)",
     ]
     lines += answer_lines(r, provisional=bool(gap))
     if "truth" in r:
         tr = r["truth"]
         lines.append(f"true error: RMS {tr['rms_error_mm'] * 1e3:.2f} um, max "
-                     f"{tr['max_error_mm'] * 1e3:.2f} um, 95 % band covers {tr['coverage95']:.0%} "
-                     "of the plate")
+                     f"{tr['max_error_mm'] * 1e3:.2f} um, 95 % band covers "
+                     f"{percent(tr['coverage95'])} of the plate")
     if r.get("robot_time_s") is not None:  # touches and robot time side by side
-        lines.append(f"robot time: about {r['robot_time_s'] / 60:.1f} min for {r['touches']} "
-                     f"touches ({r['travel_mm'] / 1000:.1f} m of travel)")
+        # an estimate from the travel and the touch time, not the recording's clock (t_s)
+        how = (f" at {cell.robot.speed_mm_per_s:g} mm/s, plus {cell.robot.touch_time_s:g} s per "
+               "touch" if cell is not None else "")
+        lines.append(f"estimated robot time: about {r['robot_time_s'] / 60:.1f} min for "
+                     f"{r['touches']} touches ({r['travel_mm'] / 1000:.1f} m of travel{how})")
     lines.append(f"wrote {out}/recording.csv, result.json, surface.png, convergence.png, "
                  "belief.npz, cell.yaml")
     print("\n".join(lines))
@@ -283,16 +293,22 @@ def _dry_run(cell) -> int:
         from adaptive_cal.run.session import no_admissible_point
 
         raise UserError(no_admissible_point(cell))
+    from adaptive_cal.report.sections import reason_text, signed
+
     targets = targets[:20]
     print(f"dry run: the first {len(targets)} touches as planned when every reading lands where "
           "the belief expects it; nothing moves.\nThe plan adapts as readings arrive, and each "
-          "approach height is set from the belief at that touch.")
+          "approach height is set from the belief at that touch: the first from the prior, "
+          "the others from the readings before them, so at run time.")
     print("  #     x_mm     y_mm  approach z_mm")
     for i, t in enumerate(targets):
-        print(f"{i:3d} {t.x_mm:8.2f} {t.y_mm:8.2f} {t.z_mm:14.3f}")
+        # the forecast's belief never leaves the prior's mean (each reading lands where it
+        # expects), so its heights past the first are not the run's: those follow the plate
+        z = f"{signed(t.z_mm, 3):>14}" if i == 0 else "   set at run time"
+        print(f"{i:3d} {t.x_mm:8.2f} {t.y_mm:8.2f} {z}")
     r = cell.robot
     robot_s = touches * r.touch_time_s + travel_mm / r.speed_mm_per_s
-    print(f"expected: about {touches} touches ({why.replace('_', ' ')}; at most "
+    print(f"expected: about {touches} touches ({reason_text(why)}; at most "
           f"{cell.plan.stop.max_touches}), robot time about {robot_s / 60:.1f} min "
           f"({r.touch_time_s:g} s per touch, {travel_mm / 1000:.1f} m of travel at "
           f"{r.speed_mm_per_s:g} mm/s); with the prior's hyper-parameters and no gated reading")
