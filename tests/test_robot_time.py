@@ -217,7 +217,8 @@ def test_result_json_terminal_and_report_give_touches_and_robot_time_side_by_sid
     assert r["touches"] == len(xy) == 12
     assert r["travel_mm"] == pytest.approx(travel) and r["robot_time_s"] == pytest.approx(s)
     text = capsys.readouterr().out
-    assert f"robot time: about {s / 60:.1f} min for 12 touches ({travel / 1000:.1f} m of travel)" in text
+    assert (f"estimated robot time: about {s / 60:.1f} min for 12 touches ({travel / 1000:.1f} m "
+            "of travel at 150 mm/s, plus 3 s per touch)") in text
     assert f"about {s / 60:.1f} min for 12 touches" in run_section(r)
 
 
