@@ -41,6 +41,20 @@ KNOWN_FLAGS = NOT_FUSED | {"retake", "surprise", "closure", "spread", "stroke_en
 OUTLIER_FLAG = "outlier="
 
 
+def strict_float(text: str) -> float | None:
+    """``text`` (stripped) as a float, or None when it is not a number as a CSV writer writes
+    one: Python's ``float`` also takes ``5_1.0`` (51.0) and non-ASCII digits (``\u0665.\u0661``,
+    5.1), which no CSV writer means as numbers -- refused here. NaN and infinities are returned
+    (the caller says whether they are allowed)."""
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    if "_" in text or not text.isascii():
+        return None
+    return value
+
+
 def parse_flags(text: str, where: str, error=ValueError) -> tuple[frozenset[str], list[str]]:
     """The flag words of a ``flags`` cell (``;``-separated) and those this tool does not know.
     Words are stripped of white space and lower-cased (``REJECTED``, `` rejected `` are
@@ -55,11 +69,8 @@ def parse_flags(text: str, where: str, error=ValueError) -> tuple[frozenset[str]
             continue
         if word.startswith(OUTLIER_FLAG):
             value = word[len(OUTLIER_FLAG):].strip()
-            try:
-                p = float(value)
-            except ValueError:
-                p = math.nan
-            if not 0 <= p <= 1:
+            p = strict_float(value)
+            if p is None or not 0 <= p <= 1:
                 raise error(f"{where}: flag {word!r}: the outlier probability must be a number "
                             "from 0 to 1 (the reading's weight is 1 - p)")
             word = OUTLIER_FLAG + value
@@ -111,9 +122,11 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
     columns = [(ix, "x", x), (iy, "y", y), (iv, value_name, v)]
     columns += [(iz, "z", z)] if iz is not None else []
     with open(path, encoding="utf-8-sig", newline="") as f:
-        rows = csv.reader(f)
+        rows = csv.reader(f, skipinitialspace=True)
         next(rows, None)
-        for lineno, cells in enumerate(rows, start=2):
+        end = rows.line_num
+        for cells in rows:  # a quoted field may span lines: a row is named by its first line
+            lineno, end = end + 1, rows.line_num
             if not cells or not "".join(cells).strip() or cells[0].lstrip().startswith("#"):
                 continue
             if len(x) >= MAX_ROWS:
@@ -127,9 +140,8 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
                     unknown[word] = (line, n + 1)
             for i, name, out in columns:
                 text = cells[i].strip() if i < len(cells) else ""
-                try:
-                    value = float(text)
-                except ValueError:
+                value = strict_float(text)
+                if value is None:
                     raise TableError(f"{path}:{lineno}: column {name}: {text!r} is not a number "
                                      "(mm)") from None
                 if not math.isfinite(value) or abs(value) > LIMIT_MM:

@@ -14,7 +14,8 @@ import os
 from pathlib import Path
 from typing import Iterable, Mapping
 
-from adaptive_cal.formats.recording import MAGIC, REQUIRED, RecordingError, _number
+from adaptive_cal.formats.recording import (MAGIC, REQUIRED, RecordingError, _number, _OpenQuote,
+                                            split_cells)
 from adaptive_cal.formats.table import KNOWN_FLAGS, NOT_FUSED
 
 _WRITTEN_DECIMALS = {"t_s": 3, "x_mm": 4, "y_mm": 4, "z_mm": 4, "reading_mm": 6}
@@ -88,7 +89,23 @@ def _header_line(text: str) -> str | None:
 def _completed(header: str, line: str) -> tuple[str | None, str, str]:
     """(the row to write instead of the cut ``line``, or None to drop it; the text dropped;
     what was done, in words). ``line`` itself when it is whole."""
-    names = [h.strip() for h in header.split(",")]
+    try:
+        names = split_cells(header, "header")
+    except (_OpenQuote, RecordingError):
+        return None, line, f"dropped, the header is not a CSV row ({line[:80]!r})"
+    if '"' in line:  # another tool's quoted row (the writer quotes nothing): kept only if whole
+        try:
+            quoted = split_cells(line, "row")
+        except (_OpenQuote, RecordingError):
+            quoted = []
+        if len(quoted) == len(names) and all(c in names for c in REQUIRED):
+            try:
+                for c in REQUIRED:
+                    _number(quoted[names.index(c)], where=c, blank_ok=(c == "t_s"))
+                return line, "", "whole"
+            except RecordingError:
+                pass
+        return None, line, f"dropped, a quoted row cut mid-write ({line[:80]!r})"
     cells = line.split(",")
     if (line.startswith("#") or len(cells) > len(names) or not all(c in names for c in REQUIRED)
             or any(names.index(c) >= len(cells) for c in REQUIRED)):
@@ -165,7 +182,11 @@ class RecordingWriter:
         if exists:
             header = next((l for l in self.path.read_text(encoding="utf-8").splitlines()
                            if l.strip() and not l.startswith("#")), "")
-            if tuple(h.strip() for h in header.split(",")) != self.columns:
+            try:
+                names = tuple(split_cells(header, str(self.path)))
+            except _OpenQuote:
+                names = ()
+            if names != self.columns:
                 raise RecordingError(f"{self.path}: cannot append, its header {header!r} differs "
                                      f"from {','.join(self.columns)!r}")
             repair_cut_row(self.path)  # a row cut by a crash mid-write
