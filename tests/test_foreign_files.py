@@ -6,6 +6,7 @@ digits), map coordinates written to 0.1 mm. Oracle: the same file written plainl
 import numpy as np
 import pytest
 
+from adaptive_cal.formats.heightmap import HEADER, HeightMapError, parse_heightmap
 from adaptive_cal.formats.recording import RecordingError, read_recording
 from adaptive_cal.formats.table import TableError
 from adaptive_cal.formats.writing import repair_cut_row
@@ -197,3 +198,63 @@ def test_a_table_refuses_them_too(tmp_path):
     path.write_text("x_mm,y_mm,reading_mm,flags\n0,0,5.0,outlier=0_5\n")
     with pytest.raises(TableError, match="outlier probability"):
         read_recording(path)
+
+
+# --- F8 and F10: height maps -----------------------------------------------------------------
+
+XS, YS = np.linspace(-225, 225, 19), np.linspace(-185, 185, 15)  # y step 26.4286 mm
+
+
+def _map_text(fmt="{!r}", header=HEADER, quote=False):
+    lines = [header]
+    for x in XS:
+        for y in YS:
+            cells = [fmt.format(float(x)), fmt.format(float(y)), f"{1e-3 * x - 2e-3 * y + 1e-5 * x * y:.9g}"]
+            lines.append(",".join(f'"{c}"' for c in cells) if quote else ",".join(cells))
+    return "\n".join(lines) + "\n"
+
+
+def test_coordinates_written_to_a_tenth_of_a_mm_are_the_regular_grid():
+    """-185.0, -158.6, -132.1, ...: the writer's round-off (0.05 mm of a 26.4 mm step) was
+    refused as 'not a regular grid' ('26.4 mm apart, the grid's spacing is 26.4286 mm')."""
+    exact = parse_heightmap(_map_text(), "exact")
+    rounded = parse_heightmap(_map_text("{:.1f}"), "rounded")
+    assert rounded.y_mm.shape == (15,) and rounded.y_mm[1] == -158.6
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(-225, 225, 500), rng.uniform(-185, 185, 500)
+    # heights within the surface's slope (< 0.005) times the round-off (0.05 mm)
+    assert np.abs(rounded(x, y) - exact(x, y)).max() < 0.005 * 0.05
+
+
+def test_an_irregular_grid_names_its_nodes_and_spacings_with_digits_that_differ():
+    xs = np.array([0.0, 10.0, 20.0, 31.0, 40.0])  # 31 lies 1 mm (1/10 of the step) off
+    text = HEADER + "\n" + "\n".join(f"{x},{y},0" for x in xs for y in (0, 5)) + "\n"
+    with pytest.raises(HeightMapError) as e:
+        parse_heightmap(text, "m")
+    assert "not a regular grid: x_mm nodes 20 and 31 are 11 mm apart, the grid's spacing is " \
+           "10 mm" in str(e.value)
+    ys = np.array([0, 26.43, 52.86, 85])  # spacing 28.3333; 52.86 lies 3.8 mm off (> 1.42)
+    text = HEADER + "\n" + "\n".join(f"{x},{y},0" for x in (0, 1) for y in ys) + "\n"
+    with pytest.raises(HeightMapError) as e:
+        parse_heightmap(text, "m")
+    assert "y_mm nodes 52.86 and 85 are 32.14 mm apart, the grid's spacing is 28.3333 mm" \
+        in str(e.value)
+
+
+@pytest.mark.parametrize("header", ["x_mm, y_mm, height_mm", '"x_mm","y_mm","height_mm"',
+                                    "\ufeffx_mm ,y_mm,height_mm "])
+@pytest.mark.parametrize("quote", [False, True])
+def test_a_header_with_spaces_or_quotes_and_quoted_values_read_as_plain(header, quote):
+    plain = parse_heightmap(_map_text(), "plain")
+    other = parse_heightmap(_map_text(header=header, quote=quote), "other")
+    for a, b in ((plain.x_mm, other.x_mm), (plain.y_mm, other.y_mm), (plain.z_mm, other.z_mm)):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("value", ["5_1.0", "\u0665.\u0661"])
+def test_a_map_refuses_underscores_and_non_ascii_digits(value):
+    lines = _map_text().splitlines()
+    lines[4] = lines[4].rsplit(",", 1)[0] + "," + value
+    with pytest.raises(HeightMapError, match=f"m, line 5: height_mm must be a finite number, got "
+                       f"{value!r}"):
+        parse_heightmap("\n".join(lines) + "\n", "m")

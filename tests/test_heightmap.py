@@ -98,7 +98,8 @@ def test_bad_maps_are_refused_naming_file_line_and_value(tmp_path, edit, words):
 
 def test_irregular_grid_is_refused(tmp_path):
     path = write_map(tmp_path / "m.csv", xs=np.array([-225, -100, 0, 225.0]))
-    with pytest.raises(HeightMapError, match="not a regular grid: x_mm nodes -225 and -100"):
+    with pytest.raises(HeightMapError, match="not a regular grid: x_mm nodes 0 and 225 are 225 mm "
+                       "apart, the grid's spacing is 150 mm"):
         load_heightmap(path)
 
 

@@ -1,12 +1,15 @@
 """Height maps (DESIGN.md "Height maps", a stable format): a plate's true height on a regular
 grid, for the simulated cell (``simulation.surface_file``) and studies (``plate.surface_files``).
 
-UTF-8 CSV, first line exactly ``x_mm,y_mm,height_mm``, then one row per node of a regular grid
-(every x of the grid with every y, in any order). Heights between nodes are bilinear. A file that
-is not that is refused with a HeightMapError naming the file, the line and the value.
+UTF-8 CSV, first line ``x_mm,y_mm,height_mm``, then one row per node of a regular grid (every x
+of the grid with every y, in any order). Heights between nodes are bilinear. A file that is not
+that is refused with a HeightMapError naming the file, the line and the value. As CSV, the header
+may have spaces after its commas (``x_mm, y_mm, height_mm``) and any field may be quoted
+(``"-225"``, R's ``write.csv``); node coordinates may carry a writer's round-off (``_axis``).
 """
 from __future__ import annotations
 
+import csv
 import io
 import math
 import os
@@ -18,9 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from adaptive_cal.formats.table import strict_float
+
 HEADER = "x_mm,y_mm,height_mm"
 MAX_NODES = 4_000_000  # 2000 x 2000 nodes: far finer than any plate needs
 _REL = 1e-6  # grid positions equal to this share of the node spacing are the same node
+#: a node may lie this share of the grid's spacing from its place on the regular grid (``_axis``)
+ROUND_OFF = 1 / 20
 
 
 class HeightMapError(ValueError):
@@ -72,22 +79,45 @@ def _cell(nodes: np.ndarray, v: np.ndarray):
 def _axis(values: np.ndarray, name: str, source: str) -> np.ndarray:
     """The distinct grid positions of one axis, equally spaced, or HeightMapError. Positions
     closer than _REL of the axis' span are one node (a writer's round-off, e.g. -224.99999999999997
-    beside -225.0); the node is their first value in sorted order."""
+    beside -225.0); the node is their first value in sorted order.
+
+    "Equally spaced" allows the round-off of a writer that gives its coordinates few decimals: a
+    step of 370/14 = 26.4286 mm written to 0.1 mm (-185.0, -158.6, -132.1, ...) puts a node up
+    to 0.05 mm from its place. A node may lie up to ROUND_OFF (1/20) of the spacing from its place
+    on the regular grid from the first node to the last; the nodes are used where the file puts
+    them. That is safe for bilinear interpolation: the nodes stay strictly increasing (each step
+    within 1/10 of the spacing), every cell keeps at least 9/10 of its width, and a height is
+    read at most 1/20 of a cell from where the writer meant it -- the surface's slope times that,
+    well below what the node spacing itself resolves. A grid with a node or a grid line missing
+    is at least half a step off, and refused."""
     u = np.unique(values)
     if len(u) > 1:
         u = u[np.concatenate(([True], np.diff(u) > _REL * (u[-1] - u[0])))]
     if len(u) < 2:
         raise HeightMapError(f"{source}: {name} takes one value ({u[0]:g}): a grid needs at "
                              "least two nodes along each axis")
-    step = np.diff(u)
     h = (u[-1] - u[0]) / (len(u) - 1)
-    bad = np.flatnonzero(np.abs(step - h) > 1e-3 * h)
-    if len(bad):
-        k = bad[0]
+    off = np.abs(u - (u[0] + h * np.arange(len(u))))
+    if off.max() > ROUND_OFF * h:
+        step = np.diff(u)
+        k = int(np.argmax(np.abs(step - h)))  # the two nodes farthest from the spacing
+        a, b = _apart(step[k], h)
         raise HeightMapError(f"{source}: not a regular grid: {name} nodes {u[k]:g} and "
-                             f"{u[k + 1]:g} are {step[k]:g} mm apart, the grid's spacing is "
-                             f"{h:g} mm")
+                             f"{u[k + 1]:g} are {a} mm apart, the grid's spacing is {b} mm "
+                             f"({len(u)} nodes from {u[0]:g} to {u[-1]:g} mm; a node may lie "
+                             f"1/20 of the spacing, {ROUND_OFF * h:.3g} mm, from its place, "
+                             f"node {u[int(np.argmax(off))]:g} lies {off.max():.3g} mm from it)")
     return u
+
+
+def _apart(a: float, b: float) -> tuple[str, str]:
+    """``a`` and ``b`` written with the fewest significant digits (at least 6) that tell them
+    apart."""
+    for digits in range(6, 18):
+        ta, tb = f"{a:.{digits}g}", f"{b:.{digits}g}"
+        if ta != tb:
+            return ta, tb
+    return ta, tb
 
 
 def _node(nodes: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -132,12 +162,24 @@ def _grid(a: np.ndarray, source: str) -> HeightMap | None:
     return HeightMap(xs, ys, z.reshape(len(xs), len(ys)), source)
 
 
+def _cells(line: str, n: int, source: str) -> list[str]:
+    """The fields of line ``n`` of a map, stripped: split on ``,``, or as CSV (RFC 4180) when
+    the line holds a quote (``"-225"``, ``"x_mm"``)."""
+    if '"' not in line:
+        return [c.strip() for c in line.split(",")]
+    try:
+        return [c.strip() for c in next(csv.reader((line,), skipinitialspace=True, strict=True))]
+    except csv.Error as e:
+        raise HeightMapError(f"{source}, line {n}: not a CSV row ({e}): {line[:80]!r}") from None
+
+
 def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     """Parse a height map's text; HeightMapError names the line and the value."""
     first = io.StringIO(text, newline=None).readline().strip().lstrip("\ufeff")
-    if first != HEADER:
+    names = _cells(first, 1, source)
+    if names != HEADER.split(","):
         hint = ""
-        if first.startswith(HEADER + ","):  # e.g. compensate --grid's x_mm,y_mm,height_mm,std_mm
+        if names[:3] == HEADER.split(",") and len(names) > 3:  # compensate --grid's std_mm
             hint = ("; a height map has exactly these three columns (DESIGN.md): drop the others, "
                     "or write the map with 'adaptive-cal compensate --grid OUT.csv --heights-only'")
         raise HeightMapError(f"{source}, line 1: expected the header {HEADER!r}, got "
@@ -152,19 +194,16 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     for n, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue
-        cells = line.split(",")
+        cells = _cells(line, n, source)
         if len(cells) != 3:
             raise HeightMapError(f"{source}, line {n}: expected 3 values x_mm,y_mm,height_mm, "
                                  f"got {len(cells)}: {line[:80]!r}")
         row = []
         for name, cell in zip(("x_mm", "y_mm", "height_mm"), cells):
-            try:
-                value = float(cell)
-            except ValueError:
-                value = math.nan
-            if not cell.strip() or not math.isfinite(value):
+            value = strict_float(cell)
+            if value is None or not math.isfinite(value):
                 raise HeightMapError(f"{source}, line {n}: {name} must be a finite number, "
-                                     f"got {cell.strip()[:40]!r}")
+                                     f"got {cell[:40]!r}")
             row.append(value)
         numbers.append(row)
         rows.append(n)
