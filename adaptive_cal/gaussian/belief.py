@@ -93,12 +93,37 @@ def condition(belief: Belief, rows: np.ndarray, readings: np.ndarray, noise_var)
     if rows.shape[0] == 0:
         return belief
     r = np.broadcast_to(np.asarray(noise_var, float), (rows.shape[0],))
+    if rows.shape[0] > max(COEFFICIENT_FORM_ROWS, rows.shape[1]):
+        return _condition_coefficients(belief, rows, np.asarray(readings, float), r)
     hc = rows @ belief.cov  # (n, K)
     s = hc @ rows.T + np.diag(r)
     factor = cho_factor(s, lower=True)
     gain_t = cho_solve(factor, hc)  # S^-1 H C
     mean = belief.mean + gain_t.T @ (np.asarray(readings, float) - rows @ belief.mean)
     return Belief(mean, symmetrise(belief.cov - hc.T @ gain_t))
+
+
+# readings at once above which ``condition`` works in the coefficients' dimension (a long
+# recording given to flatness or report; the run conditions on far fewer)
+COEFFICIENT_FORM_ROWS = 1024
+
+
+def _condition_coefficients(belief: Belief, rows, readings, r) -> Belief:
+    """``condition`` for many readings (n >> K): with C = B B^T (B from the eigen-decomposition,
+    so a nearly singular C is no obstacle), G = H B and A = I + G^T R^-1 G (>= I),
+
+        C' = B A^-1 B^T,   m' = m + B A^-1 G^T R^-1 (y - H m),
+
+    O(n K^2) time and n K memory where the readings' form takes O(n^3) and n^2 (20,000
+    readings: 65 s in the n x n Cholesky)."""
+    w, v = np.linalg.eigh(symmetrise(belief.cov))
+    b = v * np.sqrt(np.clip(w, 0.0, None))
+    g = rows @ b
+    gr = g / r[:, None]
+    factor = cho_factor(np.eye(b.shape[1]) + g.T @ gr, lower=True)
+    ainv_bt = cho_solve(factor, b.T)  # A^-1 B^T
+    mean = belief.mean + ainv_bt.T @ (gr.T @ (readings - rows @ belief.mean))
+    return Belief(mean, symmetrise(b @ ainv_bt))
 
 
 def covariance_after(cov: np.ndarray, rows: np.ndarray, noise_var) -> np.ndarray:

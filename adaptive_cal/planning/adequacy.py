@@ -226,7 +226,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     spacing = form_surface.knot_interval_mm
     nreg = regions[0] * regions[1]
     a_glob, a_reg = ALPHA / 6, ALPHA / 2 / nreg  # innovations, noise, loo: ALPHA/6 each
-    z = checks.standardized_innovations(rows, readings, prior.mean, prior.cov, r)
+    ms_z = checks.innovations_mean_square(rows, readings, prior.mean, prior.cov, r)
     loo = checks.leave_one_out(rows, readings, prior.mean, prior.cov, r)
     q = np.maximum(loo.variance_mm2 - r, 0.0)
     e2 = loo.residual_mm**2
@@ -235,7 +235,6 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     form_pts, form_var = checks.unresolved_form_var(form_surface, *form, xy[:, 0], xy[:, 1])
     excess = e2 - q - r_mag - form_pts  # beyond the probe noise and the form's finer part
     stdz = e2 / (q + r_p)
-    ms_z = float(np.mean(z**2))
     result = {
         "innovations": {"value": ms_z, "bound": checks.mean_square_upper(n, a_glob),
                         "is": "mean square of standardized innovations"},
