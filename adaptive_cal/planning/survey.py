@@ -125,7 +125,9 @@ def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
 
 def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:
     """s_u^2 (mm^2) at points ``xy`` (N, 2): variance of the plate the spline cannot represent
-    (0 while the self-checks pass), plus a drift a failed closure touch found (d^2
+    (``planning.adequacy``: the learned form's part finer than the knots, plus the readings'
+    excess where a check fails -- or everywhere in a model that grew finer knots), plus a drift
+    a failed closure touch found (d^2
     everywhere, ``planning.closure``). Add it to the spline's variance for bands of the plate."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     drift = state.closure.drift_var_mm2 if state.closure is not None else 0.0

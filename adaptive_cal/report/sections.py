@@ -14,7 +14,7 @@ from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE,
                                                    touched_what, value_text)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
-from adaptive_cal.report.explain_text import readings_lines, verdict_lines
+from adaptive_cal.report.explain_text import readings_lines, rounds_lines, verdict_lines
 from adaptive_cal.report.status import missing, next_step
 
 UM = 1000.0
@@ -230,9 +230,8 @@ def explain_section(run_dir: Path) -> str:
     head, *more = verdict_lines({**findings, "verdict": verdict})
     said = escape(head.removeprefix(f"verdict: {verdict}"))
     parts = ["<h2>Explain: what the simulation left out</h2>",
-             f"<p class='verdict'>verdict: <b>{escape(verdict)}</b>{said}"
-             + (" (no left-out effect is supported by the data)" if verdict == "none" else "")
-             + "</p>"]
+             f"<p class='verdict'>verdict: <b>{escape(verdict)}</b>{said}</p>"]
+    # (with verdict none, verdict_lines' next line says why: no left-out effect is supported)
     more += readings_lines(findings)  # the structure left, suspect readings, the noise judged
     if more:
         parts.append("<ul>" + "".join(f"<li>{escape(line.strip())}</li>" for line in more)
@@ -262,13 +261,11 @@ def explain_section(run_dir: Path) -> str:
                              for k, v in by.items()],
                             head=("residual against", "F-test p (small = a real trend)"), cls="kv"))
     r = findings.get("rounds")
-    if r and "p_value" in r:
-        lo, hi = r["null_change_95_mm"]
-        real = "larger than" if r.get("exceeds_noise") else "within"
-        parts.append(f"<p>Rounds: flatness {r['flatness_mm'][0]:.4f} &rarr; {r['flatness_mm'][1]:.4f} "
-                     f"mm, change {signed(r['change_mm'], 4)} mm; noise alone gives 95 % within "
-                     f"[{signed(lo, 4)}, {signed(hi, 4)}] mm (repeatability {_um(r['repeatability_mm'])}), "
-                     f"p = {r['p_value']:.3f}: the change is <b>{real}</b> what noise gives.</p>")
+    if r and "p_value" in r:  # the terminal's words (explain_text.rounds_lines), in um
+        first, *rest = rounds_lines(r)
+        parts.append(f"<p>{escape(first[0].upper() + first[1:])}</p>"
+                     + (f"<p class='note'>{'<br>'.join(escape(x.strip()) for x in rest)}</p>"
+                        if rest else ""))
     ni = findings.get("not_identifiable", [])
     if ni:
         parts.append("<p>Not identifiable from this recording:</p><ul>" + "".join(
