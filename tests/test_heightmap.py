@@ -1,6 +1,8 @@
 """Height maps (formats/heightmap.py) as the simulated truth and as study plates; outliers in the
 simulated readings. Oracles: bilinear interpolation reproduces a bilinear function exactly; the
 simulator's readings against the study's own draws; the outlier share by Monte Carlo."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
@@ -266,3 +268,25 @@ def test_a_map_with_more_columns_is_refused_saying_how_to_write_one():
     text = "x_mm,y_mm,height_mm,std_mm\n0,0,1,0.001\n"
     with pytest.raises(HeightMapError, match=r"line 1: expected the header .*--heights-only"):
         parse_heightmap(text, "g.csv")
+
+
+def test_study_glob_double_star_matches_every_depth_and_records_name_their_map(tmp_path):
+    # '**' is any depth of folders, none included (glob's recursive form): the maps at the top,
+    # one and two levels down are all plates, not only those exactly one level down
+    from adaptive_cal.study.config import surface_files
+    from adaptive_cal.study.tasks import _Reported
+
+    path = _study(tmp_path, 1)
+    for sub in ("a", "a/b"):
+        (tmp_path / "maps" / sub).mkdir()
+        write_map(tmp_path / "maps" / sub / "p.csv", f=bilinear)
+    data = load_yaml(path)
+    data["plate"]["surface_files"] = "maps/**/p*.csv"
+    path.write_text(yaml.safe_dump(data))
+    study, _ = load_study(path)
+    names = [Path(f).relative_to(tmp_path / "maps").as_posix() for f in surface_files(study)]
+    assert names == ["a/b/p.csv", "a/p.csv", "p0.csv"]
+    seen = []
+    out = _Reported(seen.append, {"surface_file": "maps/a/p.csv"})
+    out.append({"strategy": "adaptive"})
+    assert out[0]["surface_file"] == seen[0]["surface_file"] == "maps/a/p.csv"

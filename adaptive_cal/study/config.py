@@ -158,9 +158,11 @@ def load_study(path: str | Path) -> tuple[Study, dict]:
 
 
 def surface_files(study: Study) -> list[str]:
-    """The height maps of plate.surface_files, sorted (empty when the key is not given)."""
+    """The height maps of plate.surface_files, sorted (empty when the key is not given). ``**``
+    matches any depth of folders, none included (``glob``'s recursive form: a study's maps in
+    nested folders are all found, not only those exactly one level down)."""
     pattern = study.plate.surface_files
-    return sorted(glob.glob(pattern)) if pattern is not None else []
+    return sorted(glob.glob(pattern, recursive=True)) if pattern is not None else []
 
 
 def check_surface_files(study: Study, cell: Cell, source: str) -> None:

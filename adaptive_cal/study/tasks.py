@@ -76,7 +76,8 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...],
     cell = plate_cell(study, base, plate)
     ctx = Context.create(study, plate, cell)
     target = study.bound.true_mm
-    out = _Reported(report)
+    # each record names the height map that was its plate (plate.surface_files)
+    out = _Reported(report, {"surface_file": plate.surface_file} if plate.surface_file else {})
     paper_rms = None
     learned = study.estimator == "learned"
     if "paper" in study.strategies and ("paper" in todo or "adaptive" in todo):
@@ -106,11 +107,13 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...],
 class _Reported(list):
     """A list of records that tells ``report`` of each one appended."""
 
-    def __init__(self, report: Callable[[dict], None] | None):
+    def __init__(self, report: Callable[[dict], None] | None, extra: dict | None = None):
         super().__init__()
         self.report = report
+        self.extra = extra or {}
 
     def append(self, rec: dict) -> None:
+        rec.update(self.extra)
         super().append(rec)
         if self.report is not None:
             self.report(rec)
