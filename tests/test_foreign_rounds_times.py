@@ -87,3 +87,22 @@ def test_a_round_column_with_two_values_is_two_rounds(tmp_path):
     assert f["verdict"] == two["verdict"] == "form"
     assert abs(f["fit"]["rms_after_mm"] - two["fit"]["rms_after_mm"]) < 1e-9
     assert f["fit"]["rms_after_mm"] < 0.04  # 150 -> 31 um, as the two files give
+
+
+def test_flatness_and_report_refuse_several_rounds_in_one_file_naming_them(tmp_path):
+    # one surface's figure of two rounds' stacked tilts read 4.7 mm of "flatness"; refused
+    import subprocess
+    import sys
+
+    rows = [[i, "", x, y, 0.0, 5.0 + (0.01 if i >= 12 else 0.0) * x, i // 12]
+            for i, (x, y) in enumerate([(x, y) for _ in range(2) for y in (-100, 0, 100)
+                                        for x in (-150, -50, 50, 150)])]
+    path = _write(tmp_path / "two.csv", rows, ",round")
+    for args in (["flatness", str(path)],
+                 ["report", str(path), "--robot", str(ROOT / "configs" / "sim-cell.yaml"),
+                  "--out", str(tmp_path / "r.html")]):
+        p = subprocess.run([sys.executable, "-m", "adaptive_cal.cli", *args], capture_output=True,
+                           text=True)
+        assert p.returncode != 0 and "Traceback" not in p.stderr
+        assert "two.csv: column round holds 2 rounds (0, 1)" in p.stderr, p.stderr
+    assert not (tmp_path / "r.html").exists()

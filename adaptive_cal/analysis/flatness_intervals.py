@@ -85,7 +85,7 @@ def repeat_samples(x, y, z, rng: np.random.Generator, n: int,
 def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, dict]:
     """Tilt, flatness figures with 95 % intervals and average ranges of one recording (JSON-ready),
     and the sampled figures (for ``compare``). ``path``: the recording's path, or a Recording."""
-    rec = path if isinstance(path, Recording) else read_recording(path)
+    rec = (path if isinstance(path, Recording) else read_recording(path)).one_round("flatness")
     path = (rec.path or "the recording") if isinstance(path, Recording) else path
     x, y, z = heights(rec)
     if len(z) < 4:

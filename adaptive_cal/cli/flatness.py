@@ -85,7 +85,7 @@ def map_flatness(args) -> dict | None:
 
     cell = load_cell(args.robot or folder / "cell.yaml")
     plan = survey_plan(cell)
-    rec = read_recording(rec_path)
+    rec = read_recording(rec_path).one_round("flatness")
     if args.robot:
         from adaptive_cal.report.replay import for_replay
 

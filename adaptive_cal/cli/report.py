@@ -85,7 +85,7 @@ def _from_recording(recording, cell_file, out) -> "Path":
     plan = survey_plan(cell)
     from adaptive_cal.report.replay import for_replay
 
-    rec = for_replay(read_recording(recording), cell, cell_file)  # as the run judges a reading
+    rec = for_replay(read_recording(recording).one_round("a report's map"), cell, cell_file)  # as the run judges a reading
     if rec.fused.sum() < 4:
         raise UserError(f"{recording}: {int(rec.fused.sum())} fused touches; a report needs at "
                         "least 4")

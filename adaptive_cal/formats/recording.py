@@ -122,6 +122,28 @@ class Recording:
             d[i] = last
         return d
 
+    @property
+    def rounds(self) -> list[float]:
+        """The values of the optional ``round`` column, in the order they first appear (one
+        value, or none without the column, for a recording of one round)."""
+        r = self.extra.get("round")
+        if r is None:
+            return []
+        return list(dict.fromkeys(v for v in np.asarray(r, float).tolist() if math.isfinite(v)))
+
+    def one_round(self, what: str) -> "Recording":
+        """This recording, refused (RecordingError naming the column and its values) where its
+        ``round`` column holds several rounds: ``what`` (a flatness, a map) is of one surface,
+        and several rounds' tilts stacked as one read as millimetres of form."""
+        rounds = self.rounds
+        if len(rounds) <= 1:
+            return self
+        shown = ", ".join(f"{v:g}" for v in rounds[:6]) + (", ..." if len(rounds) > 6 else "")
+        raise RecordingError(
+            f"{self.path or 'the recording'}: column round holds {len(rounds)} rounds ({shown}); "
+            f"{what} is of one round's surface: give each round as its own file (flatness FIRST.csv "
+            "--compare LATER.csv compares two; explain takes every round of one file as it is)")
+
     def select(self, mask: np.ndarray) -> "Recording":
         """Rows where ``mask`` holds (metadata kept)."""
         mask = np.asarray(mask, bool)

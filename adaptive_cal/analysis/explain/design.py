@@ -246,13 +246,10 @@ def split_rounds(rec: Recording) -> list[Recording]:
     (DESIGN.md's optional columns): one recording per value, in the order they first appear,
     each named ``PATH (round V)`` -- as if each round had been given as its own file (its own
     tilt, its own directions of arrival). One value or no such column: the recording itself."""
-    r = rec.extra.get("round")
-    if r is None:
-        return [rec]
-    r = np.asarray(r, float)
-    values = list(dict.fromkeys(v for v in r.tolist() if np.isfinite(v)))
+    values = rec.rounds
     if len(values) <= 1:
         return [rec]
+    r = np.asarray(rec.extra["round"], float)
     if not np.all(np.isfinite(r)):
         where = rec.path or "the recording"
         raise RecordingError(f"{where}: column round is blank on {int(np.sum(~np.isfinite(r)))} "
