@@ -35,7 +35,6 @@ What the reader has to say is in ``Recording.notes`` and is printed once (``say`
 """
 from __future__ import annotations
 
-import csv
 import math
 import os
 import sys
@@ -45,6 +44,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from adaptive_cal.formats.cells import (RecordingError, _number, _OpenQuote,  # noqa: F401
+                                        split_cells)  # (re-exported: writing, callers)
 from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, parse_flags, read_table,
                                         strict_float, unknown_flag_note)
 
@@ -67,10 +68,6 @@ def surface_height_mm(reading_mm, z_mm, probe_zero_mm):
     """The surface height a reading implies (mm), inverting the nominal relation:
     height = reading - probe zero + z. The one height conversion of the package."""
     return reading_mm - probe_zero_mm + z_mm
-
-
-class RecordingError(ValueError):
-    """A recording that cannot be read: the message names the file, line and column."""
 
 
 @dataclass(frozen=True)
@@ -152,41 +149,6 @@ class Recording:
                          self.z_mm[mask], self.reading_mm[mask], flags,
                          {k: v[mask] for k, v in self.extra.items()}, self.meta, self.path,
                          self.notes)
-
-
-def _number(text: str, *, where: str, blank_ok: bool = False) -> float:
-    text = text.strip()
-    if text == "":
-        if blank_ok:
-            return math.nan
-        raise RecordingError(f"{where}: empty value")
-    value = strict_float(text)
-    if value is None:
-        raise RecordingError(f"{where}: {text!r} is not a number")
-    if not math.isfinite(value):
-        raise RecordingError(f"{where}: {text!r} is not a finite number")
-    return value
-
-
-class _OpenQuote(Exception):
-    """A line ends inside a quoted field: the field (and the row) goes on on the next line."""
-
-
-def split_cells(line: str, where: str) -> list[str]:
-    """The fields of one CSV row (RFC 4180: ``"a, b"`` is one field, ``""`` inside quotes is
-    ``"``), each stripped of white space. Lines without a quote are split on ``,`` (the fast
-    path: a 10^5-row recording reads in under a second); others go through ``csv`` (strict:
-    text after a closing quote is refused naming ``where``). Raises _OpenQuote when the line
-    ends inside a quoted field."""
-    if '"' not in line:
-        return [c.strip() for c in line.split(",")]
-    try:
-        cells = next(csv.reader((line,), skipinitialspace=True, strict=True), [])
-    except csv.Error as e:
-        if "unexpected end of data" in str(e):
-            raise _OpenQuote from None
-        raise RecordingError(f"{where}: not a CSV row ({e}): {line[:80]!r}") from None
-    return [c.strip() for c in cells]
 
 
 #: Limits of a readable recording: positions within 10 m, indications within 1 m, MAX_ROWS

@@ -1,0 +1,99 @@
+"""The plate's geometry in a cell file: intervals, rectangles (keep-outs) and the workplane
+(``cell.schema`` holds the rest of the cell and re-exports these)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from adaptive_cal.cell.block import Block
+
+Interval = tuple[float, float]
+REACH_MM = 1e5  # no coordinate of a cell lies farther than 100 m from the workplane origin
+
+
+def _interval(v: Interval, what: str) -> Interval:
+    lo, hi = v
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        raise ValueError(f"{what} must be [low, high] with low < high, got [{lo}, {hi}]")
+    if max(abs(lo), abs(hi)) > REACH_MM:
+        raise ValueError(f"{what}=[{lo}, {hi}] mm lies beyond +-{REACH_MM:.0f} mm (100 m): "
+                         "not a robot cell")
+    return v
+
+
+class Rect(Block):
+    """An axis-aligned rectangle in the workplane (mm)."""
+
+    x_mm: Interval
+    y_mm: Interval
+
+    @field_validator("x_mm", "y_mm")
+    @classmethod
+    def _ordered(cls, v, info):
+        return _interval(v, info.field_name)
+
+    def contains(self, x: float, y: float) -> bool:
+        return self.x_mm[0] <= x <= self.x_mm[1] and self.y_mm[0] <= y <= self.y_mm[1]
+
+
+class Workplane(Block):
+    """The plate to map: its extent, an edge margin no touch goes inside, and keep-outs."""
+
+    x_mm: Interval
+    y_mm: Interval
+    edge_margin_mm: float = Field(5.0, ge=0, description="no touch closer than this to the plate edge")
+    keep_outs: list[Rect] = Field([], description="rectangles never touched (clamps, holes); "
+                                "each must overlap the workplane")
+
+    @field_validator("x_mm", "y_mm")
+    @classmethod
+    def _ordered(cls, v, info):
+        return _interval(v, info.field_name)
+
+    @model_validator(mode="after")
+    def _usable(self):
+        m = self.edge_margin_mm
+        if 2 * m >= self.x_mm[1] - self.x_mm[0] or 2 * m >= self.y_mm[1] - self.y_mm[0]:
+            raise ValueError(f"edge_margin_mm={m} leaves no plate to touch inside "
+                             f"x_mm={list(self.x_mm)}, y_mm={list(self.y_mm)}")
+        inner = Rect(x_mm=(self.x_mm[0] + m, self.x_mm[1] - m),
+                     y_mm=(self.y_mm[0] + m, self.y_mm[1] - m))
+        for i, k in enumerate(self.keep_outs):
+            if (k.x_mm[0] <= inner.x_mm[0] and k.x_mm[1] >= inner.x_mm[1]
+                    and k.y_mm[0] <= inner.y_mm[0] and k.y_mm[1] >= inner.y_mm[1]):
+                raise ValueError(f"keep_outs[{i}] x_mm={list(k.x_mm)} y_mm={list(k.y_mm)} covers "
+                                 "the whole plate: nothing is left to touch")
+            if (k.x_mm[1] < self.x_mm[0] or k.x_mm[0] > self.x_mm[1]
+                    or k.y_mm[1] < self.y_mm[0] or k.y_mm[0] > self.y_mm[1]):
+                # touches only land on the plate: such a keep-out protects nothing -- most likely
+                # a clamp given in another frame or unit, which the probe would then hit
+                raise ValueError(f"keep_outs[{i}] x_mm={list(k.x_mm)} y_mm={list(k.y_mm)} lies "
+                                 f"wholly outside the workplane x_mm={list(self.x_mm)}, "
+                                 f"y_mm={list(self.y_mm)}: it keeps nothing out (keep-outs are "
+                                 "in the workplane frame, mm); move it onto the plate or delete it")
+        return self
+
+    @property
+    def area_mm2(self) -> float:
+        return (self.x_mm[1] - self.x_mm[0]) * (self.y_mm[1] - self.y_mm[0])
+
+    def first_outside(self, x, y) -> tuple[str, int, int] | None:
+        """Of the points (x, y) (arrays, mm), the first one outside the plate's extent (round-off
+        of 1e-9 mm allowed): (its column "x_mm" or "y_mm", its index, how many lie outside in
+        that column), or None when the plate holds them all. The check replay and explain make
+        before they use a recording's touches."""
+        for c, values, (lo, hi) in (("x_mm", x, self.x_mm), ("y_mm", y, self.y_mm)):
+            values = np.asarray(values, float)
+            bad = np.flatnonzero((values < lo - 1e-9) | (values > hi + 1e-9))
+            if bad.size:
+                return c, int(bad[0]), int(bad.size)
+        return None
+
+    def allows(self, x: float, y: float) -> bool:
+        """True if (x, y) lies inside the margin and outside every keep-out."""
+        m = self.edge_margin_mm
+        inside = (self.x_mm[0] + m <= x <= self.x_mm[1] - m
+                  and self.y_mm[0] + m <= y <= self.y_mm[1] - m)
+        return inside and not any(k.contains(x, y) for k in self.keep_outs)

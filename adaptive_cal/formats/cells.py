@@ -1,0 +1,47 @@
+"""The cells of one recording row: CSV as RFC 4180 has it (``split_cells``) and strict numbers
+(``number``), with RecordingError naming where a value is wrong (``formats.recording``)."""
+from __future__ import annotations
+
+import csv
+import math
+
+from adaptive_cal.formats.table import strict_float
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be read: the message names the file, line and column."""
+
+
+def _number(text: str, *, where: str, blank_ok: bool = False) -> float:
+    text = text.strip()
+    if text == "":
+        if blank_ok:
+            return math.nan
+        raise RecordingError(f"{where}: empty value")
+    value = strict_float(text)
+    if value is None:
+        raise RecordingError(f"{where}: {text!r} is not a number")
+    if not math.isfinite(value):
+        raise RecordingError(f"{where}: {text!r} is not a finite number")
+    return value
+
+
+class _OpenQuote(Exception):
+    """A line ends inside a quoted field: the field (and the row) goes on on the next line."""
+
+
+def split_cells(line: str, where: str) -> list[str]:
+    """The fields of one CSV row (RFC 4180: ``"a, b"`` is one field, ``""`` inside quotes is
+    ``"``), each stripped of white space. Lines without a quote are split on ``,`` (the fast
+    path: a 10^5-row recording reads in under a second); others go through ``csv`` (strict:
+    text after a closing quote is refused naming ``where``). Raises _OpenQuote when the line
+    ends inside a quoted field."""
+    if '"' not in line:
+        return [c.strip() for c in line.split(",")]
+    try:
+        cells = next(csv.reader((line,), skipinitialspace=True, strict=True), [])
+    except csv.Error as e:
+        if "unexpected end of data" in str(e):
+            raise _OpenQuote from None
+        raise RecordingError(f"{where}: not a CSV row ({e}): {line[:80]!r}") from None
+    return [c.strip() for c in cells]
