@@ -79,7 +79,7 @@ def _from_recording(recording, cell_file, out) -> "Path":
     from adaptive_cal.formats.recording import read_recording
     from adaptive_cal.planning import survey as sv
     from adaptive_cal.report.html import render_recording
-    from adaptive_cal.run.results import result_of
+    from adaptive_cal.run.results import result_of, unresolved_grid
 
     cell = load_cell(cell_file)
     plan = survey_plan(cell)
@@ -94,7 +94,7 @@ def _from_recording(recording, cell_file, out) -> "Path":
     result = result_of(cell, plan, state, rec, stopped, rng=np.random.default_rng(SEED))
     s = plan.model.surface
     belief = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
-              "knots_y": s.sy.knots}
+              "knots_y": s.sy.knots, **unresolved_grid(plan, state)}
     out = Path(out) if out else Path(recording).with_suffix(".html")
     html = render_recording(result, cell, rec, belief, Path(recording), Path(cell_file))
     out.parent.mkdir(parents=True, exist_ok=True)

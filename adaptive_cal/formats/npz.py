@@ -8,15 +8,20 @@ import zipfile
 import numpy as np
 
 BELIEF_KEYS = ("mean", "cov", "hyper", "knots_x", "knots_y")
+# the variance of structure finer than the knots on a grid over the workplane (saved since
+# 2026-11-24; an older belief.npz lacks them: its bands are the spline's alone)
+UNRESOLVED_KEYS = ("unresolved_x_mm", "unresolved_y_mm", "unresolved_var_mm2")
 
 
-def read_npz(path: str | os.PathLike, keys=BELIEF_KEYS) -> dict[str, np.ndarray]:
-    """The arrays ``keys`` of the .npz file at ``path`` (no pickled objects); ValueError naming
-    the file when it is not an .npz numpy wrote or lacks one of ``keys``."""
+def read_npz(path: str | os.PathLike, keys=BELIEF_KEYS,
+             optional=UNRESOLVED_KEYS) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` of the .npz file at ``path`` (no pickled objects), and those of
+    ``optional`` it holds; ValueError naming the file when it is not an .npz numpy wrote or
+    lacks one of ``keys``."""
     try:
         with np.load(path, allow_pickle=False) as data:
             held = list(data.files)
-            arrays = {k: data[k] for k in keys if k in held}
+            arrays = {k: data[k] for k in (*keys, *optional) if k in held}
     except FileNotFoundError:
         raise
     except (zipfile.BadZipFile, OSError, EOFError) as e:
@@ -30,3 +35,17 @@ def read_npz(path: str | os.PathLike, keys=BELIEF_KEYS) -> dict[str, np.ndarray]
         raise ValueError(f"{path}: no array {missing[0]!r} (it holds "
                          f"{', '.join(held) or 'nothing'}): not a file adaptive-cal wrote")
     return arrays
+
+
+def unresolved_at(data, x_mm, y_mm) -> np.ndarray:
+    """s_u^2 (mm^2) at points from a saved belief's grid (``run.results.unresolved_grid``;
+    bilinear, the nearest edge value outside it); 0 for a belief saved without one."""
+    x, y = np.broadcast_arrays(np.asarray(x_mm, float), np.asarray(y_mm, float))
+    if "unresolved_var_mm2" not in data:
+        return np.zeros(x.shape)
+    from scipy.interpolate import RegularGridInterpolator
+
+    gx, gy = np.asarray(data["unresolved_x_mm"]), np.asarray(data["unresolved_y_mm"])
+    f = RegularGridInterpolator((gx, gy), np.asarray(data["unresolved_var_mm2"]))
+    pts = np.c_[np.clip(x.ravel(), gx[0], gx[-1]), np.clip(y.ravel(), gy[0], gy[-1])]
+    return np.maximum(f(pts), 0.0).reshape(x.shape)

@@ -27,7 +27,7 @@ from adaptive_cal import __version__
 from adaptive_cal.cell.schema import Cell, load_cell
 from adaptive_cal.formats.recording import read_recording
 from adaptive_cal.formats.jsonfile import read_json
-from adaptive_cal.formats.npz import read_npz
+from adaptive_cal.formats.npz import read_npz, unresolved_at
 from adaptive_cal.gaussian.belief import Belief, predict
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report import figures as plots
@@ -109,6 +109,7 @@ def belief_png(data, cell: Cell, rec, result: dict) -> str:
     gx, gy = np.linspace(*wp.x_mm, 81), np.linspace(*wp.y_mm, 81)
     xx, yy = np.meshgrid(gx, gy, indexing="ij")
     mean, var = predict(Belief(data["mean"], data["cov"]), surface.basis(xx.ravel(), yy.ravel()))
+    var = var + unresolved_at(data, xx.ravel(), yy.ravel())  # the run's bands: surface.png's
     # every touch, so the numbers are the recording's seq (a retake lands where its gated touch did)
     fig = plots.surface_figure(gx, gy, mean.reshape(xx.shape), np.sqrt(np.maximum(var, 0)).reshape(xx.shape),
                                np.c_[rec.x_mm, rec.y_mm], wp.x_mm, wp.y_mm,

@@ -7,11 +7,12 @@ frame the run measured in; ``corrected`` gives the height left once the run's pr
 correction is applied -- the frame rotated by rx, ry and its origin moved by +c along z, which
 removes the least-squares plane z = a x + b y + c of the posterior mean on the run's evaluation
 grid (result.json ``tilt``, from ``run.results.plate_estimates``): the form alone. The std is the
-posterior std in both frames (the correction is a fixed, applied value).
+posterior std in both frames (the correction is a fixed, applied value), with the variance of
+structure finer than the knots the run saved in belief.npz: the run's own bands.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from adaptive_cal.cell.build import plan_model
 from adaptive_cal.cell.schema import load_cell
 from adaptive_cal.formats.jsonfile import read_json
+from adaptive_cal.formats.npz import read_npz, unresolved_at
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report.status import missing
@@ -39,6 +41,9 @@ class HeightMap:
     plate_mm: tuple[tuple[float, float], tuple[float, float]]
     unfinished: str | None
     name: str
+    # belief.npz's grid of the variance of structure finer than the knots (``unresolved_at``;
+    # empty for a belief saved without it): the std is the run's band, spline and that
+    unresolved: dict = field(default_factory=dict)
 
     def height(self, frame: str = "nominal"):
         """height(x_mm, y_mm) -> (mean_mm, std_mm) in ``frame`` (see the module's doc)."""
@@ -50,7 +55,8 @@ class HeightMap:
             x, y = np.broadcast_arrays(np.asarray(x_mm, float), np.asarray(y_mm, float))
             mean, var = bl.predict(self.belief, self.surface.basis(x.ravel(), y.ravel()))
             mean = np.asarray(mean) - (a * x.ravel() + b * y.ravel() + c)
-            std = np.sqrt(np.maximum(np.asarray(var), 0.0))
+            var = np.asarray(var) + unresolved_at(self.unresolved, x.ravel(), y.ravel())
+            std = np.sqrt(np.maximum(var, 0.0))
             return mean.reshape(x.shape), std.reshape(x.shape)
 
         return height
@@ -91,4 +97,5 @@ def load_map(run_dir: str | Path) -> HeightMap:
     wp = cell.workplane
     return HeightMap(plan_model(cell).surface, belief,
                      (float(tilt["a"]), float(tilt["b"]), float(tilt["c"])),
-                     (tuple(wp.x_mm), tuple(wp.y_mm)), missing(result), cell.name)
+                     (tuple(wp.x_mm), tuple(wp.y_mm)), missing(result), cell.name,
+                     read_npz(run_dir / "belief.npz", keys=()))

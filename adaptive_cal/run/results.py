@@ -176,13 +176,29 @@ def _save(fig, path: Path) -> None:
     replace_atomically(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
 
 
+UNRESOLVED_NODES = 81  # per side of the saved grid of s_u^2 (``unresolved_grid``)
+
+
+def unresolved_grid(plan: SurveyPlan, state: sv.SurveyState) -> dict[str, np.ndarray]:
+    """s_u^2 (``planning.survey.unresolved_var_mm2``: structure finer than the knots, a drift
+    the closure found) on a UNRESOLVED_NODES-square grid over the workplane, as belief.npz keeps
+    it, so the report's and compensate's bands are the run's (the spline's variance plus this)."""
+    (x0, x1), (y0, y1) = plan.plate_mm
+    gx, gy = np.linspace(x0, x1, UNRESOLVED_NODES), np.linspace(y0, y1, UNRESOLVED_NODES)
+    xx, yy = np.meshgrid(gx, gy, indexing="ij")
+    u = sv.unresolved_var_mm2(plan, state, np.c_[xx.ravel(), yy.ravel()]).reshape(xx.shape)
+    return {"unresolved_x_mm": gx, "unresolved_y_mm": gy, "unresolved_var_mm2": u}
+
+
 def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> None:
     """The belief and its spline, for ``--prior-from`` in a later run (replaced whole), with
-    the touches and fused readings it holds (never more than the recording's rows)."""
+    the touches and fused readings it holds (never more than the recording's rows), and the
+    variance of structure finer than the knots on a grid (``unresolved_grid``)."""
     s = plan.model.surface
     arrays = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
               "knots_y": s.sy.knots, "hyper": np.array(state.hyper),
-              "touches": np.array(state.touches), "fused": np.array(state.fused)}
+              "touches": np.array(state.touches), "fused": np.array(state.fused),
+              **unresolved_grid(plan, state)}
     replace_atomically(path, lambda f: np.savez(f, **arrays), binary=True)
 
 
