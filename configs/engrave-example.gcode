@@ -2,21 +2,21 @@
 ; plate of configs/sim-cell.yaml, written for a perfectly flat, level plate at Z = 0 (mm).
 G21 G90 G17          ; mm, absolute, XY plane
 G0 Z5.0              ; safe height
-G0 X-150 Y-120       (start corner)
+G0 X-150.0 Y-120.0   (start corner)
 G1 Z-0.1 F100        ; plunge
-G1 X150 F600         ; border: modal Y, Z
-Y120
-X-150
-Y-120
+G1 X150.0 F600       ; border: modal Y, Z
+Y120.0
+X-150.0
+Y-120.0
 G0 Z5.0
-G0 X-150 Y120
+G0 X-150.0 Y120.0
 G1 Z-0.1 F100
-G1 X150 Y-120 F600   ; the long diagonal
+G1 X150.0 Y-120.0 F600  ; the long diagonal
 G0 Z5.0
-G0 X-100 Y-60
+G0 X-100.0 Y-60.0
 G1 Z-0.1 F100
-G1 X-80 Y-40 F600
-G1 X-60 Y-60
-G1 X-40 Y-40
+G1 X-80.0 Y-40.0 F600
+G1 X-60.0 Y-60.0
+G1 X-40.0 Y-40.0
 G0 Z5.0
 M2

@@ -4,6 +4,8 @@ to the tolerance, refused where the map's 95 % band exceeds it. ``--grid OUT.csv
 regular grid instead. The details: docs/compensate.md."""
 from __future__ import annotations
 
+import sys
+
 
 def add_arguments(p) -> None:
     p.add_argument("program", metavar="PROGRAM", nargs="?",
@@ -177,6 +179,17 @@ def _program(hmap, args) -> int:
     if marks:
         print(f"marked {len(marks)} line(s) where the band exceeds the tolerance: the output is "
               "NOT within the tolerance there")
+    if path.whole_numbers:
+        (line, word), n = path.whole_numbers[0], len(path.whole_numbers)
+        print(f"warning: {n} axis word{'s' * (n != 1)} without a decimal point (first: line "
+              f"{line}, {word!r}) read as mm, as LinuxCNC, Grbl and Mach3 read them; a Fanuc-type "
+              "control without decimal-point programming reads them as thousandths of a mm: run "
+              f"{args.out} only on a control that reads them as mm", file=sys.stderr)
+    if path.assumed:
+        print(f"warning: moves before the program says {' and '.join(path.assumed)}: read as mm "
+              "and absolute; a control left in inches or incremental by an earlier program "
+              f"would read {args.out}'s heights wrongly: add G21 G90 before the first move",
+              file=sys.stderr)
     return 0
 
 

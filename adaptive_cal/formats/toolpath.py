@@ -8,6 +8,17 @@ move replaced by its pieces: in G-code the original line carries the first piece
 words and comments kept) and the rest follow as ``G1 X Y Z`` lines; in a CSV the inserted rows
 come before the original row and copy its other columns. Every other line is kept verbatim.
 Anything not understood is refused with ``ToolpathError`` naming the line.
+
+What a controller could read otherwise is refused too (a wrong Z at a machine tool crashes a
+cutter): a subprogram call or return (M98, M97, M99, M198: the called code would run from the
+call's position, not from the one the text gives), motion after the program's end (M2, M30),
+axis words on a dwell line (G4: a time on a Fanuc, a move on Grbl), a second work offset (the
+map is one plate in one frame), and a control character other than a tab inside a line (a form feed or NEL in a comment is a new block to some readers; only
+LF, CRLF -- or CR in a file without LF -- end a line). Axis words without a decimal point are
+read as mm, as LinuxCNC, Grbl and Mach3 do (``whole_numbers`` lists them: on a Fanuc-type control
+without decimal-point programming they are thousandths, and the command says so); a move before
+the program says G21 and G90 is read as mm and absolute (``assumed``: the command says so, as a
+control left in inches or incremental would read the heights added 25.4 x or relative).
 """
 from __future__ import annotations
 
@@ -17,11 +28,19 @@ import math
 import re
 from dataclasses import dataclass
 
+from adaptive_cal.formats.table import strict_float
+
 Point = tuple  # (x_mm, y_mm, z_mm), None where not known yet
 
 # G codes that change nothing we compensate (plane, mm, cutter comp off, length offset, work
 # offsets, path mode, canned cycle off, absolute, feed per minute, dwell)
 HARMLESS_G = {4, 17, 21, 40, 43, 49, 54, 55, 56, 57, 58, 59, 61, 64, 80, 90, 94}
+WORK_OFFSETS = {54, 55, 56, 57, 58, 59}
+REFUSED_M = {97: "M97 (local subprogram call)", 98: "M98 (subprogram call)",
+             99: "M99 (subprogram return or program loop)", 198: "M198 (external subprogram call)"}
+PROGRAM_END_M = {2, 30}
+# inside a line: control characters other than a tab (some readers end a block at them)
+_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f\x85\u2028\u2029]")
 REFUSED_G = {
     2: "G2 (clockwise arc): arcs are not supported; post-process the path into G1 lines",
     3: "G3 (counter-clockwise arc): arcs are not supported; post-process the path into G1 lines",
@@ -65,6 +84,9 @@ class Toolpath:
     newline: str = "\n"
     final_newline: bool = True
     columns: tuple = ()  # CSV: indices of x_mm, y_mm, z_mm
+    bom: bool = False  # the file began with a UTF-8 byte order mark (written back)
+    whole_numbers: tuple = ()  # G-code: (line, word) of axis words without a decimal point
+    assumed: tuple = ()  # G-code: "G21", "G90" where a move came before the program said it
 
 
 def fmt(value: float) -> str:
@@ -73,11 +95,17 @@ def fmt(value: float) -> str:
 
 def read_toolpath(text: str, name: str = "program") -> Toolpath:
     """G-code unless the first line is a CSV header naming x_mm, y_mm and z_mm."""
-    text = text.lstrip("\ufeff")
-    first = [f.strip().lower() for f in text.split("\n", 1)[0].split(",")]
+    bom = text.startswith("\ufeff")
+    text = text[1:] if bom else text
+    line = re.split(r"\r\n|\n|\r", text, maxsplit=1)[0].strip()
+    first = [f.strip().lower() for f in next(csv.reader([line]), [])]
     if "x_mm" in first:
-        return _read_csv(text, name)
-    return _read_gcode(text, name)
+        return _read_csv(text, name, bom)
+    if any("x_mm" in [f.strip().strip('"').lower() for f in line.split(sep)]
+           for sep in (";", "\t")):  # a header, but not of a comma-separated file
+        raise ToolpathError(f"{name} line 1: {line[:60]!r} looks like a point table's header, but "
+                            "a point CSV is comma-separated with the header x_mm,y_mm,z_mm")
+    return _read_gcode(text, name, bom)
 
 
 def _newline(text: str) -> tuple[str, bool]:
@@ -107,14 +135,30 @@ def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
     return out
 
 
-def _read_gcode(text: str, name: str) -> Toolpath:
+def _lines(text: str) -> list[str]:
+    """The lines as a controller ends its blocks: at LF (a CR before it dropped), or at CR in a
+    file without any LF -- not at a form feed, NEL or U+2028 as ``str.splitlines`` would."""
+    if "\n" not in text:
+        parts = text.split("\r")
+    else:
+        parts = [p[:-1] if p.endswith("\r") else p for p in text.split("\n")]
+    return parts[:-1] if parts and parts[-1] == "" else parts
+
+
+def _read_gcode(text: str, name: str, bom: bool = False) -> Toolpath:
     newline, final = _newline(text)
-    lines = text.splitlines()
+    lines = _lines(text)
     pos: list = [None, None, None]
     mode = None  # 0 or 1 once set
-    moves = []
+    moves, whole, offset, ended, assumed = [], [], None, None, set()
+    said = {21: None, 90: None}  # the line each was first given on
     for i, line in enumerate(lines):
         where = f"{name} line {i + 1}"
+        bad = _CONTROL.search(line)
+        if bad:
+            raise ToolpathError(f"{where}: control character U+{ord(bad.group()):04X} inside the "
+                                "line (some controls start a new block there, some do not): "
+                                "remove it")
         words = _words(line, where)
         gs = [v for k, v, _ in words if k == "G"]
         for g in gs:
@@ -123,7 +167,23 @@ def _read_gcode(text: str, name: str) -> Toolpath:
             if g not in (0, 1) and g not in HARMLESS_G:
                 raise ToolpathError(f"{where}: G{g:g} is not supported (supported: G0, G1 and "
                                     f"G{', G'.join(str(c) for c in sorted(HARMLESS_G))})")
-        if 4 in gs:  # dwell: its X/P is a time, not a position
+            if g in said and said[g] is None:
+                said[g] = i + 1
+            if g in WORK_OFFSETS:
+                if offset is not None and offset[0] != g:
+                    raise ToolpathError(
+                        f"{where}: G{g:g} after G{offset[0]:g} (line {offset[1]}): the map is one "
+                        "plate in one frame; compensate each work offset's part with its own map")
+                offset = offset or (g, i + 1)
+        for k, v, _ in words:
+            if k == "M" and v in REFUSED_M:
+                raise ToolpathError(f"{where}: {REFUSED_M[v]} is not supported: the called code "
+                                    "runs from the call's position, not the one the text gives; "
+                                    "expand the subprogram into the program")
+        if 4 in gs:  # dwell: its P (or a Fanuc's X) is a time, on Grbl an X/Y/Z is a move too
+            if any(k in "XYZ" for k, _, _ in words):
+                raise ToolpathError(f"{where}: axis words on a dwell (G4) line: a time on some "
+                                    "controls, a move on others; give the dwell with P alone")
             continue
         axes = {}
         for k, v, _ in words:
@@ -143,9 +203,17 @@ def _read_gcode(text: str, name: str) -> Toolpath:
         if motion:
             mode = int(motion[0])
         if not axes:
+            ended = ended or (i + 1 if any(k == "M" and v in PROGRAM_END_M
+                                           for k, v, _ in words) else None)
             continue
+        if ended:
+            raise ToolpathError(f"{where}: a move after the program's end (M2/M30 at line "
+                                f"{ended}): a subprogram or a second program; give one program")
         if mode is None:
             raise ToolpathError(f"{where}: coordinates before any G0 or G1")
+        assumed |= {f"G{g}" for g, at in said.items() if at is None}
+        whole += [(i + 1, line[a:b].strip()) for k, _, (a, b) in words
+                  if k in "XYZ" and "." not in line[a:b]]
         for k, v in axes.items():
             if not math.isfinite(v):
                 raise ToolpathError(f"{where}: {k} is not a finite number")
@@ -154,19 +222,23 @@ def _read_gcode(text: str, name: str) -> Toolpath:
             if k in axes:
                 pos[j] = axes[k]
         moves.append(Move(i, i + 1, mode == 1, start, tuple(pos)))
-    return Toolpath("gcode", lines, moves, newline, final)
+        ended = ended or (i + 1 if any(k == "M" and v in PROGRAM_END_M
+                                       for k, v, _ in words) else None)
+    return Toolpath("gcode", lines, moves, newline, final, bom=bom, whole_numbers=tuple(whole),
+                    assumed=tuple(sorted(assumed)))
 
 
-def _read_csv(text: str, name: str) -> Toolpath:
+def _read_csv(text: str, name: str, bom: bool = False) -> Toolpath:
     newline, final = _newline(text)
     rows = list(csv.reader(io.StringIO(text)))
     header = [h.strip() for h in rows[0]]
+    names = [h.lower() for h in header]  # X_MM is x_mm, as the detection reads it
     for j, h in enumerate(header):
-        if h and h in header[:j]:
+        if h and h.lower() in names[:j]:
             raise ToolpathError(f"{name} line 1: column {h!r} given twice (columns "
-                                f"{header.index(h) + 1} and {j + 1}): give each column once")
+                                f"{names.index(h.lower()) + 1} and {j + 1}): give each column once")
     try:
-        cols = tuple(header.index(k) for k in ("x_mm", "y_mm", "z_mm"))
+        cols = tuple(names.index(k) for k in ("x_mm", "y_mm", "z_mm"))
     except ValueError:
         raise ToolpathError(f"{name} line 1: a point CSV needs the columns x_mm, y_mm, z_mm; "
                             f"got {', '.join(header)}") from None
@@ -179,16 +251,15 @@ def _read_csv(text: str, name: str) -> Toolpath:
             raise ToolpathError(f"{where}: {len(row)} fields, the header has {len(header)}")
         point = []
         for c, k in zip(cols, ("x_mm", "y_mm", "z_mm")):
-            try:
-                v = float(row[c])
-            except ValueError:
-                raise ToolpathError(f"{where}: {k} {row[c]!r} is not a number") from None
+            v = strict_float(row[c].strip())
+            if v is None:
+                raise ToolpathError(f"{where}: {k} {row[c]!r} is not a number")
             if not math.isfinite(v):
                 raise ToolpathError(f"{where}: {k} {row[c]!r} is not finite")
             point.append(v)
         moves.append(Move(i, i + 1, True, prev, tuple(point)))
         prev = tuple(point)
-    return Toolpath("csv", rows, moves, newline, final, cols)
+    return Toolpath("csv", rows, moves, newline, final, cols, bom=bom)
 
 
 def _replace_words(line: str, values: dict) -> str:
@@ -219,11 +290,18 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
     move's end) in place of each listed move, ``marks[item]`` a note on that move's line(s),
     ``header_comment`` a first comment line (G-code only)."""
     marks = marks or {}
+    bom = "\ufeff" if path.bom else ""
     if path.kind == "csv":
-        return _write_csv(path, pieces, marks, note_column)
+        return bom + _write_csv(path, pieces, marks, note_column)
     out = []
+    # the header comment after a leading % and O number (a Fanuc or Haas loads a program by its
+    # O number on its first line), else first
+    lead = 0
+    while (lead < len(path.lines) and header_comment
+           and re.match(r"\s*(%|[Oo]\d)", path.lines[lead]) and lead < 2):
+        lead += 1
     for i, line in enumerate(path.lines):
-        if i == 0 and header_comment and not line.strip().startswith("%"):
+        if i == lead and header_comment:
             out.append(f"({header_comment})")
         note = f" ({marks[i]})" if i in marks else ""
         if i in pieces:
@@ -234,9 +312,9 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
             out += [f"G1 X{fmt(x)} Y{fmt(y)} Z{fmt(z)}{note}" for x, y, z in rest]
         else:
             out.append(line + note)
-        if i == 0 and header_comment and line.strip().startswith("%"):
-            out.append(f"({header_comment})")
-    return path.newline.join(out) + (path.newline if path.final_newline else "")
+    if lead == len(path.lines) and header_comment:
+        out.append(f"({header_comment})")
+    return bom + path.newline.join(out) + (path.newline if path.final_newline else "")
 
 
 def _write_csv(path: Toolpath, pieces: dict, marks: dict, note_column: str) -> str:
