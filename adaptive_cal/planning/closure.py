@@ -41,6 +41,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.stats import t as student_t
 
+from adaptive_cal.formats.numbers import fixed
+
 ALPHA = 0.01  # false-alarm level of the two-sided test on a cell that does not drift
 #: the loop's stop reason after a failed closure
 DRIFT = "drift"
@@ -89,7 +91,7 @@ class Closure:
         start = (f"the run's first {self.first_readings} readings there"
                  if self.first_readings > 1 else "the run's first reading")
         head = (f"closure: the first place (x {self.x_mm:.1f}, y {self.y_mm:.1f} mm){when} read "
-                f"{round(self.difference_mm * 1e3, 1) + 0.0:+.1f} um against {start} (sd "
+                f"{fixed(self.difference_mm * 1e3, 1, '+')} um against {start} (sd "
                 f"{self.sd_mm * 1e3:.1f} um, p {self.p:.2g})")
         if self.passed:
             return f"{head}: no drift seen"

@@ -8,14 +8,10 @@ from __future__ import annotations
 import re
 import textwrap
 
+from adaptive_cal.formats.numbers import fixed
+
 LATERAL = {"x_mm", "y_mm", "radius_mm"}  # positions and sizes on the plate stay in mm
 LABELS = {"pv_mm": "peak-to-valley", "bow_x": "bow in x", "bow_y": "bow in y"}
-
-
-def fixed(value: float, decimals: int, sign: str = "") -> str:
-    """``value`` to ``decimals`` places, never "-0.0" (a value that rounds to zero has no sign)."""
-    text = f"{value:{sign}.{decimals}f}"
-    return text if float(text) != 0 else f"{0.0:{sign}.{decimals}f}"
 
 
 def _pm(value: float, std: float | None, sign: str = "", alone: int = 3) -> str:

@@ -14,6 +14,7 @@ from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE,
                                                    touched_what, value_text)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
+from adaptive_cal.formats.numbers import fixed
 from adaptive_cal.report.explain_text import readings_lines, rounds_lines, verdict_lines
 from adaptive_cal.report.status import missing, next_step
 
@@ -52,13 +53,13 @@ def _table(rows, head=None, cls="") -> str:
 
 
 def _um(mm) -> str:
-    return "-" if mm is None else f"{round(mm * UM, 1) + 0.0:.1f} um"
+    return "-" if mm is None else f"{fixed(mm * UM, 1)} um"
 
 
 def signed(value: float, digits: int) -> str:
     """``value`` with its sign and ``digits`` decimals, never "-0.0..." (a value that rounds to
     zero prints "+0.0...")."""
-    return f"{round(value, digits) + 0.0:+.{digits}f}"  # -0.0 + 0.0 is +0.0
+    return fixed(value, digits, "+")
 
 
 def percent(share: float) -> str:

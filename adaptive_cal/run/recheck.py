@@ -13,6 +13,7 @@ from adaptive_cal.cell.build import plan_model
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.effects.frame import plane_in_corrected_frame
 from adaptive_cal.formats.jsonfile import read_json
+from adaptive_cal.formats.numbers import fixed
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.run.results import read_belief
@@ -130,8 +131,8 @@ def disagreement(carried: dict, surprises: list[int]) -> str:
     """Why a re-check stopped early, and what to do, in one sentence for the terminal."""
     c = carried["correction_deg"]
     return (f"the plate is not where the earlier run's belief puts it in the frame assumed "
-            f"({carried['assumed']}: rx {round(c['rx'], 4) + 0.0:+.4f} deg, ry "
-            f"{round(c['ry'], 4) + 0.0:+.4f} deg): "  # + 0.0: never "-0.0000"
+            f"({carried['assumed']}: rx {fixed(c['rx'], 4, '+')} deg, ry "
+            f"{fixed(c['ry'], 4, '+')} deg): "  # never "-0.0000"
             f"{len(surprises)} readings (seq {', '.join(map(str, surprises))}) were confirmed by "
             "their retake far outside its band. Not a result: give the correction that was "
             "really applied (--correction-applied proposed | none | RX,RY), or map from scratch "
