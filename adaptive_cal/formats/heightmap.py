@@ -9,7 +9,6 @@ may have spaces after its commas (``x_mm, y_mm, height_mm``) and any field may b
 """
 from __future__ import annotations
 
-import csv
 import io
 import math
 import os
@@ -21,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from adaptive_cal.formats.cells import RecordingError, _OpenQuote, split_cells
 from adaptive_cal.formats.table import strict_float
 
 HEADER = "x_mm,y_mm,height_mm"
@@ -163,14 +163,17 @@ def _grid(a: np.ndarray, source: str) -> HeightMap | None:
 
 
 def _cells(line: str, n: int, source: str) -> list[str]:
-    """The fields of line ``n`` of a map, stripped: split on ``,``, or as CSV (RFC 4180) when
-    the line holds a quote (``"-225"``, ``"x_mm"``)."""
-    if '"' not in line:
-        return [c.strip() for c in line.split(",")]
+    """The fields of line ``n`` of a map, as a recording's row is read (``formats.cells``:
+    split on ``,``, or as CSV, RFC 4180, when the line holds a quote); HeightMapError naming
+    the line where it is not a CSV row."""
+    where = f"{source}, line {n}"
     try:
-        return [c.strip() for c in next(csv.reader((line,), skipinitialspace=True, strict=True))]
-    except csv.Error as e:
-        raise HeightMapError(f"{source}, line {n}: not a CSV row ({e}): {line[:80]!r}") from None
+        return split_cells(line, where)
+    except RecordingError as e:
+        raise HeightMapError(str(e)) from None
+    except _OpenQuote:
+        raise HeightMapError(f"{where}: not a CSV row (a quoted field is not closed on its "
+                             f"line): {line[:80]!r}") from None
 
 
 def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
