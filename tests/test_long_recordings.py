@@ -54,7 +54,7 @@ def test_checks_in_the_coefficients_form(monkeypatch):
         rows, y, m0, cov, r)
     z = checks.standardized_innovations(rows, y, m0, cov, r)
     assert abs(ms - np.mean(z**2)) < 1e-12 * ms  # below the switch: the innovations themselves
-    monkeypatch.setattr(checks, "COEFFICIENT_FORM_ROWS", 100)
+    monkeypatch.setattr(bl, "COEFFICIENT_FORM_ROWS", 100)  # the one switch (belief.coefficient_form)
     wide, ms_w = checks.leave_one_out(rows, y, m0, cov, r), checks.innovations_mean_square(
         rows, y, m0, cov, r)
     assert np.abs(wide.residual_mm - loo.residual_mm).max() < 1e-6 * np.abs(loo.residual_mm).max()

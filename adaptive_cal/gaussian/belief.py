@@ -93,7 +93,7 @@ def condition(belief: Belief, rows: np.ndarray, readings: np.ndarray, noise_var)
     if rows.shape[0] == 0:
         return belief
     r = np.broadcast_to(np.asarray(noise_var, float), (rows.shape[0],))
-    if rows.shape[0] > max(COEFFICIENT_FORM_ROWS, rows.shape[1]):
+    if coefficient_form(rows.shape):
         return _condition_coefficients(belief, rows, np.asarray(readings, float), r)
     hc = rows @ belief.cov  # (n, K)
     s = hc @ rows.T + np.diag(r)
@@ -103,24 +103,41 @@ def condition(belief: Belief, rows: np.ndarray, readings: np.ndarray, noise_var)
     return Belief(mean, symmetrise(belief.cov - hc.T @ gain_t))
 
 
-# readings at once above which ``condition`` works in the coefficients' dimension (a long
-# recording given to flatness or report; the run conditions on far fewer)
+# readings at once above which the batch posterior (``condition``), the hyper-parameter
+# evidence (``prior``) and the self-checks (``checks``) work in the coefficients' dimension K
+# instead of the readings' n: a long recording given to flatness or report; a run stays below
 COEFFICIENT_FORM_ROWS = 1024
 
 
-def _condition_coefficients(belief: Belief, rows, readings, r) -> Belief:
-    """``condition`` for many readings (n >> K): with C = B B^T (B from the eigen-decomposition,
-    so a nearly singular C is no obstacle), G = H B and A = I + G^T R^-1 G (>= I),
+def coefficient_form(shape: tuple[int, int]) -> bool:
+    """Whether n readings on K coefficients (``shape`` (n, K) of the rows) take the
+    coefficients' form: n above COEFFICIENT_FORM_ROWS and above K."""
+    n, k = shape
+    return n > max(COEFFICIENT_FORM_ROWS, k)
 
-        C' = B A^-1 B^T,   m' = m + B A^-1 G^T R^-1 (y - H m),
 
-    O(n K^2) time and n K memory where the readings' form takes O(n^3) and n^2 (20,000
-    readings: 65 s in the n x n Cholesky)."""
-    w, v = np.linalg.eigh(symmetrise(belief.cov))
+def woodbury(cov: np.ndarray, rows: np.ndarray, r: np.ndarray):
+    """The K x K pieces of S = H C H^T + R (R = diag(r)) that stand for its n x n inverse: with
+    C = B B^T (B from the eigen-decomposition, so a nearly singular C is no obstacle), G = H B,
+
+        S^-1 = R^-1 - R^-1 G A^-1 G^T R^-1,   A = I + G^T R^-1 G (>= I, well conditioned).
+
+    Returns (B, R^-1 G, the Cholesky factor of A), O(n K^2) time and n K memory."""
+    w, v = np.linalg.eigh(symmetrise(cov))
     b = v * np.sqrt(np.clip(w, 0.0, None))
     g = rows @ b
     gr = g / r[:, None]
-    factor = cho_factor(np.eye(b.shape[1]) + g.T @ gr, lower=True)
+    return b, gr, cho_factor(np.eye(b.shape[1]) + g.T @ gr, lower=True)
+
+
+def _condition_coefficients(belief: Belief, rows, readings, r) -> Belief:
+    """``condition`` for many readings (n >> K), with ``woodbury``'s pieces:
+
+        C' = B A^-1 B^T,   m' = m + B A^-1 G^T R^-1 (y - H m),
+
+    where the readings' form takes O(n^3) and n^2 (20,000 readings: 65 s in the n x n
+    Cholesky)."""
+    b, gr, factor = woodbury(belief.cov, rows, r)
     ainv_bt = cho_solve(factor, b.T)  # A^-1 B^T
     mean = belief.mean + ainv_bt.T @ (gr.T @ (readings - rows @ belief.mean))
     return Belief(mean, symmetrise(b @ ainv_bt))

@@ -19,6 +19,8 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.stats import chi2
 
+from adaptive_cal.gaussian.belief import coefficient_form, woodbury
+
 
 class LeaveOneOut(NamedTuple):
     """Residuals y_i - E[y_i | every other reading] (mm) and their predictive variances (mm^2),
@@ -45,25 +47,13 @@ def standardized_innovations(rows, readings, prior_mean, prior_cov, noise_var) -
     return solve_triangular(lower, d, lower=True)
 
 
-# readings above which the checks work in the coefficients' dimension K (``_coefficient_form``):
-# a run stays below it, a long recording given to report goes above it
-COEFFICIENT_FORM_ROWS = 1024
-
-
 def _coefficient_form(rows, readings, prior_mean, prior_cov, noise_var):
-    """S^-1 d, diag(S^-1) and d^T S^-1 d without the n x n S = H C0 H^T + D (D = diag(r)): with
-    C0 = B B^T (eigen-decomposition), G = H B, A = I + G^T D^-1 G (Woodbury),
-
-        S^-1 = D^-1 - D^-1 G A^-1 G^T D^-1,
-
-    O(n K^2) time and n K memory (20,000 readings: S alone is 3.2 GB)."""
+    """S^-1 d, diag(S^-1) and d^T S^-1 d without the n x n S = H C0 H^T + D (D = diag(r)), by
+    ``belief.woodbury`` (20,000 readings: S alone is 3.2 GB)."""
     rows = np.atleast_2d(np.asarray(rows, float))
     r = np.broadcast_to(np.asarray(noise_var, float), (rows.shape[0],))
     d = np.asarray(readings, float) - rows @ np.asarray(prior_mean, float)
-    w, v = np.linalg.eigh(0.5 * (prior_cov + prior_cov.T))
-    g = rows @ (v * np.sqrt(np.clip(w, 0.0, None)))
-    gr = g / r[:, None]
-    factor = cho_factor(np.eye(g.shape[1]) + g.T @ gr, lower=True)
+    _, gr, factor = woodbury(prior_cov, rows, r)
     s_inv_d = d / r - gr @ cho_solve(factor, gr.T @ d)
     diag = 1.0 / r - np.einsum("nk,kn->n", gr, cho_solve(factor, gr.T))
     return s_inv_d, diag, float(d @ s_inv_d)
@@ -73,7 +63,7 @@ def innovations_mean_square(rows, readings, prior_mean, prior_cov, noise_var) ->
     """mean(z_i^2) of the standardized innovations (``standardized_innovations``): d^T S^-1 d / n,
     which does not depend on the order of the readings; chi2(n) / n under the model."""
     n = np.atleast_2d(rows).shape[0]
-    if n > max(COEFFICIENT_FORM_ROWS, np.atleast_2d(rows).shape[1]):
+    if coefficient_form(np.atleast_2d(rows).shape):
         return _coefficient_form(rows, readings, prior_mean, prior_cov, noise_var)[2] / n
     z = standardized_innovations(rows, readings, prior_mean, prior_cov, noise_var)
     return float(np.mean(z**2)) if len(z) else float("nan")
@@ -82,8 +72,7 @@ def innovations_mean_square(rows, readings, prior_mean, prior_cov, noise_var) ->
 def leave_one_out(rows, readings, prior_mean, prior_cov, noise_var) -> LeaveOneOut:
     """Closed-form leave-one-out residuals e_i = [S^-1 d]_i / [S^-1]_ii and variances
     1 / [S^-1]_ii, d = y - H m0."""
-    n, k = np.atleast_2d(rows).shape
-    if n > max(COEFFICIENT_FORM_ROWS, k):
+    if coefficient_form(np.atleast_2d(rows).shape):
         s_inv_d, diag, _ = _coefficient_form(rows, readings, prior_mean, prior_cov, noise_var)
         return LeaveOneOut(s_inv_d / diag, 1.0 / diag)
     s, d = _predictive(rows, readings, prior_mean, prior_cov, noise_var)

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 
-from adaptive_cal.gaussian.belief import Belief, condition, mixture
+from adaptive_cal.gaussian.belief import Belief, coefficient_form, condition, mixture
 from adaptive_cal.gaussian.spline import Surface
 
 JITTER_MM2 = 1e-10
@@ -147,12 +147,6 @@ def log_evidence_coefficients(rows, readings, cov, noise_var, mask=None, xp=np):
     return -0.5 * quad - 0.5 * logdet - 0.5 * xp.sum(mask) * xp.log(2 * xp.pi)
 
 
-# readings (padded) above which the hyper-parameter fit uses the coefficients' form
-# (``log_evidence_coefficients``): a run stays below it (its touch budget), a long recording
-# given to flatness or report goes above it
-COEFFICIENT_FORM_ROWS = 1024
-
-
 def log_marginal(model: PriorModel, hyper: Hyper, rows: np.ndarray, readings: np.ndarray) -> float:
     """log N(y; 0, H C0 H^T + sigma_n^2 I) -- the evidence of the readings under theta."""
     return float(log_evidence(np.asarray(rows, float), np.asarray(readings, float),
@@ -167,8 +161,8 @@ def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, m
     sf, ls, sn = jnp.exp(log_theta)
     cov = tilt_cov + embed @ _form_cov(knots_x, knots_y, sf, ls, jnp) @ embed.T + extra \
         + JITTER_MM2 * jnp.eye(tilt_cov.shape[0])
-    form = (log_evidence_coefficients
-            if rows.shape[0] > max(COEFFICIENT_FORM_ROWS, rows.shape[1]) else log_evidence)
+    # the coefficients' form for many (padded) readings: ``belief.coefficient_form``
+    form = log_evidence_coefficients if coefficient_form(rows.shape) else log_evidence
     loglik = form(rows, readings, cov, sn**2 / weights, mask, jnp)
     logprior = -0.5 * jnp.sum(((log_theta - mu) / sd) ** 2)
     return -(loglik + logprior)
