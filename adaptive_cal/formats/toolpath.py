@@ -202,13 +202,13 @@ def _read_gcode(text: str, name: str, bom: bool = False) -> Toolpath:
             raise ToolpathError(f"{where}: two motion codes on one line")
         if motion:
             mode = int(motion[0])
-        if not axes:
-            ended = ended or (i + 1 if any(k == "M" and v in PROGRAM_END_M
-                                           for k, v, _ in words) else None)
-            continue
-        if ended:
+        if axes and ended:
             raise ToolpathError(f"{where}: a move after the program's end (M2/M30 at line "
                                 f"{ended}): a subprogram or a second program; give one program")
+        if ended is None and any(k == "M" and v in PROGRAM_END_M for k, v, _ in words):
+            ended = i + 1  # a move on the end's own line still runs
+        if not axes:
+            continue
         if mode is None:
             raise ToolpathError(f"{where}: coordinates before any G0 or G1")
         assumed |= {f"G{g}" for g, at in said.items() if at is None}
@@ -222,8 +222,6 @@ def _read_gcode(text: str, name: str, bom: bool = False) -> Toolpath:
             if k in axes:
                 pos[j] = axes[k]
         moves.append(Move(i, i + 1, mode == 1, start, tuple(pos)))
-        ended = ended or (i + 1 if any(k == "M" and v in PROGRAM_END_M
-                                       for k, v, _ in words) else None)
     return Toolpath("gcode", lines, moves, newline, final, bom=bom, whole_numbers=tuple(whole),
                     assumed=tuple(sorted(assumed)))
 
