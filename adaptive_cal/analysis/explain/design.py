@@ -190,7 +190,7 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     recordings = [part for rec in recordings for part in split_rounds(rec)]
     _refuse_repeats(recordings)
     cols = {k: [] for k in ("x", "y", "t", "d", "z", "r", "seq", "read")}
-    known, blank_rows, none_known = [], [], []
+    blank_rows, none_known = [], []
     for i, rec in enumerate(recordings):
         label = rec.path or f"recording {i}"
         _check_recording(rec, cell, label)
@@ -199,7 +199,6 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
         # move, and its time is on the clock (only then are the used rows selected)
         direction = arrival(rec)[keep]
         t = touch_times(rec, cell.robot.touch_time_s)[keep]
-        known.append(bool(np.all(np.isfinite(rec.t_s))))
         blank_rows.append(int(np.count_nonzero(~np.isfinite(rec.t_s))))
         none_known.append(not np.any(np.isfinite(rec.t_s)))
         rec = rec.select(keep)
@@ -221,7 +220,7 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
     feats = effects.Features(cat["x"], cat["y"], cat["t"], cat["d"], ideal)
     nominal = ideal + effects.total_change(others, feats, geometry)
     return Design(feats, geometry, cat["r"].astype(int), cat["seq"].astype(int), cat["z"],
-                  cat["read"], nominal, tuple(known), unknown,
+                  cat["read"], nominal, tuple(b == 0 for b in blank_rows), unknown,
                   tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)),
                   stated_noise_mm(cell), stated_noise_mm(cell, high=True),
                   time_note(blank_rows, none_known), cell.workplane.allows)

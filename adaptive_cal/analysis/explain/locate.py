@@ -154,7 +154,7 @@ def locate(ctx: Context) -> dict:
         by[axis] = f_test(ctx, X)
         if axis != "position" and ctx.m > 20:  # does the axis add anything position does not?
             by[axis]["p_value_given_position"] = f_test(ctx, X, bases["position"])["p_value"]
-    if not ctx.design.time_known[0] or not all(ctx.design.time_known):
+    if ctx.design.time_blank:
         by["time"]["note"] = ctx.design.time_blank
     return {"rms_mm": float(np.sqrt(r @ r / ctx.design.n)), "by": by,
             "where": where(ctx, r, sigma)}

@@ -64,6 +64,6 @@ def summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
     if design.rounds > 1 and cand.log_bf_shared_vs_per_round is not None:
         text += (f"; {cand.sharing.replace('_', ' ')} (log BF shared vs per round "
                  f"{cand.log_bf_shared_vs_per_round:.2f})")
-    if effect.axis == "time" and not all(design.time_known):
+    if effect.axis == "time" and design.time_blank:
         text += "; " + design.time_blank
     return text + f"; log BF vs none {cand.log_bf:.2f}"
