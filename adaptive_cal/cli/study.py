@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from adaptive_cal.cli.common import at_least
+from adaptive_cal.formats.numbers import count
 
 
 def add_arguments(p) -> None:
@@ -62,10 +63,6 @@ def _duration(s: float) -> str:
     return f"{s / 3600:.1f} h"
 
 
-def _count(n: int, noun: str, plural: str = "") -> str:
-    return f"{n} {noun if n == 1 else plural or noun + 's'}"
-
-
 class Progress:
     """A study's progress on ``stream`` (stderr): the start line at once, then the runs (one
     strategy on one plate) finished with the time taken and a rough time left, from the mean time
@@ -88,10 +85,10 @@ class Progress:
         if done == 0:  # the runs are about to start: those the checkpoint holds are skipped
             self.t_run = now
             if total < self.runs:
-                self.say(f"study {self.name}: {self.runs - total} of {_count(self.runs, 'run')} "
+                self.say(f"study {self.name}: {self.runs - total} of {count(self.runs, 'run')} "
                          f"already in {self.checkpoint}, {total} to run")
             return
-        text = (f"study {self.name}: {done}/{_count(total, 'run')} done, "
+        text = (f"study {self.name}: {done}/{count(total, 'run')} done, "
                 f"{_duration(now - self.t0)}")
         if done < total:
             text += f", about {_duration((now - self.t_run) / done * (total - done))} left"
@@ -113,7 +110,7 @@ def _where(args) -> str:
     if args.scheduler:
         return f"on the Dask scheduler at {args.scheduler}"
     if args.workers:
-        return f"on {_count(args.workers, 'worker')} (Dask LocalCluster)"
+        return f"on {count(args.workers, 'worker')} (Dask LocalCluster)"
     return "in this process (1 worker)"
 
 
@@ -134,9 +131,9 @@ def command(args) -> int:
     runs = study.plates * len(study.strategies)
     progress = Progress(study.name, runs, checkpoint)
     if not args.quiet:
-        progress.say(f"study {study.name}: {_count(study.plates, 'plate')} x "
-                     f"{_count(len(study.strategies), 'strategy', 'strategies')} = "
-                     f"{_count(runs, 'run')} {_where(args)}")
+        progress.say(f"study {study.name}: {count(study.plates, 'plate')} x "
+                     f"{count(len(study.strategies), 'strategy', 'strategies')} = "
+                     f"{count(runs, 'run')} {_where(args)}")
     client = None
     if args.scheduler or args.workers:
         from adaptive_cal.cli.common import UserError

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from adaptive_cal.formats.numbers import count
 from adaptive_cal.study.config import Study
 
 
@@ -206,11 +207,6 @@ def table(summary: dict) -> str:
                      f"(ratio {vp['touch_ratio_native']:.2f})" if "touch_ratio_native" in vp
                      else "")]
     return "\n".join(lines)
-
-
-def count(n: int, noun: str = "plate") -> str:
-    """``n`` and the noun, plural unless one: "1 plate", "2 plates"."""
-    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def to_bound(r: dict) -> int:
