@@ -176,7 +176,9 @@ def compare_table(out: dict) -> list[str]:
     from pathlib import Path
 
     a, b = out["first"], out["second"]
-    um = lambda v, sign="": f"{v * 1e3:{sign}.1f}"  # noqa: E731
+    from adaptive_cal.formats.numbers import fixed
+
+    um = lambda v, sign="": fixed(v * 1e3, 1, sign)  # noqa: E731 (um, never "-0.0")
     lines = [f"change from {Path(a['recording']).name} to {Path(b['recording']).name} "
              "(later minus earlier; um):",
              f"  {'figure':<19}{'earlier':>9}{'later':>9}{'change':>9}   {'95 % interval of change':<26}"
@@ -186,7 +188,7 @@ def compare_table(out: dict) -> list[str]:
         va, vb = a["flatness_mm"][k]["value"], b["flatness_mm"][k]["value"]
         lo, hi = c["diff_ci95"]
         lines.append(f"  {LABELS[k]:<19}{um(va):>9}{um(vb):>9}{um(vb - va, '+'):>9}   "
-                     f"{f'{um(lo, chr(43))} .. {um(hi, chr(43))}':<26}{c['p_b_greater']:>8.2f}  "
+                     f"{um(lo, '+') + ' .. ' + um(hi, '+'):<26}{c['p_b_greater']:>8.2f}  "
                      f"{_verdict(c)}")
     lines += ["  95 % interval of change: the interval of the change given the two recordings, over",
               "  predicted repeat measurements of each round from its own fit (the reading noise above",
