@@ -63,8 +63,8 @@ def _row(kind: str, sigma: float, design: str, findings: dict, truth: dict) -> d
     entry = next(e for e in findings["left_out"] if e["effect"] == expect)
     intervals = entry.get("parameter_interval_95", {})
     for name in CHECKED.get(expect, ()):
-        if name not in truth or name not in entry["params"]:
-            continue
+        if name not in truth or name not in entry["params"] or name in entry.get("held", ()):
+            continue  # a parameter the verdict's form holds is not an estimate
         est, sd, true = entry["params"][name], entry["params_std"][name], truth[name]
         if expect == "form":  # pv is a magnitude
             true = abs(true)

@@ -55,6 +55,7 @@ def run_one(job: tuple[dict, int]) -> dict:
             "ambiguous_with": f["ambiguous_with"],
             "params": chosen["params"] if chosen else None,
             "params_std": chosen["params_std"] if chosen else None,
+            "held": chosen.get("held", []) if chosen else [],
             "log_bayes_factor": chosen["log_bayes_factor"] if chosen else None,
             "left_out": [e["effect"] for e in f["left_out"]],
             "as_well": [e["effect"] for e in f["left_out"]

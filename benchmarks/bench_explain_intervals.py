@@ -39,7 +39,8 @@ def z_scores(records: list[dict]) -> dict[str, list[tuple[float, dict]]]:
         parts = r["key"].split("/")
         labels = {"design": r.get("design", parts[3]), "sigma": parts[2], "family": parts[0]}
         for name in COVERED.get(truth["effect"], ()):
-            if name not in truth or name not in params or isinstance(params[name], list):
+            if (name not in truth or name not in params or isinstance(params[name], list)
+                    or name in r.get("held", ())):  # held by the verdict's form: no estimate
                 continue
             err = float(params[name]) - float(truth[name])
             sd = float(stds.get(name, 0.0))

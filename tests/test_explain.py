@@ -154,7 +154,13 @@ def test_warm_up_drift_is_named_thermal_drift_with_amplitude_and_tau(raster, mag
         rep = e.findings
         assert rep["verdict"] == "thermal_drift", (seed, rep["candidates"])
         entry = rep["left_out"][0]
-        assert set(entry["params"]) == {"amplitude_mm", "tau_s"}
+        # every parameter DESIGN.md names is there; the linear rate is held at 0, not fitted
+        assert set(entry["params"]) == {"rate_mm_per_s", "amplitude_mm", "tau_s"}
+        assert entry["held"] == ["rate_mm_per_s"] and entry["params"]["rate_mm_per_s"] == 0.0
+        assert entry["params_std"]["rate_mm_per_s"] == 0.0
+        assert entry["parameter_interval_95"]["rate_mm_per_s"] == [0.0, 0.0]
+        assert entry["params_std"]["amplitude_mm"] > 0
+        assert "rate_mm_per_s held at 0" in entry["summary"]
         assert np.sign(entry["params"]["amplitude_mm"]) == np.sign(c.params["amplitude_mm"])
         assert c.params["tau_s"] / 3 < entry["params"]["tau_s"] < 3 * c.params["tau_s"]
         assert "amplitude_mm" in entry["summary"] and "tau_s" in entry["summary"]
@@ -166,7 +172,10 @@ def test_linear_drift_is_still_a_rate():
     c = _case("thermal_drift", 0, 8.0)
     e = explain([c.recording], c.cell, identifiability=False)
     assert e.findings["verdict"] == "thermal_drift"
-    assert set(e.findings["left_out"][0]["params"]) == {"rate_mm_per_s"}
+    entry = e.findings["left_out"][0]
+    assert set(entry["params"]) == {"rate_mm_per_s", "amplitude_mm"}
+    assert entry["held"] == ["amplitude_mm"] and entry["params"]["amplitude_mm"] == 0.0
+    assert entry["params_std"]["rate_mm_per_s"] > 0
 
 
 def _bumped(recording, height_mm, x_mm=60.0, y_mm=-50.0, sd_mm=50.0):

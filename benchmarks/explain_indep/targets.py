@@ -217,6 +217,7 @@ def calibration(ok: list[dict]) -> list[str]:
             out += [f"        wrong: {r['key']} -> {r['verdict']} p {r['probability']:.3f}"
                     for r in cell if not right(r)]
     hits: dict[str, list[bool]] = {}
+    held: dict[str, int] = {}
     for r in ok:
         if r["family"] not in ("single", "warmup", "rounds_shared_form") or not right(r):
             continue
@@ -224,6 +225,9 @@ def calibration(ok: list[dict]) -> list[str]:
         params, stds = r.get("params") or {}, r.get("params_std") or {}
         for name in COVERED.get(truth["effect"], ()):
             if name not in truth or name not in params or isinstance(params[name], list):
+                continue
+            if name in r.get("held", ()):  # the verdict's form holds it, does not estimate it
+                held[f"{truth['effect']}.{name}"] = held.get(f"{truth['effect']}.{name}", 0) + 1
                 continue
             est, sd = float(params[name]), float(stds.get(name, 0.0))
             hits.setdefault(f"{truth['effect']}.{name}", []).append(
@@ -235,6 +239,8 @@ def calibration(ok: list[dict]) -> list[str]:
         out.append(_line(f"2-sd interval covers {key}", f"{int(h[:, 0].sum())}/{len(h)} = "
                          f"{share:.1%}; median (est - truth) / sd {np.median(h[:, 1]):+.2f}"
                          + ("" if key.endswith(("x_mm", "y_mm")) else
-                            f", median (est - truth) / truth {np.median(h[:, 2]):+.1%}"),
+                            f", median (est - truth) / truth {np.median(h[:, 2]):+.1%}")
+                         + (f"; held by the verdict's form (not estimated, not counted) in "
+                            f"{held[key]}" if held.get(key) else ""),
                          0.90 <= share <= 0.98, "90-98 %"))
     return out

@@ -11,7 +11,7 @@ from adaptive_cal.analysis.explain.averaging import averaged
 from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
 from adaptive_cal.analysis.explain.design import Design
 from adaptive_cal.analysis.explain.evidence import Projector, log_evidence
-from adaptive_cal.analysis.explain.params import effect_params, summary
+from adaptive_cal.analysis.explain.params import effect_params, held, summary
 
 
 def context_given(ctx: Context, winner: Candidate) -> Context:
@@ -60,7 +60,7 @@ def beside_verdict(ctx: Context, winner: Candidate, cands: list[Candidate],
             continue
         first = alone.get(c.effect)
         left_out.append({"effect": c.effect, "params": params, "params_std": stds,
-                         "parameter_interval_95": iv95,
+                         "parameter_interval_95": iv95, "held": sorted(held(c)),
                          "log_bayes_factor": float(first.log_bf) if first else None,
                          "summary": summary(c, params, stds, design) + " (beside the verdict)",
                          "sharing": c.sharing, "given_verdict": gv})

@@ -26,7 +26,7 @@ from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.recording import Recording
 from adaptive_cal.analysis.explain.averaging import averaged
 from adaptive_cal.analysis.explain.beside import beside_verdict
-from adaptive_cal.analysis.explain.params import effect_params, summary as _summary
+from adaptive_cal.analysis.explain.params import effect_params, held, summary as _summary
 from adaptive_cal.analysis.explain.candidates import Candidate, Context
 from adaptive_cal.analysis.explain.design import Design, build_design
 from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
@@ -199,7 +199,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
             continue
         params, stds, iv95 = effect_params(c, design, intervals_95=True)
         left_out.append({"effect": c.effect, "params": params, "params_std": stds,
-                         "parameter_interval_95": iv95,
+                         "parameter_interval_95": iv95, "held": sorted(held(c)),
                          "log_bayes_factor": float(c.log_bf), "summary": _summary(c, params, stds, design),
                          "sharing": c.sharing})
     if winner is not None:

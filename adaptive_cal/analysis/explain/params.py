@@ -44,6 +44,8 @@ def effect_params(cand: Candidate, design: Design, *, intervals_95: bool = False
         p.update(cand.fixed)
         s.update({n: cand.nonlinear_std.get(n, 0.0) for n in cand.fixed})
         iv.update({n: [p[n] - Z95 * s[n], p[n] + Z95 * s[n]] for n in cand.fixed})
+        for n, d in held(cand).items():  # in the effect's form, not fitted by this one
+            p[n], s[n], iv[n] = d, 0.0, [d, d]
         params.append(p), stds.append(s), ivs.append(iv)
     if blocks == 1:
         out = params[0], stds[0], ivs[0]
@@ -54,13 +56,26 @@ def effect_params(cand: Candidate, design: Design, *, intervals_95: bool = False
     return out if intervals_95 else out[:2]
 
 
+def held(cand: Candidate) -> dict[str, float]:
+    """The effect's linear parameters that the candidate's form does not fit, at the value it
+    holds them at (their default): a warm-up (amplitude_mm, tau_s) holds thermal_drift's
+    rate_mm_per_s at 0, the linear drift holds amplitude_mm at 0. Every parameter DESIGN.md
+    names is reported; these with sd 0 and the interval [value, value], listed as ``held``."""
+    effect = effects.get(cand.effect)
+    return {q.name: float(q.default) for q in effect.params
+            if q.linear and q.name not in cand.names and q.name not in cand.fixed}
+
+
 def summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
     effect = effects.get(cand.effect)
-    text = effect.summary(params, stds)
+    kept = held(cand)  # named last, not as the fitted main parameter
+    text = effect.summary({k: v for k, v in params.items() if k not in kept}, stds)
     if cand.fixed:
         text += " at " + ", ".join(f"{k} = {v:g} (+- {cand.nonlinear_std.get(k, 0):.2g})"
                                    for k, v in cand.fixed.items())
         text += f"; look-elsewhere penalty {cand.look_elsewhere:.2f} over {cand.searched} values"
+    if kept:
+        text += "; " + ", ".join(f"{k} held at {v:g}" for k, v in kept.items())
     if design.rounds > 1 and cand.log_bf_shared_vs_per_round is not None:
         text += (f"; {cand.sharing.replace('_', ' ')} (log BF shared vs per round "
                  f"{cand.log_bf_shared_vs_per_round:.2f})")
