@@ -5,7 +5,14 @@ report, with the same words and numbers in all three:
   zone) of the measured heights; interval: the same figures over predicted repeat measurements at
   the same touches, z* = B m* + e*, m* drawn from the belief, e* ~ N(0, sigma^2 I);
 - of the whole plate: the figures of the posterior mean map on the plan's evaluation grid;
-  interval: the same figures over surfaces sampled from the belief.
+  interval: the same figures over surfaces sampled from the belief, plus a draw of the
+  structure the spline cannot represent (s_u^2, ``planning.survey.unresolved_var_mm2``: the
+  learned form's part finer than the knots, the readings' excess where the self-checks failed,
+  a drift the closure found) -- the same variance the bands carry, as a Gaussian field of that
+  pointwise variance with a squared-exponential correlation of half the knot spacing
+  (``unresolved_draws``). Flatness is a max - min statistic, so that structure widens it more
+  than its RMS suggests: left out, the intervals covered the true plate's minimum-zone flatness
+  on 3 of 5 rough plates (Matern-3/2, 60 mm; benchmarks/bench_flatness.py).
 
 Both figures remove the tilt (the least-squares or minimum-zone plane); the raw height spread
 (max - min, tilt included) is kept as ``range`` and labelled as such, never called flatness.
@@ -57,13 +64,56 @@ def _figures(x, y, z, draws, figure_is: str) -> dict:
     return {k: entry(values[k], sampled[k], figure_is) for k in values}
 
 
+def correlation_length_mm(surface) -> float:
+    """Half the spline's mean knot spacing along its finer axis: the scale the structure it
+    cannot represent is drawn at (``unresolved_draws``)."""
+    return 0.5 * min(float(np.mean(np.diff(surface.sx.knots))),
+                     float(np.mean(np.diff(surface.sy.knots))))
+
+
+def unresolved_draws(xy, var_mm2, length_mm: float, rng: np.random.Generator,
+                     samples: int) -> np.ndarray:
+    """(samples, N) draws of a zero-mean Gaussian field with variance ``var_mm2`` at the points
+    ``xy`` (N, 2) and the correlation exp(-d^2 / (2 length^2)) between them; zeros (and no
+    random numbers used) where the variance is zero everywhere."""
+    var = np.asarray(var_mm2, dtype=np.float64).ravel()
+    if not np.any(var > 0.0):
+        return np.zeros((samples, len(var)))
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    ux, uy = np.unique(xy[:, 0]), np.unique(xy[:, 1])
+    gx, gy = np.meshgrid(ux, uy, indexing="ij")
+    z = rng.standard_normal((samples, len(var)))
+    if len(ux) * len(uy) == len(xy) and np.array_equal(np.c_[gx.ravel(), gy.ravel()], xy):
+        # a grid (the plan's evaluation grid): the correlation is the Kronecker product of the
+        # axes' ones, and so is its square root -- (S, nx, ny) draws as Rx Z Ry^T
+        rx, ry = (_root(u[:, None], length_mm) for u in (ux, uy))
+        field = (rx @ z.reshape(samples, len(ux), len(uy)) @ ry.T).reshape(samples, -1)
+    else:
+        field = z @ _root(xy, length_mm).T
+    return field * np.sqrt(np.maximum(var, 0.0))
+
+
+def _root(xy, length_mm: float) -> np.ndarray:
+    """R with R R^T = exp(-d^2 / (2 length^2)) between the points: an eigen square root, since
+    on points closer than the length the correlation is near singular (negative round-off
+    eigenvalues set to zero keep each point's variance exact to about 1e-12)."""
+    d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
+    w, v = np.linalg.eigh(np.exp(-0.5 * d2 / length_mm**2))
+    return v * np.sqrt(np.clip(w, 0.0, None))
+
+
 def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator,
-                 samples: int = SAMPLES) -> tuple[dict, dict]:
+                 samples: int = SAMPLES, unresolved_mm2=None,
+                 length_mm: float | None = None) -> tuple[dict, dict]:
     """(tilt, flatness of the whole plate): the tilt of the mean map's least-squares plane with
-    the std of its angles over the sampled surfaces, and the figures with intervals."""
+    the std of its angles over the sampled surfaces, and the figures with intervals.
+    ``unresolved_mm2``: s_u^2 at the evaluation points (None: the spline's variance alone),
+    drawn with correlation length ``length_mm`` (``unresolved_draws``) after the spline's."""
     x, y = eval_xy[:, 0], eval_xy[:, 1]
     mean, _ = bl.predict(belief, eval_rows)
     draws = bl.sample(belief, rng, samples) @ eval_rows.T  # (S, N)
+    if unresolved_mm2 is not None:
+        draws = draws + unresolved_draws(eval_xy, unresolved_mm2, length_mm, rng, samples)
     tilt = fl.plane_tilt(x, y, mean)
     angles = np.array([fl.tilt_correction_deg(*fl.least_squares_plane(x, y, d)[:2]) for d in draws])
     tilt["rx_std_deg"], tilt["ry_std_deg"] = (float(v) for v in angles.std(axis=0))
@@ -82,18 +132,50 @@ def touched_answer(x, y, z, rows, belief: bl.Belief, noise_std_mm: float,
 
 
 def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=None,
-                    rng: np.random.Generator | None = None, samples: int = SAMPLES) -> dict:
+                    rng: np.random.Generator | None = None, samples: int = SAMPLES,
+                    unresolved_mm2=None) -> dict:
     """{"tilt", "flatness_mm" (whole plate), "touched_flatness_mm" (when ``touched_xyz`` =
     (x, y, height) in mm is given)} from a ``SurveyPlan``'s evaluation grid and a belief over its
-    spline. ``rng`` defaults to ``default_rng(SEED)``; the plate is drawn first."""
+    spline. ``unresolved_mm2``: s_u^2 on ``plan.eval_xy`` (``plate_answer``). ``rng`` defaults to
+    ``default_rng(SEED)``; the plate is drawn first."""
     rng = np.random.default_rng(SEED) if rng is None else rng
-    tilt, plate = plate_answer(plan.eval_xy, plan.eval_rows, belief, rng, samples)
+    tilt, plate = plate_answer(plan.eval_xy, plan.eval_rows, belief, rng, samples, unresolved_mm2,
+                               correlation_length_mm(plan.model.surface))
     out = {"tilt": tilt, "flatness_mm": plate}
     if touched_xyz is not None:
         x, y, z = touched_xyz
         rows = plan.model.surface.basis(np.asarray(x, float), np.asarray(y, float))
         out["touched_flatness_mm"] = touched_answer(x, y, z, rows, belief, noise_std_mm, rng, samples)
     return out
+
+
+GAP_MEANS = ("the largest disc inside the reachable, allowed part of the plate with no fused "
+             "touch (centre x_mm, y_mm; radius_mm): a dent or bump narrower than it can lie "
+             "there unseen, and no interval here includes one")
+
+
+def largest_gap(plan, touched_xy) -> dict | None:
+    """{"radius_mm", "x_mm", "y_mm", "means"}: the point a touch may go to (the plan's
+    candidates: inside the edge margin, outside keep-outs) farthest from every touch in
+    ``touched_xy`` (N, 2), and that distance (the fill distance of the touches); None without
+    touches. A feature narrower than this can sit between the touches: the checks see only
+    what lands on a touch, so neither the bands nor the flatness intervals carry it."""
+    from scipy.spatial import cKDTree
+
+    xy = np.asarray(touched_xy, dtype=np.float64).reshape(-1, 2)
+    cand = np.asarray(plan.candidates.xy_mm, dtype=np.float64)
+    if len(xy) == 0 or len(cand) == 0:
+        return None
+    d, _ = cKDTree(xy).query(cand)
+    i = int(np.argmax(d))
+    return {"radius_mm": float(d[i]), "x_mm": float(cand[i, 0]), "y_mm": float(cand[i, 1]),
+            "means": GAP_MEANS}
+
+
+def gap_line(gap: dict) -> str:
+    return (f"largest gap between touches: {gap['radius_mm']:.0f} mm radius around "
+            f"({gap['x_mm']:.0f}, {gap['y_mm']:.0f}) mm; a dent or bump narrower than that can lie "
+            "there unseen, and the flatness intervals do not include one")
 
 
 # -- the words, shared by the terminal (run, flatness) and the report ---------------------------
@@ -131,4 +213,6 @@ def answer_lines(result: dict, provisional: bool = False, no_plate: str | None =
         lines.append(f"flatness {PLATE}: {no_plate}")
     if any(f.get("value_is") == MEDIAN for u in used for f in u.values() if isinstance(f, dict)):
         lines.append(MEDIAN_NOTE)
+    if plate and result.get("largest_gap"):
+        lines.append(gap_line(result["largest_gap"]))
     return lines

@@ -74,7 +74,7 @@ def map_flatness(args) -> dict | None:
     saved = folder / "belief.npz"
     if not args.robot and not ((folder / "cell.yaml").exists() and saved.exists()):
         return None
-    from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer
+    from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
     from adaptive_cal.cell.build import survey_plan
     from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.formats.recording import read_recording
@@ -92,12 +92,14 @@ def map_flatness(args) -> dict | None:
         rec = for_replay(rec, cell, args.robot)  # judged as the run judges a reading
         state = sv.replay(plan, sv.start(plan), rec)
         belief, noise_mm, source = state.belief, state.hyper.noise_std_mm, f"replayed with {args.robot}"
+        unresolved = sv.unresolved_var_mm2(plan, state, plan.eval_xy)
     else:
-        from adaptive_cal.formats.npz import read_npz
+        from adaptive_cal.formats.npz import read_npz, unresolved_at
 
         data = read_npz(saved)
         check_belief(folder, plan.model.surface, data)
         belief = Belief(data["mean"], data["cov"])
+        unresolved = unresolved_at(data, plan.eval_xy[:, 0], plan.eval_xy[:, 1])
         noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm
         source = f"the map saved in {saved}"
     xyz = touched_heights(plan, rec)
@@ -106,9 +108,10 @@ def map_flatness(args) -> dict | None:
         raise UserError(f"{rec_path}: {n} usable touch{'es' * (n != 1)}; flatness needs at "
                         "least 4")
     out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
-                          args.samples or SAMPLES)
+                          args.samples or SAMPLES, unresolved)
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
-            "noise_std_mm": noise_mm, **out}
+            "noise_std_mm": noise_mm, **out,
+            "largest_gap": largest_gap(plan, np.c_[xyz[0], xyz[1]])}
 
 
 def check_belief(folder, surface, data, command: str = "flatness") -> None:

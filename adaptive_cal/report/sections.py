@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, PLATE, SPREAD,
-                                                   touched_what, value_text)
+                                                   gap_line, touched_what, value_text)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.numbers import fixed
@@ -206,6 +206,8 @@ def flatness_section(result: dict) -> str:
                              escape(figs[key].get("value_is", "-"))))
     notes = [n for n in (MEDIAN_NOTE,) if any(f.get("value_is") == MEDIAN for u in used
                                               for f in u.values() if isinstance(f, dict))]
+    if result.get("largest_gap"):
+        notes.append(gap_line(result["largest_gap"]))
     return ("<h2>Flatness</h2>"
             + _table(rows, head=("flatness", "figure", "value (95 % interval)", "value is"))
             + "".join(f"<p class='note'>{escape(n)}</p>" for n in notes)
@@ -214,7 +216,8 @@ def flatness_section(result: dict) -> str:
               "two closest parallel planes enclosing them; both measured normal to the planes. "
               "Touched points: the figure of the measured heights, the interval over predicted "
               "repeat measurements at the same touches. Whole plate: the figure of the mean map, "
-              "the interval over surfaces sampled from the belief. The same numbers are printed by "
+              "the interval over surfaces sampled from the belief, with the structure finer "
+              "than the knots the run found. The same numbers are printed by "
               "<code>adaptive-cal run</code> and <code>adaptive-cal flatness</code>.</p>")
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptive_cal.cell.build import plan_model, touch_floor
-from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer
+from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.npz import read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
@@ -73,7 +73,10 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
            if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
                                   xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
-                                  SAMPLES))
+                                  SAMPLES, sv.unresolved_var_mm2(plan, state, plan.eval_xy)))
+    # where a narrow feature could hide between the fused touches (all touches without them)
+    result["largest_gap"] = largest_gap(
+        plan, np.c_[xyz[0], xyz[1]] if xyz is not None else state.touched_xy_mm)
     # the units of the tilt's plane (its keys a, b, c stay as they are: a stable interface)
     result["tilt"] = {**result["tilt"], "plane_is": TILT_PLANE_IS}
     if truth is not None:
