@@ -1,0 +1,161 @@
+"""Whole-plate flatness intervals against the true plate's flatness, on plates written
+independently of the model's prior (benchmarks/plates/generate.py, numpy/scipy only).
+
+A run's result.json gives the flatness of the whole plate from its map with a 95 % interval
+(least squares, Cheng et al. eq. 5, and the ISO 1101 minimum zone). That interval is a claim:
+here it is checked against the true plate. Each plate is one `adaptive-cal run` (a subprocess,
+the product as a user runs it) on the simulated cell of configs/study-plates.yaml with
+``simulation.surface_file`` set to the plate's map, 5 um Gaussian reading noise, the probe's
+span stated as 3-8 um, stop at 4 um RMS posterior std or ``--budget`` touches. The true
+figures are computed here, not by adaptive_cal: the map is interpolated bilinearly (as
+DESIGN.md defines it) onto the run's evaluation grid (41 x 41 nodes over the workplane), the
+least-squares plane by numpy's lstsq, the minimum zone as a linear programme (scipy linprog).
+
+Printed per family: how often each 95 % interval holds the true figure, and how often the
+truth lay above it (the map missed structure) or below; also the touches, the run's largest
+gap between touches and its unresolved RMS. The noisy family is left out: its plates are the
+smooth family's, its difference is in the readings.
+
+    nice -n 10 python benchmarks/bench_flatness.py --plates 10     # about 25 min on 2 cores
+    nice -n 10 python benchmarks/bench_flatness.py --quick         # 2 plates a family
+
+Writes benchmarks/results/flatness-<date>.json.
+"""
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import datetime
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.interpolate import RegularGridInterpolator
+from scipy.optimize import linprog
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks" / "plates"))
+import generate  # noqa: E402  (the independent plate generator)
+
+FAMILIES = ("smooth", "rough", "dent", "edge", "ripple", "seam")
+EVAL_NODES = 41  # the run's evaluation grid per side (adaptive_cal.cell.build.EVAL_POINTS)
+
+
+def true_figures(map_path: Path, x_mm, y_mm) -> dict:
+    """Least-squares and minimum-zone flatness (mm) of the true map on the evaluation grid."""
+    a = np.loadtxt(map_path, delimiter=",", skiprows=1)
+    xs, ys = np.unique(a[:, 0]), np.unique(a[:, 1])
+    h = np.full((len(xs), len(ys)), np.nan)
+    h[np.searchsorted(xs, a[:, 0]), np.searchsorted(ys, a[:, 1])] = a[:, 2]
+    gx, gy = np.meshgrid(np.linspace(*x_mm, EVAL_NODES), np.linspace(*y_mm, EVAL_NODES),
+                         indexing="ij")
+    x, y = gx.ravel(), gy.ravel()
+    z = RegularGridInterpolator((xs, ys), h)(np.c_[x, y])
+    A = np.c_[x, y, np.ones_like(x)]
+    r = z - A @ np.linalg.lstsq(A, z, rcond=None)[0]
+    n = len(z)  # minimum zone: min w s.t. |z - (a x + b y + c)| <= w / 2
+    res = linprog(np.r_[0.0, 0.0, 0.0, 1.0],
+                  A_ub=np.r_[np.c_[A, -np.ones(n)], np.c_[-A, -np.ones(n)]], b_ub=np.r_[z, -z],
+                  bounds=[(None, None)] * 3 + [(0, None)], method="highs")
+    return {"least_squares": float(r.max() - r.min()), "minimum_zone": float(2.0 * res.x[3])}
+
+
+def one_plate(job: tuple) -> dict:
+    family, index, map_path, cell, budget, seed = job
+    cell = json.loads(json.dumps(cell))
+    cell["simulation"] = {"seed": seed + index, "noise_std_mm": 0.005, "repeatability_mm": 0.0,
+                          "surface_file": str(map_path)}
+    cell["plan"] = {"stop": {"mean_std_mm": 0.004, "max_touches": budget}, "candidates": 10000}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "cell.yaml"
+        path.write_text(yaml.safe_dump(cell))
+        p = subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot", str(path),
+                            "--out", str(Path(tmp) / "run"), "--no-progress", "--yes"],
+                           capture_output=True, text=True)
+        if p.returncode:
+            return {"family": family, "plate": index, "error": p.stderr[-800:]}
+        r = json.loads((Path(tmp) / "run" / "result.json").read_text())
+    truth = true_figures(map_path, cell["workplane"]["x_mm"], cell["workplane"]["y_mm"])
+    out = {"family": family, "plate": index, "touches": r["touches"],
+           "stopped_because": r["stopped_because"], "wall_s": time.perf_counter() - t0,
+           "unresolved_rms_mm": (r.get("model") or {}).get("unresolved_rms_mm"),
+           "largest_gap": r.get("largest_gap")}
+    for k in ("least_squares", "minimum_zone"):
+        f = r["flatness_mm"][k]
+        lo, hi = f["ci95"]
+        out[k] = {"true": truth[k], "value": f["value"], "ci95": [lo, hi],
+                  "where": "in" if lo <= truth[k] <= hi else ("above" if truth[k] > hi else "below")}
+    return out
+
+
+def report(records: list[dict]) -> list[str]:
+    lines = ["family    plates  touches  least squares: in / above / below   minimum zone: "
+             "in / above / below   true MZ um (median)  claimed MZ um (median)"]
+    ok = [r for r in records if "error" not in r]
+    for family in [f for f in FAMILIES if any(r["family"] == f for r in ok)] + ["all"]:
+        rr = [r for r in ok if family in ("all", r["family"])]
+        cells = []
+        for k in ("least_squares", "minimum_zone"):
+            w = [r[k]["where"] for r in rr]
+            cells.append(f"{w.count('in')}/{len(w)} = {w.count('in') / len(w):.2f} / "
+                         f"{w.count('above')} / {w.count('below')}")
+        lines.append(f"{family:8s}  {len(rr):6d}  {np.mean([r['touches'] for r in rr]):7.1f}  "
+                     f"{cells[0]:>33s}   {cells[1]:>32s}   "
+                     f"{1e3 * np.median([r['minimum_zone']['true'] for r in rr]):8.1f}"
+                     f"             {1e3 * np.median([r['minimum_zone']['value'] for r in rr]):8.1f}")
+    errors = [r for r in records if "error" in r]
+    if errors:
+        lines.append(f"{len(errors)} runs failed, first: {errors[0]['error']}")
+    return lines
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--plates", type=int, default=10, help="plates per family")
+    p.add_argument("--quick", action="store_true", help="2 plates per family")
+    p.add_argument("--families", default=",".join(FAMILIES))
+    p.add_argument("--budget", type=int, default=120, help="touch budget per run")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--seed", type=int, default=100, help="the simulated cell's noise seed base")
+    p.add_argument("--out", default=None, help="JSON of the records")
+    args = p.parse_args(argv)
+    plates = 2 if args.quick else args.plates
+    families = [f for f in args.families.split(",") if f]
+    maps = ROOT / "benchmarks" / "plates" / "out"
+    if not all((maps / f / f"plate-{plates - 1:03d}.csv").exists() for f in families):
+        generate.generate(maps, max(plates, 20))
+    cell = yaml.safe_load((ROOT / "configs" / "study-plates.yaml").read_text())["cell"]
+    jobs = [(f, i, maps / f / f"plate-{i:03d}.csv", cell, args.budget, args.seed)
+            for f in families for i in range(plates)]
+    t0 = time.perf_counter()
+    records = []
+    with cf.ProcessPoolExecutor(args.workers) as pool:
+        for rec in pool.map(one_plate, jobs):
+            records.append(rec)
+            if "error" in rec:
+                print(f"{rec['family']} {rec['plate']}: FAILED", flush=True)
+                continue
+            mz = rec["minimum_zone"]
+            print(f"{rec['family']:7s} {rec['plate']:2d}: {rec['touches']:3d} touches, true MZ "
+                  f"{1e3 * mz['true']:6.1f} um, claimed {1e3 * mz['value']:6.1f} um (95 % "
+                  f"{1e3 * mz['ci95'][0]:.1f} .. {1e3 * mz['ci95'][1]:.1f}) {mz['where']}",
+                  flush=True)
+    lines = report(records)
+    print("\n".join(lines))
+    print(f"wall time {time.perf_counter() - t0:.0f} s for {len(jobs)} runs ({args.workers} workers)")
+    out = Path(args.out or ROOT / "benchmarks" / "results" /
+               f"flatness-{datetime.date.today().isoformat()}.json")
+    out.write_text(json.dumps({"plates": plates, "budget": args.budget, "seed": args.seed,
+                               "records": records, "report": lines}, indent=1))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
