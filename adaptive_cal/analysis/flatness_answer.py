@@ -162,15 +162,13 @@ def largest_gap(plan, touched_xy) -> dict | None:
     ``touched_xy`` (N, 2), and that distance (the fill distance of the touches); None without
     touches. A feature narrower than this can sit between the touches: the checks see only
     what lands on a touch, so neither the bands nor the flatness intervals carry it."""
-    from scipy.spatial import cKDTree
+    from adaptive_cal.planning.gap import largest_gap as gap
 
-    xy = np.asarray(touched_xy, dtype=np.float64).reshape(-1, 2)
     cand = np.asarray(plan.candidates.xy_mm, dtype=np.float64)
-    if len(xy) == 0 or len(cand) == 0:
+    radius, i = gap(cand, touched_xy)
+    if i < 0:
         return None
-    d, _ = cKDTree(xy).query(cand)
-    i = int(np.argmax(d))
-    return {"radius_mm": float(d[i]), "x_mm": float(cand[i, 0]), "y_mm": float(cand[i, 1]),
+    return {"radius_mm": radius, "x_mm": float(cand[i, 0]), "y_mm": float(cand[i, 1]),
             "means": GAP_MEANS}
 
 

@@ -15,7 +15,7 @@ from adaptive_cal.gaussian.prior import Hyper, PriorModel
 from adaptive_cal.gaussian.spline import Surface, default_knots, embedding, refined
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.scoring import candidate_grid
-from adaptive_cal.planning.stopping import AtLeast, MaxStdBelow, MeanStdBelow, StopRule, TouchBudget
+from adaptive_cal.planning.stopping import AtLeast, GapBelow, MaxStdBelow, MeanStdBelow, StopRule, TouchBudget
 
 EVAL_POINTS = 41  # the evaluation grid over the plate is EVAL_POINTS x EVAL_POINTS
 GROW_CAP = 160  # a model grows (knots refined once) only up to this many coefficients
@@ -120,8 +120,10 @@ def stop_rule(cell: Cell, coefficients: int, *, informed_prior: bool = False) ->
     rule: StopRule = TouchBudget(s.max_touches)
     if bounds:
         bound = bounds[0] if len(bounds) == 1 else bounds[0] | bounds[1]
-        rule = (bound & AtLeast(touch_floor(cell, coefficients, informed_prior=informed_prior))
-                ) | rule
+        bound = bound & AtLeast(touch_floor(cell, coefficients, informed_prior=informed_prior))
+        if s.max_gap_mm is not None:
+            bound = bound & GapBelow(s.max_gap_mm)
+        rule = bound | rule
     return rule
 
 
@@ -187,7 +189,7 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
                         if cell.probe.noise_range_mm is not None else None),
         speed_mm_per_s=cell.robot.speed_mm_per_s, touch_time_s=cell.robot.touch_time_s,
         start_xy_mm=(0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)),
-        min_spacing_mm=min_spacing(cell, model.surface),
+        min_spacing_mm=min_spacing(cell, model.surface), max_gap_mm=plan.stop.max_gap_mm,
         closure=plan.closure and not informed_prior)  # a re-check: a few touches, a warm cell
 
 

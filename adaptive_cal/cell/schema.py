@@ -181,6 +181,12 @@ class Stop(Block):
         "default: the number of spline coefficients while hyper-parameters are learned from "
         "scratch; 0 with probe.noise_range_mm, a prior from an earlier run (--prior-from) or "
         "learn_hyper: false")
+    max_gap_mm: float | None = Field(
+        None, gt=0, description="no variance bound stops the run while a disc of this radius "
+        "(mm) on the reachable plate holds no touch; the planner then touches the largest gap. "
+        "A dent or bump of radius R is then touched within this distance of its centre: at most "
+        "R / 2 sees at least half its depth (a smooth bowl). It costs about area / (2.6 r^2) "
+        "touches: 100 for r = 24 mm on a 430 x 350 mm plate")
 
 
 class Plan(Block):

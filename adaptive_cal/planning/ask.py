@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from adaptive_cal.planning.gap import largest_gap
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import plan_batch, travel_order
 from adaptive_cal.planning.scoring import (minimax_choice, rate_choice, refine, stroke_ok,
@@ -90,6 +91,10 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
             ok = spaced
             break
         spacing = spacing / 2 if spacing > 1.0 else 0.0
+
+    fill = gap_fill(plan, state, xy, ok, here)
+    if fill is not None:
+        return [target(plan, state, *p) for p in fill]
 
     def pick(c, timed_here=False):
         d = d0 if c is cov else variance_drop(rows, c, plan.gram, r)[0]
@@ -160,6 +165,31 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         return []
     pts = xy[chosen]
     return [target(plan, state, *pts[i]) for i in travel_order(here, pts)]
+
+
+def gap_fill(plan: SurveyPlan, state: SurveyState, xy, ok, here) -> np.ndarray | None:
+    """Where only ``plan.max_gap_mm`` holds the stop back (the variance bounds met): the allowed
+    points that close the gaps, farthest point first (each the allowed candidate farthest from
+    every touch and earlier pick, until none is farther than the radius or the budget ends),
+    ordered for travel from ``here``; None otherwise (the variance still decides)."""
+    if plan.max_gap_mm is None:
+        return None
+    now = status(plan, state)
+    if now.gap_mm <= plan.max_gap_mm or not plan.stop(replace(now, gap_mm=0.0)):
+        return None
+    left = touches_left(plan.stop, state.touches)
+    cand = xy[ok]
+    picks: list[np.ndarray] = []
+    touched = np.asarray(state.touched_xy_mm, float).reshape(-1, 2)
+    while left is None or len(picks) < left:
+        radius, i = largest_gap(cand, np.vstack([touched, *picks]) if picks else touched)
+        if i < 0 or radius <= plan.max_gap_mm:
+            break
+        picks.append(cand[i][None, :])
+    if not picks:
+        return None  # no allowed point is farther: the rest lies where the stroke forbids
+    pts = np.vstack(picks)
+    return pts[travel_order(here, pts)]
 
 
 def out_of_reach(plan: SurveyPlan, state: SurveyState, left: int | None = None,

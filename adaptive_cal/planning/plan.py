@@ -45,7 +45,9 @@ class SurveyPlan:
     ``min_spacing_mm``: once the self-checks found structure finer than the knots, no touch is
     planned closer than this to an earlier one while points further away are allowed (0: off;
     ``planning.ask.kept_apart``); ``closure``: when a variance bound stops the run, touch the
-    first place again to see a drift (``planning.closure``, ``run.loop``)."""
+    first place again to see a drift (``planning.closure``, ``run.loop``); ``max_gap_mm``: a
+    bound stops the run only once no allowed point is farther than this from a touch, and the
+    planner touches the largest gap while only that holds the stop back (``planning.gap``)."""
 
     model: PriorModel
     candidates: Candidates
@@ -79,6 +81,7 @@ class SurveyPlan:
     time_aware: bool = True
     lookahead: int = LOOKAHEAD
     min_spacing_mm: float = 0.0
+    max_gap_mm: float | None = None  # a bound stops only once no gap is wider (``planning.gap``)
     closure: bool = False
 
     @property

@@ -15,6 +15,7 @@ class Status:
     max_std_mm: float  # largest posterior std on the evaluation grid
     adequate: bool = True  # the model's self-checks pass (or have nothing to check)
     unresolved_rms_mm: float = 0.0  # structure finer than the spline, included in the stds
+    gap_mm: float = 0.0  # the largest gap between touches (``planning.gap``; 0: not asked for)
 
 
 class StopRule:
@@ -48,6 +49,18 @@ class MaxStdBelow(StopRule):
 
     def __call__(self, status):
         return self.name if status.adequate and status.max_std_mm <= self.bound_mm else None
+
+
+@dataclass(frozen=True)
+class GapBelow(StopRule):
+    """Holds once no allowed point is farther than ``radius_mm`` from a touch: ``bound &
+    GapBelow(r)`` lets the bound stop the run only then (``plan.stop.max_gap_mm``)."""
+
+    radius_mm: float
+    name = "gap_bound"
+
+    def __call__(self, status):
+        return self.name if status.gap_mm <= self.radius_mm else None
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ from adaptive_cal.planning.closure import Closure
 from adaptive_cal.planning.gate import Retake, Told, flagged_p, judge as gate_judge, pending_after
 from adaptive_cal.planning.robust import InvalidReading, check_touch, predictive  # noqa: F401
 from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.planning.gap import largest_gap
 from adaptive_cal.planning.stopping import Status
 
 
@@ -117,10 +118,12 @@ def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
     u = (unresolved_var_mm2(plan, state, plan.eval_xy) if unresolved_mm2 is None
          else unresolved_mm2)
     adequate = state.adequacy.adequate if state.adequacy is not None else not learns(plan, state)
+    gap = (largest_gap(plan.candidates.xy_mm, state.touched_xy_mm)[0]
+           if plan.max_gap_mm is not None else 0.0)  # of the touches made, not a batch's picks
     return Status(state.touches if touches is None else touches,
                   float(np.sqrt(max(j_area, 0.0) + u.mean())),
                   float(np.sqrt(max((var + u).max(), 0.0))), adequate,
-                  float(np.sqrt(u.mean())))
+                  float(np.sqrt(u.mean())), gap)
 
 
 def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:

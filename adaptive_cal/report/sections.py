@@ -91,6 +91,7 @@ def cell_section(cell: Cell, result: dict) -> str:
         ("stopping bound", ", ".join(filter(None, [
             f"RMS posterior std {_um(st.mean_std_mm)}" if st.mean_std_mm else "",
             f"max posterior std {_um(st.max_std_mm)}" if st.max_std_mm else "",
+            f"no gap wider than {st.max_gap_mm:g} mm" if st.max_gap_mm else "",
             f"at most {st.max_touches} touches"]))),
         ("spline knots", f"{len(k.get('x', []))} x {len(k.get('y', []))}, {escape(k.get('ends', '-'))} ends"
                          if k else "-"),
