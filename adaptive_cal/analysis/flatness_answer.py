@@ -106,19 +106,28 @@ def _root(xy, length_mm: float) -> np.ndarray:
 
 def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator,
                  samples: int = SAMPLES, unresolved_mm2=None,
-                 length_mm: float | None = None) -> tuple[dict, dict]:
+                 length_mm: float | None = None, features=()) -> tuple[dict, dict]:
     """(tilt, flatness of the whole plate): the tilt of the mean map's least-squares plane with
     the std of its angles over the sampled surfaces, and the figures with intervals.
     ``unresolved_mm2``: s_u^2 at the evaluation points (None: the spline's variance alone),
-    drawn with correlation length ``length_mm`` (``unresolved_draws``) after the spline's."""
+    drawn with correlation length ``length_mm`` (``unresolved_draws``) after the spline's.
+    ``features``: (row, departure_mm, sd_mm, x_mm, y_mm) of local features a retake confirmed
+    (``analysis.local_features``): points added to the figures at the map plus the departure,
+    drawn with its sd; the tilt stays the grid's."""
     x, y = eval_xy[:, 0], eval_xy[:, 1]
     mean, _ = bl.predict(belief, eval_rows)
-    draws = bl.sample(belief, rng, samples) @ eval_rows.T  # (S, N)
+    coef = bl.sample(belief, rng, samples)
+    draws = coef @ eval_rows.T  # (S, N)
     if unresolved_mm2 is not None:
         draws = draws + unresolved_draws(eval_xy, unresolved_mm2, length_mm, rng, samples)
     tilt = fl.plane_tilt(x, y, mean)
     angles = np.array([fl.tilt_correction_deg(*fl.least_squares_plane(x, y, d)[:2]) for d in draws])
     tilt["rx_std_deg"], tilt["ry_std_deg"] = (float(v) for v in angles.std(axis=0))
+    for row, dep, sd, fx, fy in features:
+        x, y = np.append(x, fx), np.append(y, fy)
+        mean = np.append(mean, float(row @ belief.mean) + dep)
+        extra = coef @ row + dep + sd * rng.standard_normal(samples)
+        draws = np.c_[draws, extra]
     return tilt, _figures(x, y, mean, draws, "figure of the mean map")
 
 
@@ -135,14 +144,18 @@ def touched_answer(x, y, z, rows, belief: bl.Belief, noise_std_mm: float,
 
 def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=None,
                     rng: np.random.Generator | None = None, samples: int = SAMPLES,
-                    unresolved_mm2=None) -> dict:
+                    unresolved_mm2=None, features=()) -> dict:
     """{"tilt", "flatness_mm" (whole plate), "touched_flatness_mm" (when ``touched_xyz`` =
     (x, y, height) in mm is given)} from a ``SurveyPlan``'s evaluation grid and a belief over its
-    spline. ``unresolved_mm2``: s_u^2 on ``plan.eval_xy`` (``plate_answer``). ``rng`` defaults to
-    ``default_rng(SEED)``; the plate is drawn first."""
+    spline. ``unresolved_mm2``: s_u^2 on ``plan.eval_xy``; ``features``: the confirmed local
+    features' dicts (``analysis.local_features.confirmed``; ``plate_answer``). ``rng`` defaults
+    to ``default_rng(SEED)``; the plate is drawn first."""
     rng = np.random.default_rng(SEED) if rng is None else rng
+    surface = plan.model.surface
+    extra = [(surface.basis(np.array([f["x_mm"]]), np.array([f["y_mm"]]))[0], f["departure_mm"],
+              f["sd_mm"], f["x_mm"], f["y_mm"]) for f in features]
     tilt, plate = plate_answer(plan.eval_xy, plan.eval_rows, belief, rng, samples, unresolved_mm2,
-                               correlation_length_mm(plan.model.surface))
+                               correlation_length_mm(surface), extra)
     out = {"tilt": tilt, "flatness_mm": plate}
     if touched_xyz is not None:
         x, y, z = touched_xyz
@@ -213,6 +226,10 @@ def answer_lines(result: dict, provisional: bool = False, no_plate: str | None =
         lines.append(f"flatness {PLATE}: {no_plate}")
     if any(f.get("value_is") == MEDIAN for u in used for f in u.values() if isinstance(f, dict)):
         lines.append(MEDIAN_NOTE)
+    if plate:
+        from adaptive_cal.analysis.local_features import feature_line
+
+        lines += [feature_line(f) for f in result.get("local_features") or ()]
     if plate and result.get("largest_gap"):
         lines.append(gap_line(result["largest_gap"]))
     return lines

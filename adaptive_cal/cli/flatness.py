@@ -75,6 +75,7 @@ def map_flatness(args) -> dict | None:
     if not args.robot and not ((folder / "cell.yaml").exists() and saved.exists()):
         return None
     from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
+    from adaptive_cal.analysis.local_features import confirmed
     from adaptive_cal.cell.build import survey_plan
     from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.formats.recording import read_recording
@@ -107,10 +108,11 @@ def map_flatness(args) -> dict | None:
         n = len(xyz[2])
         raise UserError(f"{rec_path}: {n} usable touch{'es' * (n != 1)}; flatness needs at "
                         "least 4")
+    features = confirmed(plan.model.surface, belief, noise_mm, rec, plan.zero_mm)
     out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
-                          args.samples or SAMPLES, unresolved)
+                          args.samples or SAMPLES, unresolved, features)
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
-            "noise_std_mm": noise_mm, **out,
+            "noise_std_mm": noise_mm, **out, "local_features": features,
             "largest_gap": largest_gap(plan, np.c_[xyz[0], xyz[1]])}
 
 

@@ -94,7 +94,8 @@ def _from_recording(recording, cell_file, out) -> "Path":
     result = result_of(cell, plan, state, rec, stopped, rng=np.random.default_rng(SEED))
     s = plan.model.surface
     belief = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
-              "knots_y": s.sy.knots, **unresolved_grid(plan, state)}
+              "knots_y": s.sy.knots,
+              **unresolved_grid(plan, state, result.get("local_features") or ())}
     out = Path(out) if out else Path(recording).with_suffix(".html")
     html = render_recording(result, cell, rec, belief, Path(recording), Path(cell_file))
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -285,9 +285,11 @@ def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
                    touched_xy_mm=tuple(zip(rec.x_mm.tolist(), rec.y_mm.tolist())))
 
 
-def grid(plan: SurveyPlan, belief: bl.Belief, n: int = 61, state: SurveyState | None = None):
+def grid(plan: SurveyPlan, belief: bl.Belief, n: int = 61, state: SurveyState | None = None,
+         extra_var=None):
     """(gx, gy, mean, std): posterior mean and std (mm) on an n x n grid over the whole plate;
-    with ``state`` the std includes its unresolved-structure variance (bands of the plate)."""
+    with ``state`` the std includes its unresolved-structure variance (bands of the plate);
+    ``extra_var(x, y)``: a variance added on top (confirmed local features)."""
     (x0, x1), (y0, y1) = plan.plate_mm
     gx, gy = np.linspace(x0, x1, n), np.linspace(y0, y1, n)
     xx, yy = np.meshgrid(gx, gy, indexing="ij")
@@ -295,4 +297,6 @@ def grid(plan: SurveyPlan, belief: bl.Belief, n: int = 61, state: SurveyState | 
     mean, var = bl.predict(belief, rows)
     if state is not None:
         var = var + unresolved_var_mm2(plan, state, np.stack([xx.ravel(), yy.ravel()], 1))
+    if extra_var is not None:
+        var = var + extra_var(xx.ravel(), yy.ravel())
     return gx, gy, mean.reshape(n, n), np.sqrt(var).reshape(n, n)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from adaptive_cal.analysis.local_features import feature_line
 from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, PLATE, SPREAD,
                                                    gap_line, touched_what, value_text)
 from adaptive_cal.cell.schema import Cell
@@ -207,6 +208,7 @@ def flatness_section(result: dict) -> str:
                              escape(figs[key].get("value_is", "-"))))
     notes = [n for n in (MEDIAN_NOTE,) if any(f.get("value_is") == MEDIAN for u in used
                                               for f in u.values() if isinstance(f, dict))]
+    notes += [feature_line(f) for f in result.get("local_features") or ()]
     if result.get("largest_gap"):
         notes.append(gap_line(result["largest_gap"]))
     return ("<h2>Flatness</h2>"

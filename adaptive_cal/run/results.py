@@ -12,6 +12,7 @@ import numpy as np
 
 from adaptive_cal.cell.build import plan_model, touch_floor
 from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
+from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.npz import read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
@@ -34,9 +35,20 @@ def plate_estimates(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generato
 def touched_heights(plan: SurveyPlan, recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(x, y, height) in mm of a recording's fused touches, with the plan's probe zero: the
     heights exactly as written, so a result and ``flatness`` on the file agree to the digit."""
-    rec = read_recording(recording) if isinstance(recording, (str, Path)) else recording
+    rec = _recording(recording)
     f = rec.fused
     return rec.x_mm[f], rec.y_mm[f], surface_height_mm(rec.reading_mm[f], rec.z_mm[f], plan.zero_mm)
+
+
+def local_features(plan: SurveyPlan, state: sv.SurveyState, recording) -> list[dict]:
+    """The local features a retake confirmed (``analysis.local_features.confirmed``) in a
+    recording (a path or a Recording) against the state's map."""
+    return confirmed(plan.model.surface, state.belief, state.hyper.noise_std_mm,
+                     _recording(recording), plan.zero_mm)
+
+
+def _recording(recording):
+    return read_recording(recording) if isinstance(recording, (str, Path)) else recording
 
 
 def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
@@ -69,11 +81,15 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
     result["model"] = model_block(state, status, plan)
     # the closure touch's verdict (planning.closure), or None when none was made
     result["closure"] = state.closure.as_dict() if state.closure is not None else None
-    xyz = (touched_heights(plan, recording)
+    rec = (_recording(recording)
            if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
+    xyz = touched_heights(plan, rec) if rec is not None else None
+    # a dent or burr a retake confirmed and the spline cannot follow (analysis.local_features)
+    result["local_features"] = local_features(plan, state, rec) if rec is not None else []
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
                                   xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
-                                  SAMPLES, sv.unresolved_var_mm2(plan, state, plan.eval_xy)))
+                                  SAMPLES, sv.unresolved_var_mm2(plan, state, plan.eval_xy),
+                                  result["local_features"]))
     # where a narrow feature could hide between the fused touches (all touches without them)
     result["largest_gap"] = largest_gap(
         plan, np.c_[xyz[0], xyz[1]] if xyz is not None else state.touched_xy_mm)
@@ -113,7 +129,7 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     # the figures first: result.json, written last, marks the results complete (a kill while
     # drawing leaves the old result.json, so --resume does not take the run as finished)
     write_figures(cell, plan, state, out, history or [status], true_rms_mm, refits,
-                  incomplete=missing(result))
+                  incomplete=missing(result), features=result.get("local_features") or ())
     write_json(out / "result.json", result)  # atomic; NaN / inf as null
     return finite_json(result)
 
@@ -147,7 +163,8 @@ def _extrapolated(plan: SurveyPlan) -> dict | None:
 
 
 def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path, history,
-                  true_rms_mm=None, refits=(), incomplete: str | None = None) -> None:
+                  true_rms_mm=None, refits=(), incomplete: str | None = None,
+                  features=()) -> None:
     """surface.png (mean and std maps, touches numbered by seq) and convergence.png (std against
     touches; ``true_rms_mm`` per history entry when the truth is known; the refits (touch
     counts) and the touch floor of the stop rule marked). ``incomplete``: what an unfinished run
@@ -156,7 +173,9 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     from adaptive_cal.report import figures as plots
 
     wp = cell.workplane
-    gx, gy, mean, std = sv.grid(plan, state.belief, state=state)
+    gx, gy, mean, std = sv.grid(plan, state.belief, state=state,
+                                extra_var=(lambda x, y: feature_var_mm2(features, x, y))
+                                if features else None)
     keep = [(k.x_mm, k.y_mm) for k in wp.keep_outs]
     touched = np.array(state.touched_xy_mm, float).reshape(-1, 2)  # numbered as in the recording
     fig = plots.surface_figure(gx, gy, mean, std, touched, wp.x_mm, wp.y_mm,
@@ -182,26 +201,29 @@ def _save(fig, path: Path) -> None:
 UNRESOLVED_NODES = 81  # per side of the saved grid of s_u^2 (``unresolved_grid``)
 
 
-def unresolved_grid(plan: SurveyPlan, state: sv.SurveyState) -> dict[str, np.ndarray]:
+def unresolved_grid(plan: SurveyPlan, state: sv.SurveyState, features=()) -> dict[str, np.ndarray]:
     """s_u^2 (``planning.survey.unresolved_var_mm2``: structure finer than the knots, a drift
-    the closure found) on a UNRESOLVED_NODES-square grid over the workplane, as belief.npz keeps
-    it, so the report's and compensate's bands are the run's (the spline's variance plus this)."""
+    the closure found; plus the confirmed local ``features``, ``feature_var_mm2``) on a
+    UNRESOLVED_NODES-square grid over the workplane, as belief.npz keeps it, so the report's
+    and compensate's bands are the run's (the spline's variance plus this)."""
     (x0, x1), (y0, y1) = plan.plate_mm
     gx, gy = np.linspace(x0, x1, UNRESOLVED_NODES), np.linspace(y0, y1, UNRESOLVED_NODES)
     xx, yy = np.meshgrid(gx, gy, indexing="ij")
     u = sv.unresolved_var_mm2(plan, state, np.c_[xx.ravel(), yy.ravel()]).reshape(xx.shape)
+    u = u + feature_var_mm2(features, xx, yy)
     return {"unresolved_x_mm": gx, "unresolved_y_mm": gy, "unresolved_var_mm2": u}
 
 
-def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path) -> None:
+def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path, features=()) -> None:
     """The belief and its spline, for ``--prior-from`` in a later run (replaced whole), with
     the touches and fused readings it holds (never more than the recording's rows), and the
-    variance of structure finer than the knots on a grid (``unresolved_grid``)."""
+    variance of structure finer than the knots and of confirmed local ``features`` on a grid
+    (``unresolved_grid``)."""
     s = plan.model.surface
     arrays = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
               "knots_y": s.sy.knots, "hyper": np.array(state.hyper),
               "touches": np.array(state.touches), "fused": np.array(state.fused),
-              **unresolved_grid(plan, state)}
+              **unresolved_grid(plan, state, features)}
     replace_atomically(path, lambda f: np.savez(f, **arrays), binary=True)
 
 

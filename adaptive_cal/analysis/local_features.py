@@ -1,0 +1,109 @@
+"""Local features a retake confirmed and the map does not follow.
+
+The gate retakes a reading far from the map (``planning.gate``). When the retake, an unselected
+second reading at the same point, departs from the map in the same direction, the plate really
+is there -- a dent, a burr, a chip narrower than the spline's knots -- and the spline cannot
+follow it: its bands and the self-checks (mean squares over many readings) do not show it, and
+the whole plate's flatness from the map would leave it out. Measured (docs/flatness.md): a run
+that touched a 30 um dent (radius 20 mm) and confirmed it by the retake, -18 um against the
+map, reported the whole plate's minimum zone as 2.1 um (95 % 1.2 .. 4.8) with the touched
+points' at 32.8 um.
+
+The test is on the retake alone (the gated reading was selected for being far off, so it is
+not evidence): its leave-one-out residual against the map, e = (y - b m) r_w / (r_w - s) with
+s = b C b^T and r_w = sigma^2 / w its fusion noise (the exact removal of one fused reading),
+standardized by sqrt(sigma^2 + s r_w / (r_w - s)), beyond the two-sided normal bound at
+``ALPHA`` shared over the run's retakes (Bonferroni), and of the gated reading's sign. The
+departure is the retake's residual, with that sd.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import norm
+
+from adaptive_cal.formats.recording import Recording, surface_height_mm
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.planning.gate import flagged_p
+
+ALPHA = 0.01  # false-alarm level over all of a run's retakes
+SAME_POINT_MM = 1e-3  # a retake is taken at the gated reading's point
+MIN_RADIUS_MM = 5.0  # the bands widen at least this far around a confirmed feature
+
+
+def retake_pairs(rec: Recording) -> list[tuple[int, int]]:
+    """(gated row, retake row) indices: a ``gated`` row followed by a fused ``retake`` at the
+    same point."""
+    if not rec.flags:
+        return []
+    fused = rec.fused
+    out = []
+    for i in range(len(rec.flags) - 1):
+        j = i + 1
+        if ("gated" in rec.flags[i] and "retake" in rec.flags[j] and fused[j]
+                and abs(rec.x_mm[i] - rec.x_mm[j]) <= SAME_POINT_MM
+                and abs(rec.y_mm[i] - rec.y_mm[j]) <= SAME_POINT_MM
+                and np.isfinite(rec.reading_mm[i]) and np.isfinite(rec.reading_mm[j])):
+            out.append((i, j))
+    return out
+
+
+def confirmed(surface, belief: bl.Belief, noise_std_mm: float, rec: Recording,
+              zero_mm: float) -> list[dict]:
+    """Local features the retakes confirmed (module docstring), JSON-ready: {x_mm, y_mm,
+    departure_mm, sd_mm, z, seq [gated, retake], nearest_touch_mm (the distance to the nearest
+    other fused touch)}."""
+    pairs = retake_pairs(rec)
+    if not pairs or not noise_std_mm > 0:
+        return []
+    zc = float(norm.isf(ALPHA / (2 * len(pairs))))
+    sigma2 = float(noise_std_mm) ** 2
+    fused = np.flatnonzero(rec.fused)
+    out = []
+    for i, j in pairs:
+        x, y = float(rec.x_mm[j]), float(rec.y_mm[j])
+        b = surface.basis(np.array([x]), np.array([y]))[0]
+        mean = float(b @ belief.mean)
+        s = float(b @ belief.cov @ b)
+        rw = sigma2 / max(1.0 - flagged_p(rec.flags[j]), 1e-9)
+        if rw <= s:  # the reading carries nearly all the posterior there: nothing to leave out
+            continue
+        g = rw / (rw - s)
+        h_r = surface_height_mm(rec.reading_mm[j], rec.z_mm[j], zero_mm)
+        h_g = surface_height_mm(rec.reading_mm[i], rec.z_mm[i], zero_mm)
+        e = (h_r - mean) * g
+        sd = float(np.sqrt(sigma2 + s * g))
+        mean_without = h_r - e  # the map's height there without the retake
+        if abs(e) / sd <= zc or np.sign(h_g - mean_without) != np.sign(e):
+            continue
+        others = [k for k in fused if k not in (i, j)]
+        near = (float(np.min(np.hypot(rec.x_mm[others] - x, rec.y_mm[others] - y)))
+                if others else None)
+        out.append({"x_mm": x, "y_mm": y, "departure_mm": float(e), "sd_mm": sd,
+                    "z": float(e / sd), "seq": [int(rec.seq[i]), int(rec.seq[j])],
+                    "nearest_touch_mm": near})
+    return out
+
+
+def feature_line(f: dict) -> str:
+    where = "below" if f["departure_mm"] < 0 else "above"
+    near = (f"; no other touch within {f['nearest_touch_mm']:.0f} mm"
+            if f.get("nearest_touch_mm") is not None else "")
+    return (f"local feature at ({f['x_mm']:.0f}, {f['y_mm']:.0f}) mm: the retake (seq "
+            f"{f['seq'][1]}) confirmed the gated reading, {abs(f['departure_mm']) * 1e3:.1f} um "
+            f"{where} the map (sd {f['sd_mm'] * 1e3:.1f} um); the map does not follow it, the "
+            f"whole plate's flatness includes it{near}")
+
+
+def feature_var_mm2(features, x_mm, y_mm) -> np.ndarray:
+    """The variance the confirmed features add to the bands at points (x, y): departure^2 +
+    sd^2 within the nearest other touch's distance of each (where no touch says the plate
+    follows the map again; at least ``MIN_RADIUS_MM``), 0 elsewhere. In belief.npz's grid of
+    unresolved variance, so the report's bands and ``compensate``'s refusals see them, and in
+    the run's surface.png."""
+    x, y = np.broadcast_arrays(np.asarray(x_mm, float), np.asarray(y_mm, float))
+    out = np.zeros(x.shape)
+    for f in features:
+        r = max(f.get("nearest_touch_mm") or 0.0, MIN_RADIUS_MM)
+        inside = np.hypot(x - f["x_mm"], y - f["y_mm"]) <= r
+        out = out + np.where(inside, f["departure_mm"] ** 2 + f["sd_mm"] ** 2, 0.0)
+    return out
