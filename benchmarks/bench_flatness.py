@@ -12,8 +12,9 @@ DESIGN.md defines it) onto the run's evaluation grid (41 x 41 nodes over the wor
 least-squares plane by numpy's lstsq, the minimum zone as a linear programme (scipy linprog).
 
 Printed per family: how often each 95 % interval holds the true figure, and how often the
-truth lay above it (the map missed structure) or below; also the touches, the run's largest
-gap between touches and its unresolved RMS. The noisy family is left out: its plates are the
+truth lay above it (the map missed structure) or below, and how many local features the runs
+named (a gated reading its retake confirmed); the records also keep each run's largest gap
+between touches and its unresolved RMS. The noisy family is left out: its plates are the
 smooth family's, its difference is in the readings.
 
     nice -n 10 python benchmarks/bench_flatness.py --plates 10     # about 25 min on 2 cores
@@ -85,7 +86,7 @@ def one_plate(job: tuple) -> dict:
     out = {"family": family, "plate": index, "touches": r["touches"],
            "stopped_because": r["stopped_because"], "wall_s": time.perf_counter() - t0,
            "unresolved_rms_mm": (r.get("model") or {}).get("unresolved_rms_mm"),
-           "largest_gap": r.get("largest_gap")}
+           "largest_gap": r.get("largest_gap"), "local_features": r.get("local_features", [])}
     for k in ("least_squares", "minimum_zone"):
         f = r["flatness_mm"][k]
         lo, hi = f["ci95"]
@@ -96,7 +97,7 @@ def one_plate(job: tuple) -> dict:
 
 def report(records: list[dict]) -> list[str]:
     lines = ["family    plates  touches  least squares: in / above / below   minimum zone: "
-             "in / above / below   true MZ um (median)  claimed MZ um (median)"]
+             "in / above / below   true MZ um (median)  claimed MZ um (median)  local features"]
     ok = [r for r in records if "error" not in r]
     for family in [f for f in FAMILIES if any(r["family"] == f for r in ok)] + ["all"]:
         rr = [r for r in ok if family in ("all", r["family"])]
@@ -108,7 +109,8 @@ def report(records: list[dict]) -> list[str]:
         lines.append(f"{family:8s}  {len(rr):6d}  {np.mean([r['touches'] for r in rr]):7.1f}  "
                      f"{cells[0]:>33s}   {cells[1]:>32s}   "
                      f"{1e3 * np.median([r['minimum_zone']['true'] for r in rr]):8.1f}"
-                     f"             {1e3 * np.median([r['minimum_zone']['value'] for r in rr]):8.1f}")
+                     f"             {1e3 * np.median([r['minimum_zone']['value'] for r in rr]):8.1f}"
+                     f"          {sum(len(r.get('local_features') or ()) for r in rr):3d}")
     errors = [r for r in records if "error" in r]
     if errors:
         lines.append(f"{len(errors)} runs failed, first: {errors[0]['error']}")

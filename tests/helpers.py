@@ -32,6 +32,23 @@ def drive(plan, opened, limit=500, state=None):
     return state
 
 
+def loop_on(cell):
+    """The product's loop on a simulated cell until its own stopping rule fires: (plan, final
+    survey state, why it stopped)."""
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.run.devices import open_cell
+    from adaptive_cal.run.loop import run_loop
+
+    plan = survey_plan(cell)
+    opened = open_cell(cell)
+    try:
+        state, why = run_loop(plan, sv.start(plan), opened.cycle)
+    finally:
+        opened.close()
+    return plan, state, why
+
+
 def wait_listening(port: int, host: str = "127.0.0.1", timeout_s: float = 10.0) -> None:
     """Until a server thread that binds and listens on its own accepts on ``port``."""
     import socket

@@ -7,7 +7,7 @@ import pytest
 
 from adaptive_cal.planning import closure as cl
 from adaptive_cal.planning import survey as sv
-from tests.helpers import sim_cell
+from tests.helpers import loop_on, sim_cell
 
 
 def test_the_test_subtracts_the_maps_own_difference_and_averages_a_retake():
@@ -128,20 +128,11 @@ def test_runs_on_a_cell_that_does_not_drift_rarely_say_drift():
     what the test uses): 30 seeds of the simulated cell without drift, at most 2 false alarms
     at the 1 % level (binomial: P(3 or more) = 0.003 when calibrated; measured 2 of 400,
     docs/study-notes.md)."""
-    from adaptive_cal.cell.build import survey_plan
-    from adaptive_cal.run.devices import open_cell
-    from adaptive_cal.run.loop import run_loop
-
     alarms, ps = 0, []
     for seed in range(30):
         cell = sim_cell(simulation={**sim_cell().simulation.model_dump(exclude_none=True),
                                     "seed": 1000 + seed}, plan={"candidates": 2000})
-        plan = survey_plan(cell)
-        opened = open_cell(cell)
-        try:
-            state, why = run_loop(plan, sv.start(plan), opened.cycle)
-        finally:
-            opened.close()
+        plan, state, why = loop_on(cell)
         alarms += why == "drift"
         ps.append(state.closure.p)
     assert alarms <= 2

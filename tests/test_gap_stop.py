@@ -4,11 +4,10 @@ import numpy as np
 import pytest
 
 from adaptive_cal.cell.build import survey_plan
-from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.gap import largest_gap
 from adaptive_cal.planning.stopping import GapBelow, MeanStdBelow, Status
 
-from helpers import sim_cell
+from helpers import loop_on, sim_cell
 
 
 def _brute_gap(cand, touched):
@@ -48,18 +47,9 @@ def test_a_run_with_a_gap_bound_leaves_no_wider_gap_and_stops_on_its_bound():
     """The simulated cell: the bound alone stops after about 31 touches with a gap of about
     83 mm; with max_gap_mm 60 it stops on the same bound later, every allowed candidate within
     60 mm of a touch (brute force over the plan's candidates)."""
-    from adaptive_cal.run.devices import open_cell
-    from adaptive_cal.run.loop import run_loop
-
     def run(stop):
-        cell = sim_cell(plan={"stop": {"mean_std_mm": 0.004, "max_touches": 120, **stop},
-                              "candidates": 2000})
-        plan = survey_plan(cell)
-        opened = open_cell(cell)
-        try:
-            state, why = run_loop(plan, sv.start(plan), opened.cycle)
-        finally:
-            opened.close()
+        plan, state, why = loop_on(sim_cell(plan={"stop": {"mean_std_mm": 0.004, "max_touches": 120,
+                                                            **stop}, "candidates": 2000}))
         touched = np.array(state.touched_xy_mm, float)
         return why, state.touches, _brute_gap(plan.candidates.xy_mm, touched)
 
