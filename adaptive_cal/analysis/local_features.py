@@ -22,7 +22,7 @@ The plate families' gross errors are independent from reading to reading (benchm
 so there a retake that agrees with its gated reading is the plate: the two runs of 20 on the
 noisy family that named a feature named a place where the readings were right to 2 um and the
 map was 17-25 um off (the plate's edge, y = 175 mm), and one of them was dropped by the
-``FOLLOWS`` test (the map ended 5 um off). On a real cell a chip under the tip that stays for
+``FOLLOWS`` test (the map ended 5 um from the retake). On a real cell a chip under the tip that stays for
 the retake is a feature of the plate too.
 """
 from __future__ import annotations

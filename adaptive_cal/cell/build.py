@@ -15,7 +15,8 @@ from adaptive_cal.gaussian.prior import Hyper, PriorModel
 from adaptive_cal.gaussian.spline import Surface, default_knots, embedding, refined
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.scoring import candidate_grid
-from adaptive_cal.planning.stopping import AtLeast, GapBelow, MaxStdBelow, MeanStdBelow, StopRule, TouchBudget
+from adaptive_cal.planning.stopping import (AtLeast, GapBelow, MaxStdBelow, MeanStdBelow, StopRule,
+                                            TouchBudget)
 
 EVAL_POINTS = 41  # the evaluation grid over the plate is EVAL_POINTS x EVAL_POINTS
 GROW_CAP = 160  # a model grows (knots refined once) only up to this many coefficients
