@@ -204,7 +204,7 @@ def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
 
 def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
            regions: tuple[int, int] = (3, 3), form_surface=None, suspect: bool = False,
-           reach_mm=None) -> Adequacy:
+           reach_mm=None, weights=None) -> Adequacy:
     """Checks of the readings (heights y at basis ``rows`` of ``surface``) against the Gaussian
     ``prior`` belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the
     probe's stated span [lo, hi] or None; ``regions``: the grid the plate is split into;
@@ -212,15 +212,23 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     plate is known to have structure finer than the coarse knots (a grown model): then the
     learned noise beyond the span's centre sqrt(lo hi) counts as unresolved structure, not as
     probe noise (the readings alone cannot split the two); ``reach_mm``: the box touches can
-    reach (the workplane less its edge margin), for ``Adequacy.extrapolated``."""
+    reach (the workplane less its edge margin), for ``Adequacy.extrapolated``; ``weights``:
+    each reading's share w = 1 - p of the noise precision, as it was fused (the outlier
+    mixture, ``planning.gate``): the checks judge reading i with noise r / w_i, the model the
+    belief holds, so a reading the fusion trusted less does not count as structure in full."""
     form_surface = form_surface or surface
     n = len(readings)
     noise_std_mm = hyper.noise_std_mm
-    r = noise_std_mm**2
-    r_p = min(noise_std_mm, noise_range_mm[1]) ** 2 if noise_range_mm is not None else r
+    inv_w = 1.0 / np.clip(np.ones(n) if weights is None else np.asarray(weights, float),
+                          1e-9, 1.0)
+    r = noise_std_mm**2 * inv_w
+    r_p = (min(noise_std_mm, noise_range_mm[1]) ** 2 if noise_range_mm is not None
+           else noise_std_mm**2)
     r_mag = r_p  # the probe noise the unresolved variance is measured beyond
     if suspect and noise_range_mm is not None:
         r_mag = min(r_p, noise_range_mm[0] * noise_range_mm[1])
+    r_p0 = r_p  # the probe's share, for a reading fused with full weight
+    r_p, r_mag = r_p * inv_w, r_mag * inv_w
     ex = np.linspace(*plate_mm[0], regions[0] + 1)
     ey = np.linspace(*plate_mm[1], regions[1] + 1)
     spacing = form_surface.knot_interval_mm
@@ -265,7 +273,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
             var[a, b] = max(0.0, float(excess[sel].mean()))
     result["regions"] = {"value": worst, "bound": 1.0,
                          "is": "largest regional LOO mean square over its chi2 bound"}
-    result["resolution"] = {"value": float(np.sqrt(form_var)), "bound": 0.5 * np.sqrt(r_p),
+    result["resolution"] = {"value": float(np.sqrt(form_var)), "bound": 0.5 * np.sqrt(r_p0),
                             "is": "RMS (mm) of the learned form finer than the knots"}
     for c in result.values():
         c["passed"] = bool(c["value"] <= c["bound"])

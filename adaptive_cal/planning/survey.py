@@ -32,7 +32,9 @@ from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, learned_belief
 from adaptive_cal.planning.adequacy import Adequacy, assess
 from adaptive_cal.planning.closure import Closure
-from adaptive_cal.planning.gate import Retake, Told, flagged_p, judge as gate_judge, pending_after
+from adaptive_cal.gaussian import checks
+from adaptive_cal.planning.gate import (FLAG_P, Predictive, Retake, Told, flagged_p,
+                                        judge as gate_judge, outlier_probability, pending_after)
 from adaptive_cal.planning.robust import InvalidReading, check_touch, predictive  # noqa: F401
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.gap import largest_gap
@@ -150,7 +152,8 @@ def check(plan: SurveyPlan, state: SurveyState, *, coarse: bool = False) -> Adeq
     form = plan.model.form_surface if extra is None else plan.model.surface
     return assess(plan.model.surface, plan.plate_mm, state.rows, state.heights_mm, prior,
                   state.hyper, plan.noise_range_mm, plan.adequacy_regions, form_surface=form,
-                  suspect=extra is not None, reach_mm=plan.bounds_mm)
+                  suspect=extra is not None, reach_mm=plan.bounds_mm,
+                  weights=state.fused_weights)
 
 
 def stop_reason(plan: SurveyPlan, state: SurveyState) -> str | None:
@@ -250,6 +253,9 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
                        fitted_at=state.fused)
 
     state = fitted(state)
+    weights = reweighed(plan, state)
+    if weights is not None:  # a reading the learned model now takes for a gross error
+        state = fitted(replace(state, weights=weights))
     if plan.growth is not None and state.prior is None and state.fused >= 3:
         coarse = check(plan, state, coarse=True)
         grown = np.zeros(plan.adequacy_regions) if coarse.adequate else \
@@ -258,6 +264,31 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
         if not np.allclose(grown, old):
             state = fitted(replace(state, grown_mm2=grown))
     return replace(state, adequacy=check(plan, state))
+
+
+def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
+    """Each fused reading judged again once the hyper-parameters are learned: its outlier
+    probability p under its leave-one-out predictive (the belief from every other reading, its
+    genuine noise the learned one; ``gate.outlier_probability``), and its weight lowered to
+    1 - p where p reaches ``FLAG_P`` (never raised: a weight is the least trust any judgement
+    gave it). None when no weight falls. Before the noise is learned the gate judges a reading
+    against the hyper-prior's wide mixture, so a gross error among the first touches was fused
+    in full (a 128 um error at the third touch of a heavy-tailed plate then held 28 um of
+    "unresolved structure" for the rest of the run, and the run never met its bound). The
+    decision is a function of the readings: a replay makes it again; result.json's model
+    lists the readings it lowered (``run.results``)."""
+    if state.fused < 3 or not learns(plan, state):
+        return None
+    w = state.fused_weights
+    r = state.hyper.noise_std_mm**2
+    prior = plan.model.belief(state.hyper, extra_cov(plan, state))
+    loo = checks.leave_one_out(state.rows, state.heights_mm, prior.mean, prior.cov, r / w)
+    var = np.maximum(loo.variance_mm2 - r / w, 0.0) + r  # the genuine reading's predictive
+    stroke = plan.usable_mm[1] - plan.usable_mm[0]
+    p = np.array([outlier_probability(Predictive.gaussian(y - e, v), y, stroke)
+                  for y, e, v in zip(state.heights_mm, loo.residual_mm, var)])
+    new = np.where(p >= FLAG_P, np.minimum(w, 1.0 - p), w)
+    return new if np.any(new < w - 1e-12) else None
 
 
 def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:

@@ -16,6 +16,8 @@ from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.npz import read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
+from adaptive_cal.formats.numbers import count
+from adaptive_cal.planning.gate import flagged_p
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
@@ -45,6 +47,18 @@ def local_features(plan: SurveyPlan, state: sv.SurveyState, recording) -> list[d
     recording (a path or a Recording) against the state's map."""
     return confirmed(plan.model.surface, state.belief, state.hyper.noise_std_mm,
                      _recording(recording), plan.zero_mm)
+
+
+def reweighted(state: sv.SurveyState, rec) -> list[dict]:
+    """The fused readings whose weight the refits lowered below what their flags say
+    (``planning.survey.reweighed``): [{seq, outlier_probability}] (p = 1 - weight now)."""
+    fused = rec.fused
+    if not rec.flags or int(fused.sum()) != state.fused:
+        return []
+    flagged = np.array([1.0 - flagged_p(f) for f, k in zip(rec.flags, fused) if k])
+    now = state.fused_weights
+    return [{"seq": int(seq), "outlier_probability": float(1.0 - w)}
+            for seq, w, was in zip(rec.seq[fused], now, flagged) if w < was - 1e-9]
 
 
 def _recording(recording):
@@ -86,6 +100,14 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
     xyz = touched_heights(plan, rec) if rec is not None else None
     # a dent or burr a retake confirmed and the spline cannot follow (analysis.local_features)
     result["local_features"] = local_features(plan, state, rec) if rec is not None else []
+    lowered = reweighted(state, rec) if rec is not None else []
+    result["model"]["reweighted"] = lowered
+    if lowered:
+        shown = ", ".join(f"seq {r['seq']} p {r['outlier_probability']:.2f}" for r in lowered[:3])
+        more = f" and {len(lowered) - 3} more" if len(lowered) > 3 else ""
+        result["model"]["summary"] += (
+            f"; {count(len(lowered), 'fused reading')} judged a gross error once the noise was "
+            f"learned ({shown}{more}): in the map at weight 1 - p")
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
                                   xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
                                   SAMPLES, sv.unresolved_var_mm2(plan, state, plan.eval_xy),

@@ -215,4 +215,17 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   touches, 133 -> 167 s: both need more touches to the bound with the heavier tails, and the
   adaptive run's lead over the grid there shrinks (40 s -> 23 s), so the mix moves: robot
   time 1.024 -> 1.039 x, touches 1.006 -> 1.022 x.
+* **fused readings judged again once the noise is learned** (2026-11-24c; before:
+  `benchmarks/results/plates-2026-11-24b.json`): at each refit every fused reading's outlier
+  probability is computed again under its leave-one-out predictive and its weight lowered to
+  1 - p where p reaches 0.05 (`planning.survey.reweighed`), and the self-checks judge each
+  reading with the noise it was fused with, r / w. A gross error among the first
+  touches had been fused in full -- the gate judged it against the hyper-prior's wide mixture
+  -- and then held tens of um of "unresolved structure" for the rest of the run. Noisy,
+  adaptive: 40.0 -> 24.6 touches, 144 -> 94 s, coverage 0.913 -> 0.903, true RMS / bound
+  1.02 -> 1.05; grid (the same estimator) 48.0 -> 25.5 touches, 167 -> 96 s; paper's true RMS
+  3.8 -> 2.7 um. Rough: coverage 0.923 -> 0.925; the other five families identical. Both
+  strategies gain, the grid more (its serpentine met more early gross errors in full), so
+  over the mix the ratios move away from their targets: robot time 1.039 -> 1.062 x, touches
+  1.022 -> 1.048 x.
 """
