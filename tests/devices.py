@@ -26,8 +26,10 @@ def controller():
 
 
 def connect(server, **kw):
-    """The hses adapter on ``server`` with short timeouts and the same user frame."""
-    kw = {"timeout_s": 0.1, "retries": 0, "poll_s": 0.002, "move_timeout_s": 2.0,
+    """The hses adapter on ``server`` with short timeouts and the same user frame; two resends
+    by default (one 0.1 s try timed out once on a loaded 2-core machine: a CI failure with no
+    fault injected). Tests of the resend logic give ``retries`` themselves."""
+    kw = {"timeout_s": 0.1, "retries": 2, "poll_s": 0.002, "move_timeout_s": 2.0,
           "offset_mm": (100, 0, 300),
           "user_frame_in_base": {"origin_mm": UFRAME[0], "rotation_deg": UFRAME[1]}, **kw}
     return HsesMotion(HsesConfig(host="127.0.0.1", port=server.port, **kw))
