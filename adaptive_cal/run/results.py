@@ -42,13 +42,6 @@ def touched_heights(plan: SurveyPlan, recording) -> tuple[np.ndarray, np.ndarray
     return rec.x_mm[f], rec.y_mm[f], surface_height_mm(rec.reading_mm[f], rec.z_mm[f], plan.zero_mm)
 
 
-def local_features(plan: SurveyPlan, state: sv.SurveyState, recording) -> list[dict]:
-    """The local features a retake confirmed (``analysis.local_features.confirmed``) in a
-    recording (a path or a Recording) against the state's map."""
-    return confirmed(plan.model.surface, state.belief, state.hyper.noise_std_mm,
-                     _recording(recording), plan.zero_mm)
-
-
 def reweighted(state: sv.SurveyState, rec) -> list[dict]:
     """The fused readings whose weight the refits lowered below what their flags say
     (``planning.survey.reweighed``): [{seq, outlier_probability}] (p = 1 - weight now)."""
@@ -99,7 +92,9 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
            if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
     xyz = touched_heights(plan, rec) if rec is not None else None
     # a dent or burr a retake confirmed and the spline cannot follow (analysis.local_features)
-    result["local_features"] = local_features(plan, state, rec) if rec is not None else []
+    result["local_features"] = (confirmed(plan.model.surface, state.belief,
+                                          state.hyper.noise_std_mm, rec, plan.zero_mm)
+                                if rec is not None else [])
     lowered = reweighted(state, rec) if rec is not None else []
     result["model"]["reweighted"] = lowered
     if lowered:
@@ -139,19 +134,22 @@ def robot_time_is(speed_mm_per_s: float, touch_time_s: float) -> str:
 def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path,
                   stopped_because: str, *, rng: np.random.Generator, history=None, truth=None,
                   true_rms_mm=None, refits=()) -> dict:
-    """result.json, surface.png and convergence.png in ``out``, each replaced whole (a temporary
-    file moved over the old one); returns the result dict (non-finite numbers as None).
-    ``rng`` draws the posterior samples of the intervals; ``history``: the status before the
-    first touch and after each one (convergence figure)."""
+    """belief.npz, result.json, surface.png and convergence.png in ``out``, each replaced whole
+    (a temporary file moved over the old one); returns the result dict (non-finite numbers as
+    None). ``rng`` draws the posterior samples of the intervals; ``history``: the status before
+    the first touch and after each one (convergence figure)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     result = result_of(cell, plan, state, out / "recording.csv", stopped_because, rng=rng,
                        truth=truth)
+    features = result.get("local_features") or ()
+    save_belief(plan, state, out / "belief.npz", features)
     status = sv.status(plan, state)
-    # the figures first: result.json, written last, marks the results complete (a kill while
-    # drawing leaves the old result.json, so --resume does not take the run as finished)
+    # the belief and the figures first: result.json, written last, marks the results complete
+    # (a kill while drawing leaves the old result.json, so --resume does not take the run as
+    # finished)
     write_figures(cell, plan, state, out, history or [status], true_rms_mm, refits,
-                  incomplete=missing(result), features=result.get("local_features") or ())
+                  incomplete=missing(result), features=features)
     write_json(out / "result.json", result)  # atomic; NaN / inf as null
     return finite_json(result)
 

@@ -30,7 +30,7 @@ from adaptive_cal.run.folder import run_lock, write_json
 from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, History, Row, SurveyLoop
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_RECORD, PRIOR_SURPRISES,
                                       disagreement, load_prior, saved_prior)
-from adaptive_cal.run.results import local_features, save_belief, write_results
+from adaptive_cal.run.results import write_results
 from adaptive_cal.run.truth import TrueError
 
 RESULTS_SEED = 0  # the posterior samples behind result.json's intervals
@@ -204,9 +204,6 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     state = loop.state
     result = None
     if error is None or state.touches:
-        rec_path = paths.out / "recording.csv"
-        features = local_features(plan, state, rec_path) if rec_path.exists() else ()
-        save_belief(plan, state, paths.out / "belief.npz", features)  # before result.json
         result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
                                rng=np.random.default_rng(RESULTS_SEED), history=history.statuses,
                                refits=history.refits,
