@@ -109,9 +109,9 @@ def map_flatness(args) -> dict | None:
         raise UserError(f"{rec_path}: {n} usable touch{'es' * (n != 1)}; flatness needs at "
                         "least 4")
     features = confirmed(plan.model.surface, belief, noise_mm, rec, plan.zero_mm)
-    # belief.npz's grid holds the features' band too; the whole plate's answer draws them as
-    # points instead, as the run does (the same digits)
-    unresolved = np.maximum(unresolved - feature_var_mm2(features, *plan.eval_xy.T), 0.0)
+    if not args.robot:  # belief.npz's grid holds the features' band too; the whole plate's
+        # answer draws them as points instead, as the run does (the same digits)
+        unresolved = np.maximum(unresolved - feature_var_mm2(features, *plan.eval_xy.T), 0.0)
     out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
                           args.samples or SAMPLES, unresolved, features)
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
