@@ -52,3 +52,26 @@ def test_a_clean_plate_keeps_every_weight():
     for seed in range(5):
         _, state = _state(0.0, seed)
         assert np.all(state.fused_weights == 1.0)
+
+
+@pytest.mark.parametrize("n", [40, 160])
+def test_a_certain_gross_error_keeps_a_finite_weight_and_the_fit_stays_finite(n):
+    """p rounds to 1.0 for a 2 mm error: its weight is floored at ``W_MIN``, not 0 (a weight of
+    0 gave the reading an infinite noise variance, the hyper-parameter fit NaN, and a
+    heavy-tailed plate's run ended in 'Eigenvalues did not converge' at its closure)."""
+    cell = sim_cell(plan={"candidates": 2000}, probe={"noise_std_mm": 0.005})
+    plan = survey_plan(cell, grow=False)
+    rng = np.random.default_rng(3)
+    xy = np.c_[rng.uniform(-200, 200, n), rng.uniform(-160, 160, n)]
+    h = 0.005 * rng.standard_normal(n)
+    h[5] += 2.0
+    rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])
+    state = replace(sv.start(plan), rows=rows, heights_mm=h, weights=np.ones(n), touches=n,
+                    touched_xy_mm=tuple(map(tuple, xy)))
+    state = sv.refit(plan, state)
+    w = state.fused_weights
+    assert sv.W_MIN <= w[5] < 1e-5 and np.all(np.delete(w, 5) > 0.5)
+    assert np.all(np.isfinite(state.belief.mean)) and np.all(np.isfinite(state.belief.cov))
+    assert np.isfinite(state.hyper.noise_std_mm) and state.hyper.noise_std_mm < 0.01
+    again = sv.refit(plan, state)  # a second refit (the closure's) from the floored weights
+    assert np.all(np.isfinite(again.belief.mean))

@@ -239,8 +239,10 @@ def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     eps = 1e-4  # Hessian by central differences of the exact gradient (no extra compile)
     h = np.array([(fun(best + eps * e)[1] - fun(best - eps * e)[1]) / (2 * eps)
                   for e in np.eye(len(best))])
+    if not np.all(np.isfinite(h)):
+        return out  # the posterior is not finite around the MAP: keep the MAP alone
     w, v = np.linalg.eigh(0.5 * (h + h.T))
-    if not np.all(np.isfinite(w)) or w.min() <= 0:
+    if w.min() <= 0:
         return out  # not a proper maximum (on a bound): keep the MAP alone
     kappa, n = 1.0, len(best)
     lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])

@@ -266,6 +266,9 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     return replace(state, adequacy=check(plan, state))
 
 
+W_MIN = 1e-6  # the least weight a fused reading keeps (``reweighed``)
+
+
 def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     """Each fused reading judged again once the hyper-parameters are learned: its outlier
     probability p under its leave-one-out predictive (the belief from every other reading, its
@@ -287,7 +290,9 @@ def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     stroke = plan.usable_mm[1] - plan.usable_mm[0]
     p = np.array([outlier_probability(Predictive.gaussian(y - e, v), y, stroke)
                   for y, e, v in zip(state.heights_mm, loo.residual_mm, var)])
-    new = np.where(p >= FLAG_P, np.minimum(w, 1.0 - p), w)
+    # p rounds to 1.0 for a gross error: the floor keeps its noise finite (r / W_MIN: 5 um
+    # becomes 5 mm, no pull on the map) where 1 - p = 0 turned the hyper-parameter fit to NaN
+    new = np.where(p >= FLAG_P, np.minimum(w, np.maximum(1.0 - p, W_MIN)), w)
     return new if np.any(new < w - 1e-12) else None
 
 
