@@ -206,3 +206,87 @@ def test_studies_charge_the_closure_to_bound_stops_only():
         rec = record(ctx(c), "grid", traj, 3, final, xy, why, 0.005)
         assert rec["touches"] == 3 and not rec["closure"]
         assert rec["robot_time_s"] == pytest.approx(7.0 + 9.0)
+
+
+def test_the_gates_decisions_choose_the_repeat_readings():
+    from adaptive_cal.planning.gate import Told
+
+    ok, gated = Told(True, (), 0.5), Told(False, ("gated",), 9.0, True)
+    surprise = Told(True, ("retake", "surprise"), 9.0)
+    retake = Told(True, ("retake",), 0.4)
+    rejected = Told(False, ("retake", "rejected"), 9.0)
+    assert cl.repeats_to_judge([ok]) == ([0], "")
+    assert cl.repeats_to_judge([gated, surprise]) == ([0, 1], "")  # a drift moves both
+    assert cl.repeats_to_judge([gated, retake]) == ([1], "")  # the repeat misread
+    keep, why = cl.repeats_to_judge([gated])
+    assert keep == [] and "no retake" in why
+    keep, why = cl.repeats_to_judge([gated, rejected])
+    assert keep == [] and "disagreed" in why
+
+
+class _MisreadsTheRepeat:
+    """A probe cycle whose first touch back at the run's first place (after 10 touches) reads
+    ``error_mm`` high: one gross error, exactly on the closure's repeat."""
+
+    def __init__(self, cycle, error_mm):
+        self.cycle, self.error_mm, self.first, self.n, self.hit = cycle, error_mm, None, 0, False
+
+    def __getattr__(self, name):
+        return getattr(self.cycle, name)
+
+    def touch(self, x_mm, y_mm, z_mm):
+        from dataclasses import replace
+
+        t = self.cycle.touch(x_mm, y_mm, z_mm)
+        self.n += 1
+        if self.first is None:
+            self.first = (x_mm, y_mm)
+        elif (not self.hit and self.n > 10
+              and math.hypot(x_mm - self.first[0], y_mm - self.first[1]) < 1e-6):
+            self.hit = True
+            t = replace(t, reading_mm=t.reading_mm + self.error_mm)
+        return t
+
+
+def _run_misread(stop, error_mm=0.1):
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.run.devices import open_cell
+    from adaptive_cal.run.loop import run_loop
+
+    sim = {"seed": 3, "noise_std_mm": 0.002, "repeatability_mm": 0.0,
+           "effects": {"tilt": {"a": 0.0140, "b": 0.0019, "c": 0.2},
+                       "form": {"pv_mm": 0.28, "bow_y": 1.0, "twist": 0.4}}}
+    cell = sim_cell(simulation=sim, plan={"stop": stop, "candidates": 2000})
+    plan = survey_plan(cell)
+    opened = open_cell(cell)
+    rows = []
+    try:
+        cycle = _MisreadsTheRepeat(opened.cycle, error_mm)
+        state, why = run_loop(plan, sv.start(plan), cycle, record=rows.append)
+    finally:
+        opened.close()
+    assert cycle.hit
+    return state, why, rows
+
+
+def test_one_gross_error_on_the_repeat_is_not_a_drift():
+    """A 100 um misreading on the closure's repeat: the gate retakes it, the retake reads the
+    place as the map does and stands for it alone -- no drift (averaging both read 50 um)."""
+    state, why, rows = _run_misread({"mean_std_mm": 0.004, "max_touches": 120})
+    c = state.closure
+    closing = [r for r in rows if "closure" in r.flags]
+    assert [("gated" in r.flags) for r in closing] == [True, False]  # the repeat, its retake
+    assert why == "mean_std_bound" and c.made and c.passed
+    assert c.repeat_touches == (closing[1].seq,) and abs(c.difference_mm) < 0.01
+
+
+def test_a_gated_repeat_with_no_retake_left_is_no_test():
+    """The budget's last touch is the closure; its reading misread by 100 um and gated, no
+    touch is left for the retake: the closure says it could not judge, and the run is not
+    ended as a drift."""
+    state, why, rows = _run_misread({"mean_std_mm": 0.004, "max_touches": 31,
+                                     "min_touches": 31})
+    c = state.closure
+    assert len(rows) == 31 and why != "drift"
+    assert not c.made and c.repeat_touches == (30,) and "no retake" in c.why
+    assert "not judged" in c.text() and c.drift_var_mm2 == 0.0

@@ -8,8 +8,9 @@ plus the drift between them.
 
 Test. The start is the first k <= 3 unflagged readings within ``CLUSTER_MM`` of the first one
 (the planner's start puts its second and third touches 4 and 8 mm from the first, seconds
-later); the repeat is one reading at the first place (a retake, if the gate owes one, averaged
-in: m readings). d = mean(h_repeat) - mean(h_start) - a . mu, a = mean(repeat rows) -
+later); the repeat is one reading at the first place, as the gate judged it (``repeats_to_judge``: a
+retake that confirms a gated repeat is averaged in, m = 2; one that does not replaces it; a
+gated repeat with no retake or a pair that disagrees is no test). d = mean(h_repeat) - mean(h_start) - a . mu, a = mean(repeat rows) -
 mean(start rows): the heights' difference less the map's own difference between the places (0
 for one place). Under the model (no drift) d ~ N(0, r (1/m + 1/k) + a C a), C the belief's
 covariance, r the noise variance; d / sd is compared with Student-t on n - 3 degrees of freedom
@@ -82,6 +83,10 @@ class Closure:
 
     def text(self) -> str:
         """One line for the terminal and the report."""
+        if not self.made and self.repeat_touches:
+            seq = ", ".join(str(k) for k in self.repeat_touches)
+            return (f"closure: the first place (x {self.x_mm:.1f}, y {self.y_mm:.1f} mm) touched "
+                    f"again (seq {seq}) but not judged: {self.why}")
         if not self.made:
             return f"closure touch not made: {self.why}"
         # elapsed_s is on the recording's clock (its t_s column), from the first reading there
@@ -126,6 +131,34 @@ def start_cluster(weights: np.ndarray, xy_mm: np.ndarray, i: int) -> list[int]:
     xy = np.asarray(xy_mm, float)
     return [j for j in range(min(FIRST_OF, len(w)))
             if w[j] >= 1.0 and math.hypot(*(xy[j] - xy[i])) <= CLUSTER_MM]
+
+
+def repeats_to_judge(told) -> tuple[list[int], str]:
+    """Which of the closure's readings (its repeat and the retake the gate owed, each a
+    ``gate.Told``) stand for the first place, as the gate decided them, and why none do:
+
+    * the repeat passed the gate: it alone;
+    * it was gated and its retake confirmed it (``surprise``: the surface really is there): both,
+      averaged -- a drift larger than the gate moves both readings alike;
+    * its retake was fused as the map expects, the repeat not confirmed: the retake alone (the
+      repeat was a gross error; averaging it in read 25 um of "drift" from one 50 um misreading);
+    * both rejected (they disagree with each other and the map), or the gated repeat with no
+      retake (the budget's last touch): none -- one reading judged an outlier cannot tell a
+      drift from a misreading (a probe that misreads 5 % of the time ended a run as "drift",
+      Not a result, on one gated reading at outlier p 1.00)."""
+    if not told:
+        return [], "no reading was taken"
+    if told[0].fused:
+        return [0], ""
+    if len(told) < 2:
+        return [], ("its reading was gated (far from the map: a gross error or a drift) and the "
+                    "touch budget left no retake to tell which; drift neither seen nor ruled out")
+    if "surprise" in told[1].flags:
+        return [0, 1], ""
+    if told[1].fused:
+        return [1], ""
+    return [], ("its reading and the retake disagreed with each other and with the map (a "
+                "gross error); drift neither seen nor ruled out")
 
 
 def judge(first_rows, first_mm, repeat_rows, repeat_mm, mean, cov, noise_var_mm2: float,

@@ -176,7 +176,7 @@ class SurveyLoop:
         start = cl.start_cluster(state.fused_weights, xy, i)
         first_rows, first_mm = state.rows[start].copy(), state.heights_mm[start].copy()
         first_t = self.fused_t_s[i] if i < len(self.fused_t_s) else math.nan
-        rows, heights, seqs, times, t_last = [], [], [], [], math.nan
+        rows, heights, seqs, times, told, t_last = [], [], [], [], [], math.nan
         target = target_at(plan, state, x, y)
         if plan.z_range_mm is not None and not (
                 plan.z_range_mm[0] <= target.z_mm <= plan.z_range_mm[1]):
@@ -193,6 +193,7 @@ class SurveyLoop:
             heights.append(surface_height_mm(t.reading_mm, t.z_mm, plan.zero_mm))
             seqs.append(seq)
             times.append(float(t.t_s))
+            told.append(step.told)
             t_last = t.t_s
             if self.state.retake is None or touches_left(plan.stop, self.state.touches) == 0:
                 break
@@ -201,6 +202,12 @@ class SurveyLoop:
             return self._closed(cl.Closure(False, x_mm=x, y_mm=y, first_touch=first,
                                            why="the probe cycle rejected the touch or its "
                                                "reading was invalid (see the recording's flags)"))
+        keep, why = cl.repeats_to_judge(told)
+        if why:
+            return self._closed(cl.Closure(False, x_mm=x, y_mm=y, first_touch=first,
+                                           repeat_touches=tuple(seqs), why=why))
+        rows, heights, seqs, times = ([v[k] for k in keep] for v in (rows, heights, seqs, times))
+        t_last = times[-1]
         elapsed = t_last - first_t if math.isfinite(t_last - first_t) else None
         belief, n = self.state.belief, self.state.fused
         where = dict(x_mm=x, y_mm=y, first_touch=first, repeat_touches=tuple(seqs),
