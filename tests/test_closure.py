@@ -248,15 +248,15 @@ class _MisreadsTheRepeat:
         return t
 
 
-def _run_misread(stop, error_mm=0.1):
+def _run_misread(stop, error_mm=0.1, noise_mm=0.002, **model):
     from adaptive_cal.cell.build import survey_plan
     from adaptive_cal.run.devices import open_cell
     from adaptive_cal.run.loop import run_loop
 
-    sim = {"seed": 3, "noise_std_mm": 0.002, "repeatability_mm": 0.0,
+    sim = {"seed": 3, "noise_std_mm": noise_mm, "repeatability_mm": 0.0,
            "effects": {"tilt": {"a": 0.0140, "b": 0.0019, "c": 0.2},
                        "form": {"pv_mm": 0.28, "bow_y": 1.0, "twist": 0.4}}}
-    cell = sim_cell(simulation=sim, plan={"stop": stop, "candidates": 2000})
+    cell = sim_cell(simulation=sim, plan={"stop": stop, "candidates": 2000}, model=model)
     plan = survey_plan(cell)
     opened = open_cell(cell)
     rows = []
@@ -290,3 +290,18 @@ def test_a_gated_repeat_with_no_retake_left_is_no_test():
     assert len(rows) == 31 and why != "drift"
     assert not c.made and c.repeat_touches == (30,) and "no retake" in c.why
     assert "not judged" in c.text() and c.drift_var_mm2 == 0.0
+
+
+def test_one_reading_that_says_drift_is_confirmed_before_the_run_is_ended():
+    """A 24 um misreading on the repeat that the gate lets through (gate at 8 sd here): the
+    test fails on it alone, so the place is touched once more; the second reading does not
+    repeat the departure and the two together pass -- no drift, the run stops on its bound."""
+    state, why, rows = _run_misread({"mean_std_mm": 0.004, "max_touches": 120}, 0.024, 0.005,
+                                    gate_sigma=8.0)
+    c = state.closure
+    closing = [r for r in rows if "closure" in r.flags]
+    assert len(closing) == 2 and not any("gated" in r.flags for r in closing)
+    # two ungated closure readings: the loop touched again only because the first failed
+    assert c.repeat_touches == tuple(r.seq for r in closing)
+    assert closing[0].reading_mm - closing[1].reading_mm > 0.015  # the misreading, first
+    assert why == "mean_std_bound" and c.made and c.passed  # the pair says no drift

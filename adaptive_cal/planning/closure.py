@@ -10,7 +10,11 @@ Test. The start is the first k <= 3 unflagged readings within ``CLUSTER_MM`` of 
 (the planner's start puts its second and third touches 4 and 8 mm from the first, seconds
 later); the repeat is one reading at the first place, as the gate judged it (``repeats_to_judge``: a
 retake that confirms a gated repeat is averaged in, m = 2; one that does not replaces it; a
-gated repeat with no retake or a pair that disagrees is no test). d = mean(h_repeat) - mean(h_start) - a . mu, a = mean(repeat rows) -
+gated repeat with no retake or a pair that disagrees is no test). A repeat of one reading that
+fails the test is confirmed by one touch more at the place where the budget allows
+(``run.loop``), and the test is made again on both: one misreading the gate let through
+(Student-t tails, a gross error inside the gate's reach) no longer ends the run as a drift, and a
+drift reads the same twice. d = mean(h_repeat) - mean(h_start) - a . mu, a = mean(repeat rows) -
 mean(start rows): the heights' difference less the map's own difference between the places (0
 for one place). Under the model (no drift) d ~ N(0, r (1/m + 1/k) + a C a), C the belief's
 covariance, r the noise variance; d / sd is compared with Student-t on n - 3 degrees of freedom
