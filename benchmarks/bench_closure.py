@@ -10,7 +10,8 @@ Each run is the product's own loop (``run.loop``) on configs/sim-cell.yaml with 
 seed set to ``--seed`` + i, to its stop (a bound, or the budget's last touch) with its closure.
 Kinds: ``none`` (the cell as shipped: 2 um probe, 5 um robot repeatability, Gaussian);
 ``heavy`` (Student-t readings with 3 degrees of freedom at the same sd, and 2 % gross errors of
-50 um: a chip, dust, a probe that misreads); ``warm-N`` (a warm-up of N um with tau 60 s,
+50 um: a chip, dust, a probe that misreads); ``gross-5`` (Gaussian readings, 5 % of them gross
+errors of 50 um: a dusty plate); ``warm-N`` (a warm-up of N um with tau 60 s,
 ``thermal_drift``, the arm straight from cold). A drift alarm where the cell does not drift is a
 false alarm (the test's level is 1 %: ``planning.closure.ALPHA``); on a warm-up it is a catch.
 """
@@ -25,7 +26,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-KINDS = ("none", "heavy", "warm-10", "warm-20", "warm-30", "warm-40")
+KINDS = ("none", "heavy", "gross-5", "warm-10", "warm-20", "warm-30", "warm-40")
 
 
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -52,6 +53,8 @@ def one(job: tuple[str, int]) -> dict:
     sim["seed"] = seed
     if kind == "heavy":
         sim.update(noise_dof=3.0, outlier_rate=0.02, outlier_mm=0.05)
+    elif kind == "gross-5":
+        sim.update(outlier_rate=0.05, outlier_mm=0.05)
     elif kind.startswith("warm-"):
         amp = float(kind.split("-")[1]) * 1e-3
         sim["effects"] = {**sim["effects"], "thermal_drift": {"amplitude_mm": amp, "tau_s": 60}}
