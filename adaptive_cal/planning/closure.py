@@ -151,7 +151,8 @@ def repeats_to_judge(told) -> tuple[list[int], str]:
       drift from a misreading (a probe that misreads 5 % of the time ended a run as "drift",
       Not a result, on one gated reading at outlier p 1.00)."""
     if not told:
-        return [], "no reading was taken"
+        return [], ("the probe cycle rejected the touch or its reading was invalid (see the "
+                    "recording's flags)")
     if told[0].fused:
         return [0], ""
     if len(told) < 2:

@@ -183,10 +183,6 @@ class SurveyLoop:
                                            why=f"its approach height {target.z_mm:.3f} mm is "
                                                "outside the workspace box; nothing was sent"))
         taken = self._repeat(target)
-        if not taken:
-            return self._closed(cl.Closure(False, x_mm=x, y_mm=y, first_touch=first,
-                                           why="the probe cycle rejected the touch or its "
-                                               "reading was invalid (see the recording's flags)"))
         keep, why = cl.repeats_to_judge([k[4] for k in taken])
         if why:
             return self._closed(cl.Closure(False, x_mm=x, y_mm=y, first_touch=first,
@@ -195,9 +191,8 @@ class SurveyLoop:
         verdict = self._judge(kept, start, first_rows, first_mm, first_t, x, y, first)
         left = touches_left(plan.stop, self.state.touches)
         if verdict.made and not verdict.passed and len(kept) == 1 and (left is None or left > 0):
-            # one reading says drift: confirm it before the run is ended as no result (a
-            # t-tailed or gross misreading the gate let through is then averaged with a
-            # good one; a drift reads the same twice)
+            # one reading says drift: confirm it before the run ends as no result (a misreading
+            # the gate let through is then averaged with a good one; a drift reads the same)
             more = self._repeat(target_at(plan, self.state, x, y))
             keep, why = cl.repeats_to_judge([k[4] for k in more])
             if more and not why:
