@@ -210,3 +210,17 @@ def test_readme_run_retakes_no_genuine_reading_on_its_first_10_touches(plan):
                         stop=lambda s, st: "limit" if s.touches >= 10 else None)
     opened.close()
     assert len(rows) == 10 and sum("gated" in r.flags for r in rows) == 0
+
+
+def test_a_mixture_component_of_weight_zero_adds_nothing_and_warns_nothing():
+    """A hyper-parameter point whose weight underflowed to 0 (a 1 mm bow run printed 'divide
+    by zero encountered in log' to the user): the density is the other components' alone."""
+    import warnings
+
+    from adaptive_cal.planning.gate import Predictive
+
+    with_zero = Predictive(np.array([0.0, 0.3]), np.array([1e-4, 1e-4]), np.array([1.0, 0.0]))
+    alone = Predictive.gaussian(0.0, 1e-4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert with_zero.log_density(0.01) == pytest.approx(alone.log_density(0.01), rel=1e-12)

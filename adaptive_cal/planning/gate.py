@@ -95,7 +95,9 @@ class Predictive(NamedTuple):
     def log_density(self, y_mm: float) -> float:
         """log sum_k w_k N(y; m_k, s_k) (mm^-1)."""
         w = self.weights / self.weights.sum()
-        terms = (np.log(w) - 0.5 * np.log(2 * np.pi * self.vars_mm2)
+        with np.errstate(divide="ignore"):  # a component of weight 0 (log 0 = -inf) adds nothing
+            log_w = np.log(w)
+        terms = (log_w - 0.5 * np.log(2 * np.pi * self.vars_mm2)
                  - 0.5 * (y_mm - self.means_mm) ** 2 / self.vars_mm2)
         top = terms.max()
         return float(top + np.log(np.exp(terms - top).sum()))
