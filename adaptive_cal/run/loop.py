@@ -23,9 +23,9 @@ batch larger than the touch budget left never makes more touches than the budget
 ``loop.state`` is the latest state even when a device raises.
 
 The closure touch (``plan.closure``, ``planning.closure``): when the predicate stops on a
-variance bound, the probe first touches the run's first place again (its retake too, if the
-gate asks for one), flagged ``closure``, recorded and fused like any reading; the verdict goes
-to ``state.closure``. A drift ends the loop with ``DRIFT``; else it stops as the predicate says
+variance bound, the probe first touches the run's first place again (its retake if the gate asks;
+a touch more to confirm a one-reading alarm), flagged ``closure``, recorded and fused like any
+reading; the verdict goes to ``state.closure``. A drift ends the loop with ``DRIFT``; else it stops as the predicate says
 (or goes on, if the repeat reading moved the status off the bound: a later stop closes again
 only ``CLOSURE_GAP`` touches on). No closure past the touch budget: where no bound stopped the
 run first, the budget's last touch is the closure (its retake, if one is owed, the budget
