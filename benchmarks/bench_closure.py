@@ -7,7 +7,7 @@ errors -- and how often it catches a warm-up that does happen.
     python benchmarks/bench_closure.py --out F.json    # every run's closure as result.json has it
 
 Each run is the product's own loop (``run.loop``) on configs/sim-cell.yaml with its simulation
-seed set to ``--seed`` + i, to its stop (a bound, or the budget's last touch) with its closure.
+seed set to ``--seed`` + i, to its stop (a bound, or the budget) with its closure.
 Kinds: ``none`` (the cell as shipped: 2 um probe, 5 um robot repeatability, Gaussian);
 ``heavy`` (Student-t readings with 3 degrees of freedom at the same sd, and 2 % gross errors of
 50 um: a chip, dust, a probe that misreads); ``gross-5`` (Gaussian readings, 5 % of them gross

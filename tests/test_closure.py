@@ -143,12 +143,12 @@ def test_no_closure_when_turned_off_or_the_budget_is_spent(tmp_path):
     _, state, why, rows = _run(tmp_path, closure=False)
     assert why == "mean_std_bound" and state.closure is None
     assert not any("closure" in r.flags for r in rows)
-    # no bound can stop the run before its budget: the budget's last touch is the closure,
-    # and no touch goes past the budget
+    # no bound can stop the run before its budget: the closure comes with two touches left
+    # (the last for a retake or a confirmation; here a planned touch), none past the budget
     _, state, why, rows = _run(tmp_path, stop={"mean_std_mm": 0.004, "max_touches": 31,
                                                "min_touches": 31})
     assert len(rows) == 31 and why in ("mean_std_bound", "touch_budget")
-    assert [r.seq for r in rows if "closure" in r.flags] == [30] and state.closure.passed
+    assert [r.seq for r in rows if "closure" in r.flags] == [29] and state.closure.passed
 
 
 def test_the_run_says_drift_in_result_json_the_summary_and_its_exit_status(tmp_path, capsys):
@@ -280,16 +280,17 @@ def test_one_gross_error_on_the_repeat_is_not_a_drift():
     assert c.repeat_touches == (closing[1].seq,) and abs(c.difference_mm) < 0.01
 
 
-def test_a_gated_repeat_with_no_retake_left_is_no_test():
-    """The budget's last touch is the closure; its reading misread by 100 um and gated, no
-    touch is left for the retake: the closure says it could not judge, and the run is not
-    ended as a drift."""
+def test_at_the_budgets_end_a_gated_repeat_is_retaken_with_the_last_touch():
+    """No bound stops the run: the closure comes with two touches left, so its repeat, misread
+    by 100 um and gated, is retaken with the budget's last touch and judged on the retake (a
+    closure on the very last touch said "drift" on that one reading)."""
     state, why, rows = _run_misread({"mean_std_mm": 0.004, "max_touches": 31,
                                      "min_touches": 31})
     c = state.closure
-    assert len(rows) == 31 and why != "drift"
-    assert not c.made and c.repeat_touches == (30,) and "no retake" in c.why
-    assert "not judged" in c.text() and c.drift_var_mm2 == 0.0
+    closing = [r for r in rows if "closure" in r.flags]
+    assert len(rows) == 31 and [r.seq for r in closing] == [29, 30]
+    assert "gated" in closing[0].flags and "retake" in closing[1].flags
+    assert why != "drift" and c.made and c.passed and c.repeat_touches == (30,)
 
 
 def test_one_reading_that_says_drift_is_confirmed_before_the_run_is_ended():

@@ -1,4 +1,4 @@
-"""The closure touch: when a variance bound stops a run (or with the touch budget's last touch,
+"""The closure touch: when a variance bound stops a run (or with two touches of the budget left,
 where none did), the probe touches the run's first place again, and the readings are compared.
 A cell that warms up (robot links, probe, plate) or otherwise drifts while it touches changes
 every later reading by the same amount, whatever the plate; a map of touches each at a new place
@@ -147,7 +147,7 @@ def repeats_to_judge(told) -> tuple[list[int], str]:
     * its retake was fused as the map expects, the repeat not confirmed: the retake alone (the
       repeat was a gross error; averaging it in read 25 um of "drift" from one 50 um misreading);
     * both rejected (they disagree with each other and the map), or the gated repeat with no
-      retake (the budget's last touch): none -- one reading judged an outlier cannot tell a
+      retake (a budget with one touch left): none -- one reading judged an outlier cannot tell a
       drift from a misreading (a probe that misreads 5 % of the time ended a run as "drift",
       Not a result, on one gated reading at outlier p 1.00)."""
     if not told:

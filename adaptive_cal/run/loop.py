@@ -23,13 +23,12 @@ batch larger than the touch budget left never makes more touches than the budget
 ``loop.state`` is the latest state even when a device raises.
 
 The closure touch (``plan.closure``, ``planning.closure``): when the predicate stops on a
-variance bound, the probe first touches the run's first place again (its retake if the gate asks;
-a touch more to confirm a one-reading alarm), flagged ``closure``, recorded and fused like any
-reading; the verdict goes to ``state.closure``. A drift ends the loop with ``DRIFT``; else it stops as the predicate says
-(or goes on, if the repeat reading moved the status off the bound: a later stop closes again
-only ``CLOSURE_GAP`` touches on). No closure past the touch budget: where no bound stopped the
-run first, the budget's last touch is the closure (its retake, if one is owed, the budget
-allowing).
+variance bound, the probe first touches the run's first place again (its retake if the gate
+asks; a touch more to confirm a one-reading alarm), flagged ``closure``, recorded and fused like
+any reading; the verdict goes to ``state.closure``. A drift ends the loop with ``DRIFT``; else
+it stops as the predicate says (or goes on, if the repeat moved the status off the bound: a
+later stop closes again only ``CLOSURE_GAP`` touches on). Never past the touch budget: where no
+bound stopped the run first, the closure comes with two touches left, the last for a retake.
 """
 from __future__ import annotations
 
@@ -152,12 +151,13 @@ class SurveyLoop:
                 and (self.closed_at is None or touches - self.closed_at >= CLOSURE_GAP))
 
     def _last_touch(self) -> bool:
-        """The touch budget has one touch left and no closure was made: that touch is the
-        closure (a run its bound never stopped -- a model the checks call inadequate, a bound
-        out of reach -- still learns whether the cell drifted)."""
+        """Two touches left (or one, where two could not) and no closure made: the closure now,
+        the last touch for its retake or confirmation (a run its bound never stopped -- checks
+        that fail, a bound out of reach -- still learns whether the cell drifted; a closure on
+        the very last touch could not retake a gated repeat nor confirm an alarm)."""
         return (self.plan.closure and self.closed_at is None and self.state.fused > 0
                 and self.state.retake is None
-                and touches_left(self.plan.stop, self.state.touches) == 1)
+                and touches_left(self.plan.stop, self.state.touches) in (1, 2))
 
     def close(self) -> cl.Closure:
         """The closure touch (module docstring): the first place touched again (and its
