@@ -228,4 +228,11 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   strategies gain, the grid more (its serpentine met more early gross errors in full), so
   over the mix the ratios move away from their targets: robot time 1.039 -> 1.062 x, touches
   1.022 -> 1.048 x.
+* **the closure with two touches of the budget left** (2026-11-24d; before:
+  `benchmarks/results/plates-2026-11-24c.json`): where no bound stops a run the closure now
+  comes one touch earlier, the last touch left for its retake or for confirming a one-reading
+  alarm (docs/study-notes.md, readings that can be wrong); a reading judged a certain gross
+  error keeps a weight of 1e-6 instead of 0. Only the rough plates' adaptive runs (the ones
+  that reach the budget) move: 639 -> 640 s, coverage 0.925 -> 0.924; mix robot time 1.062 ->
+  1.063 x; every other record the same to four digits.
 """
