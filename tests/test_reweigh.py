@@ -75,3 +75,93 @@ def test_a_certain_gross_error_keeps_a_finite_weight_and_the_fit_stays_finite(n)
     assert np.isfinite(state.hyper.noise_std_mm) and state.hyper.noise_std_mm < 0.01
     again = sv.refit(plan, state)  # a second refit (the closure's) from the floored weights
     assert np.all(np.isfinite(again.belief.mean))
+
+
+class _FirstTouchMisreads:
+    """A probe cycle whose first reading is ``error_mm`` high (a chip under the first touch)."""
+
+    def __init__(self, cycle, error_mm):
+        self.cycle, self.error_mm, self.n = cycle, error_mm, 0
+
+    def __getattr__(self, name):
+        return getattr(self.cycle, name)
+
+    def touch(self, x_mm, y_mm, z_mm):
+        t = self.cycle.touch(x_mm, y_mm, z_mm)
+        self.n += 1
+        return replace(t, reading_mm=t.reading_mm + self.error_mm) if self.n == 1 else t
+
+
+def _first_touch_misread_run():
+    from adaptive_cal.run.devices import open_cell
+    from adaptive_cal.run.loop import run_loop
+
+    cell = sim_cell(plan={"candidates": 2000, "stop": {"mean_std_mm": 0.006,
+                                                      "max_touches": 40}})
+    plan = survey_plan(cell)
+    opened = open_cell(cell)
+    rows = []
+    try:
+        state, why = run_loop(plan, sv.start(plan), _FirstTouchMisreads(opened.cycle, 1.4),
+                              record=rows.append)
+    finally:
+        opened.close()
+    return plan, state, why, rows
+
+
+def test_a_gross_error_on_the_first_touch_is_condemned_when_a_retake_contradicts_it():
+    """1.4 mm on the first reading: the gate retakes the next, genuine reading, the retake
+    confirms it (surprise), and the first reading is then judged against the confirmed pair:
+    weight W_MIN, the map and its approach heights rest on the genuine readings (before: the
+    run built its map on the error, 57 of 60 touches at the stroke's end)."""
+    plan, state, why, rows = _first_touch_misread_run()
+    flags = [r.flags for r in rows[:3]]
+    assert "gated" in flags[1] and "surprise" in flags[2]  # the scenario as it happened
+    assert state.fused_weights[0] == sv.W_MIN and np.all(state.fused_weights[1:] > 0.5)
+    assert not any("stroke_end" in r.flags for r in rows) and why == "mean_std_bound"
+    # the map at the first place is the genuine surface, not the error
+    x0, y0 = rows[0].x_mm, rows[0].y_mm
+    m, _ = bl.predict(state.belief, plan.model.surface.basis(np.array([x0]), np.array([y0])))
+    genuine = rows[0].reading_mm - 1.4 - plan.zero_mm + rows[0].z_mm
+    assert abs(float(m[0]) - genuine) < 0.03
+
+
+def test_a_replay_condemns_the_same_first_reading(tmp_path):
+    """The decision is a function of the recording: a replay (resume, report) makes it."""
+    import csv
+
+    from adaptive_cal.formats.recording import read_recording
+
+    plan, state, _, rows = _first_touch_misread_run()
+    path = tmp_path / "recording.csv"
+    with path.open("w", newline="") as f:
+        f.write("# adaptive-cal recording v1\n")
+        w = csv.writer(f)
+        w.writerow(["seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm", "flags"])
+        for r in rows:
+            w.writerow([r.seq, r.t_s, r.x_mm, r.y_mm, r.z_mm, r.reading_mm, ";".join(r.flags)])
+    again = sv.replay(plan, sv.start(plan), read_recording(path))
+    assert again.fused_weights[0] == sv.W_MIN
+    assert np.allclose(again.fused_weights, state.fused_weights)
+
+
+def test_condemned_judges_worst_first_against_a_batch_posterior():
+    """Two fused readings 7 mm apart that disagree by 1.4 mm, and a gated reading confirmed at
+    the second's place as evidence: the first is condemned (its p from the batch posterior of
+    the other two, computed densely here), the second kept -- judged all at once, each would
+    look wrong against a predictive that averages the other two."""
+    from adaptive_cal.planning.robust import condemned
+
+    cell = sim_cell(plan={"candidates": 2000})
+    plan = survey_plan(cell)
+    h0 = plan.model.hyper0
+    prior, r = plan.model.belief(h0), h0.noise_std_mm**2
+    rows = plan.model.surface.basis(np.array([43.0, 43.0]), np.array([0.0, 7.3]))
+    ev = plan.model.surface.basis(np.array([43.0]), np.array([7.3]))
+    heights, ev_h = np.array([1.4, 0.002]), np.array([0.0])
+    stroke = plan.usable_mm[1] - plan.usable_mm[0]
+    w = condemned(prior, rows, heights, np.ones(2), r, ev, ev_h, stroke)
+    post = bl.condition(prior, np.vstack([rows[1:], ev]), np.r_[heights[1], ev_h], r)
+    m, v = bl.predict(post, rows[:1])
+    p = outlier_probability(Predictive.gaussian(float(m[0]), float(v[0]) + r), 1.4, stroke)
+    assert w[0] == pytest.approx(max(1.0 - p, sv.W_MIN), abs=1e-12) and w[1] == 1.0

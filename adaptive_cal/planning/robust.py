@@ -20,7 +20,9 @@ import numpy as np
 
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, log_evidence
-from adaptive_cal.planning.gate import Predictive
+from adaptive_cal.formats.recording import surface_height_mm
+from adaptive_cal.gaussian import checks
+from adaptive_cal.planning.gate import GATE_P, Predictive, Retake, outlier_probability
 from adaptive_cal.planning.plan import SurveyPlan
 
 
@@ -90,3 +92,62 @@ def predictive(plan: SurveyPlan, belief: bl.Belief, hyper: Hyper, rows: np.ndarr
     logw = np.asarray(logw)
     return Predictive(np.asarray(means), np.asarray(variances), np.exp(logw - logw.max()))
 
+
+
+W_MIN = 1e-6  # the least weight a fused reading keeps: r / W_MIN, 5 um -> 5 mm, no pull
+
+
+def condemned(prior: bl.Belief, rows: np.ndarray, heights_mm: np.ndarray, weights: np.ndarray,
+              noise_var_mm2: float, ev_rows: np.ndarray, ev_heights_mm: np.ndarray,
+              stroke_mm: float, rounds: int = 5) -> np.ndarray | None:
+    """The fused readings' weights after judging them again with readings known to be genuine
+    as evidence (``ev_rows``/``ev_heights_mm``: a gated reading its retake confirmed): worst
+    first, the fused reading most likely a gross error under its leave-one-out predictive
+    (``prior`` conditioned on every other fused reading and the evidence) has its weight
+    lowered to max(1 - p, ``W_MIN``) while p >= ``GATE_P`` (more likely an error than not, the
+    gate's own line), then the others are judged again -- all at once, two readings that
+    disagree would both be judged wrong. Never raised. None when nothing changes."""
+    w = np.asarray(weights, float).copy()
+    n = len(w)
+    if n < 2:
+        return None
+    rows_all = np.vstack([rows, ev_rows])
+    h_all = np.concatenate([heights_mm, ev_heights_mm])
+    for _ in range(min(rounds, n)):
+        r_all = np.concatenate([noise_var_mm2 / w, np.full(len(ev_heights_mm), noise_var_mm2)])
+        loo = checks.leave_one_out(rows_all, h_all, prior.mean, prior.cov, r_all)
+        var = np.maximum(loo.variance_mm2[:n] - r_all[:n], 0.0) + noise_var_mm2
+        p = np.array([outlier_probability(Predictive.gaussian(y - e, v), y, stroke_mm)
+                      if wi > W_MIN else 0.0
+                      for y, e, v, wi in zip(heights_mm, loo.residual_mm[:n], var, w)])
+        i = int(np.argmax(p))
+        if p[i] < GATE_P:
+            break
+        w[i] = min(w[i], max(1.0 - p[i], W_MIN))
+    return w if np.any(w < np.asarray(weights, float) - 1e-12) else None
+
+
+def confirmed_against(plan: SurveyPlan, rows, heights_mm, weights, gated) -> np.ndarray | None:
+    """``condemned`` on fused readings (``rows``, ``heights_mm``, ``weights``), with ``gated`` (a
+    ``gate.Retake``: the gated reading its retake confirmed) as evidence, under the model's
+    first-guess hyper-parameters, so that a replay of the recording decides the same."""
+    h0 = plan.model.hyper0
+    ev = plan.model.surface.basis(np.array([gated.x_mm]), np.array([gated.y_mm]))
+    return condemned(plan.model.belief(h0), rows, heights_mm, weights, h0.noise_std_mm**2, ev,
+                     np.array([gated.height_mm]), plan.usable_mm[1] - plan.usable_mm[0])
+
+
+def replayed_weights(plan: SurveyPlan, rec, fused, rows, heights_mm, weights) -> np.ndarray:
+    """The fused readings' weights (``weights``: from their flags) after the decisions a run
+    made at each retake that confirmed its gated reading (``confirmed_against`` on the fused
+    readings before it, the gated row as evidence), in the recording's order."""
+    idx = np.flatnonzero(fused)  # the recording row of each fused reading
+    for k in range(1, len(rec.flags or ())):
+        if "surprise" in rec.flags[k] and "gated" in rec.flags[k - 1]:
+            m = int(np.searchsorted(idx, k, side="right"))
+            g = Retake(rec.x_mm[k - 1], rec.y_mm[k - 1], rec.z_mm[k - 1], surface_height_mm(
+                rec.reading_mm[k - 1], rec.z_mm[k - 1], plan.zero_mm))
+            w = confirmed_against(plan, rows[:m], heights_mm[:m], weights[:m], g)
+            if w is not None:
+                weights = np.concatenate([w, weights[m:]])
+    return weights

@@ -35,7 +35,8 @@ from adaptive_cal.planning.closure import Closure
 from adaptive_cal.gaussian import checks
 from adaptive_cal.planning.gate import (FLAG_P, Predictive, Retake, Told, flagged_p,
                                         judge as gate_judge, outlier_probability, pending_after)
-from adaptive_cal.planning.robust import InvalidReading, check_touch, predictive  # noqa: F401
+from adaptive_cal.planning.robust import (W_MIN, InvalidReading, check_touch,  # noqa: F401
+                                          confirmed_against, predictive, replayed_weights)
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.gap import largest_gap
 from adaptive_cal.planning.stopping import Status
@@ -187,6 +188,7 @@ def judge(plan: SurveyPlan, state: SurveyState, x_mm: float, y_mm: float, z_mm: 
 def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
     """The state after a judged reading: the touch counted, the retake owed (if any), and the
     reading fused when the gate let it through -- with a refit when the schedule says so."""
+    gated = state.retake
     state = replace(state, touches=state.touches + 1, retake=pending_after(told),
                     touched_xy_mm=state.touched_xy_mm + ((told.x_mm, told.y_mm),))
     if not told.fused:
@@ -196,10 +198,25 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
                     heights_mm=np.append(state.heights_mm, told.height_mm),
                     weights=np.append(state.fused_weights, told.weight))
     n = state.fused
+    w = (confirmed_against(plan, state.rows, state.heights_mm, state.fused_weights, gated)
+         if "surprise" in told.flags and gated is not None else None)
+    if w is not None:  # the map the gate judged by rested on a reading now judged wrong
+        return rebuilt(plan, replace(state, weights=w))
     if learns(plan, state) and n >= plan.hyper_after and n - state.fitted_at >= plan.hyper_every:
         return refit(plan, state)
     belief, _ = bl.fuse(state.belief, h, told.height_mm, state.noise_var / told.weight)
     return replace(state, belief=belief)
+
+
+def rebuilt(plan: SurveyPlan, state: SurveyState) -> SurveyState:
+    """The belief of every fused reading at its weight again: a refit where one is due, else
+    the batch posterior under the current hyper-parameters (or the earlier run's belief)."""
+    if learns(plan, state) and state.fused >= plan.hyper_after:
+        return refit(plan, state)
+    base = state.prior if state.prior is not None else plan.model.belief(
+        state.hyper, extra_cov(plan, state))
+    return replace(state, belief=bl.condition(base, state.rows, state.heights_mm,
+                                              state.noise_var / state.fused_weights))
 
 
 def tell(plan: SurveyPlan, state: SurveyState, x_mm: float, y_mm: float, z_mm: float,
@@ -266,9 +283,6 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     return replace(state, adequacy=check(plan, state))
 
 
-W_MIN = 1e-6  # the least weight a fused reading keeps (``reweighed``)
-
-
 def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     """Each fused reading judged again once the hyper-parameters are learned: its outlier
     probability p under its leave-one-out predictive (the belief from every other reading, its
@@ -290,8 +304,7 @@ def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     stroke = plan.usable_mm[1] - plan.usable_mm[0]
     p = np.array([outlier_probability(Predictive.gaussian(y - e, v), y, stroke)
                   for y, e, v in zip(state.heights_mm, loo.residual_mm, var)])
-    # p rounds to 1.0 for a gross error: the floor keeps its noise finite (r / W_MIN: 5 um
-    # becomes 5 mm, no pull on the map) where 1 - p = 0 turned the hyper-parameter fit to NaN
+    # p rounds to 1 for a gross error: 1 - p = 0 made the hyper-parameter fit NaN; W_MIN floors it
     new = np.where(p >= FLAG_P, np.minimum(w, np.maximum(1.0 - p, W_MIN)), w)
     return new if np.any(new < w - 1e-12) else None
 
@@ -306,12 +319,8 @@ def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
         heights = surface_height_mm(rec.reading_mm[fused], rec.z_mm[fused], plan.zero_mm)
         flags = [f for f, keep in zip(rec.flags, fused) if keep] if rec.flags else []
         weights = 1.0 - np.array([flagged_p(f) for f in flags]) if flags else np.ones(len(rows))
-        state = replace(state, rows=rows, heights_mm=heights, weights=weights)
-        if learns(plan, state) and len(heights) >= plan.hyper_after:
-            state = refit(plan, state)
-        else:
-            state = replace(state, belief=bl.condition(state.belief, rows, heights,
-                                                       state.noise_var / weights))
+        weights = replayed_weights(plan, rec, fused, rows, heights, weights)
+        state = rebuilt(plan, replace(state, rows=rows, heights_mm=heights, weights=weights))
     retake = None
     if len(rec) and rec.flags and "gated" in rec.flags[-1]:
         i = len(rec) - 1

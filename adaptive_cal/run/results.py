@@ -43,8 +43,10 @@ def touched_heights(plan: SurveyPlan, recording) -> tuple[np.ndarray, np.ndarray
 
 
 def reweighted(state: sv.SurveyState, rec) -> list[dict]:
-    """The fused readings whose weight the refits lowered below what their flags say
-    (``planning.survey.reweighed``): [{seq, outlier_probability}] (p = 1 - weight now)."""
+    """The fused readings whose weight was lowered below what their flags say -- by a refit
+    once the noise was learned (``planning.survey.reweighed``), or when a retake confirmed a
+    gated reading they contradicted (``planning.robust.condemned``): [{seq,
+    outlier_probability}] (p = 1 - weight now)."""
     fused = rec.fused
     if not rec.flags or int(fused.sum()) != state.fused:
         return []
@@ -101,8 +103,8 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
         shown = ", ".join(f"seq {r['seq']} p {r['outlier_probability']:.2f}" for r in lowered[:3])
         more = f" and {len(lowered) - 3} more" if len(lowered) > 3 else ""
         result["model"]["summary"] += (
-            f"; {count(len(lowered), 'fused reading')} judged a gross error once the noise was "
-            f"learned ({shown}{more}): in the map at weight 1 - p")
+            f"; {count(len(lowered), 'fused reading')} judged a gross error after fusion "
+            f"({shown}{more}): in the map at weight 1 - p")
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
                                   xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
                                   SAMPLES, sv.unresolved_var_mm2(plan, state, plan.eval_xy),
