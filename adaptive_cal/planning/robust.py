@@ -137,14 +137,18 @@ def confirmed_against(plan: SurveyPlan, rows, heights_mm, weights, gated) -> np.
                      np.array([gated.height_mm]), plan.usable_mm[1] - plan.usable_mm[0])
 
 
-def replayed_weights(plan: SurveyPlan, rec, fused, rows, heights_mm, weights) -> np.ndarray:
+def replayed_weights(plan: SurveyPlan, rec, fused, rows, heights_mm, weights,
+                     first_fit: int) -> np.ndarray:
     """The fused readings' weights (``weights``: from their flags) after the decisions a run
-    made at each retake that confirmed its gated reading (``confirmed_against`` on the fused
-    readings before it, the gated row as evidence), in the recording's order."""
+    made at each retake that confirmed its gated reading before its first refit (fewer than
+    ``first_fit`` fused readings before it: ``confirmed_against`` on those and the retake, the
+    gated row as evidence), in the recording's order."""
     idx = np.flatnonzero(fused)  # the recording row of each fused reading
     for k in range(1, len(rec.flags or ())):
         if "surprise" in rec.flags[k] and "gated" in rec.flags[k - 1]:
             m = int(np.searchsorted(idx, k, side="right"))
+            if m - 1 >= first_fit:
+                break
             g = Retake(rec.x_mm[k - 1], rec.y_mm[k - 1], rec.z_mm[k - 1], surface_height_mm(
                 rec.reading_mm[k - 1], rec.z_mm[k - 1], plan.zero_mm))
             w = confirmed_against(plan, rows[:m], heights_mm[:m], weights[:m], g)

@@ -199,7 +199,8 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
                     weights=np.append(state.fused_weights, told.weight))
     n = state.fused
     w = (confirmed_against(plan, state.rows, state.heights_mm, state.fused_weights, gated)
-         if "surprise" in told.flags and gated is not None else None)
+         if "surprise" in told.flags and gated is not None and learns(plan, state)
+         and not state.hyper_points else None)  # a map of few readings, not yet learned
     if w is not None:  # the map the gate judged by rested on a reading now judged wrong
         return rebuilt(plan, replace(state, weights=w))
     if learns(plan, state) and n >= plan.hyper_after and n - state.fitted_at >= plan.hyper_every:
@@ -209,9 +210,9 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
 
 
 def rebuilt(plan: SurveyPlan, state: SurveyState) -> SurveyState:
-    """The belief of every fused reading at its weight again: a refit where one is due, else
-    the batch posterior under the current hyper-parameters (or the earlier run's belief)."""
-    if learns(plan, state) and state.fused >= plan.hyper_after:
+    """Every fused reading at its weight again: a refit if due, else the batch posterior."""
+    n = state.fused
+    if learns(plan, state) and n >= plan.hyper_after and n - state.fitted_at >= plan.hyper_every:
         return refit(plan, state)
     base = state.prior if state.prior is not None else plan.model.belief(
         state.hyper, extra_cov(plan, state))
@@ -304,8 +305,7 @@ def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     stroke = plan.usable_mm[1] - plan.usable_mm[0]
     p = np.array([outlier_probability(Predictive.gaussian(y - e, v), y, stroke)
                   for y, e, v in zip(state.heights_mm, loo.residual_mm, var)])
-    # p rounds to 1 for a gross error: 1 - p = 0 made the hyper-parameter fit NaN; W_MIN floors it
-    new = np.where(p >= FLAG_P, np.minimum(w, np.maximum(1.0 - p, W_MIN)), w)
+    new = np.where(p >= FLAG_P, np.minimum(w, np.maximum(1.0 - p, W_MIN)), w)  # 1 - p = 0: NaN
     return new if np.any(new < w - 1e-12) else None
 
 
@@ -319,8 +319,11 @@ def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
         heights = surface_height_mm(rec.reading_mm[fused], rec.z_mm[fused], plan.zero_mm)
         flags = [f for f, keep in zip(rec.flags, fused) if keep] if rec.flags else []
         weights = 1.0 - np.array([flagged_p(f) for f in flags]) if flags else np.ones(len(rows))
-        weights = replayed_weights(plan, rec, fused, rows, heights, weights)
-        state = rebuilt(plan, replace(state, rows=rows, heights_mm=heights, weights=weights))
+        first_fit = max(plan.hyper_after, plan.hyper_every) if learns(plan, state) else 0
+        weights = replayed_weights(plan, rec, fused, rows, heights, weights, first_fit)
+        state = replace(state, rows=rows, heights_mm=heights, weights=weights)
+        state = refit(plan, state) if learns(plan, state) and len(heights) >= plan.hyper_after \
+            else rebuilt(plan, state)
     retake = None
     if len(rec) and rec.flags and "gated" in rec.flags[-1]:
         i = len(rec) - 1
