@@ -93,7 +93,6 @@ def predictive(plan: SurveyPlan, belief: bl.Belief, hyper: Hyper, rows: np.ndarr
     return Predictive(np.asarray(means), np.asarray(variances), np.exp(logw - logw.max()))
 
 
-
 W_MIN = 1e-6  # the least weight a fused reading keeps: r / W_MIN, 5 um -> 5 mm, no pull
 
 
