@@ -11,6 +11,14 @@
   amplitude, log length scale) -- the centre and +-sqrt(3) prior std along each axis, weights
   1/3 and 1/6 (unscented, kappa = 1) times the evidence of the readings fused so far under
   each point -- each conditioned on those readings.
+* ``condemned`` / ``confirmed_against``: a retake that confirms its gated reading (``surprise``:
+  the surface really is there) says the map was wrong there, and a map of a few readings can
+  be wrong because one of them was (a 1.4 mm gross error on the first touch made the gate
+  retake the next, genuine reading; the run then built its map and approach heights on the
+  error: 57 of 60 touches at the stroke's end). Before the first refit (later, every refit
+  judges each reading with the learned noise) the fused readings are judged again, worst
+  first, with the confirmed pair as evidence; ``replayed_weights`` makes the same decisions
+  from a recording.
 """
 from __future__ import annotations
 
