@@ -210,8 +210,9 @@ class Plan(Block):
         True, description="when a variance bound stops the run, touch the first place again: a "
         "difference beyond the probe's noise (1 % level) means the cell drifted during the run; "
         "the run then stops with `drift`, says so and widens the bands (one touch more, two when "
-        "a one-reading alarm is confirmed; with two touches of the budget "
-        "left where no bound stopped the run, the last for its retake or confirmation; none in a re-check from --prior-from)")
+        "a one-reading alarm is confirmed; with two touches of the budget left where no bound "
+        "stopped the run, the last for its retake or confirmation; none in a re-check from "
+        "--prior-from)")
 
 
 class Cell(Block):

@@ -104,6 +104,18 @@ def predictive(plan: SurveyPlan, belief: bl.Belief, hyper: Hyper, rows: np.ndarr
 W_MIN = 1e-6  # the least weight a fused reading keeps: r / W_MIN, 5 um -> 5 mm, no pull
 
 
+def loo_outlier_probability(prior: bl.Belief, rows: np.ndarray, heights_mm: np.ndarray,
+                            noise_var_mm2: np.ndarray, genuine_var_mm2: float,
+                            stroke_mm: float) -> np.ndarray:
+    """Each reading's outlier probability (``gate.outlier_probability``) under its leave-one-out
+    predictive: ``prior`` conditioned on every other reading, reading i fused with noise
+    ``noise_var_mm2[i]``, and a genuine reading's noise ``genuine_var_mm2`` on top."""
+    loo = checks.leave_one_out(rows, heights_mm, prior.mean, prior.cov, noise_var_mm2)
+    var = np.maximum(loo.variance_mm2 - noise_var_mm2, 0.0) + genuine_var_mm2
+    return np.array([outlier_probability(Predictive.gaussian(y - e, v), y, stroke_mm)
+                     for y, e, v in zip(heights_mm, loo.residual_mm, var)])
+
+
 def condemned(prior: bl.Belief, rows: np.ndarray, heights_mm: np.ndarray, weights: np.ndarray,
               noise_var_mm2: float, ev_rows: np.ndarray, ev_heights_mm: np.ndarray,
               stroke_mm: float, rounds: int = 5) -> np.ndarray | None:
@@ -122,11 +134,8 @@ def condemned(prior: bl.Belief, rows: np.ndarray, heights_mm: np.ndarray, weight
     h_all = np.concatenate([heights_mm, ev_heights_mm])
     for _ in range(min(rounds, n)):
         r_all = np.concatenate([noise_var_mm2 / w, np.full(len(ev_heights_mm), noise_var_mm2)])
-        loo = checks.leave_one_out(rows_all, h_all, prior.mean, prior.cov, r_all)
-        var = np.maximum(loo.variance_mm2[:n] - r_all[:n], 0.0) + noise_var_mm2
-        p = np.array([outlier_probability(Predictive.gaussian(y - e, v), y, stroke_mm)
-                      if wi > W_MIN else 0.0
-                      for y, e, v, wi in zip(heights_mm, loo.residual_mm[:n], var, w)])
+        p = np.where(w > W_MIN, loo_outlier_probability(prior, rows_all, h_all, r_all,
+                                                        noise_var_mm2, stroke_mm)[:n], 0.0)
         i = int(np.argmax(p))
         if p[i] < GATE_P:
             break

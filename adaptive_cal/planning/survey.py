@@ -32,11 +32,11 @@ from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, learned_belief
 from adaptive_cal.planning.adequacy import Adequacy, assess
 from adaptive_cal.planning.closure import Closure
-from adaptive_cal.gaussian import checks
-from adaptive_cal.planning.gate import (FLAG_P, Predictive, Retake, Told, flagged_p,
-                                        judge as gate_judge, outlier_probability, pending_after)
+from adaptive_cal.planning.gate import (FLAG_P, Retake, Told, flagged_p, judge as gate_judge,
+                                        pending_after)
 from adaptive_cal.planning.robust import (W_MIN, InvalidReading, check_touch,  # noqa: F401
-                                          confirmed_against, predictive, replayed_weights)
+                                          confirmed_against, loo_outlier_probability,
+                                          predictive, replayed_weights)
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.gap import largest_gap
 from adaptive_cal.planning.stopping import Status
@@ -202,18 +202,18 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
          if "surprise" in told.flags and gated is not None and learns(plan, state)
          and not state.hyper_points else None)  # a map of few readings, not yet learned
     if w is not None:  # the map the gate judged by rested on a reading now judged wrong
-        return rebuilt(plan, replace(state, weights=w))
+        state = replace(state, weights=w)
     if learns(plan, state) and n >= plan.hyper_after and n - state.fitted_at >= plan.hyper_every:
         return refit(plan, state)
+    if w is not None:
+        return batch_posterior(plan, state)
     belief, _ = bl.fuse(state.belief, h, told.height_mm, state.noise_var / told.weight)
     return replace(state, belief=belief)
 
 
-def rebuilt(plan: SurveyPlan, state: SurveyState) -> SurveyState:
-    """Every fused reading at its weight again: a refit if due, else the batch posterior."""
-    n = state.fused
-    if learns(plan, state) and n >= plan.hyper_after and n - state.fitted_at >= plan.hyper_every:
-        return refit(plan, state)
+def batch_posterior(plan: SurveyPlan, state: SurveyState) -> SurveyState:
+    """Every fused reading at its weight again, under the current hyper-parameters (or the
+    earlier run's belief): the batch posterior."""
     base = state.prior if state.prior is not None else plan.model.belief(
         state.hyper, extra_cov(plan, state))
     return replace(state, belief=bl.condition(base, state.rows, state.heights_mm,
@@ -300,11 +300,8 @@ def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     w = state.fused_weights
     r = state.hyper.noise_std_mm**2
     prior = plan.model.belief(state.hyper, extra_cov(plan, state))
-    loo = checks.leave_one_out(state.rows, state.heights_mm, prior.mean, prior.cov, r / w)
-    var = np.maximum(loo.variance_mm2 - r / w, 0.0) + r  # the genuine reading's predictive
-    stroke = plan.usable_mm[1] - plan.usable_mm[0]
-    p = np.array([outlier_probability(Predictive.gaussian(y - e, v), y, stroke)
-                  for y, e, v in zip(state.heights_mm, loo.residual_mm, var)])
+    p = loo_outlier_probability(prior, state.rows, state.heights_mm, r / w, r,
+                                plan.usable_mm[1] - plan.usable_mm[0])
     new = np.where(p >= FLAG_P, np.minimum(w, np.maximum(1.0 - p, W_MIN)), w)  # 1 - p = 0: NaN
     return new if np.any(new < w - 1e-12) else None
 
@@ -323,7 +320,7 @@ def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
         weights = replayed_weights(plan, rec, fused, rows, heights, weights, first_fit)
         state = replace(state, rows=rows, heights_mm=heights, weights=weights)
         state = refit(plan, state) if learns(plan, state) and len(heights) >= plan.hyper_after \
-            else rebuilt(plan, state)
+            else batch_posterior(plan, state)
     retake = None
     if len(rec) and rec.flags and "gated" in rec.flags[-1]:
         i = len(rec) - 1
