@@ -18,7 +18,7 @@ def test_the_test_subtracts_the_maps_own_difference_and_averages_a_retake():
     assert c.difference_mm == pytest.approx(0.105 - 0.100 - 0.003, abs=1e-12)
     # r (1/m + 1/k) + a C a, a = (-1, 1): m = 2 repeats, k = 1 start reading
     assert c.sd_mm == pytest.approx(math.sqrt(0.002**2 * 1.5 + 5e-6))
-    assert c.dof == 37 and c.made and c.passed
+    assert c.dof == 40 and c.made and c.passed
 
 
 def test_the_starts_readings_are_averaged_against_a_dense_reference():
@@ -39,19 +39,42 @@ def test_the_starts_readings_are_averaged_against_a_dense_reference():
 
 
 def test_false_alarms_at_the_stated_level_by_monte_carlo():
-    """No drift: d ~ N(0, 2 r), r learned from n readings (the sample variance of n - 3
-    residuals, as a refit gives it): the test fires at ALPHA. 20,000 draws: binomial sd 0.07 %,
-    bound 4 sd."""
+    """No drift: d ~ N(0, 2 r), r learned on n - 3 degrees of freedom (the sample variance of
+    n - 3 residuals): the test fires at ALPHA. 20,000 draws: binomial sd 0.07 %, bound 4 sd."""
     rng = np.random.default_rng(5)
     n, sigma, draws = 30, 0.005, 20_000
     fired = 0
     for _ in range(draws):
         r = sigma**2 * rng.chisquare(n - 3) / (n - 3)
         first, rep = rng.normal(0, sigma, 2)
-        c = cl.judge([[1.0]], [first], [[1.0]], [rep], np.zeros(1), np.zeros((1, 1)), r, n)
+        c = cl.judge([[1.0]], [first], [[1.0]], [rep], np.zeros(1), np.zeros((1, 1)), r,
+                     n - 3)
         fired += not c.passed
     rate = fired / draws
     assert abs(rate - cl.ALPHA) < 4 * math.sqrt(cl.ALPHA * (1 - cl.ALPHA) / draws)
+
+
+def test_the_noises_degrees_of_freedom_against_a_dense_hat_matrix():
+    """residual_dof = sum_i w_i (1 - H_ii), H = K (K + R)^-1 the hat matrix in the readings'
+    space (K = A P A^T, R = diag(r / w)), built densely; the belief's covariance is the batch
+    posterior's in coefficient space. A reading weighted out adds nothing; few readings on
+    many coefficients leave few degrees of freedom (the fit spends them)."""
+    rng = np.random.default_rng(3)
+    K, n, r = 8, 14, 0.004**2
+    A = rng.normal(0, 1, (n, K))
+    L = rng.normal(0, 0.01, (K, K))
+    P = L @ L.T + 1e-6 * np.eye(K)
+    w = np.ones(n)
+    w[[2, 9]] = [1e-6, 0.4]
+    R = np.diag(r / w)
+    cov = np.linalg.inv(np.linalg.inv(P) + A.T @ np.linalg.inv(R) @ A)
+    H = A @ P @ A.T @ np.linalg.inv(A @ P @ A.T + R)
+    assert cl.residual_dof(A, w, cov, r) == pytest.approx(float(w @ (1 - np.diag(H))),
+                                                          rel=1e-9)
+    assert float(np.trace(H)) > 5  # the fit spent more than the three a plane would
+    few = cl.residual_dof(A[:6], np.ones(6), np.linalg.inv(
+        np.linalg.inv(P) + A[:6].T @ A[:6] / r), r)
+    assert 1.0 <= few < 2.0  # 6 readings on 8 coefficients: the map holds nearly all of them
 
 
 def test_the_first_unflagged_reading_is_revisited():
@@ -103,6 +126,10 @@ def test_a_run_without_drift_closes_at_its_first_place_and_stops_on_its_bound(tm
     assert c.repeat_touches == (last.seq,) and c.elapsed_s == pytest.approx(
         last.t_s - rows[c.first_touch].t_s)
     assert sv.status(plan, state).mean_std_mm <= 0.004  # no drift: nothing added
+    # the noise's degrees of freedom: the readings less what the map spent on them
+    assert c.dof == pytest.approx(cl.residual_dof(state.rows, state.fused_weights,
+                                                  state.belief.cov, state.noise_var))
+    assert 3.0 < c.dof < state.fused - 3
 
 
 def test_a_warm_up_during_the_run_ends_it_with_drift_and_wide_bands(tmp_path):
@@ -293,11 +320,15 @@ def test_at_the_budgets_end_a_gated_repeat_is_retaken_with_the_last_touch():
     assert why != "drift" and c.made and c.passed and c.repeat_touches == (30,)
 
 
-def test_one_reading_that_says_drift_is_confirmed_before_the_run_is_ended():
-    """A 24 um misreading on the repeat that the gate lets through (gate at 8 sd here): the
-    test fails on it alone, so the place is touched once more; the second reading does not
+def test_one_reading_that_says_drift_is_confirmed_before_the_run_is_ended(monkeypatch):
+    """A 26 um misreading on the repeat that the gate lets through (gate at 8 sd and outlier
+    probability 0.9 here; at the shipped 0.5 it is gated and retaken, and a misreading small
+    enough to pass the gate no longer fails the test alone on its residual degrees of freedom):
+    the test fails on it alone, so the place is touched once more; the second reading does not
     repeat the departure and the two together pass -- no drift, the run stops on its bound."""
-    state, why, rows = _run_misread({"mean_std_mm": 0.004, "max_touches": 120}, 0.024, 0.005,
+    from adaptive_cal.planning import gate
+    monkeypatch.setattr(gate, "GATE_P", 0.9)
+    state, why, rows = _run_misread({"mean_std_mm": 0.004, "max_touches": 120}, 0.026, 0.005,
                                     gate_sigma=8.0)
     c = state.closure
     closing = [r for r in rows if "closure" in r.flags]

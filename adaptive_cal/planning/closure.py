@@ -17,8 +17,13 @@ fails the test is confirmed by one touch more at the place where the budget allo
 drift reads the same twice. d = mean(h_repeat) - mean(h_start) - a . mu, a = mean(repeat rows) -
 mean(start rows): the heights' difference less the map's own difference between the places (0
 for one place). Under the model (no drift) d ~ N(0, r (1/m + 1/k) + a C a), C the belief's
-covariance, r the noise variance; d / sd is compared with Student-t on n - 3 degrees of freedom
-(n fused readings), two-sided at ``ALPHA``.
+covariance, r the noise variance; d / sd is compared with Student-t, two-sided at ``ALPHA``, on
+the degrees of freedom r rests on: the fused readings less what the map spent fitting them
+(``residual_dof``, sum of w_i (1 - leverage_i)). Until 2026-11-24 that was n - 3, as if the map
+were a plane; the simulated cell's runs of about 31 readings spend about 13 of them (median
+18 degrees of freedom left), and an 11-reading run on an independent plate 7: at 8 um readings
+it had read a 3.4 sd "drift" from a noise the map had learned at 4.9 um (docs/study-notes.md,
+"Few degrees of freedom").
 
 Which r. The learned noise is a nugget: probe noise plus whatever the map cannot hold -- and a
 drift the form cannot follow goes there, so it hides itself (on the simulated cell a 40 um
@@ -74,7 +79,7 @@ class Closure:
     elapsed_s: float | None = None
     difference_mm: float = float("nan")
     sd_mm: float = float("nan")
-    dof: int = 0
+    dof: float = 0.0
     p: float = float("nan")
     passed: bool = True
     why: str = ""
@@ -166,12 +171,25 @@ def repeats_to_judge(told) -> tuple[list[int], str]:
                 "gross error); drift neither seen nor ruled out")
 
 
+def residual_dof(rows, weights, cov, noise_var_mm2: float) -> float:
+    """The degrees of freedom the learned noise rests on: sum_i w_i (1 - l_i), the readings less
+    what the map spent fitting them, l_i = w_i h_i C h_i / r the leverage of reading i (the
+    map's variance there over the reading's own: the share of its value the fit kept; sum l_i
+    is the map's effective number of parameters, trace of the hat matrix). A reading weighted
+    out as a gross error (w ~ 0) adds nothing. At least 1."""
+    rows = np.atleast_2d(np.asarray(rows, float))
+    w = np.clip(np.asarray(weights, float), 0.0, 1.0)
+    lev = np.clip(np.einsum("ij,jk,ik->i", rows, np.asarray(cov, float), rows) * w
+                  / noise_var_mm2, 0.0, 1.0)
+    return max(float(w @ (1.0 - lev)), 1.0)
+
+
 def judge(first_rows, first_mm, repeat_rows, repeat_mm, mean, cov, noise_var_mm2: float,
-          fused: int, **where) -> Closure:
+          dof: float, **where) -> Closure:
     """The test (module docstring): ``first_rows``/``first_mm`` the basis rows and heights of
     the start's readings (k >= 1); ``repeat_rows``/``repeat_mm`` the repeat readings' (m >= 1);
-    ``mean``/``cov`` the belief; ``noise_var_mm2`` r; ``fused`` n, the fused readings r was
-    learned from. ``where``: the Closure's x_mm, y_mm, first_touch, repeat_touches,
+    ``mean``/``cov`` the belief; ``noise_var_mm2`` r; ``dof`` the degrees of freedom r rests
+    on (``residual_dof``). ``where``: the Closure's x_mm, y_mm, first_touch, repeat_touches,
     elapsed_s."""
     first_rows = np.atleast_2d(np.asarray(first_rows, float))
     first_mm = np.atleast_1d(np.asarray(first_mm, float))
@@ -181,7 +199,7 @@ def judge(first_rows, first_mm, repeat_rows, repeat_mm, mean, cov, noise_var_mm2
     a = repeat_rows.mean(axis=0) - first_rows.mean(axis=0)
     d = float(repeat_mm.mean() - first_mm.mean() - a @ np.asarray(mean, float))
     sd = math.sqrt(noise_var_mm2 * (1.0 / m + 1.0 / k) + max(float(a @ cov @ a), 0.0))
-    dof = max(fused - 3, 1)
+    dof = max(float(dof), 1.0)
     p = float(2.0 * student_t.sf(abs(d) / sd, dof)) if sd > 0 else (0.0 if d else 1.0)
     return Closure(True, difference_mm=d, sd_mm=sd, dof=dof, p=p, passed=p >= ALPHA,
                    first_readings=k, **where)

@@ -223,11 +223,11 @@ class SurveyLoop:
         noise relearned without the drift they read where it can be (``_noise_without_drift``)."""
         rows, heights, seqs, times = ([k[i] for k in kept] for i in range(4))
         elapsed = times[-1] - first_t if math.isfinite(times[-1] - first_t) else None
-        belief, n = self.state.belief, self.state.fused
+        belief, r = self.state.belief, self.state.noise_var
         where = dict(x_mm=x, y_mm=y, first_touch=first, repeat_touches=tuple(seqs),
                      elapsed_s=elapsed)
-        h0 = cl.judge(first_rows, first_mm, rows, heights, belief.mean, belief.cov,
-                      self.state.noise_var, n, **where)
+        n = cl.residual_dof(self.state.rows, self.state.fused_weights, belief.cov, r)
+        h0 = cl.judge(first_rows, first_mm, rows, heights, belief.mean, belief.cov, r, n, **where)
         r1 = self._noise_without_drift(h0.difference_mm, start, times)
         if r1 is None:
             return h0
