@@ -77,6 +77,23 @@ def test_the_noises_degrees_of_freedom_against_a_dense_hat_matrix():
     assert 1.0 <= few < 2.0  # 6 readings on 8 coefficients: the map holds nearly all of them
 
 
+def test_on_few_degrees_of_freedom_the_verdict_says_what_it_could_have_seen():
+    """A pass on 1.3 degrees of freedom (a 10-touch run on a 30-coefficient form) says how
+    large a drift would have shown: the two-sided 1 % quantile of Student-t times sd, checked
+    by turning the verdict at that size; on many degrees of freedom the line stays short."""
+    from scipy.stats import t as student_t
+
+    args = ([[1.0]], [0.0], [[1.0]], [0.1], np.zeros(1), np.zeros((1, 1)), 0.005**2)
+    c = cl.judge(*args, 1.3, x_mm=1.0, y_mm=2.0)
+    assert c.passed and "1.3 degrees of freedom" in c.text()
+    bar = student_t.isf(cl.ALPHA / 2, 1.3) * c.sd_mm
+    assert c.detectable_mm == pytest.approx(bar) and f"{bar * 1e3:.0f} um" in c.text()
+    assert cl.judge(*args[:3], [bar * 1.001], *args[4:], 1.3).passed is False
+    assert cl.judge(*args[:3], [bar * 0.999], *args[4:], 1.3).passed is True
+    many = cl.judge(*args[:3], [0.001], *args[4:], 30.0)
+    assert many.text().endswith("no drift seen") and many.as_dict()["detectable_mm"] > 0
+
+
 def test_the_first_unflagged_reading_is_revisited():
     assert cl.first_place(np.array([1.0, 1.0, 1.0])) == 0
     assert cl.first_place(np.array([0.2, 1.0, 1.0])) == 1
@@ -126,9 +143,11 @@ def test_a_run_without_drift_closes_at_its_first_place_and_stops_on_its_bound(tm
     assert c.repeat_touches == (last.seq,) and c.elapsed_s == pytest.approx(
         last.t_s - rows[c.first_touch].t_s)
     assert sv.status(plan, state).mean_std_mm <= 0.004  # no drift: nothing added
-    # the noise's degrees of freedom: the readings less what the map spent on them
+    # the noise's degrees of freedom: the readings less what the map spent on them (those of
+    # the refit that relearned the noise without the drift the pair read: near the run's own)
+    assert c.noise_h0_mm is not None
     assert c.dof == pytest.approx(cl.residual_dof(state.rows, state.fused_weights,
-                                                  state.belief.cov, state.noise_var))
+                                                  state.belief.cov, state.noise_var), rel=0.1)
     assert 3.0 < c.dof < state.fused - 3
 
 

@@ -23,17 +23,22 @@ the degrees of freedom r rests on: the fused readings less what the map spent fi
 were a plane; the simulated cell's runs of about 31 readings spend about 13 of them (median
 18 degrees of freedom left), and an 11-reading run on an independent plate 7: at 8 um readings
 it had read a 3.4 sd "drift" from a noise the map had learned at 4.9 um (docs/study-notes.md,
-"Few degrees of freedom").
+"Few degrees of freedom"). Far below the form's coefficient count (a 10-touch budget on 30
+form coefficients: 1-2 left) only a drift far beyond the noise shows; a pass there says how large
+one would have shown (``detectable_mm``, below ``FEW_DOF`` in the text).
 
 Which r. The learned noise is a nugget: probe noise plus whatever the map cannot hold -- and a
 drift the form cannot follow goes there, so it hides itself (on the simulated cell a 40 um
 warm-up raised the learned noise from 5 to 11 um, and the closure then caught 19 of 30). Where
-the noise is learned, every reading's time is known and there are at least as many readings as
-form coefficients (fewer: the refit's noise rests on the prior and can collapse, 5.2 -> 2.3 um
-on a 12-touch run, a false alarm), r is relearned with the drift the closure reads taken out of
-every reading, as a drift linear in time from the start to the repeat (``run.loop``): 30 of 30
-caught. On a cell that does not drift that changes r little:
-400 runs of the simulated cell gave 2 false alarms (0.5 %) at the 1 % level (docs/study-notes.md).
+the noise is learned and every reading's time is known, r is relearned with the drift the
+closure reads taken out of every reading, as a drift linear in time from the start to the
+repeat (``run.loop``), and the test takes that refit's degrees of freedom: 30 of 30 caught. On
+a cell that does not drift that changes r little: 400 runs of the simulated cell gave 2 false
+alarms (0.5 %) at the 1 % level (docs/study-notes.md). Until 2026-11-24 this was done only
+with at least as many readings as form coefficients: below that the refit's noise rests on the
+prior and can collapse (5.2 -> 2.3 um on a 12-touch run, a false alarm on n - 3 degrees of
+freedom); a collapsed noise is one the map's leverages have spent, and on the refit's residual
+degrees of freedom the test does not fire on it.
 
 A failed closure ends the run (``DRIFT``): more touches cannot undo a drift the model does not
 have. The map carries it: each reading is off by the drift since the run began, between 0 and
@@ -60,6 +65,8 @@ DRIFT = "drift"
 FLAG = "closure"
 FIRST_OF = 3  # the place revisited is the first unflagged reading among the first three fused
 CLUSTER_MM = 20.0  # the start's readings within this of it stand for the start (averaged)
+#: below these degrees of freedom the verdict says how large a drift it could have seen
+FEW_DOF = 5.0
 
 
 @dataclass(frozen=True)
@@ -79,7 +86,7 @@ class Closure:
     elapsed_s: float | None = None
     difference_mm: float = float("nan")
     sd_mm: float = float("nan")
-    dof: float = 0.0
+    dof: float = 0.0  # 0: not given (a verdict built by hand); a judged one has at least 1
     p: float = float("nan")
     passed: bool = True
     why: str = ""
@@ -89,6 +96,15 @@ class Closure:
     def drift_var_mm2(self) -> float:
         """d^2 after a failed closure (added to the map's variance everywhere), else 0."""
         return self.difference_mm**2 if self.made and not self.passed else 0.0
+
+    @property
+    def detectable_mm(self) -> float:
+        """The smallest |d| (mm) this test would have called a drift: Student-t's two-sided
+        ``ALPHA`` quantile on its degrees of freedom times sd (NaN when not made or the degrees
+        of freedom are not given)."""
+        if not self.made or self.dof < 1.0:
+            return float("nan")
+        return float(student_t.isf(ALPHA / 2, self.dof) * self.sd_mm)
 
     def text(self) -> str:
         """One line for the terminal and the report."""
@@ -107,6 +123,10 @@ class Closure:
         head = (f"closure: the first place (x {self.x_mm:.1f}, y {self.y_mm:.1f} mm){when} read "
                 f"{fixed(self.difference_mm * 1e3, 1, '+')} um against {start} (sd "
                 f"{self.sd_mm * 1e3:.1f} um, p {self.p:.2g})")
+        if self.passed and 1.0 <= self.dof < FEW_DOF:
+            return (f"{head}: no drift seen, but the noise rests on {self.dof:.1f} degrees of "
+                    "freedom (the readings less what the map spent fitting them): only a drift "
+                    f"beyond about {self.detectable_mm * 1e3:.0f} um would have shown")
         if self.passed:
             return f"{head}: no drift seen"
         return (f"{head}: the cell drifted during the run; the map carries up to about "
@@ -118,6 +138,7 @@ class Closure:
         out = asdict(self)
         out["repeat_touches"] = list(self.repeat_touches)
         out["drift_rms_mm"] = math.sqrt(self.drift_var_mm2)
+        out["detectable_mm"] = self.detectable_mm
         out["level"] = ALPHA
         out["text"] = self.text()
         return out

@@ -228,32 +228,31 @@ class SurveyLoop:
                      elapsed_s=elapsed)
         n = cl.residual_dof(self.state.rows, self.state.fused_weights, belief.cov, r)
         h0 = cl.judge(first_rows, first_mm, rows, heights, belief.mean, belief.cov, r, n, **where)
-        r1 = self._noise_without_drift(h0.difference_mm, start, times)
-        if r1 is None:
+        refit = self._noise_without_drift(h0.difference_mm, start, times)
+        if refit is None:
             return h0
-        return cl.judge(first_rows, first_mm, rows, heights, belief.mean, belief.cov, r1, n,
+        r1 = refit.noise_var
+        n1 = cl.residual_dof(refit.rows, refit.fused_weights, refit.belief.cov, r1)
+        return cl.judge(first_rows, first_mm, rows, heights, belief.mean, belief.cov, r1, n1,
                         noise_h0_mm=math.sqrt(self.state.noise_var), **where)
 
     def _noise_without_drift(self, d_mm: float, start: list[int], times: list[float]
-                             ) -> float | None:
-        """The noise variance (mm^2) relearned with the drift the closure reads taken out of
-        every fused reading, as a drift linear in time from the start to the repeat
-        (``planning.closure``: a drift the map could not hold went into the learned noise and
-        would hide itself); None where the noise is not learned, a time is unknown, or there
-        are fewer fused readings than form coefficients (the refit's noise then rests on the
-        prior and can collapse: a 12-touch run's 5.2 um fell to 2.3 um, a false alarm)."""
+                             ) -> sv.SurveyState | None:
+        """The refit with the drift the closure reads taken out of every fused reading, as a
+        drift linear in time from the start to the repeat (``planning.closure``: a drift the
+        map could not hold went into the learned noise and would hide itself): its noise and
+        residual degrees of freedom serve the test. None where the noise is not learned or a
+        time is unknown."""
         t = np.asarray(self.fused_t_s, float)
         if not sv.learns(self.plan, self.state) or len(t) != self.state.fused or \
-                not np.isfinite(t).all() or not times or \
-                self.state.fused < self.plan.model.form_surface.size:
+                not np.isfinite(t).all() or not times:
             return None
         t0 = float(t[start].mean())
         span = float(np.mean(times)) - t0
         if span <= 0:
             return None
         corrected = self.state.heights_mm - d_mm / span * (t - t0)
-        refit = sv.refit(self.plan, replace(self.state, heights_mm=corrected))
-        return refit.noise_var
+        return sv.refit(self.plan, replace(self.state, heights_mm=corrected))
 
     def _closed(self, closure: cl.Closure) -> cl.Closure:
         self.state = replace(self.state, closure=closure)
