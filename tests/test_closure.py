@@ -342,7 +342,7 @@ def test_at_the_budgets_end_a_gated_repeat_is_retaken_with_the_last_touch():
 def test_one_reading_that_says_drift_is_confirmed_before_the_run_is_ended(monkeypatch):
     """A 26 um misreading on the repeat that the gate lets through (gate at 8 sd and outlier
     probability 0.9 here; at the shipped 0.5 it is gated and retaken, and a misreading small
-    enough to pass the gate no longer fails the test alone on its residual degrees of freedom):
+    enough to pass the gate here no longer fails the test alone on its degrees of freedom):
     the test fails on it alone, so the place is touched once more; the second reading does not
     repeat the departure and the two together pass -- no drift, the run stops on its bound."""
     from adaptive_cal.planning import gate
