@@ -399,3 +399,71 @@ def test_a_program_that_is_not_utf8_names_the_file_and_line(mapped, tmp_path, ca
     err = capsys.readouterr().err
     assert f"{prog} line 3: not UTF-8" in err and "0xf8" in err and "codec" not in err
     assert not out.exists()
+
+
+# -- the margin no touch reaches ------------------------------------------------------------------
+
+REACH = ((-190.0, 190.0), (-140.0, 140.0))  # PLATE less a 10 mm edge margin
+
+
+def _outside_brute(x, y):
+    """Distance from (x, y) to the box REACH by brute force over a dense grid of its edge."""
+    (x0, x1), (y0, y1) = REACH
+    if x0 <= x <= x1 and y0 <= y <= y1:
+        return 0.0
+    s = np.linspace(0, 1, 200_001)
+    edge = np.concatenate([np.c_[x0 + (x1 - x0) * s, np.full_like(s, y0)],
+                           np.c_[x0 + (x1 - x0) * s, np.full_like(s, y1)],
+                           np.c_[np.full_like(s, x0), y0 + (y1 - y0) * s],
+                           np.c_[np.full_like(s, x1), y0 + (y1 - y0) * s]])
+    return float(np.hypot(edge[:, 0] - x, edge[:, 1] - y).min())
+
+
+def test_a_cut_into_the_margin_is_reported_with_its_furthest_sample():
+    path = read_toolpath("G0 X0 Y0 Z1\nG1 Z0\nG1 X190\nG1 X196 Y146\nG0 Z1\nG0 X195 Y0\n"
+                         "G1 Z0\n", "p")
+    res = cp.compensate(path, flat(std=0.001), PLATE, T, top_mm=0.0, name="p", reach_mm=REACH)
+    # line 3 ends on the box's edge (reachable); line 4 runs out to its corner + (6, 6) mm; the
+    # rapid on line 6 is not a cut; the plunge on line 7 lies 5 mm outside
+    assert [b.line for b in res.beyond] == [4, 7]
+    corner, plunge = res.beyond
+    assert (corner.x_mm, corner.y_mm) == pytest.approx((196.0, 146.0))
+    assert corner.outside_mm == pytest.approx(_outside_brute(196.0, 146.0), abs=1e-5)
+    assert plunge.outside_mm == pytest.approx(_outside_brute(195.0, 0.0), abs=1e-5)
+    assert not res.wide  # the band (2 um) is inside the tolerance: only the reach refuses
+    msg = cp.refusal(res.wide, T, "p", beyond=res.beyond, reach_mm=REACH)
+    assert "line 4 at (196.0, 146.0) mm, 8.5 mm beyond it" in msg
+    assert "x [-190, 190] mm, y [-140, 140] mm" in msg and "extrapolation" in msg
+    assert "band exceeds" not in msg and "--mark" in msg
+    # without a reach (touches could reach the whole plate) nothing is reported
+    assert not cp.compensate(path, flat(std=0.001), PLATE, T, top_mm=0.0, name="p").beyond
+
+
+def test_cli_refuses_a_cut_into_the_unreachable_margin_and_marks_it(mapped, tmp_path, capsys):
+    run_dir, _ = mapped
+    hmap = load_map(run_dir)
+    (x0, x1), (y0, y1) = hmap.reach_mm
+    assert ((x0, x1), (y0, y1)) == ((-215, 215), (-175, 175))  # sim-cell: 10 mm margin
+    prog = tmp_path / "face.gcode"
+    prog.write_text("G0 X0. Y0. Z5.\nG1 Z-0.1\nG1 X200.\nG1 X220.\nG0 Z5.\n")
+    out = tmp_path / "out.gcode"
+    # a tolerance the band meets everywhere on the path: only the margin refuses line 4
+    argv = ["compensate", str(prog), "--map", str(run_dir), "--out", str(out),
+            "--tolerance-mm", "0.05"]
+    band = Z95 * hmap.height()(np.linspace(0, 220, 441), np.zeros(441))[1]
+    assert band.max() < 0.05
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "line 4 at (220.0, 0.0) mm, 5.0 mm beyond it" in err and "line 3" not in err
+    assert "band exceeds" not in err and not out.exists()
+    assert main(argv + ["--mark"]) == 0
+    marked = [ln for ln in out.read_text().splitlines() if "extrapolated" in ln]
+    assert len(marked) == 1 and marked[0].startswith("G1") and "5.0 mm beyond" in marked[0]
+    assert "the map is extrapolated: the output is NOT within" in capsys.readouterr().out
+
+
+def test_grid_export_says_where_the_map_is_extrapolated(mapped, tmp_path, capsys):
+    run_dir, _ = mapped
+    assert main(["compensate", "--map", str(run_dir), "--grid", str(tmp_path / "g.csv")]) == 0
+    assert ("outside x [-215, 215] mm, y [-175, 175] mm (the workplane's edge margin) the map "
+            "is an extrapolation") in capsys.readouterr().out

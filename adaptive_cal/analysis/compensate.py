@@ -7,7 +7,11 @@ samples until, at every sample, the straight output between two kept points depa
 mapped surface by at most the budget left by the map's own uncertainty, ``T - band`` (band: the
 95 % half-width Z95 x std), so that path error + map error stays within T. Where the band itself
 exceeds T the move is reported in ``wide`` (the caller refuses, or marks it; a marked move is
-split to T against the map alone).
+split to T against the map alone). Where a cut leaves ``reach_mm``, the box touches can reach
+(the workplane less its edge margin), it is reported in ``beyond``, refused or marked the same
+way: the map there is an extrapolation no reading tested (``planning.adequacy``: on plates whose
+edges roll off, the run's bands held the truth at 0.35 of the margin's points), so no tolerance
+can be promised there, however narrow the band.
 
 Rapids (G0) are not split and not checked against the band: each end point is raised by the
 mapped height there (a clearance programmed above the nominal plane stays a clearance above the
@@ -40,15 +44,27 @@ class Wide:
     band_mm: float
 
 
+@dataclass(frozen=True)
+class Beyond:
+    """Where a cut leaves the box touches can reach: its sample furthest outside."""
+
+    line: int
+    x_mm: float
+    y_mm: float
+    outside_mm: float  # how far beyond the reachable box
+
+
 @dataclass
 class Compensated:
     """``pieces``: item -> output points (x, y, z) mm, the last the move's end; ``wide``: moves
-    whose band exceeds T; ``added``: points inserted by splitting; ``max_deviation_mm``: the
+    whose band exceeds T; ``beyond``: cuts that leave the reachable box; ``added``: points
+    inserted by splitting; ``max_deviation_mm``: the
     largest departure of the output from the mapped surface at the check samples;
     ``rapid_dip_mm``: see the module's doc."""
 
     pieces: dict = field(default_factory=dict)
     wide: list = field(default_factory=list)
+    beyond: list = field(default_factory=list)
     added: int = 0
     max_deviation_mm: float = 0.0
     rapid_dip_mm: float = 0.0
@@ -102,24 +118,35 @@ def _check_inside(path_name: str, plate_mm, move: Move, *points) -> None:
                 f"workplane x [{x0:g}, {x1:g}] mm, y [{y0:g}, {y1:g}] mm")
 
 
+def outside_mm(reach_mm, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """How far each point (x, y) lies outside the box ``reach_mm`` ((x0, x1), (y0, y1)), mm
+    (0 inside or on its edge)."""
+    (x0, x1), (y0, y1) = reach_mm
+    dx = np.maximum(np.maximum(x0 - x, x - x1), 0.0)
+    dy = np.maximum(np.maximum(y0 - y, y - y1), 0.0)
+    return np.hypot(dx, dy)
+
+
 def compensate(path: Toolpath, height: Height, plate_mm, tolerance_mm: float, *,
-               top_mm: float, sample_mm: float = SAMPLE_MM, name: str = "program") -> Compensated:
+               top_mm: float, sample_mm: float = SAMPLE_MM, name: str = "program",
+               reach_mm=None) -> Compensated:
     """The output points of every move of ``path`` (see the module's doc). Refuses
-    (``ToolpathError``) a point outside ``plate_mm`` and a cut whose start is not known."""
+    (``ToolpathError``) a point outside ``plate_mm`` and a cut whose start is not known.
+    ``reach_mm``: the box touches can reach, or None (the whole plate was reachable)."""
     if not tolerance_mm > 0:
         raise ValueError(f"tolerance {tolerance_mm} mm must be positive")
     out = Compensated()
     for move in path.moves:
         _check_inside(name, plate_mm, move, move.end, move.start)
         if move.cut:
-            _cut(out, move, height, tolerance_mm, sample_mm, name)
+            _cut(out, move, height, tolerance_mm, sample_mm, name, reach_mm)
         else:
             _rapid(out, move, height, top_mm, sample_mm)
     return out
 
 
 def _cut(out: Compensated, move: Move, height: Height, tol: float, sample_mm: float,
-         name: str) -> None:
+         name: str, reach_mm=None) -> None:
     out.cuts += 1
     end = np.array(move.end, float) if None not in move.end else None
     if end is None:
@@ -140,6 +167,12 @@ def _cut(out: Compensated, move: Move, height: Height, tol: float, sample_mm: fl
     if band[worst] > tol:
         out.wide.append(Wide(move.line, float(pts[worst, 0]), float(pts[worst, 1]),
                              float(band[worst])))
+    if reach_mm is not None:
+        far = outside_mm(reach_mm, pts[:, 0], pts[:, 1])
+        k = int(np.argmax(far))
+        if far[k] > EDGE_MM:
+            out.beyond.append(Beyond(move.line, float(pts[k, 0]), float(pts[k, 1]),
+                                     float(far[k])))
     limit = np.where(band <= tol, tol - band, tol)
     surface = pts[:, 2] + mean
     kept = bisect(surface, limit)
@@ -174,13 +207,32 @@ def _rapid(out: Compensated, move: Move, height: Height, top_mm: float, sample_m
     out.rapid_dip_mm = max(out.rapid_dip_mm, float(np.max(mean - (h0 + t * (h1 - h0)))))
 
 
-def refusal(wide: list, tolerance_mm: float, name: str = "program", shown: int = 5) -> str:
-    """The message refusing a path whose band exceeds the tolerance, naming where."""
-    lines = [f"line {w.line} at ({w.x_mm:.1f}, {w.y_mm:.1f}) mm: band {w.band_mm * 1e3:.1f} um"
-             for w in sorted(wide, key=lambda w: -w.band_mm)[:shown]]
-    more = f" and {len(wide) - shown} more" if len(wide) > shown else ""
-    return (f"{name}: the map's 95 % band exceeds the tolerance {tolerance_mm * 1e3:.1f} um on "
+def refusal(wide: list, tolerance_mm: float, name: str = "program", shown: int = 5,
+            beyond: list = (), reach_mm=None) -> str:
+    """The message refusing a path whose band exceeds the tolerance (``wide``) or whose cuts
+    leave the box touches can reach (``beyond``, ``reach_mm``), naming where."""
+    parts = []
+    if wide:
+        lines = [f"line {w.line} at ({w.x_mm:.1f}, {w.y_mm:.1f}) mm: band {w.band_mm * 1e3:.1f} um"
+                 for w in sorted(wide, key=lambda w: -w.band_mm)[:shown]]
+        more = f" and {len(wide) - shown} more" if len(wide) > shown else ""
+        parts.append(
+            f"the map's 95 % band exceeds the tolerance {tolerance_mm * 1e3:.1f} um on "
             f"{len(wide)} move(s): " + "; ".join(lines) + more
             + f". Measure more there (a cell whose plan.stop.max_std_mm is at most "
             f"{tolerance_mm / Z95:.4f} mm, the tolerance / 1.96, bounds the band everywhere), "
-            "raise --tolerance-mm, or write the output with those lines marked (--mark)")
+            "or raise --tolerance-mm")
+    if beyond:
+        (x0, x1), (y0, y1) = reach_mm
+        lines = [f"line {b.line} at ({b.x_mm:.1f}, {b.y_mm:.1f}) mm, {b.outside_mm:.1f} mm "
+                 "beyond it" for b in sorted(beyond, key=lambda b: -b.outside_mm)[:shown]]
+        more = f" and {len(beyond) - shown} more" if len(beyond) > shown else ""
+        parts.append(
+            f"{len(beyond)} cut(s) leave the box touches could reach, x [{x0:g}, {x1:g}] mm, "
+            f"y [{y0:g}, {y1:g}] mm (the workplane less its edge margin): " + "; ".join(lines)
+            + more + ". The map there is an extrapolation no reading tested (an edge that "
+            "rolls off is not in it), so no tolerance can be promised there: keep the cuts "
+            "inside that box, or map closer to the edge (a smaller workplane.edge_margin_mm, "
+            "where the probe can touch there)")
+    return (f"{name}: " + ". Also, ".join(parts)
+            + ". Or write the output with those lines marked (--mark)")

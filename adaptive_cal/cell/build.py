@@ -169,8 +169,8 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
             f"{', refined where the model grows' if k > coarse_size else ''}) scores "
             f"{n * k * 8 / 1e9:.1f} GB of basis rows each decision: give at most "
             f"{MAX_CANDIDATE_ENTRIES // k} candidates, or fewer knots")
-    wp, m = cell.workplane, cell.workplane.edge_margin_mm
-    inner = ((wp.x_mm[0] + m, wp.x_mm[1] - m), (wp.y_mm[0] + m, wp.y_mm[1] - m))
+    wp = cell.workplane
+    inner = wp.reach_mm
     cand = candidate_grid(model.surface, wp.allows, *inner, cell.plan.candidates)
     gx, gy = np.meshgrid(np.linspace(*wp.x_mm, eval_points), np.linspace(*wp.y_mm, eval_points),
                          indexing="ij")

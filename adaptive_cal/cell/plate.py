@@ -76,6 +76,13 @@ class Workplane(Block):
         return self
 
     @property
+    def reach_mm(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The box touches can reach, ((x0, x1), (y0, y1)) mm: the plate less its edge margin.
+        Beyond it a map is an extrapolation."""
+        m = self.edge_margin_mm
+        return (self.x_mm[0] + m, self.x_mm[1] - m), (self.y_mm[0] + m, self.y_mm[1] - m)
+
+    @property
     def area_mm2(self) -> float:
         return (self.x_mm[1] - self.x_mm[0]) * (self.y_mm[1] - self.y_mm[0])
 

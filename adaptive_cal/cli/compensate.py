@@ -1,6 +1,7 @@
 """``adaptive-cal compensate PROGRAM --map RUN_DIR --out OUT``: a run's map applied to a toolpath
 (G-code or a CSV of points): each cutting point's Z raised by the mapped height, long cuts split
-to the tolerance, refused where the map's 95 % band exceeds it. ``--grid OUT.csv``: the map on a
+to the tolerance, refused where the map's 95 % band exceeds it or where a cut leaves the box
+touches could reach (the edge margin: an extrapolation). ``--grid OUT.csv``: the map on a
 regular grid instead. The details: docs/compensate.md."""
 from __future__ import annotations
 
@@ -28,14 +29,16 @@ def add_arguments(p) -> None:
     p.add_argument("--tolerance-mm", type=float, default=0.01,
                    help="how closely the output follows the plate (mm): cuts are split until the "
                         "path departs from the map by at most the tolerance less the map's 95 %% "
-                        "band, and refused where that band alone exceeds it")
+                        "band, and refused where that band alone exceeds it or where a cut "
+                        "leaves the box touches could reach")
     p.add_argument("--frame", choices=("nominal", "corrected"), default="nominal",
                    help="nominal: the whole mapped height (tilt included), for the frame the run "
                         "measured in; corrected: the form alone, for a frame corrected as the run "
                         "proposed (rx, ry and the origin moved by c)")
     p.add_argument("--mark", action="store_true",
-                   help="where the band exceeds the tolerance, write the output anyway and mark "
-                        "those lines with a comment (a CSV: a compensate_note column)")
+                   help="where the band exceeds the tolerance, or a cut leaves the box touches "
+                        "could reach (the workplane's edge margin), write the output anyway and "
+                        "mark those lines with a comment (a CSV: a compensate_note column)")
 
 
 def command(args) -> int:
@@ -140,6 +143,11 @@ def _grid(hmap, args) -> int:
     print(f"wrote {args.grid}: {len(xs) * len(ys)} nodes, frame {args.frame}, height "
           f"{lo:+.4f} .. {hi:+.4f} mm, std at most {worst * 1e3:.1f} um"
           + (" (heights only: the height-map format)" if args.heights_only else ""))
+    if hmap.reach_mm is not None:
+        (x0, x1), (y0, y1) = hmap.reach_mm
+        print(f"outside x [{x0:g}, {x1:g}] mm, y [{y0:g}, {y1:g}] mm (the workplane's edge "
+              "margin) the map is an extrapolation: no touch could reach there, and no reading "
+              f"tested the heights{'' if args.heights_only else ' or the std_mm'} there")
     return 0
 
 
@@ -155,14 +163,21 @@ def _program(hmap, args) -> int:
     if not path.moves:
         raise UserError(f"{name}: no moves found (G0/G1 with X, Y, Z, or CSV rows x_mm,y_mm,z_mm)")
     result = compensate(path, hmap.height(args.frame), hmap.plate_mm, T,
-                        top_mm=hmap.top_mm(args.frame), name=name)
+                        top_mm=hmap.top_mm(args.frame), name=name, reach_mm=hmap.reach_mm)
     marks = {}
-    if result.wide:
+    if result.wide or result.beyond:
         if not args.mark:
-            raise UserError(refusal(result.wide, T, name))
+            raise UserError(refusal(result.wide, T, name, beyond=result.beyond,
+                                    reach_mm=hmap.reach_mm))
         by_line = {m.line: m.item for m in path.moves}
-        marks = {by_line[w.line]: f"adaptive-cal: 95 % band {w.band_mm * 1e3:.1f} um exceeds the "
-                                  f"tolerance {T * 1e3:.4g} um" for w in result.wide}
+        notes = {}
+        for w in result.wide:
+            notes.setdefault(by_line[w.line], []).append(
+                f"95 % band {w.band_mm * 1e3:.1f} um exceeds the tolerance {T * 1e3:.4g} um")
+        for b in result.beyond:
+            notes.setdefault(by_line[b.line], []).append(
+                f"{b.outside_mm:.1f} mm beyond the reach of the touches: the map is extrapolated")
+        marks = {item: "adaptive-cal: " + "; ".join(n) for item, n in notes.items()}
     where = str(args.map).replace("(", "[").replace(")", "]")
     text = write_toolpath(path, result.pieces, marks, header_comment=(
         f"adaptive-cal compensate: map {where}, frame {args.frame}, tolerance {T:g} mm "
@@ -177,8 +192,10 @@ def _program(hmap, args) -> int:
               f"{max(result.rapid_dip_mm, 0.0) * 1e3:.1f} um above a straight rapid (the "
               "programmed clearance shrinks by that much along it)")
     if marks:
-        print(f"marked {len(marks)} line(s) where the band exceeds the tolerance: the output is "
-              "NOT within the tolerance there")
+        why = " or ".join(w for w, hit in (("the band exceeds the tolerance", result.wide),
+                                           ("the map is extrapolated", result.beyond)) if hit)
+        print(f"marked {len(marks)} line(s) where {why}: the output is NOT within the tolerance "
+              "there")
     if path.whole_numbers:
         (line, word), n = path.whole_numbers[0], len(path.whole_numbers)
         print(f"warning: {n} axis word{'s' * (n != 1)} without a decimal point (first: line "

@@ -47,7 +47,8 @@ Taylor remainder of its curvature over the margin d, sqrt(3) s_f / l^2 * d^2 / 2
 and the forms learned on realistic plates (s_f 15-30 um, l 150-350 mm) 0.02-0.1 um, while
 edge roll-off (non-stationary, where lapping and clamping act) put 11-16 um RMS of error there
 (benchmarks/bench_plates.py, edge family): no number from the touches or from the stationary
-prior bounds it, so the claim there is marked, not widened.
+prior bounds it, so the claim there is marked, not widened (and ``adaptive-cal compensate``
+refuses, or marks, a cut there).
 """
 from __future__ import annotations
 

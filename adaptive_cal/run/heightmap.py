@@ -44,6 +44,9 @@ class HeightMap:
     # belief.npz's grid of the variance of structure finer than the knots (``unresolved_at``;
     # empty for a belief saved without it): the std is the run's band, spline and that
     unresolved: dict = field(default_factory=dict)
+    # the box touches could reach (the workplane less its edge margin): beyond it the map is an
+    # extrapolation no reading tested; None where touches could reach the whole workplane
+    reach_mm: tuple | None = None
 
     def height(self, frame: str = "nominal"):
         """height(x_mm, y_mm) -> (mean_mm, std_mm) in ``frame`` (see the module's doc)."""
@@ -95,7 +98,8 @@ def load_map(run_dir: str | Path) -> HeightMap:
     if any(tilt.get(k) is None for k in "abc"):
         raise ValueError(f"{run_dir / 'result.json'}: no tilt a, b, c (is it a finished run?)")
     wp = cell.workplane
+    reach = wp.reach_mm if wp.edge_margin_mm > 0 else None
     return HeightMap(plan_model(cell).surface, belief,
                      (float(tilt["a"]), float(tilt["b"]), float(tilt["c"])),
                      (tuple(wp.x_mm), tuple(wp.y_mm)), missing(result), cell.name,
-                     read_npz(run_dir / "belief.npz", keys=()))
+                     read_npz(run_dir / "belief.npz", keys=()), reach)

@@ -134,7 +134,8 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
 * **edge**: the miss is the margin no touch can reach (the workplane's 10 mm `edge_margin_mm`,
   14 % of the evaluation grid's points). Inside the reachable box the adaptive bands cover
   0.949 of the plate with a true RMS error of 3.7 um; in the margin 0.35, with 14.9 um. The map
-  there is an extrapolation, and result.json and the summary say so (`model.extrapolated`).
+  there is an extrapolation, and result.json and the summary say so (`model.extrapolated`);
+  `compensate` refuses a cut there unless told to mark it (docs/compensate.md).
 * **ripple, seam**: the misses lie inside the reachable box (ripple 0.754 there, seam 0.842).
   Structure finer than the touches' spacing looks like probe noise within the stated 3-8 um
   span: run on to a 2.2 um bound (28-49 touches), the learned noise was 5.7-6.4 um on ripple
