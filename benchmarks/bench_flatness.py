@@ -48,8 +48,9 @@ FAMILIES = ("smooth", "rough", "dent", "edge", "ripple", "seam")  # and "noisy" 
 EVAL_NODES = 41  # the run's evaluation grid per side (adaptive_cal.cell.build.EVAL_POINTS)
 
 
-def true_figures(map_path: Path, x_mm, y_mm) -> dict:
-    """Least-squares and minimum-zone flatness (mm) of the true map on the evaluation grid."""
+def true_figures(map_path: Path, x_mm, y_mm, box_mm=None) -> dict:
+    """Least-squares and minimum-zone flatness (mm) of the true map on the evaluation grid (with
+    ``box_mm`` ((x0, x1), (y0, y1)): on its points inside that box only)."""
     a = np.loadtxt(map_path, delimiter=",", skiprows=1)
     xs, ys = np.unique(a[:, 0]), np.unique(a[:, 1])
     h = np.full((len(xs), len(ys)), np.nan)
@@ -57,14 +58,25 @@ def true_figures(map_path: Path, x_mm, y_mm) -> dict:
     gx, gy = np.meshgrid(np.linspace(*x_mm, EVAL_NODES), np.linspace(*y_mm, EVAL_NODES),
                          indexing="ij")
     x, y = gx.ravel(), gy.ravel()
+    if box_mm is not None:
+        (x0, x1), (y0, y1) = box_mm
+        keep = (x >= x0 - 1e-9) & (x <= x1 + 1e-9) & (y >= y0 - 1e-9) & (y <= y1 + 1e-9)
+        x, y = x[keep], y[keep]
     z = RegularGridInterpolator((xs, ys), h)(np.c_[x, y])
     A = np.c_[x, y, np.ones_like(x)]
-    r = z - A @ np.linalg.lstsq(A, z, rcond=None)[0]
+    a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
+    r = z - A @ (a, b, c)
     n = len(z)  # minimum zone: min w s.t. |z - (a x + b y + c)| <= w / 2
     res = linprog(np.r_[0.0, 0.0, 0.0, 1.0],
                   A_ub=np.r_[np.c_[A, -np.ones(n)], np.c_[-A, -np.ones(n)]], b_ub=np.r_[z, -z],
                   bounds=[(None, None)] * 3 + [(0, None)], method="highs")
-    return {"least_squares": float(r.max() - r.min()), "minimum_zone": float(2.0 * res.x[3])}
+    # the tilt correction of that plane (README: frame_new = frame_nominal rotx(rx) roty(ry)
+    # puts z on the plate normal (-a, -b, 1) / N: rotx(rx) roty(ry) e_z = (sin ry,
+    # -sin rx cos ry, cos rx cos ry), so rx = atan(b), ry = asin(-a / N))
+    tilt = {"rx_deg": float(np.degrees(np.arctan(b))),
+            "ry_deg": float(np.degrees(np.arcsin(-a / np.sqrt(1.0 + a * a + b * b))))}
+    return {"least_squares": float(r.max() - r.min()), "minimum_zone": float(2.0 * res.x[3]),
+            "tilt": tilt}
 
 
 def one_plate(job: tuple) -> dict:
@@ -92,12 +104,24 @@ def one_plate(job: tuple) -> dict:
            "stopped_because": r["stopped_because"], "wall_s": time.perf_counter() - t0,
            "unresolved_rms_mm": (r.get("model") or {}).get("unresolved_rms_mm"),
            "largest_gap": r.get("largest_gap"), "local_features": r.get("local_features", [])}
+    t = r["tilt"]  # the tilt correction's 2-sd interval against the true map's plane
+    out["tilt"] = {k: {"true": truth["tilt"][k], "value": t[k], "std": t[f"{k[:2]}_std_deg"],
+                       "in_2sd": abs(t[k] - truth["tilt"][k]) <= 2.0 * t[f"{k[:2]}_std_deg"]}
+                   for k in ("rx_deg", "ry_deg")}
+    within = r.get("flatness_within_reach_mm")
+    inner = (true_figures(map_path, cell["workplane"]["x_mm"], cell["workplane"]["y_mm"],
+                          within["box_mm"]) if within else None)
     for k in ("least_squares", "minimum_zone"):
-        f = r["flatness_mm"][k]
-        lo, hi = f["ci95"]
-        out[k] = {"true": truth[k], "value": f["value"], "ci95": [lo, hi],
-                  "where": "in" if lo <= truth[k] <= hi else ("above" if truth[k] > hi else "below")}
+        out[k] = _judged(r["flatness_mm"][k], truth[k])
+        if within:  # the figures of the part touches could reach (the plate less its margin)
+            out[f"{k}_within_reach"] = _judged(within[k], inner[k])
     return out
+
+
+def _judged(f: dict, true: float) -> dict:
+    lo, hi = f["ci95"]
+    return {"true": true, "value": f["value"], "ci95": [lo, hi],
+            "where": "in" if lo <= true <= hi else ("above" if true > hi else "below")}
 
 
 def report(records: list[dict]) -> list[str]:
@@ -116,6 +140,34 @@ def report(records: list[dict]) -> list[str]:
                      f"{1e3 * np.median([r['minimum_zone']['true'] for r in rr]):8.1f}"
                      f"             {1e3 * np.median([r['minimum_zone']['value'] for r in rr]):8.1f}"
                      f"          {sum(len(r.get('local_features') or ()) for r in rr):3d}")
+    if any("minimum_zone_within_reach" in r for r in ok):
+        lines.append("within reach of the touches (the plate less its edge margin):")
+        for family in [f for f in FAMILIES + ("noisy",) if any(r["family"] == f for r in ok)] \
+                + ["all"]:
+            rr = [r for r in ok if family in ("all", r["family"])
+                  and "minimum_zone_within_reach" in r]
+            cells = []
+            for k in ("least_squares_within_reach", "minimum_zone_within_reach"):
+                w = [r[k]["where"] for r in rr]
+                cells.append(f"{w.count('in')}/{len(w)} = {w.count('in') / len(w):.2f} / "
+                             f"{w.count('above')} / {w.count('below')}")
+            lines.append(f"{family:8s}  {len(rr):6d}  {'':7s}  {cells[0]:>33s}   {cells[1]:>32s}"
+                         f"   {1e3 * np.median([r['minimum_zone_within_reach']['true'] for r in rr]):8.1f}"
+                         f"             "
+                         f"{1e3 * np.median([r['minimum_zone_within_reach']['value'] for r in rr]):8.1f}")
+    if any("tilt" in r for r in ok):
+        lines.append("tilt correction: the true map's plane inside the run's rx, ry +- 2 sd "
+                     "(95.4 % if calibrated); median |error| / sd")
+        for family in [f for f in FAMILIES + ("noisy",) if any(r["family"] == f for r in ok)] \
+                + ["all"]:
+            rr = [r for r in ok if family in ("all", r["family"]) and "tilt" in r]
+            cells = []
+            for k in ("rx_deg", "ry_deg"):
+                inside = sum(r["tilt"][k]["in_2sd"] for r in rr)
+                z = np.median([abs(r["tilt"][k]["value"] - r["tilt"][k]["true"])
+                               / r["tilt"][k]["std"] for r in rr])
+                cells.append(f"{k[:2]} {inside}/{len(rr)} = {inside / len(rr):.2f}, {z:.2f}")
+            lines.append(f"{family:8s}  {len(rr):6d}  " + "   ".join(cells))
     errors = [r for r in records if "error" in r]
     if errors:
         lines.append(f"{len(errors)} runs failed, first: {errors[0]['error']}")

@@ -14,7 +14,12 @@ report, with the same words and numbers in all three:
   than its RMS suggests: left out, the intervals held the true plate's minimum-zone flatness on
   11 of 20 rough plates (Matern-3/2, 60 mm), with it on 18 (benchmarks/bench_flatness.py,
   docs/flatness.md). A feature between the touches is in no interval: ``largest_gap`` says
-  where the widest untouched disc is.
+  where the widest untouched disc is;
+- within reach of the touches (where the workplane has an edge margin no touch enters): the
+  whole plate's figures and draws on its evaluation points inside the reachable box. Beyond
+  it the map is an extrapolation no reading tested: on plates whose edges roll off, the whole
+  plate's minimum-zone interval held the truth on 12 of 20, within reach on 18
+  (docs/flatness.md).
 
 Both figures remove the tilt (the least-squares or minimum-zone plane); the raw height spread
 (max - min, tilt included) is kept as ``range`` and labelled as such, never called flatness.
@@ -45,6 +50,12 @@ MEDIAN_NOTE = ("* posterior median of the samples: the figure itself lay outside
 
 def touched_what(points: int) -> str:
     return f"of the {points} touched points (Cheng eqs. 1-6)"
+
+
+def within_what(within: dict) -> str:
+    (x0, x1), (y0, y1) = within["box_mm"]
+    return (f"within reach of the touches (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm; beyond, the "
+            "map is extrapolated)")
 
 
 def entry(value: float, samples: np.ndarray, figure_is: str) -> dict:
@@ -106,14 +117,16 @@ def _root(xy, length_mm: float) -> np.ndarray:
 
 def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator,
                  samples: int = SAMPLES, unresolved_mm2=None,
-                 length_mm: float | None = None, features=()) -> tuple[dict, dict]:
+                 length_mm: float | None = None, features=(), inside=None) -> tuple[dict, dict]:
     """(tilt, flatness of the whole plate): the tilt of the mean map's least-squares plane with
     the std of its angles over the sampled surfaces, and the figures with intervals.
     ``unresolved_mm2``: s_u^2 at the evaluation points (None: the spline's variance alone),
     drawn with correlation length ``length_mm`` (``unresolved_draws``) after the spline's.
     ``features``: (row, departure_mm, sd_mm, x_mm, y_mm) of local features a retake confirmed
     (``analysis.local_features``): points added to the figures at the map plus the departure,
-    drawn with its sd; the tilt stays the grid's."""
+    drawn with its sd; the tilt stays the grid's. ``inside``: a mask of the evaluation points
+    touches could reach; where some are not, the figures of those alone (the same draws, the
+    features added) are the entry ``within_reach`` (``flatness_answer``)."""
     x, y = eval_xy[:, 0], eval_xy[:, 1]
     mean, _ = bl.predict(belief, eval_rows)
     coef = bl.sample(belief, rng, samples)
@@ -123,12 +136,19 @@ def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator
     tilt = fl.plane_tilt(x, y, mean)
     angles = np.array([fl.tilt_correction_deg(*fl.least_squares_plane(x, y, d)[:2]) for d in draws])
     tilt["rx_std_deg"], tilt["ry_std_deg"] = (float(v) for v in angles.std(axis=0))
-    for row, dep, sd, fx, fy in features:
+    reach = None if inside is None or np.all(inside) or not np.any(inside) else \
+        np.asarray(inside, bool)
+    for row, dep, sd, fx, fy in features:  # a confirmed feature lies on a touch: within reach
         x, y = np.append(x, fx), np.append(y, fy)
         mean = np.append(mean, float(row @ belief.mean) + dep)
         extra = coef @ row + dep + sd * rng.standard_normal(samples)
         draws = np.c_[draws, extra]
-    return tilt, _figures(x, y, mean, draws, "figure of the mean map")
+        reach = None if reach is None else np.append(reach, True)
+    figures = _figures(x, y, mean, draws, "figure of the mean map")
+    if reach is not None:
+        figures["within_reach"] = _figures(x[reach], y[reach], mean[reach], draws[:, reach],
+                                           "figure of the mean map")
+    return tilt, figures
 
 
 def touched_answer(x, y, z, rows, belief: bl.Belief, noise_std_mm: float,
@@ -154,14 +174,34 @@ def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=No
     surface = plan.model.surface
     extra = [(surface.basis(np.array([f["x_mm"]]), np.array([f["y_mm"]]))[0], f["departure_mm"],
               f["sd_mm"], f["x_mm"], f["y_mm"]) for f in features]
+    box = getattr(plan, "bounds_mm", None)
+    inside = None if box is None else _in_box(plan.eval_xy, box)
     tilt, plate = plate_answer(plan.eval_xy, plan.eval_rows, belief, rng, samples, unresolved_mm2,
-                               correlation_length_mm(surface), extra)
+                               correlation_length_mm(surface), extra, inside)
     out = {"tilt": tilt, "flatness_mm": plate}
+    within = plate.pop("within_reach", None)
+    if within is not None:
+        within.pop("range")
+        out["flatness_within_reach_mm"] = {
+            "box_mm": [list(map(float, b)) for b in box], "eval_points": int(inside.sum()),
+            **within, "means": WITHIN_MEANS}
     if touched_xyz is not None:
         x, y, z = touched_xyz
         rows = plan.model.surface.basis(np.asarray(x, float), np.asarray(y, float))
         out["touched_flatness_mm"] = touched_answer(x, y, z, rows, belief, noise_std_mm, rng, samples)
     return out
+
+
+WITHIN_MEANS = ("the same figures of the map at the evaluation points inside box_mm, the part of "
+                "the workplane touches could reach (the plate less its edge margin): beyond it "
+                "the map is an extrapolation no reading tested, and an edge that rolls off there "
+                "is in no interval (the whole plate's figures include that margin)")
+
+
+def _in_box(xy, box) -> np.ndarray:
+    (x0, x1), (y0, y1) = box
+    x, y = np.asarray(xy, float)[:, 0], np.asarray(xy, float)[:, 1]
+    return (x >= x0 - 1e-9) & (x <= x1 + 1e-9) & (y >= y0 - 1e-9) & (y <= y1 + 1e-9)
 
 
 GAP_MEANS = ("the largest disc inside the reachable, allowed part of the plate with no fused "
@@ -220,6 +260,10 @@ def answer_lines(result: dict, provisional: bool = False, no_plate: str | None =
     if plate:
         lines.append(answer_line(PLATE + mark, plate))
         used.append(plate)
+        within = result.get("flatness_within_reach_mm")
+        if within:
+            lines.append(answer_line(within_what(within) + mark, within))
+            used.append(within)
         if "range" in plate:
             lines.append(f"{SPREAD}: {value_text(plate['range'])}")
     elif no_plate:

@@ -12,7 +12,8 @@ import numpy as np
 
 from adaptive_cal.analysis.local_features import feature_line
 from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, PLATE, SPREAD,
-                                                   gap_line, touched_what, value_text)
+                                                   gap_line, touched_what, value_text,
+                                                   within_what)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.numbers import fixed
@@ -197,8 +198,9 @@ def flatness_section(result: dict) -> str:
     """Both answers (``analysis.flatness_answer``), in the words and digits of the terminal."""
     rows, used = [], []
     touched, plate = result.get("touched_flatness_mm"), result["flatness_mm"]
+    within = result.get("flatness_within_reach_mm")
     for what, figs in ((touched_what(touched["points"]) if touched else None, touched),
-                       (PLATE, plate)):
+                       (PLATE, plate), (within_what(within) if within else None, within)):
         if not figs:
             continue
         used.append(figs)
@@ -220,7 +222,9 @@ def flatness_section(result: dict) -> str:
               "Touched points: the figure of the measured heights, the interval over predicted "
               "repeat measurements at the same touches. Whole plate: the figure of the mean map, "
               "the interval over surfaces sampled from the belief, with the structure finer "
-              "than the knots the run found. The same numbers are printed by "
+              "than the knots the run found; within reach, the same on the part of the plate "
+              "touches could reach (beyond it, in the edge margin, the map is an "
+              "extrapolation). The same numbers are printed by "
               "<code>adaptive-cal run</code> and <code>adaptive-cal flatness</code>.</p>")
 
 
