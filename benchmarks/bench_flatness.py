@@ -12,8 +12,11 @@ DESIGN.md defines it) onto the run's evaluation grid (41 x 41 nodes over the wor
 least-squares plane by numpy's lstsq, the minimum zone as a linear programme (scipy linprog).
 
 Printed per family: how often each 95 % interval holds the true figure, and how often the
-truth lay above it (the map missed structure) or below, and how many local features the runs
-named (a gated reading its retake confirmed); the records also keep each run's largest gap
+truth lay above it (the map missed structure) or below -- for the whole plate and, where the
+workplane has an edge margin, within reach of the touches (result.json
+``flatness_within_reach_mm``, the truth on the same grid points inside the same box) -- how
+often the tilt correction's rx, ry +- 2 sd hold those of the true map's least-squares plane,
+and how many local features the runs named (a gated reading its retake confirmed); the records also keep each run's largest gap
 between touches and its unresolved RMS. The noisy family (``--families noisy``) reads as its
 manifest says: Student-t noise of its degrees of freedom (5 um sd) and its gross errors -- the
 readings the gate retakes most, so it is where a local feature could be named falsely.
