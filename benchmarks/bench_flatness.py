@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import csv
 import datetime
 import json
 import subprocess
@@ -51,13 +52,18 @@ FAMILIES = ("smooth", "rough", "dent", "edge", "ripple", "seam")  # and "noisy" 
 EVAL_NODES = 41  # the run's evaluation grid per side (adaptive_cal.cell.build.EVAL_POINTS)
 
 
-def true_figures(map_path: Path, x_mm, y_mm, box_mm=None) -> dict:
-    """Least-squares and minimum-zone flatness (mm) of the true map on the evaluation grid (with
-    ``box_mm`` ((x0, x1), (y0, y1)): on its points inside that box only)."""
+def _interpolator(map_path: Path) -> RegularGridInterpolator:
+    """The true map, bilinear between its nodes (DESIGN.md's height-map format)."""
     a = np.loadtxt(map_path, delimiter=",", skiprows=1)
     xs, ys = np.unique(a[:, 0]), np.unique(a[:, 1])
     h = np.full((len(xs), len(ys)), np.nan)
     h[np.searchsorted(xs, a[:, 0]), np.searchsorted(ys, a[:, 1])] = a[:, 2]
+    return RegularGridInterpolator((xs, ys), h)
+
+
+def true_figures(map_path: Path, x_mm, y_mm, box_mm=None) -> dict:
+    """Least-squares and minimum-zone flatness (mm) of the true map on the evaluation grid (with
+    ``box_mm`` ((x0, x1), (y0, y1)): on its points inside that box only)."""
     gx, gy = np.meshgrid(np.linspace(*x_mm, EVAL_NODES), np.linspace(*y_mm, EVAL_NODES),
                          indexing="ij")
     x, y = gx.ravel(), gy.ravel()
@@ -65,7 +71,7 @@ def true_figures(map_path: Path, x_mm, y_mm, box_mm=None) -> dict:
         (x0, x1), (y0, y1) = box_mm
         keep = (x >= x0 - 1e-9) & (x <= x1 + 1e-9) & (y >= y0 - 1e-9) & (y <= y1 + 1e-9)
         x, y = x[keep], y[keep]
-    z = RegularGridInterpolator((xs, ys), h)(np.c_[x, y])
+    z = _interpolator(map_path)(np.c_[x, y])
     A = np.c_[x, y, np.ones_like(x)]
     a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
     r = z - A @ (a, b, c)
@@ -80,6 +86,60 @@ def true_figures(map_path: Path, x_mm, y_mm, box_mm=None) -> dict:
             "ry_deg": float(np.degrees(np.arcsin(-a / np.sqrt(1.0 + a * a + b * b))))}
     return {"least_squares": float(r.max() - r.min()), "minimum_zone": float(2.0 * res.x[3]),
             "tilt": tilt}
+
+
+REPEATS = 50  # fresh repeat measurements of a run's touched points, for its touched interval
+NOT_FUSED = {"gated", "rejected", "invalid"}  # docs/recording.md: rows the map does not fuse
+
+
+def fused_touches(rec_path: Path) -> np.ndarray:
+    """(N, 2) x, y (mm) of a recording's fused rows, read with the csv module (recording v1)."""
+    with open(rec_path, newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
+    keep = [r for r in rows if not NOT_FUSED & set((r.get("flags") or "").split(";"))]
+    return np.array([[float(r["x_mm"]), float(r["y_mm"])] for r in keep])
+
+
+def normal_figures(x, y, z) -> tuple[float, float]:
+    """(least squares, minimum zone) flatness in mm, each measured normal to its plane (Cheng
+    eq. 5, ISO 1101), by numpy lstsq and scipy linprog."""
+    A = np.c_[x, y, np.ones_like(x)]
+    a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
+    ls = np.ptp(z - A @ (a, b, c)) / np.sqrt(1.0 + a * a + b * b)
+    n = len(z)
+    res = linprog(np.r_[0.0, 0.0, 0.0, 1.0],
+                  A_ub=np.r_[np.c_[A, -np.ones(n)], np.c_[-A, -np.ones(n)]], b_ub=np.r_[z, -z],
+                  bounds=[(None, None)] * 3 + [(0, None)], method="highs")
+    a, b = res.x[:2]
+    return float(ls), float(2.0 * res.x[3] / np.sqrt(1.0 + a * a + b * b))
+
+
+def repeat_noise_mm(noise: dict, rng: np.random.Generator, n: int) -> np.ndarray:
+    """Reading noise as the cell draws it: 5 um Gaussian, or the manifest's Student-t at the
+    same sd. Its gross errors (10 sd) are left out: a run gates them and takes the point again,
+    so a repeat's fused readings would not hold them either."""
+    if noise.get("kind") != "student_t":
+        return 0.005 * rng.standard_normal(n)
+    dof = float(noise["dof"])
+    return 0.005 * np.sqrt((dof - 2.0) / dof) * rng.standard_t(dof, n)
+
+
+def touched_repeats(map_path: Path, rec_path: Path, touched: dict, noise: dict,
+                    seed: int) -> dict:
+    """The share of REPEATS fresh measurements of the run's fused touches (the true map there
+    plus the cell's noise) whose figures lie inside the run's touched-points intervals -- what
+    those intervals claim: the figure over predicted repeat measurements at the same touches."""
+    xy = fused_touches(rec_path)
+    h = _interpolator(map_path)(xy)
+    rng = np.random.default_rng(seed)
+    inside = {"least_squares": 0, "minimum_zone": 0}
+    for _ in range(REPEATS):
+        figs = dict(zip(inside, normal_figures(xy[:, 0], xy[:, 1],
+                                               h + repeat_noise_mm(noise, rng, len(h)))))
+        for k in inside:
+            lo, hi = touched[k]["ci95"]
+            inside[k] += lo <= figs[k] <= hi
+    return {"points": len(xy), **{k: v / REPEATS for k, v in inside.items()}}
 
 
 def one_plate(job: tuple) -> dict:
@@ -102,11 +162,16 @@ def one_plate(job: tuple) -> dict:
         if p.returncode:
             return {"family": family, "plate": index, "error": p.stderr[-800:]}
         r = json.loads((Path(tmp) / "run" / "result.json").read_text())
+        repeats = (touched_repeats(map_path, Path(tmp) / "run" / "recording.csv",
+                                   r["touched_flatness_mm"], noise, seed + 1000 + index)
+                   if r.get("touched_flatness_mm") else None)
     truth = true_figures(map_path, cell["workplane"]["x_mm"], cell["workplane"]["y_mm"])
     out = {"family": family, "plate": index, "touches": r["touches"],
            "stopped_because": r["stopped_because"], "wall_s": time.perf_counter() - t0,
            "unresolved_rms_mm": (r.get("model") or {}).get("unresolved_rms_mm"),
-           "largest_gap": r.get("largest_gap"), "local_features": r.get("local_features", [])}
+           "largest_gap": r.get("largest_gap"), "local_features": r.get("local_features", []),
+           "touched_repeats": repeats,
+           "touched_points": (r.get("touched_flatness_mm") or {}).get("points")}
     t = r["tilt"]  # the tilt correction's 2-sd interval against the true map's plane
     out["tilt"] = {k: {"true": truth["tilt"][k], "value": t[k], "std": t[f"{k[:2]}_std_deg"],
                        "in_2sd": abs(t[k] - truth["tilt"][k]) <= 2.0 * t[f"{k[:2]}_std_deg"]}
@@ -158,6 +223,16 @@ def report(records: list[dict]) -> list[str]:
                          f"   {1e3 * np.median([r['minimum_zone_within_reach']['true'] for r in rr]):8.1f}"
                          f"             "
                          f"{1e3 * np.median([r['minimum_zone_within_reach']['value'] for r in rr]):8.1f}")
+    if any(r.get("touched_repeats") for r in ok):
+        lines.append(f"touched points: share of {REPEATS} fresh repeat measurements at the "
+                     "fused touches whose figure lies in the run's 95 % interval (mean, min)")
+        for family in [f for f in FAMILIES + ("noisy",) if any(r["family"] == f for r in ok)] \
+                + ["all"]:
+            rr = [r["touched_repeats"] for r in ok
+                  if family in ("all", r["family"]) and r.get("touched_repeats")]
+            cells = [f"{k} {np.mean([q[k] for q in rr]):.3f}, {min(q[k] for q in rr):.2f}"
+                     for k in ("least_squares", "minimum_zone")]
+            lines.append(f"{family:8s}  {len(rr):6d}  " + "   ".join(cells))
     if any("tilt" in r for r in ok):
         lines.append("tilt correction: the true map's plane inside the run's rx, ry +- 2 sd "
                      "(95.4 % if calibrated); median |error| / sd")

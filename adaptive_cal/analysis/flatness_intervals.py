@@ -5,10 +5,12 @@ Values are the figures of the heights themselves (``analysis.flatness``: the pap
 plane, eqs. 1-6 of Cheng et al., range, ISO 1101 minimum zone), so they compare with published
 numbers. The interval comes from the belief fitted to the recording,
 
-    z* = B m* + e*,   m* ~ N(mean, C | heights),   e* ~ N(0, sigma^2 I),
+    z* = B m* + e*,   m* ~ N(mean, C | heights),   e* ~ N(0, sigma*^2 I),
 
-with B the spline rows of the touches and sigma the learned reading noise: the figures of S such
-repeats give the 95 % interval, and two rounds whose intervals separate really differ.
+with B the spline rows of the touches and sigma*^2 = sigma^2 nu / chi2_nu, sigma the learned
+reading noise on nu degrees of freedom (``flatness_answer.repeat_noise_mm``, as the run's touched
+points): the figures of S such repeats give the 95 % interval, and two rounds whose intervals
+separate really differ.
 The prior is built here from explicit numbers (a plane with a wide tilt and offset plus a smooth
 form), not from a cell file: a recording carries no cell.
 """
@@ -19,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from adaptive_cal.analysis import flatness as fl
-from adaptive_cal.analysis.flatness_answer import entry
+from adaptive_cal.analysis.flatness_answer import entry, repeat_noise_mm
 from adaptive_cal.formats.recording import (Recording, RecordingError, read_recording,
                                            surface_height_mm)
 from adaptive_cal.gaussian import belief as bl
@@ -78,7 +80,7 @@ def repeat_samples(x, y, z, rng: np.random.Generator, n: int,
     hyper = fit_hyper(model, rows, z)
     post = bl.condition(model.belief(hyper), rows, z, hyper.noise_std_mm**2)
     draws = bl.sample(post, rng, n) @ rows.T
-    draws = draws + hyper.noise_std_mm * rng.standard_normal(draws.shape)
+    draws = draws + repeat_noise_mm(rows, post, hyper.noise_std_mm, rng, n)
     return fl.sampled_figures(x, y, draws), dict(hyper._asdict())
 
 
