@@ -192,42 +192,43 @@ def _judged(f: dict, true: float) -> dict:
             "where": "in" if lo <= true <= hi else ("above" if true > hi else "below")}
 
 
+def _families(ok: list[dict]) -> list[str]:
+    return [f for f in FAMILIES + ("noisy",) if any(r["family"] == f for r in ok)] + ["all"]
+
+
+def _where(rr: list[dict], key: str) -> str:
+    """in / above / below of the records' figure ``key``."""
+    w = [r[key]["where"] for r in rr]
+    return f"{w.count('in')}/{len(w)} = {w.count('in') / len(w):.2f} / " \
+           f"{w.count('above')} / {w.count('below')}"
+
+
 def report(records: list[dict]) -> list[str]:
     lines = ["family    plates  touches  least squares: in / above / below   minimum zone: "
              "in / above / below   true MZ um (median)  claimed MZ um (median)  local features"]
     ok = [r for r in records if "error" not in r]
-    for family in [f for f in FAMILIES + ("noisy",) if any(r["family"] == f for r in ok)] + ["all"]:
+    for family in _families(ok):
         rr = [r for r in ok if family in ("all", r["family"])]
-        cells = []
-        for k in ("least_squares", "minimum_zone"):
-            w = [r[k]["where"] for r in rr]
-            cells.append(f"{w.count('in')}/{len(w)} = {w.count('in') / len(w):.2f} / "
-                         f"{w.count('above')} / {w.count('below')}")
         lines.append(f"{family:8s}  {len(rr):6d}  {np.mean([r['touches'] for r in rr]):7.1f}  "
-                     f"{cells[0]:>33s}   {cells[1]:>32s}   "
+                     f"{_where(rr, 'least_squares'):>33s}   {_where(rr, 'minimum_zone'):>32s}   "
                      f"{1e3 * np.median([r['minimum_zone']['true'] for r in rr]):8.1f}"
                      f"             {1e3 * np.median([r['minimum_zone']['value'] for r in rr]):8.1f}"
                      f"          {sum(len(r.get('local_features') or ()) for r in rr):3d}")
     if any("minimum_zone_within_reach" in r for r in ok):
         lines.append("within reach of the touches (the plate less its edge margin):")
-        for family in [f for f in FAMILIES + ("noisy",) if any(r["family"] == f for r in ok)] \
-                + ["all"]:
+        for family in _families(ok):
             rr = [r for r in ok if family in ("all", r["family"])
                   and "minimum_zone_within_reach" in r]
-            cells = []
-            for k in ("least_squares_within_reach", "minimum_zone_within_reach"):
-                w = [r[k]["where"] for r in rr]
-                cells.append(f"{w.count('in')}/{len(w)} = {w.count('in') / len(w):.2f} / "
-                             f"{w.count('above')} / {w.count('below')}")
-            lines.append(f"{family:8s}  {len(rr):6d}  {'':7s}  {cells[0]:>33s}   {cells[1]:>32s}"
-                         f"   {1e3 * np.median([r['minimum_zone_within_reach']['true'] for r in rr]):8.1f}"
-                         f"             "
-                         f"{1e3 * np.median([r['minimum_zone_within_reach']['value'] for r in rr]):8.1f}")
+            mz = [r["minimum_zone_within_reach"] for r in rr]
+            lines.append(f"{family:8s}  {len(rr):6d}  {'':7s}  "
+                         f"{_where(rr, 'least_squares_within_reach'):>33s}   "
+                         f"{_where(rr, 'minimum_zone_within_reach'):>32s}   "
+                         f"{1e3 * np.median([m['true'] for m in mz]):8.1f}             "
+                         f"{1e3 * np.median([m['value'] for m in mz]):8.1f}")
     if any(r.get("touched_repeats") for r in ok):
         lines.append(f"touched points: share of {REPEATS} fresh repeat measurements at the "
                      "fused touches whose figure lies in the run's 95 % interval (mean, min)")
-        for family in [f for f in FAMILIES + ("noisy",) if any(r["family"] == f for r in ok)] \
-                + ["all"]:
+        for family in _families(ok):
             rr = [r["touched_repeats"] for r in ok
                   if family in ("all", r["family"]) and r.get("touched_repeats")]
             cells = [f"{k} {np.mean([q[k] for q in rr]):.3f}, {min(q[k] for q in rr):.2f}"
@@ -236,8 +237,7 @@ def report(records: list[dict]) -> list[str]:
     if any("tilt" in r for r in ok):
         lines.append("tilt correction: the true map's plane inside the run's rx, ry +- 2 sd "
                      "(95.4 % if calibrated); median |error| / sd")
-        for family in [f for f in FAMILIES + ("noisy",) if any(r["family"] == f for r in ok)] \
-                + ["all"]:
+        for family in _families(ok):
             rr = [r for r in ok if family in ("all", r["family"]) and "tilt" in r]
             cells = []
             for k in ("rx_deg", "ry_deg"):
