@@ -159,7 +159,7 @@ def touched_answer(x, y, z, rows, belief: bl.Belief, noise_std_mm: float,
     drawn once per repeat (the posterior of the noise variance on nu degrees of freedom, a
     Jeffreys prior), nu = sum_i (1 - l_i) the touches less what the map spent fitting them
     (``noise_dof``). With s alone the intervals held fresh repeats 0.91 of the time over seven
-    plate families, 0.88 on short runs' smooth plates (benchmarks/bench_flatness.py)."""
+    plate families, 0.88-0.90 on the smooth family's (benchmarks/bench_flatness.py)."""
     x, y, z = (np.asarray(v, dtype=np.float64) for v in (x, y, z))
     rows = np.asarray(rows, dtype=np.float64)
     draws = bl.sample(belief, rng, samples) @ rows.T
