@@ -63,7 +63,9 @@ def _interpolator(map_path: Path) -> RegularGridInterpolator:
 
 def true_figures(map_path: Path, x_mm, y_mm, box_mm=None) -> dict:
     """Least-squares and minimum-zone flatness (mm) of the true map on the evaluation grid (with
-    ``box_mm`` ((x0, x1), (y0, y1)): on its points inside that box only)."""
+    ``box_mm`` ((x0, x1), (y0, y1)): on its points inside that box only), each measured normal
+    to its plane as the run measures it (``plane_figures``), and the tilt correction of the
+    least-squares plane."""
     gx, gy = np.meshgrid(np.linspace(*x_mm, EVAL_NODES), np.linspace(*y_mm, EVAL_NODES),
                          indexing="ij")
     x, y = gx.ravel(), gy.ravel()
@@ -71,21 +73,32 @@ def true_figures(map_path: Path, x_mm, y_mm, box_mm=None) -> dict:
         (x0, x1), (y0, y1) = box_mm
         keep = (x >= x0 - 1e-9) & (x <= x1 + 1e-9) & (y >= y0 - 1e-9) & (y <= y1 + 1e-9)
         x, y = x[keep], y[keep]
-    z = _interpolator(map_path)(np.c_[x, y])
-    A = np.c_[x, y, np.ones_like(x)]
-    a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
-    r = z - A @ (a, b, c)
-    n = len(z)  # minimum zone: min w s.t. |z - (a x + b y + c)| <= w / 2
-    res = linprog(np.r_[0.0, 0.0, 0.0, 1.0],
-                  A_ub=np.r_[np.c_[A, -np.ones(n)], np.c_[-A, -np.ones(n)]], b_ub=np.r_[z, -z],
-                  bounds=[(None, None)] * 3 + [(0, None)], method="highs")
+    f = plane_figures(x, y, _interpolator(map_path)(np.c_[x, y]))
+    a, b = f["a"], f["b"]
     # the tilt correction of that plane (README: frame_new = frame_nominal rotx(rx) roty(ry)
     # puts z on the plate normal (-a, -b, 1) / N: rotx(rx) roty(ry) e_z = (sin ry,
     # -sin rx cos ry, cos rx cos ry), so rx = atan(b), ry = asin(-a / N))
     tilt = {"rx_deg": float(np.degrees(np.arctan(b))),
             "ry_deg": float(np.degrees(np.arcsin(-a / np.sqrt(1.0 + a * a + b * b))))}
-    return {"least_squares": float(r.max() - r.min()), "minimum_zone": float(2.0 * res.x[3]),
+    return {"least_squares": f["least_squares"], "minimum_zone": f["minimum_zone"],
             "tilt": tilt}
+
+
+def plane_figures(x, y, z) -> dict:
+    """Least-squares and minimum-zone flatness (mm) of heights z at (x, y), each measured normal
+    to its plane (Cheng eq. 5, ISO 1101), by numpy lstsq and scipy linprog; ``a``, ``b``: the
+    least-squares plane's slopes."""
+    A = np.c_[x, y, np.ones_like(x)]
+    a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
+    ls = np.ptp(z - A @ (a, b, c)) / np.sqrt(1.0 + a * a + b * b)
+    n = len(z)  # minimum zone: min w s.t. |z - (a x + b y + c)| <= w / 2
+    res = linprog(np.r_[0.0, 0.0, 0.0, 1.0],
+                  A_ub=np.r_[np.c_[A, -np.ones(n)], np.c_[-A, -np.ones(n)]], b_ub=np.r_[z, -z],
+                  bounds=[(None, None)] * 3 + [(0, None)], method="highs")
+    am, bm = res.x[:2]
+    return {"least_squares": float(ls),
+            "minimum_zone": float(2.0 * res.x[3] / np.sqrt(1.0 + am * am + bm * bm)),
+            "a": float(a), "b": float(b)}
 
 
 REPEATS = 50  # fresh repeat measurements of a run's touched points, for its touched interval
@@ -98,20 +111,6 @@ def fused_touches(rec_path: Path) -> np.ndarray:
         rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
     keep = [r for r in rows if not NOT_FUSED & set((r.get("flags") or "").split(";"))]
     return np.array([[float(r["x_mm"]), float(r["y_mm"])] for r in keep])
-
-
-def normal_figures(x, y, z) -> tuple[float, float]:
-    """(least squares, minimum zone) flatness in mm, each measured normal to its plane (Cheng
-    eq. 5, ISO 1101), by numpy lstsq and scipy linprog."""
-    A = np.c_[x, y, np.ones_like(x)]
-    a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
-    ls = np.ptp(z - A @ (a, b, c)) / np.sqrt(1.0 + a * a + b * b)
-    n = len(z)
-    res = linprog(np.r_[0.0, 0.0, 0.0, 1.0],
-                  A_ub=np.r_[np.c_[A, -np.ones(n)], np.c_[-A, -np.ones(n)]], b_ub=np.r_[z, -z],
-                  bounds=[(None, None)] * 3 + [(0, None)], method="highs")
-    a, b = res.x[:2]
-    return float(ls), float(2.0 * res.x[3] / np.sqrt(1.0 + a * a + b * b))
 
 
 def repeat_noise_mm(noise: dict, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -134,8 +133,7 @@ def touched_repeats(map_path: Path, rec_path: Path, touched: dict, noise: dict,
     rng = np.random.default_rng(seed)
     inside = {"least_squares": 0, "minimum_zone": 0}
     for _ in range(REPEATS):
-        figs = dict(zip(inside, normal_figures(xy[:, 0], xy[:, 1],
-                                               h + repeat_noise_mm(noise, rng, len(h)))))
+        figs = plane_figures(xy[:, 0], xy[:, 1], h + repeat_noise_mm(noise, rng, len(h)))
         for k in inside:
             lo, hi = touched[k]["ci95"]
             inside[k] += lo <= figs[k] <= hi
