@@ -234,7 +234,8 @@ def report(records: list[dict]) -> list[str]:
             lines.append(f"{family:8s}  {len(rr):6d}  " + "   ".join(cells))
     if any("tilt" in r for r in ok):
         lines.append("tilt correction: the true map's plane inside the run's rx, ry +- 2 sd "
-                     "(95.4 % if calibrated); median |error| / sd")
+                     "(95.4 % if calibrated); median |error| / sd (0.67 if calibrated); RMS "
+                     "error / sd over both angles (1.0)")
         for family in _families(ok):
             rr = [r for r in ok if family in ("all", r["family"]) and "tilt" in r]
             cells = []
@@ -243,7 +244,10 @@ def report(records: list[dict]) -> list[str]:
                 z = np.median([abs(r["tilt"][k]["value"] - r["tilt"][k]["true"])
                                / r["tilt"][k]["std"] for r in rr])
                 cells.append(f"{k[:2]} {inside}/{len(rr)} = {inside / len(rr):.2f}, {z:.2f}")
-            lines.append(f"{family:8s}  {len(rr):6d}  " + "   ".join(cells))
+            rms = np.sqrt(np.mean([((r["tilt"][k]["value"] - r["tilt"][k]["true"])
+                                    / r["tilt"][k]["std"]) ** 2
+                                   for r in rr for k in ("rx_deg", "ry_deg")]))
+            lines.append(f"{family:8s}  {len(rr):6d}  " + "   ".join(cells) + f"   RMS {rms:.2f}")
     errors = [r for r in records if "error" in r]
     if errors:
         lines.append(f"{len(errors)} runs failed, first: {errors[0]['error']}")

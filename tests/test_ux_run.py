@@ -175,7 +175,7 @@ def test_the_summary_labels_the_robot_time_an_estimate_and_prints_no_negative_ze
     text = capsys.readouterr().out
     assert ("estimated robot time: about 2.0 min for 31 touches (3.7 m of travel at 150 mm/s, "
             "plus 3 s per touch)") in text
-    assert "ry +0.0000 deg (a +0.000000, b +0.001900 mm/mm, c +0.0000 mm)" in text
+    assert "ry +0.0000 deg; a +0.000000, b +0.001900 mm/mm, c +0.0000 mm" in text
     assert "-0.0" not in text
     assert "95 % band covers 98 % of the plate" in text
     assert signed(-1e-9, 1) == "+0.0" and signed(-0.06, 1) == "-0.1" and percent(0.98) == "98 %"
@@ -195,6 +195,7 @@ def test_result_json_says_what_robot_time_and_the_tilt_plane_are(quick):
     assert "150 mm/s" in first["robot_time_is"]
     assert "(mm/mm)" in first["tilt"]["plane_is"] and "(mm" in first["tilt"]["plane_is"]
     assert {"a", "b", "c", "rx_deg", "ry_deg"} <= set(first["tilt"])  # the keys stay
+    assert 0 < first["tilt"]["noise_dof"] < 5  # 5 touches less what the map spent
 
 
 def test_a_model_not_checked_still_says_where_the_map_is_extrapolated():

@@ -113,7 +113,7 @@ def map_flatness(args) -> dict | None:
         # answer draws them as points instead, as the run does (the same digits)
         unresolved = np.maximum(unresolved - feature_var_mm2(features, *plan.eval_xy.T), 0.0)
     out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
-                          args.samples or SAMPLES, unresolved, features)
+                          args.samples or SAMPLES, unresolved, features, plan.learn)
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
             "noise_std_mm": noise_mm, **out, "local_features": features,
             "largest_gap": largest_gap(plan, np.c_[xyz[0], xyz[1]])}
@@ -141,13 +141,14 @@ def check_belief(folder, surface, data, command: str = "flatness") -> None:
 
 def _one(r: dict, say_no_plate: bool = True) -> list[str]:
     from adaptive_cal.analysis.flatness_answer import answer_lines, value_text
+    from adaptive_cal.report.sections import tilt_angles
 
     t = r["tilt"]
     if "map" in r:  # both answers, the tilt of the whole plate's map
         return ([f"{r['recording']}: {r['touches']} touches, reading noise "
                  f"{r['noise_std_mm'] * 1e3:.1f} um; map: {r['map']}",
-                 f"  tilt correction (whole plate): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} "
-                 f"deg (a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm)"]
+                 f"  tilt correction (whole plate): {tilt_angles(t)}; a {t['a']:+.6f}, "
+                 f"b {t['b']:+.6f} mm/mm"]
                 + ["  " + line for line in answer_lines(r)])
     touched = {**r["flatness_mm"], "points": r["touches"]}
     lines = [f"{r['recording']}: {r['touches']} touches, reading noise {r['noise_std_mm'] * 1e3:.1f} um",

@@ -251,7 +251,7 @@ def _summary(r: dict, out: Path, cell=None) -> None:
     """The run's summary on stdout; ``cell``: the cell run (its robot speed and touch time, the
     model of the estimated robot time)."""
     from adaptive_cal.analysis.flatness_answer import answer_lines
-    from adaptive_cal.report.sections import percent, signed
+    from adaptive_cal.report.sections import percent, signed, tilt_angles
     from adaptive_cal.report.status import missing, next_step
 
     gap = missing(r)
@@ -263,9 +263,8 @@ def _summary(r: dict, out: Path, cell=None) -> None:
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
         r.get('model', {}).get('summary') or 'model: not checked',
         *([r["closure"]["text"]] if r.get("closure") else []),
-        f"tilt correction{' (provisional)' if gap else ''}: rx {signed(t['rx_deg'], 4)} deg, "
-        f"ry {signed(t['ry_deg'], 4)} deg (a {signed(t['a'], 6)}, b {signed(t['b'], 6)} mm/mm, "
-        f"c {signed(t['c'], 4)} mm)",
+        f"tilt correction{' (provisional)' if gap else ''}: {tilt_angles(t)}; a {signed(t['a'], 6)}, "
+        f"b {signed(t['b'], 6)} mm/mm, c {signed(t['c'], 4)} mm",
     ]
     lines += answer_lines(r, provisional=bool(gap))
     if "truth" in r:

@@ -64,6 +64,16 @@ def signed(value: float, digits: int) -> str:
     return fixed(value, digits, "+")
 
 
+def tilt_angles(tilt: dict) -> str:
+    """"rx +0.1088 +- 0.0004 deg, ry -0.8021 +- 0.0004 deg (1 sd)" -- the sds where the tilt has
+    them (a run's map), the angles alone where not (a bare recording's touched points)."""
+    sd = [tilt.get(f"{k}_std_deg") for k in ("rx", "ry")]
+    if None in sd:
+        return f"rx {signed(tilt['rx_deg'], 4)} deg, ry {signed(tilt['ry_deg'], 4)} deg"
+    return (f"rx {signed(tilt['rx_deg'], 4)} +- {sd[0]:.4f} deg, ry {signed(tilt['ry_deg'], 4)} "
+            f"+- {sd[1]:.4f} deg (1 sd)")
+
+
 def percent(share: float) -> str:
     """A share as the outputs write percentages: "98 %" (a space, as in "95 % band")."""
     return f"{share * 100:.0f} %"

@@ -108,7 +108,7 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
     result.update(flatness_answer(plan, state.belief, state.hyper.noise_std_mm,
                                   xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
                                   SAMPLES, sv.unresolved_var_mm2(plan, state, plan.eval_xy),
-                                  result["local_features"]))
+                                  result["local_features"], plan.learn))
     # where a narrow feature could hide between the fused touches (all touches without them)
     result["largest_gap"] = largest_gap(
         plan, np.c_[xyz[0], xyz[1]] if xyz is not None else state.touched_xy_mm)
@@ -123,7 +123,9 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
 TILT_PLANE_IS = ("least-squares plane z = a x + b y + c of the map in the workplane frame: a and "
                  "b slopes along x and y (mm/mm), c the height at the frame origin (mm, from "
                  "where the probe reads its zero); rx_deg, ry_deg the correction rotx(rx) "
-                 "roty(ry) (deg), *_std_deg their posterior std (deg)")
+                 "roty(ry) (deg), *_std_deg their posterior std (deg) with the learned noise's "
+                 "own uncertainty counted: the std of the Gaussian with the same 2-sd interval as "
+                 "a Student-t on noise_dof degrees of freedom")
 
 
 def robot_time_is(speed_mm_per_s: float, touch_time_s: float) -> str:
