@@ -58,9 +58,10 @@ def plate_raster(lines: int = 18) -> str:
     return "\n".join(out + ["G0 Z5", "M2"]) + "\n"
 
 
-def judged_cuts(path, res, truth, tol: float, step_mm: float = 0.5) -> dict:
+def judged_cuts(path, res, start_z: dict, truth, tol: float, step_mm: float = 0.5) -> dict:
     """Cut length (mm) claimed, and of it the length whose output lies within ``tol`` of the
-    programmed depth below the TRUE plate, sampled every ``step_mm`` along each output segment."""
+    programmed depth below the TRUE plate, sampled every ``step_mm`` along each output segment
+    (``start_z``: each cut's start raised as compensate raises it, by move item)."""
     import numpy as np
 
     refused = {w.line for w in res.wide} | {b.line for b in res.beyond}
@@ -79,7 +80,7 @@ def judged_cuts(path, res, truth, tol: float, step_mm: float = 0.5) -> dict:
         claimed += length
         first = res.pieces[m.item]
         # the output polyline: the move's start raised as compensate raises it, then its pieces
-        start = (p0[0], p0[1], float(np.asarray(res.start_z[m.item])))
+        start = (p0[0], p0[1], start_z[m.item])
         pts = np.array([start] + list(first))
         for a, b in zip(pts[:-1], pts[1:]):
             seg = float(np.hypot(*(b - a)[:2]))
@@ -133,13 +134,13 @@ def one_plate(job: tuple) -> dict:
     path = read_toolpath(plate_raster(), "raster")
     height = hmap.height("nominal")
     out = {"family": family, "plate": index, "touches": touches}
+    start_z = {m.item: float(m.start[2] + np.asarray(height(np.array([m.start[0]]),
+                                                            np.array([m.start[1]]))[0])[0])
+               for m in path.moves if m.cut and m.start is not None}
     for tol in TOLERANCES_MM:
         res = compensate(path, height, hmap.plate_mm, tol, top_mm=hmap.top_mm(),
                          reach_mm=hmap.reach_mm)
-        res.start_z = {m.item: float(m.start[2] + np.asarray(height(np.array([m.start[0]]),
-                                                                    np.array([m.start[1]]))[0])[0])
-                       for m in path.moves if m.cut and m.start is not None}
-        out[f"T{tol * 1e3:.0f}"] = judged_cuts(path, res, truth, tol)
+        out[f"T{tol * 1e3:.0f}"] = judged_cuts(path, res, start_z, truth, tol)
     return out
 
 
@@ -148,7 +149,6 @@ def plates_mode(args) -> int:
     import datetime
     import json
 
-    import numpy as np
     import yaml
 
     sys.path.insert(0, str(ROOT / "benchmarks" / "plates"))
