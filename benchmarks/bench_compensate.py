@@ -98,9 +98,7 @@ def judged_cuts(path, res, start_z: dict, truth, tol: float, step_mm: float = 0.
 def one_plate(job: tuple) -> dict:
     """Map one plate with ``adaptive-cal run`` and judge the compensated raster at each T."""
     import json
-    import subprocess
 
-    import yaml
     import numpy as np
 
     from adaptive_cal.analysis.compensate import compensate
@@ -108,23 +106,13 @@ def one_plate(job: tuple) -> dict:
     from adaptive_cal.run.heightmap import load_map
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from bench_flatness import _interpolator  # the true map, bilinear (DESIGN.md)
+    # the true map, bilinear (DESIGN.md); the plate's cell and run as bench_flatness has them
+    from bench_flatness import _interpolator, plate_cell, run_plate
 
     family, index, map_path, cell, seed, noise = job
-    cell = json.loads(json.dumps(cell))
-    cell["simulation"] = {"seed": seed + index, "noise_std_mm": 0.005, "repeatability_mm": 0.0,
-                          "surface_file": str(map_path)}
-    if noise.get("kind") == "student_t":
-        cell["simulation"].update(noise_dof=float(noise["dof"]),
-                                  outlier_rate=float(noise["outlier_rate"]),
-                                  outlier_mm=float(noise["outlier_mm"]))
-    cell["plan"] = {"stop": {"mean_std_mm": 0.004, "max_touches": 120}, "candidates": 10000}
+    cell = plate_cell(cell, map_path, seed + index, noise, 120)
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = Path(tmp) / "cell.yaml"
-        cfg.write_text(yaml.safe_dump(cell))
-        p = subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot", str(cfg),
-                            "--out", str(Path(tmp) / "run"), "--no-progress", "--yes"],
-                           capture_output=True, text=True)
+        p = run_plate(cell, Path(tmp))
         if p.returncode:
             return {"family": family, "plate": index, "error": p.stderr[-800:]}
         touches = json.loads((Path(tmp) / "run" / "result.json").read_text())["touches"]

@@ -140,23 +140,35 @@ def touched_repeats(map_path: Path, rec_path: Path, touched: dict, noise: dict,
     return {"points": len(xy), **{k: v / REPEATS for k, v in inside.items()}}
 
 
-def one_plate(job: tuple) -> dict:
-    family, index, map_path, cell, budget, seed, noise = job
+def plate_cell(cell: dict, map_path: Path, seed: int, noise: dict, budget: int) -> dict:
+    """The study's cell with the plate's map as its true surface, 5 um readings (Student-t and
+    gross errors where the generator's manifest says so), a 4 um RMS stop and ``budget``."""
     cell = json.loads(json.dumps(cell))
-    cell["simulation"] = {"seed": seed + index, "noise_std_mm": 0.005, "repeatability_mm": 0.0,
+    cell["simulation"] = {"seed": seed, "noise_std_mm": 0.005, "repeatability_mm": 0.0,
                           "surface_file": str(map_path)}
     if noise.get("kind") == "student_t":  # the generator's manifest: the sd stays 5 um
         cell["simulation"].update(noise_dof=float(noise["dof"]),
                                   outlier_rate=float(noise["outlier_rate"]),
                                   outlier_mm=float(noise["outlier_mm"]))
     cell["plan"] = {"stop": {"mean_std_mm": 0.004, "max_touches": budget}, "candidates": 10000}
+    return cell
+
+
+def run_plate(cell: dict, folder: Path) -> subprocess.CompletedProcess:
+    """``adaptive-cal run`` on ``cell`` into ``folder``/run, as a user runs it (a subprocess)."""
+    path = folder / "cell.yaml"
+    path.write_text(yaml.safe_dump(cell))
+    return subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot", str(path),
+                           "--out", str(folder / "run"), "--no-progress", "--yes"],
+                          capture_output=True, text=True)
+
+
+def one_plate(job: tuple) -> dict:
+    family, index, map_path, cell, budget, seed, noise = job
+    cell = plate_cell(cell, map_path, seed + index, noise, budget)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "cell.yaml"
-        path.write_text(yaml.safe_dump(cell))
-        p = subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot", str(path),
-                            "--out", str(Path(tmp) / "run"), "--no-progress", "--yes"],
-                           capture_output=True, text=True)
+        p = run_plate(cell, Path(tmp))
         if p.returncode:
             return {"family": family, "plate": index, "error": p.stderr[-800:]}
         r = json.loads((Path(tmp) / "run" / "result.json").read_text())
