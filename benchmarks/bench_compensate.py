@@ -133,37 +133,24 @@ def one_plate(job: tuple) -> dict:
 
 
 def plates_mode(args) -> int:
-    import concurrent.futures as cf
     import datetime
     import json
 
-    import yaml
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from bench_flatness import plate_jobs, run_jobs  # the independent plates, as there
 
-    sys.path.insert(0, str(ROOT / "benchmarks" / "plates"))
-    import generate  # the independent plate generator
-
-    maps = ROOT / "benchmarks" / "plates" / "out"
     families = [f for f in args.families.split(",") if f]
-    if not all((maps / f / f"plate-{args.plates - 1:03d}.csv").exists() for f in families):
-        generate.generate(maps, max(args.plates, 20))
-    cell = yaml.safe_load((ROOT / "configs" / "study-plates.yaml").read_text())["cell"]
-    manifest = json.loads((maps / "manifest.json").read_text())["plates"]
-    jobs = [(f, i, maps / f / f"plate-{i:03d}.csv", cell, args.seed,
-             manifest.get(f"{f}/plate-{i:03d}.csv", {}).get("noise", {}))
-            for f in families for i in range(args.plates)]
+    jobs = [(f, i, m, cell, args.seed, noise)
+            for f, i, m, cell, noise in plate_jobs(families, args.plates)]
     t0 = time.perf_counter()
-    records = []
-    with cf.ProcessPoolExecutor(args.workers) as pool:
-        for rec in pool.map(one_plate, jobs):
-            records.append(rec)
-            if "error" in rec:
-                print(f"{rec['family']} {rec['plate']}: FAILED {rec['error'][-200:]}", flush=True)
-                continue
-            cells = [f"T {k[1:]} um: claimed {r['claimed_mm'] / r['cut_mm']:.2f}, within T "
-                     f"{r['within_mm'] / max(r['claimed_mm'], 1e-9):.3f}"
-                     for k, r in rec.items() if k.startswith("T")]
-            print(f"{rec['family']:7s} {rec['plate']:2d}: {rec['touches']:3d} touches; "
-                  + "; ".join(cells), flush=True)
+
+    def line(rec):
+        return f"{rec['touches']:3d} touches; " + "; ".join(
+            f"T {k[1:]} um: claimed {r['claimed_mm'] / r['cut_mm']:.2f}, within T "
+            f"{r['within_mm'] / max(r['claimed_mm'], 1e-9):.3f}"
+            for k, r in rec.items() if k.startswith("T"))
+
+    records = run_jobs(one_plate, jobs, args.workers, line)
     lines = ["share of the cut length claimed (not refused), and of the claimed length the share "
              "within T of the true plate (95 % claimed); per family, length-weighted over plates"]
     ok = [r for r in records if "error" not in r]

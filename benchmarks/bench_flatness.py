@@ -163,6 +163,31 @@ def run_plate(cell: dict, folder: Path) -> subprocess.CompletedProcess:
                           capture_output=True, text=True)
 
 
+def plate_jobs(families: list[str], plates: int) -> list[tuple]:
+    """(family, index, map path, the study's cell, the manifest's noise) of the first ``plates``
+    plates of each family, the maps generated first where missing."""
+    maps = ROOT / "benchmarks" / "plates" / "out"
+    if not all((maps / f / f"plate-{plates - 1:03d}.csv").exists() for f in families):
+        generate.generate(maps, max(plates, 20))
+    cell = yaml.safe_load((ROOT / "configs" / "study-plates.yaml").read_text())["cell"]
+    manifest = json.loads((maps / "manifest.json").read_text())["plates"]
+    return [(f, i, maps / f / f"plate-{i:03d}.csv", cell,
+             manifest.get(f"{f}/plate-{i:03d}.csv", {}).get("noise", {}))
+            for f in families for i in range(plates)]
+
+
+def run_jobs(one, jobs: list, workers: int, line) -> list[dict]:
+    """``one`` on every job in ``workers`` processes, a line per plate as it ends (``line`` of
+    its record, or FAILED with the error's tail); the records in the jobs' order."""
+    records = []
+    with cf.ProcessPoolExecutor(workers) as pool:
+        for rec in pool.map(one, jobs):
+            records.append(rec)
+            what = f"FAILED {rec['error'][-200:]}" if "error" in rec else line(rec)
+            print(f"{rec['family']:7s} {rec['plate']:2d}: {what}", flush=True)
+    return records
+
+
 def one_plate(job: tuple) -> dict:
     family, index, map_path, cell, budget, seed, noise = job
     cell = plate_cell(cell, map_path, seed + index, noise, budget)
@@ -278,27 +303,17 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     plates = 2 if args.quick else args.plates
     families = [f for f in args.families.split(",") if f]
-    maps = ROOT / "benchmarks" / "plates" / "out"
-    if not all((maps / f / f"plate-{plates - 1:03d}.csv").exists() for f in families):
-        generate.generate(maps, max(plates, 20))
-    cell = yaml.safe_load((ROOT / "configs" / "study-plates.yaml").read_text())["cell"]
-    manifest = json.loads((maps / "manifest.json").read_text())["plates"]
-    jobs = [(f, i, maps / f / f"plate-{i:03d}.csv", cell, args.budget, args.seed,
-             manifest.get(f"{f}/plate-{i:03d}.csv", {}).get("noise", {}))
-            for f in families for i in range(plates)]
+    jobs = [(f, i, m, cell, args.budget, args.seed, noise)
+            for f, i, m, cell, noise in plate_jobs(families, plates)]
     t0 = time.perf_counter()
-    records = []
-    with cf.ProcessPoolExecutor(args.workers) as pool:
-        for rec in pool.map(one_plate, jobs):
-            records.append(rec)
-            if "error" in rec:
-                print(f"{rec['family']} {rec['plate']}: FAILED", flush=True)
-                continue
-            mz = rec["minimum_zone"]
-            print(f"{rec['family']:7s} {rec['plate']:2d}: {rec['touches']:3d} touches, true MZ "
-                  f"{1e3 * mz['true']:6.1f} um, claimed {1e3 * mz['value']:6.1f} um (95 % "
-                  f"{1e3 * mz['ci95'][0]:.1f} .. {1e3 * mz['ci95'][1]:.1f}) {mz['where']}",
-                  flush=True)
+
+    def line(rec):
+        mz = rec["minimum_zone"]
+        return (f"{rec['touches']:3d} touches, true MZ {1e3 * mz['true']:6.1f} um, claimed "
+                f"{1e3 * mz['value']:6.1f} um (95 % {1e3 * mz['ci95'][0]:.1f} .. "
+                f"{1e3 * mz['ci95'][1]:.1f}) {mz['where']}")
+
+    records = run_jobs(one_plate, jobs, args.workers, line)
     lines = report(records)
     print("\n".join(lines))
     print(f"wall time {time.perf_counter() - t0:.0f} s for {len(jobs)} runs ({args.workers} workers)")
