@@ -66,3 +66,15 @@ def test_the_run_answer_scales_the_same_draws():
     # a noise the cell states and does not learn is taken as exact: the stds as drawn
     assert "noise_dof" not in stated["tilt"]
     assert stated["tilt"]["rx_std_deg"] == bare["rx_std_deg"]
+
+
+def test_the_report_and_the_summary_say_what_the_std_is():
+    from adaptive_cal.report.sections import tilt_angles, tilt_section
+
+    tilt = {"rx_deg": 0.1, "ry_deg": -0.8, "a": 0.014, "b": 0.0019, "c": 0.2,
+            "rx_std_deg": 0.0006, "ry_std_deg": 0.0005, "noise_dof": 17.84}
+    assert tilt_angles(tilt) == "rx +0.1000 +- 0.0006 deg, ry -0.8000 +- 0.0005 deg (1 sd)"
+    assert "a Student-t on 17.8 degrees of freedom" in tilt_section(tilt)
+    bare = {k: v for k, v in tilt.items() if k not in ("rx_std_deg", "ry_std_deg", "noise_dof")}
+    assert tilt_angles(bare) == "rx +0.1000 deg, ry -0.8000 deg"
+    assert "Student-t" not in tilt_section(bare)

@@ -169,6 +169,15 @@ def incomplete_banner(result: dict, resume: str | None) -> str:
             f"from them. {then}</p>")
 
 
+def _dof_note(tilt: dict) -> str:
+    """How the tilt's std counts the learned noise (``analysis.flatness_answer.t_std_factor``)."""
+    nu = tilt.get("noise_dof")
+    if nu is None:
+        return ""
+    return (f", widened for the learned reading noise's own uncertainty: a Student-t on {nu:.1f} "
+            "degrees of freedom, given as the sd with the same 2-sd interval")
+
+
 def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = None) -> str:
     """The correction for the controller; ``spread``: the raw height spread of the plate (max -
     min, the tilt included), shown here, never under Flatness."""
@@ -199,8 +208,8 @@ def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = No
             + _table(rows, cls="kv")
             + f"<p>rotx(rx) roty(ry), the rotation to multiply on the right (no translation):</p>"
               f"<pre class='code'>{matrix}</pre>"
-              "<p class='note'>± is one posterior standard deviation (surfaces sampled from the "
-              "belief). c is the plate height at the frame origin, measured from where the probe "
+              f"<p class='note'>± is one posterior standard deviation (surfaces sampled from the "
+              f"belief{_dof_note(tilt)}). c is the plate height at the frame origin, measured from where the probe "
               "reads its zero: moving the frame origin by +c along z puts it on the plate.</p>")
 
 
