@@ -209,8 +209,9 @@ def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = No
             + f"<p>rotx(rx) roty(ry), the rotation to multiply on the right (no translation):</p>"
               f"<pre class='code'>{matrix}</pre>"
               f"<p class='note'>± is one posterior standard deviation (surfaces sampled from the "
-              f"belief{_dof_note(tilt)}). c is the plate height at the frame origin, measured from where the probe "
-              "reads its zero: moving the frame origin by +c along z puts it on the plate.</p>")
+              f"belief{_dof_note(tilt)}). c is the plate height at the frame origin, measured "
+              "from where the probe reads its zero: moving the frame origin by +c along z puts "
+              "it on the plate.</p>")
 
 
 def flatness_section(result: dict) -> str:

@@ -123,9 +123,9 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
 TILT_PLANE_IS = ("least-squares plane z = a x + b y + c of the map in the workplane frame: a and "
                  "b slopes along x and y (mm/mm), c the height at the frame origin (mm, from "
                  "where the probe reads its zero); rx_deg, ry_deg the correction rotx(rx) "
-                 "roty(ry) (deg), *_std_deg their posterior std (deg) with the learned noise's "
-                 "own uncertainty counted: the std of the Gaussian with the same 2-sd interval as "
-                 "a Student-t on noise_dof degrees of freedom")
+                 "roty(ry) (deg), *_std_deg their posterior std (deg); where noise_dof is given, "
+                 "with the learned noise's own uncertainty counted: the std of the Gaussian with "
+                 "the same 2-sd interval as a Student-t on noise_dof degrees of freedom")
 
 
 def robot_time_is(speed_mm_per_s: float, touch_time_s: float) -> str:
