@@ -154,31 +154,33 @@ def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator
 
 
 def touched_answer(x, y, z, rows, belief: bl.Belief, noise_std_mm: float,
-                   rng: np.random.Generator, samples: int = SAMPLES, learned: bool = True) -> dict:
+                   rng: np.random.Generator, samples: int = SAMPLES, nu: float | None = None) -> dict:
     """Flatness of the touched points: the figures of the heights z (mm) at (x, y), intervals over
     predicted repeats B m* + e* (``rows`` = B, the spline rows of the touches). The noise of a
     repeat is as uncertain as its learned sd: e* ~ N(0, s*^2 I) with s*^2 = s^2 nu / chi2_nu
     drawn once per repeat (the posterior of the noise variance on nu degrees of freedom, a
     Jeffreys prior), nu = sum_i (1 - l_i) the touches less what the map spent fitting them
     (``noise_dof``). With s alone the intervals held fresh repeats 0.91 of the time over seven
-    plate families, 0.88-0.90 on the smooth family's (benchmarks/bench_flatness.py)."""
+    plate families, 0.88-0.90 on the smooth family's (benchmarks/bench_flatness.py). ``nu``:
+    those degrees of freedom where already known (None: from ``rows``), inf for a noise the
+    cell states and does not learn (drawn as stated)."""
     x, y, z = (np.asarray(v, dtype=np.float64) for v in (x, y, z))
     rows = np.asarray(rows, dtype=np.float64)
     draws = bl.sample(belief, rng, samples) @ rows.T
-    if noise_std_mm > 0 and learned:
-        draws = draws + repeat_noise_mm(rows, belief, noise_std_mm, rng, samples)
-    elif noise_std_mm > 0:  # a noise the cell states and the run does not learn: as stated
-        draws = draws + noise_std_mm * rng.standard_normal(draws.shape)
+    if noise_std_mm > 0:
+        draws = draws + repeat_noise_mm(rows, belief, noise_std_mm, rng, samples, nu)
     out = _figures(x, y, z, draws, "figure of the measured heights")
     return {"points": int(len(z)), **out}
 
 
 def repeat_noise_mm(rows, belief: bl.Belief, noise_std_mm: float, rng: np.random.Generator,
-                    samples: int) -> np.ndarray:
+                    samples: int, nu: float | None = None) -> np.ndarray:
     """(samples, n) reading noise of repeats at the touches ``rows``: each row s* e, e ~ N(0, I),
-    s*^2 = s^2 nu / chi2_nu (``touched_answer``)."""
-    nu = noise_dof(rows, belief, noise_std_mm)
-    scale = noise_std_mm * np.sqrt(nu / rng.chisquare(nu, samples))
+    s*^2 = s^2 nu / chi2_nu (``touched_answer``); ``nu`` None: ``noise_dof`` of the rows; inf:
+    s* = s (a stated noise, no chi2 drawn)."""
+    nu = noise_dof(rows, belief, noise_std_mm) if nu is None else nu
+    scale = (np.full(samples, noise_std_mm) if np.isinf(nu)
+             else noise_std_mm * np.sqrt(nu / rng.chisquare(nu, samples)))
     return scale[:, None] * rng.standard_normal((samples, len(rows)))
 
 
@@ -232,6 +234,7 @@ def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=No
     if touched_xyz is not None:
         x, y, z = touched_xyz
         rows = surface.basis(np.asarray(x, float), np.asarray(y, float))
+        nu = np.inf  # a stated noise, or none: exact
         if noise_std_mm > 0 and noise_learned:  # the learned noise's own uncertainty counted
             nu = noise_dof(rows, belief, noise_std_mm)
             f = t_std_factor(nu)
@@ -245,8 +248,8 @@ def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=No
             "box_mm": [list(map(float, b)) for b in box], "eval_points": int(inside.sum()),
             **within, "means": WITHIN_MEANS}
     if rows is not None:
-        out["touched_flatness_mm"] = touched_answer(x, y, z, rows, belief, noise_std_mm, rng, samples,
-                                                    noise_learned)
+        out["touched_flatness_mm"] = touched_answer(x, y, z, rows, belief, noise_std_mm, rng,
+                                                    samples, nu)
     return out
 
 
