@@ -7,7 +7,7 @@ import numpy as np
 
 from adaptive_cal.cell.build import survey_plan, touch_floor
 from adaptive_cal.report.figures import convergence_figure
-from adaptive_cal.run.loop import History
+from adaptive_cal.run.session import History
 from adaptive_cal.planning.stopping import Status
 
 from helpers import sim_cell

@@ -116,8 +116,8 @@ def command(args) -> int:
     if result.get("prior_from", {}).get("disagreement"):
         print(f"re-check stopped: {result['prior_from']['disagreement']}")
         return 1
-    if result["stopped_because"] == "drift":  # the map is not a result: a script must not use it
-        return 1
+    if result["stopped_because"] in ("drift", "touches_rejected", "invalid_readings"):
+        return 1  # the map is not a result (a script must not use it); the summary said why
     return 130 if result["stopped_because"] == "interrupted" else 0
 
 

@@ -13,6 +13,8 @@ WHY = {
     "touch_budget": "touch budget spent",
     "no_admissible_point": "stopped: no admissible point",
     "invalid_readings": "stopped: 3 invalid readings in a row (NaN, infinite or off the plate)",
+    "touches_rejected": "stopped: 3 touches in a row gave no usable reading (the probe at its "
+                        "stroke's end, or its samples spread)",
     "prior_disagrees_with_readings": "stopped: the readings contradict the earlier belief "
                                      "(--prior-from) in the frame assumed",
     "drift": "stopped: the cell drifted during the run (the closure touch read the first place "
@@ -23,6 +25,10 @@ INSTEAD = {
     "prior_disagrees_with_readings": "give the correction really applied (--correction-applied "
                                      "proposed | none | RX,RY) or map from scratch without "
                                      "--prior-from, in a new folder",
+    "touches_rejected": "check that the plate is where the cell file puts it (workplane z, "
+                        "the tilt, the probe's zero and usable stroke: a reading at the stroke's "
+                        "end means the approach height is off the plate) and that the probe "
+                        "moves freely, then map again in a new folder",
     "drift": "warm the cell up (run the robot over the plate for as long as the drift took) and "
              "map again in a new folder, or model the drift: adaptive-cal explain on the "
              "recording",

@@ -6,7 +6,7 @@ notebooks all drive a survey through ``run_loop``.
 Each touch:
 
 1. the probe cycle touches the target (a ``TouchRejected`` touch is recorded, flagged, counted
-   and never fused);
+   and never fused; ``MAX_REJECTED`` in a row end the loop with ``TOUCHES_REJECTED``);
 2. the gate judges the reading (pure: flags for the recording). A reading ``survey.judge``
    refuses (``InvalidReading``: NaN or infinite, off the workplane, inside a keep-out) is
    recorded flagged ``invalid;rejected`` (a non-finite value written as 0, the flag
@@ -54,6 +54,10 @@ NO_ADMISSIBLE_POINT = "no_admissible_point"
 #: the reason a loop ends after ``MAX_INVALID`` invalid readings in a row (a broken device)
 INVALID_READINGS = "invalid_readings"
 MAX_INVALID = 3
+#: ... after ``MAX_REJECTED`` touches in a row the probe cycle rejected (stroke end, spread):
+#: they teach the planner nothing, so it would ask the same touch again and again
+TOUCHES_REJECTED = "touches_rejected"
+MAX_REJECTED = 3
 #: the reason a loop ends when its closure touch found the cell drifting
 DRIFT = cl.DRIFT
 #: the stop reasons that close with a closure touch (a variance bound met)
@@ -110,6 +114,7 @@ class SurveyLoop:
         self.stop = stop or survey_stop(plan)
         self.record, self.hooks, self.interrupt = record, tuple(hooks), interrupt
         self.invalid_in_a_row = 0
+        self.rejected_in_a_row = 0
         # the time (s) of each fused reading, for the closure's elapsed time (resume: from the
         # recording; NaN where unknown)
         self.fused_t_s = (list(map(float, fused_t_s)) if fused_t_s is not None
@@ -136,6 +141,8 @@ class SurveyLoop:
                 step = self.touch(target)
                 if self.invalid_in_a_row >= MAX_INVALID:
                     return INVALID_READINGS
+                if self.rejected_in_a_row >= MAX_REJECTED:
+                    return TOUCHES_REJECTED
                 if (step.invalid is not None or self.state.retake is not None or self.interrupt()
                         or self.stop(self.state, step.status) or self._last_touch()):
                     break  # a batch never runs past the stop rule (the touch budget included)
@@ -284,6 +291,7 @@ class SurveyLoop:
                 invalid = e
                 self._invalid(target, touch, extra)
         self.invalid_in_a_row = self.invalid_in_a_row + 1 if invalid is not None else 0
+        self.rejected_in_a_row = self.rejected_in_a_row + 1 if rejected is not None else 0
         step = Step(self.state, sv.status(plan, self.state), target, touch, told, rejected,
                     invalid)
         for hook in self.hooks:
@@ -332,18 +340,3 @@ def run_loop(plan: SurveyPlan, state: sv.SurveyState, cycle: ProbeCycle, **optio
     reason = loop.run()
     return loop.state, reason
 
-
-class History:
-    """A hook keeping the status before the first touch and after each touch, and the touch
-    counts at which the hyper-parameters were refitted (the std may jump there)."""
-
-    def __init__(self, first: Status, fitted_at: int = 0):
-        self.statuses: list[Status] = [first]
-        self.refits: list[int] = []
-        self._fitted_at = fitted_at
-
-    def __call__(self, step: Step) -> None:
-        self.statuses.append(step.status)
-        if step.state.fitted_at != self._fitted_at:
-            self._fitted_at = step.state.fitted_at
-            self.refits.append(step.status.touches)

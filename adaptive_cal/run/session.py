@@ -25,9 +25,10 @@ from adaptive_cal.formats.writing import RecordingWriter, repair_cut_row_said
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
+from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock, write_json
-from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, History, Row, SurveyLoop
+from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, Row, Step, SurveyLoop
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_RECORD, PRIOR_SURPRISES,
                                       disagreement, load_prior, saved_prior)
 from adaptive_cal.run.results import write_results
@@ -224,6 +225,21 @@ def _saved_result(out: Path) -> dict | None:
     if not (out / "result.json").exists() or not (out / "belief.npz").exists():
         return None
     return read_json(out / "result.json")
+
+class History:
+    """A hook keeping the status before the first touch and after each touch, and the touch
+    counts at which the hyper-parameters were refitted (the std may jump there)."""
+
+    def __init__(self, first: Status, fitted_at: int = 0):
+        self.statuses: list[Status] = [first]
+        self.refits: list[int] = []
+        self._fitted_at = fitted_at
+
+    def __call__(self, step: Step) -> None:
+        self.statuses.append(step.status)
+        if step.state.fitted_at != self._fitted_at:
+            self._fitted_at = step.state.fitted_at
+            self.refits.append(step.status.touches)
 
 
 def _progress(enabled: bool, cell: Cell, initial: int):

@@ -1,0 +1,76 @@
+"""A plate the probe cannot reach: touches the probe cycle rejects (stroke end) teach the planner
+nothing, so it asked the same touch again until the budget was spent -- 120 times into a plate
+6 mm above where the cell file put it -- and the run exited 0. Now three in a row end the loop,
+the summary says what to check, and the exit code says "not a result"."""
+import contextlib
+import io
+
+import yaml
+
+from adaptive_cal.cli import main
+from adaptive_cal.formats.recording import read_recording
+from adaptive_cal.hardware.base import TouchRejected
+from adaptive_cal.planning import survey as sv
+from adaptive_cal.run.loop import MAX_REJECTED, TOUCHES_REJECTED, run_loop
+
+from helpers import SIM_CELL, sim_cell
+
+
+class _Refusing:
+    """Wraps a probe cycle: the touches numbered in ``refuse`` come back at the stroke's end."""
+
+    def __init__(self, cycle, refuse):
+        self.cycle, self.motion, self.clock = cycle, cycle.motion, cycle.clock
+        self.refuse, self.k = set(refuse), 0
+
+    def touch(self, x, y, z):
+        k, self.k = self.k, self.k + 1
+        if k in self.refuse:
+            raise TouchRejected("reading 10.0000 mm outside the usable stroke", 10.0,
+                                ("rejected", "stroke_end"))
+        return self.cycle.touch(x, y, z)
+
+
+def _plan_and_cell():
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.run.devices import open_cell
+    cell = sim_cell()
+    return survey_plan(cell), open_cell(cell)
+
+
+def test_three_rejected_touches_in_a_row_end_the_loop_each_recorded_none_fused():
+    plan, opened = _plan_and_cell()
+    rows = []
+    state, why = run_loop(plan, sv.start(plan), _Refusing(opened.cycle, range(1000)),
+                          record=rows.append)
+    opened.close()
+    assert why == TOUCHES_REJECTED and MAX_REJECTED == 3
+    assert state.touches == 3 and state.fused == 0 and len(rows) == 3
+    assert all(set(r.flags) == {"rejected", "stroke_end"} for r in rows)
+
+
+def test_rejections_that_are_not_in_a_row_do_not_end_the_loop():
+    plan, opened = _plan_and_cell()
+    rows = []
+    state, why = run_loop(plan, sv.start(plan), _Refusing(opened.cycle, (1, 2, 4, 5, 7, 8)),
+                          record=rows.append,
+                          stop=lambda s, st: "limit" if s.touches >= 12 else None)
+    opened.close()
+    assert why == "limit" and state.touches == 12 and state.fused == 6
+
+
+def test_a_plate_6_mm_off_nominal_stops_after_three_touches_with_exit_1(tmp_path):
+    data = yaml.safe_load(SIM_CELL.read_text())
+    data["simulation"]["effects"]["tilt"]["c"] = 6.0  # the plate 6 mm above the cell file's
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(yaml.safe_dump(data))
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = main(["run", "--robot", str(cell), "--out", str(tmp_path / "run"),
+                     "--no-progress"])
+    text = out.getvalue()
+    assert code == 1
+    assert "3 touches in a row gave no usable reading" in text and "Not a result" in text
+    assert "where the cell file puts it" in text
+    rec = read_recording(tmp_path / "run" / "recording.csv")
+    assert len(rec.reading_mm) == 3
