@@ -195,6 +195,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
     extra: dict[str, list[float]] = {}
     flags: list[frozenset[str]] = []
     unknown: dict[str, tuple[int, int]] = {}  # flag word: (first line, rows)
+    labels: dict[int, str] = {}  # row: a round given as text ("first", "A")
     notes: list[str] = []
     headless = False  # the first line is the header: the '#' lines were removed
     prev_seq = -math.inf
@@ -274,6 +275,8 @@ def read_recording(path: str | os.PathLike) -> Recording:
                         extra[c].append(_number(cells[col[c]], where="", blank_ok=True))
                     except RecordingError:
                         extra[c].append(math.nan)  # unknown optional text columns are ignored
+                        if c == "round":
+                            labels[len(extra[c]) - 1] = cells[col[c]].strip()
                 if "flags" in col:
                     words, odd = parse_flags(cells[col["flags"]], f"{where}: column "
                                              "flags", RecordingError)
@@ -298,6 +301,13 @@ def read_recording(path: str | os.PathLike) -> Recording:
                      f"{'/'.join(sorted(NOT_FUSED))} are not used")
     if unknown:
         notes.append(unknown_flag_note(path, unknown))
+    if labels:  # a round is a label: numbered in order of first appearance, not dropped
+        keys = [labels.get(i, v) for i, v in enumerate(extra["round"])]
+        codes = {k: n for n, k in enumerate(dict.fromkeys(
+            k for k in keys if isinstance(k, str) or math.isfinite(k)))}
+        extra["round"] = [codes.get(k, math.nan) for k in keys]
+        notes.append(f"{path}: column round holds labels: rounds numbered in order of first "
+                     "appearance, " + ", ".join(f"{k} = {n}" for k, n in list(codes.items())[:6]))
     say(notes)
     return Recording(arrays["seq"].astype(np.int64), arrays["t_s"], arrays["x_mm"],
                      arrays["y_mm"], arrays["z_mm"], arrays["reading_mm"], tuple(flags),
