@@ -189,9 +189,11 @@ def _approach_plane(d) -> tuple[np.ndarray, float]:
     idx = _last_round_of(d)
     x, y = d.features.x_mm[idx], d.features.y_mm[idx]
     seen = d.z_mm[idx] + d.reading_mm[idx]
-    A = np.stack([x, y, np.ones_like(x)], 1)
-    coef = np.linalg.lstsq(A, seen, rcond=None)[0]
-    return coef, float(np.median(d.reading_mm[idx]))
+    xm, ym, sm = x.mean(), y.mean(), seen.mean()
+    # a slope across touches on (or near) one line is not determined: it is taken as level
+    # (singular values below a tenth of the largest dropped), not a plane at z = +-362,428 mm
+    a, b = np.linalg.lstsq(np.stack([x - xm, y - ym], 1), seen - sm, rcond=0.1)[0]
+    return np.array([a, b, sm - a * xm - b * ym]), float(np.median(d.reading_mm[idx]))
 
 
 def _last_round_of(d) -> np.ndarray:
