@@ -2,12 +2,13 @@
 a misread) are not physics; they are listed and kept out of the evidence for an effect.
 
 Each reading is either a good one (its error is the reading noise) or, with prior rate
-``RATE``, a gross error (the noise plus an error of standard deviation ``SCALE`` noise sds). For
+``RATE``, a gross error (the noise plus an error of scale ``SCALE`` noise sds: normal, with a
+tenth of it in a Cauchy tail, g below, since a misread can be any size). For
 a model M (``none`` or a candidate at its best nonlinear parameters) the odds follow from the
 leave-one-out predictive of reading i given the others (a linear smoother: exact shortcut):
 
     e_i = (y_i - yhat_i) / (1 - h_ii),   var(e_i | good) = v_i / (1 - h_ii),
-    B_iM = N(e_i; 0, v_i / (1 - h_ii) + SCALE^2 v_i) / t_nu(e_i; 0, v_i / (1 - h_ii)),
+    B_iM = g(e_i; v_i / (1 - h_ii) + SCALE^2 v_i) / t_nu(e_i; 0, v_i / (1 - h_ii)),
 
 with v_i the noise variance of the other readings (RSS without i and without the readings
 already judged suspect, over its degrees of freedom; those are refitted without), never below the probe's stated noise
@@ -46,6 +47,7 @@ from adaptive_cal.formats.recording import RecordingError
 RATE = 0.005  # prior share of gross errors among the fused readings (the loop's gate and retake
 #               already set most aside: rows flagged gated or rejected never reach explain)
 SCALE = 20.0  # a gross error's standard deviation in noise sds
+TAIL = 0.1  # its share in a Cauchy tail: a misread can be any size (``_gross_logpdf``)
 SUSPECT = 0.5  # listed (and kept out of the evidence) at this posterior probability or above
 ITERATIONS = 4
 MAX_SUSPECT_SHARE = 0.2  # isolated bad readings, not a bad recording: at most this share is set aside
@@ -102,14 +104,23 @@ def t_logpdf(x, df):
             - (df + 1) / 2 * np.log1p(x * x / df))
 
 
+def _gross_logpdf(e, scale):
+    """A gross error's log density at e: N(0, scale^2) with a Cauchy tail of the same scale
+    (weight ``TAIL``). A misread has no size limit: with the normal alone, a reading 500 noise
+    sds off was likelier "good" under the good readings' Student-t (its tail ~ e^-(nu + 1))
+    than gross, and a 1 mm spike stood as structure while a 0.1 mm one was set aside."""
+    z = e / scale
+    log_normal = -0.5 * z * z - LOG_SQRT_2PI
+    log_cauchy = -np.log(np.pi) - np.log1p(z * z)
+    return np.logaddexp(np.log1p(-TAIL) + log_normal, np.log(TAIL) + log_cauchy) - np.log(scale)
+
+
 def gross_error_log_odds(loo, factor, noise_var, dof, floor_var: float = 0.0):
     """log B_i (module docstring): gross error against a good reading, for one model."""
     v = np.maximum(np.maximum(noise_var, floor_var), 1e-30)
     good = v * factor
     log_good = t_logpdf(loo / np.sqrt(good), dof) - 0.5 * np.log(good)
-    scale = np.sqrt(good + SCALE ** 2 * v)
-    log_gross = -(loo / scale) ** 2 / 2.0 - LOG_SQRT_2PI - np.log(scale)  # normal log density
-    return log_gross - log_good
+    return _gross_logpdf(loo, np.sqrt(good + SCALE ** 2 * v)) - log_good
 
 
 def suspect_probability(models, y, weights, floor_mm: float):
@@ -198,10 +209,10 @@ def kept_bells(design: Design, keep: np.ndarray, built: dict):
 
 
 def gross_log_density(residual: float, noise_var: float) -> float:
-    """log g(y_i): a gross error's density at the reading's leave-one-out residual,
-    N(e_i; 0, (1 + SCALE^2) v)."""
-    v = (1.0 + SCALE ** 2) * max(float(noise_var), 1e-30)
-    return float(-0.5 * float(residual) ** 2 / v - 0.5 * np.log(2.0 * np.pi * v))
+    """log g(y_i): a gross error's density at the reading's leave-one-out residual, of scale
+    sqrt((1 + SCALE^2) v) (``_gross_logpdf``)."""
+    return float(_gross_logpdf(float(residual),
+                               np.sqrt((1.0 + SCALE ** 2) * max(float(noise_var), 1e-30))))
 
 
 def _total(log_z: dict[str, float]) -> float:
