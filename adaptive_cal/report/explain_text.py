@@ -123,6 +123,11 @@ def none_line(report: dict) -> str:
     cands = [c for c in report.get("candidates") or [] if c.get("log_bayes_factor") is not None]
     if not cands:
         return f"  {NONE}: no candidate effect was tested"
+    low = report.get("readout_limited")
+    if low:
+        return (f"  {NONE}: the mismatch after the tilt, RMS {low['rms_mm'] * 1e3:.4f} um, is "
+                f"below the probe's readout step ({low['readout_mm'] * 1e3:g} um): rounding, "
+                "not physics -- no effect can be shown")
     best = max(cands, key=lambda c: c["log_bayes_factor"])
     need = (report.get("threshold") or {}).get("log_bayes_factor")
     line = (f"  {NONE}: the best candidate, {best['effect']}, has log Bayes factor "

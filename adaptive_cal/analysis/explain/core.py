@@ -177,9 +177,14 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     change (the CLI's ``--seed``).
     """
     design, ctx, cands, suspects, noise = _screened(design)
+    sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
+    # the whole mismatch below the probe's readout step (a noise-free simulation written to a
+    # few decimals): what is left is rounding, not physics -- no effect can be shown
+    readout = sigma < design.readout_mm
+    if readout:
+        cands = [replace(c, log_bf=min(c.log_bf, 0.0)) for c in cands]
     # the named candidates' sds and intervals averaged over their searched grids
     cands = [averaged(ctx, c) if c.log_bf > threshold else c for c in cands]
-    sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
     best = cands[0] if cands else None
     winner = best if best and best.log_bf > threshold else None
     structure = residual_structure(ctx, cands, winner, threshold, design.noise_stated_mm)
@@ -189,7 +194,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         winner = best if best and best.log_bf > threshold else None
         if winner is None and structure.get("finding"):
             structure["unexplained"] = True
-    unexplained = structure.pop("unexplained")
+    unexplained = structure.pop("unexplained") and not readout
     nearest = winner
     if unexplained:
         winner = None  # the library names less than half of the structure: no library name
@@ -248,6 +253,11 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         "threshold": {"log_bayes_factor": threshold},
         "structure_after_model": structure,
     }
+    if readout:
+        findings["readout_limited"] = {
+            "rms_mm": sigma, "readout_mm": design.readout_mm,
+            "is": "the mismatch's RMS after the tilt is below the probe's readout step "
+                  "(probe.resolution_mm): no effect is named, every log Bayes factor is at most 0"}
     if unexplained:
         findings["unexplained"] = structure["finding"]
         findings["unexplained"]["nearest_library_effect"] = nearest.effect if nearest else None

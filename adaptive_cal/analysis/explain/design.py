@@ -38,6 +38,7 @@ class Design:
     paths: tuple[str, ...]
     noise_floor_mm: float = 0.0  # the probe's stated noise (cell file), 0 where not stated
     noise_stated_mm: float = 0.0  # the largest noise the cell file states, 0 where not stated
+    readout_mm: float = 0.0  # the probe's readout step (probe.resolution_mm)
     # how the times of rows with t_s blank were taken (``time_note``), "" where none is blank
     time_blank: str = ""
     # the cell's rule for a point a run may touch (workplane.allows: inside the edge margin,
@@ -223,7 +224,8 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
                   cat["read"], nominal, tuple(b == 0 for b in blank_rows), unknown,
                   tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)),
                   stated_noise_mm(cell), stated_noise_mm(cell, high=True),
-                  time_note(blank_rows, none_known), cell.workplane.allows)
+                  float(cell.probe.resolution_mm), time_note(blank_rows, none_known),
+                  cell.workplane.allows)
 
 
 def time_note(blank_rows: list[int], none_known: list[bool]) -> str:
