@@ -2,7 +2,7 @@
 prediction, and the nuisance columns calibrated first (tilt per round, other unknown effects).
 
 Nominal reading = probe zero - z_mm + known effects (the cell's simulation.effects that are not
-marked unknown); the target of every fit is reading - nominal. Tilt is always calibrated per round
+marked unknown, and its height map, simulation.surface_file); the target of every fit is reading - nominal. Tilt is always calibrated per round
 (a x + b y + c: the offset c also takes the probe zero); other unknown linear effects are shared.
 """
 from __future__ import annotations
@@ -218,6 +218,9 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
             raise ConfigError(f"simulation.effects.{name} needs robot.base_xy_mm (the robot base "
                               "position in the workplane frame)")
     ideal = base + effects.total_change(surface, feats, geometry)
+    if sim.surface_file is not None:  # the simulated plate's own shape, as the simulator has it
+        from adaptive_cal.formats.heightmap import load_heightmap
+        ideal = ideal + load_heightmap(sim.surface_file)(cat["x"], cat["y"])
     feats = effects.Features(cat["x"], cat["y"], cat["t"], cat["d"], ideal)
     nominal = ideal + effects.total_change(others, feats, geometry)
     return Design(feats, geometry, cat["r"].astype(int), cat["seq"].astype(int), cat["z"],
