@@ -277,3 +277,20 @@ def resolve_files(data: dict, path: str | Path) -> dict:
 def load_cell(path: str | Path) -> Cell:
     """Read and validate a cell file."""
     return parse_cell(resolve_files(load_yaml(path), path), str(path))
+
+
+def load_run_cell(path: str | Path) -> Cell:
+    """A run folder's cell.yaml, for what reads the run (report, flatness, compensate): a
+    simulated plate's height map gone since the run (the folder copied elsewhere, the map moved)
+    is said and left out -- they read the run's belief, never the simulated truth. ``--resume``
+    loads with ``load_cell``: it simulates on, and needs the map."""
+    data = resolve_files(load_yaml(path), path)
+    sim = data.get("simulation") if isinstance(data, dict) else None
+    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str) \
+            and not Path(sim["surface_file"]).is_file():
+        from adaptive_cal.formats.recording import say
+
+        say([f"{path}: the simulated plate's height map {sim['surface_file']} is gone; left out "
+             "(what reads a run needs its map, not the simulated truth)"])
+        data = {**data, "simulation": {k: v for k, v in sim.items() if k != "surface_file"}}
+    return parse_cell(data, str(path))

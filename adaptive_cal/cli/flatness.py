@@ -77,14 +77,14 @@ def map_flatness(args) -> dict | None:
     from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
     from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2
     from adaptive_cal.cell.build import survey_plan
-    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.cell.schema import load_cell, load_run_cell
     from adaptive_cal.formats.recording import read_recording
     from adaptive_cal.gaussian.belief import Belief
     from adaptive_cal.gaussian.prior import Hyper
     from adaptive_cal.planning import survey as sv
     from adaptive_cal.run.results import touched_heights
 
-    cell = load_cell(args.robot or folder / "cell.yaml")
+    cell = load_cell(args.robot) if args.robot else load_run_cell(folder / "cell.yaml")
     plan = survey_plan(cell)
     rec = read_recording(rec_path).one_round("flatness")
     if args.robot:

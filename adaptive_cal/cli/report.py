@@ -60,11 +60,11 @@ def _check_belief(run_dir: Path) -> None:
     if not ((run_dir / "cell.yaml").is_file() and (run_dir / "belief.npz").is_file()):
         return
     from adaptive_cal.cell.build import plan_model
-    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.cell.schema import load_run_cell
     from adaptive_cal.cli.flatness import check_belief
     from adaptive_cal.formats.npz import read_npz
 
-    check_belief(run_dir, plan_model(load_cell(run_dir / "cell.yaml")).surface,
+    check_belief(run_dir, plan_model(load_run_cell(run_dir / "cell.yaml")).surface,
                  read_npz(run_dir / "belief.npz"), "report")
 
 

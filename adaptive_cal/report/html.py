@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
 from adaptive_cal import __version__
-from adaptive_cal.cell.schema import Cell, load_cell
+from adaptive_cal.cell.schema import Cell, load_run_cell
 from adaptive_cal.formats.recording import read_recording
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.npz import read_npz, unresolved_at
@@ -148,7 +148,7 @@ def render(run_dir: str | Path) -> str:
             raise FileNotFoundError(f"{run_dir / name}: missing; is {run_dir} a folder written by "
                                     "'adaptive-cal run --out DIR'?")
     result = read_json(run_dir / "result.json")
-    cell = load_cell(run_dir / "cell.yaml")
+    cell = load_run_cell(run_dir / "cell.yaml")
     rec = read_recording(run_dir / "recording.csv")
     conv = run_dir / "convergence.png"
     return page(result, cell, rec, surface_png(run_dir, cell, rec, result),

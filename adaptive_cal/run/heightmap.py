@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptive_cal.cell.build import plan_model
-from adaptive_cal.cell.schema import load_cell
+from adaptive_cal.cell.schema import load_run_cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.npz import read_npz, unresolved_at
 from adaptive_cal.gaussian import belief as bl
@@ -91,7 +91,7 @@ def load_map(run_dir: str | Path) -> HeightMap:
         if not (run_dir / name).exists():
             raise FileNotFoundError(f"--map {run_dir}: {name} is missing (a run folder holds "
                                     "cell.yaml, result.json and belief.npz)")
-    cell = load_cell(run_dir / "cell.yaml")
+    cell = load_run_cell(run_dir / "cell.yaml")
     result = read_json(run_dir / "result.json")
     belief, _ = read_belief(run_dir, cell)
     tilt = result.get("tilt") or {}
