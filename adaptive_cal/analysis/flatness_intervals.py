@@ -84,6 +84,24 @@ def repeat_samples(x, y, z, rng: np.random.Generator, n: int,
     return fl.sampled_figures(x, y, draws), dict(hyper._asdict())
 
 
+LINE_RATIO = 1e-3  # touches spread across their line less than this share of along it: a line
+
+
+def spans_area(x, y, path) -> None:
+    """Raise RecordingError where the touches (x, y) lie on, or nearly on, one line (or at one
+    point): across it a plane's tilt is not determined, and the minimum zone's planes may turn
+    steep enough to hold the points by their spread across the line (1 um from 20 points 10 um
+    out of straight). A strip 0.4 mm wide on 400 mm still spans an area."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    spread = np.linalg.svd(np.c_[x - x.mean(), y - y.mean()], compute_uv=False) / np.sqrt(len(x))
+    if spread[1] <= LINE_RATIO * spread[0]:
+        raise RecordingError(f"{path}: the {len(x)} fused touches lie on (or within "
+                             f"{spread[1] * 1e3:.3g} um RMS of) one line or at one point "
+                             "(columns x_mm, y_mm): a plane's tilt across that line and the "
+                             "minimum zone are not determined; flatness needs touches spanning "
+                             "an area")
+
+
 def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, dict]:
     """Tilt, flatness figures with 95 % intervals and average ranges of one recording (JSON-ready),
     and the sampled figures (for ``compare``). ``path``: the recording's path, or a Recording."""
@@ -93,10 +111,7 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
     if len(z) < 4:
         raise ValueError(f"{path}: {len(z)} usable touch{'es' * (len(z) != 1)}; flatness needs "
                          "at least 4")
-    if np.linalg.matrix_rank(np.c_[x - x.mean(), y - y.mean()], tol=1e-6) < 2:
-        raise RecordingError(f"{path}: the {len(z)} fused touches lie on one line or at one "
-                             "point (columns x_mm, y_mm): a plane's tilt and flatness need "
-                             "touches spanning an area")
+    spans_area(x, y, path)
     values = fl.figures(x, y, z)
     sampled, hyper = repeat_samples(x, y, z, rng, n)
     rx, ry = fl.average_ranges_mm(x, y, z)

@@ -75,6 +75,7 @@ def map_flatness(args) -> dict | None:
     if not args.robot and not ((folder / "cell.yaml").exists() and saved.exists()):
         return None
     from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
+    from adaptive_cal.analysis.flatness_intervals import spans_area
     from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2
     from adaptive_cal.cell.build import survey_plan
     from adaptive_cal.cell.schema import load_cell, load_run_cell
@@ -108,6 +109,7 @@ def map_flatness(args) -> dict | None:
         n = len(xyz[2])
         raise UserError(f"{rec_path}: {n} usable touch{'es' * (n != 1)}; flatness needs at "
                         "least 4")
+    spans_area(xyz[0], xyz[1], rec_path)
     features = confirmed(plan.model.surface, belief, noise_mm, rec, plan.zero_mm)
     if not args.robot:  # belief.npz's grid holds the features' band too; the whole plate's
         # answer draws them as points instead, as the run does (the same digits)
