@@ -83,6 +83,7 @@ def map_flatness(args) -> dict | None:
     from adaptive_cal.gaussian.belief import Belief
     from adaptive_cal.gaussian.prior import Hyper
     from adaptive_cal.planning import survey as sv
+    from adaptive_cal.planning.gate import flagged_p
     from adaptive_cal.run.results import touched_heights
 
     cell = load_cell(args.robot) if args.robot else load_run_cell(folder / "cell.yaml")
@@ -95,6 +96,7 @@ def map_flatness(args) -> dict | None:
         state = sv.replay(plan, sv.start(plan), rec)
         belief, noise_mm, source = state.belief, state.hyper.noise_std_mm, f"replayed with {args.robot}"
         unresolved = sv.unresolved_var_mm2(plan, state, plan.eval_xy)
+        weights = state.fused_weights
     else:
         from adaptive_cal.formats.npz import read_npz, unresolved_at
 
@@ -104,6 +106,8 @@ def map_flatness(args) -> dict | None:
         unresolved = unresolved_at(data, plan.eval_xy[:, 0], plan.eval_xy[:, 1])
         noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm
         source = f"the map saved in {saved}"
+        weights = ([1.0 - flagged_p(f) for f, k in zip(rec.flags, rec.fused) if k]
+                   if rec.flags else None)
     xyz = touched_heights(plan, rec)
     if len(xyz[2]) < 4:
         n = len(xyz[2])
@@ -116,6 +120,10 @@ def map_flatness(args) -> dict | None:
         unresolved = np.maximum(unresolved - feature_var_mm2(features, *plan.eval_xy.T), 0.0)
     out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
                           args.samples or SAMPLES, unresolved, features, plan.learn)
+    seq = rec.seq[rec.fused]
+    out["weighted_out"] = ([{"seq": int(q), "outlier_probability": round(1.0 - float(w), 4)}
+                            for q, w in zip(seq, weights if len(weights) == len(seq) else [])
+                            if w <= 0.5] if weights is not None else [])
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
             "noise_std_mm": noise_mm, **out, "local_features": features,
             "largest_gap": largest_gap(plan, np.c_[xyz[0], xyz[1]])}
@@ -151,7 +159,7 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
                  f"{r['noise_std_mm'] * 1e3:.1f} um; map: {r['map']}",
                  f"  tilt correction (whole plate): {tilt_angles(t)}; a {t['a']:+.6f}, "
                  f"b {t['b']:+.6f} mm/mm"]
-                + ["  " + line for line in answer_lines(r)])
+                + ["  " + line for line in answer_lines(r)] + _weighted_out(r))
     touched = {**r["flatness_mm"], "points": r["touches"]}
     lines = [f"{r['recording']}: {r['touches']} touches, reading noise {r['noise_std_mm'] * 1e3:.1f} um",
              f"  tilt correction (touched points): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
@@ -165,6 +173,18 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
         f"{k} {a[k] * 1e3:.1f} um" if a[k] is not None
         else f"{k} n/a (touches not on a grid along {k})" for k in ("x", "y")))
     return lines
+
+
+def _weighted_out(r: dict) -> list[str]:
+    """A line naming the readings the map weighted out as gross errors (p >= 0.5)."""
+    out = r.get("weighted_out") or []
+    if not out:
+        return []
+    shown = ", ".join(f"seq {w['seq']} (p {w['outlier_probability']:.2f})" for w in out[:5])
+    return [f"  {len(out)} reading{'s' * (len(out) != 1)} weighted out of the map as gross "
+            f"error{'s' * (len(out) != 1)} (outlier probability >= 0.5): {shown}"
+            f"{' ...' if len(out) > 5 else ''}; the touched points' figures include "
+            f"{'them' if len(out) != 1 else 'it'}, their intervals (repeats of the map) do not"]
 
 
 LABELS = {"least_squares": "least squares", "minimum_zone": "minimum zone",
