@@ -397,7 +397,8 @@ def test_a_program_that_is_not_utf8_names_the_file_and_line(mapped, tmp_path, ca
     out = tmp_path / "o.gcode"
     assert main(["compensate", str(prog), "--map", str(run_dir), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert f"{prog} line 3: not UTF-8" in err and "0xf8" in err and "codec" not in err
+    assert f"{prog}:3: not UTF-8" in err and "0xf8, byte 21 of the line" in err
+    assert "codec" not in err
     assert not out.exists()
 
 

@@ -216,11 +216,11 @@ def _text(name: str) -> str:
 
     from adaptive_cal.cli.common import UserError
 
+    from adaptive_cal.formats.text import not_utf8
+
     data = Path(name).read_bytes()
     try:
         return data.decode("utf-8")
-    except UnicodeDecodeError as e:
-        line = data.count(b"\n", 0, e.start) + 1
-        raise UserError(f"{name} line {line}: not UTF-8 text (byte 0x{data[e.start]:02x} at "
-                        f"byte {e.start} of the file: {e.reason}); save the program as UTF-8 "
-                        "or plain ASCII") from None
+    except UnicodeDecodeError:
+        raise UserError(f"{not_utf8(name, data)}; save the program as UTF-8 or plain "
+                        "ASCII") from None

@@ -22,6 +22,7 @@ import numpy as np
 
 from adaptive_cal.formats.cells import RecordingError, _OpenQuote, split_cells
 from adaptive_cal.formats.table import strict_float
+from adaptive_cal.formats.text import not_utf8
 
 HEADER = "x_mm,y_mm,height_mm"
 MAX_NODES = 4_000_000  # 2000 x 2000 nodes: far finer than any plate needs
@@ -237,8 +238,8 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
 def _load(path: str, mtime_ns: int, size: int) -> HeightMap:
     try:
         text = Path(path).read_text(encoding="utf-8")
-    except UnicodeDecodeError as e:
-        raise HeightMapError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except UnicodeDecodeError:
+        raise HeightMapError(not_utf8(path)) from None
     except OSError as e:  # a folder, a file without read permission
         raise HeightMapError(f"{path}: cannot read the height map ({e.strerror})") from None
     return parse_heightmap(text, path)

@@ -48,6 +48,7 @@ from adaptive_cal.formats.cells import (RecordingError, _number, _OpenQuote,  # 
                                         split_cells)  # (re-exported: writing, callers)
 from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, parse_flags, read_table,
                                         strict_float, unknown_flag_note)
+from adaptive_cal.formats.text import not_utf8
 
 MAGIC = "# adaptive-cal recording v1"
 REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
@@ -287,9 +288,8 @@ def read_recording(path: str | os.PathLike) -> Recording:
         if pending is not None:
             raise RecordingError(f"{path}:{first}: a quoted field opened on this line is not "
                                  "closed by the end of the file")
-    except UnicodeDecodeError as e:
-        raise RecordingError(f"{path}:{lineno + 1}: not UTF-8 text ({e.reason} at byte "
-                             f"{e.start} of the line)") from None
+    except UnicodeDecodeError:  # the decoder reads ahead of the line: name the byte itself
+        raise RecordingError(not_utf8(path)) from None
     if lineno == 0:
         raise RecordingError(f"{path}:1: empty file; first line must be {MAGIC!r}")
     if header is None:
