@@ -230,6 +230,22 @@ def test_study_glob_matching_nothing_or_a_bad_map_is_refused(tmp_path):
         load_study(path)
 
 
+def test_study_map_beyond_the_probes_reach_is_refused_naming_it(tmp_path):
+    """A map 6 mm above the nominal plate, or 100 m: every touch at the stroke's end. Refused
+    at load as a drawn plate is (``check_feasible``), naming the file and what is out of reach;
+    before, such a study ran (the 100 m map reported a true RMS of 5e7 um)."""
+    path = _study(tmp_path, 1)
+    write_map(tmp_path / "maps" / "p1.csv", f=lambda x, y: bilinear(x, y) + 6.0)
+    with pytest.raises(ConfigError, match=r"p1.csv is beyond the probe's reach: .* a height of "
+                                          r"\+6\.\d+ mm at the plate centre"):
+        load_study(path)
+    write_map(tmp_path / "maps" / "p1.csv",  # an 8 mm bump: more form than the stroke holds
+              f=lambda x, y: bilinear(x, y) + 8.0 * np.exp(-(x * x + y * y) / 100.0 ** 2))
+    with pytest.raises(ConfigError, match=r"p1.csv is beyond the probe's reach: .* and [5-9]\.\d+ "
+                                          r"mm of form about it"):
+        load_study(path)
+
+
 def test_a_run_folder_keeps_a_relative_map_findable(tmp_path):
     """The run folder's copy of the cell names the map by an absolute path: --resume and report
     read the cell from the run folder, where the relative name would not resolve."""

@@ -180,6 +180,36 @@ def check_surface_files(study: Study, cell: Cell, source: str) -> None:
             check_map(f, cell.workplane, "plate.surface_files")
         except HeightMapError as e:
             raise ConfigError(f"{source}: {e}") from None
+        map_in_reach(f, cell, source)
+
+
+def map_in_reach(path: str, cell: Cell, source: str) -> None:
+    """A map as ``check_feasible`` holds a drawn plate: its least-squares plane (nodes on the
+    workplane) no steeper than the planner serves, its height at the plate centre within the
+    prior's reach, and its form within half the usable stroke -- else every touch lands at the
+    stroke's end and the study measures nothing (a map 6 mm high ran its whole budget)."""
+    import numpy as np
+
+    from adaptive_cal.formats.heightmap import load_heightmap
+    from adaptive_cal.planning.scoring import STROKE_Z
+
+    hm, wp, m, probe = load_heightmap(path), cell.workplane, cell.model, cell.probe
+    X, Y = np.meshgrid(hm.x_mm, hm.y_mm, indexing="ij")
+    on = ((X >= wp.x_mm[0]) & (X <= wp.x_mm[1]) & (Y >= wp.y_mm[0]) & (Y <= wp.y_mm[1])).ravel()
+    cx, cy = 0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)
+    A = np.c_[X.ravel() - cx, Y.ravel() - cy, np.ones(X.size)][on]
+    z = hm.z_mm.ravel()[on]
+    a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
+    form = float(np.abs(z - A @ np.array([a, b, c])).max())
+    allowed = STROKE_Z * math.tan(math.radians(m.tilt_std_deg))
+    half = 0.5 * (probe.usable_mm[1] - probe.usable_mm[0])
+    if math.hypot(a, b) > allowed or abs(c) > STROKE_Z * m.offset_std_mm or abs(c) + form > half:
+        raise ConfigError(
+            f"{source}: plate.surface_files: {path} is beyond the probe's reach: its plane has a "
+            f"slope of {math.hypot(a, b):.4f} mm/mm (the planner serves up to {allowed:.4f}), a "
+            f"height of {c:+.3f} mm at the plate centre (the prior reaches +-"
+            f"{STROKE_Z * m.offset_std_mm:.3f} mm, model.offset_std_mm) and {form:.3f} mm of "
+            f"form about it; the usable stroke {list(probe.usable_mm)} mm holds +-{half:.3f} mm")
 
 
 def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
