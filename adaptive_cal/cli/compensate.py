@@ -215,7 +215,6 @@ def _text(name: str) -> str:
     from pathlib import Path
 
     from adaptive_cal.cli.common import UserError
-
     from adaptive_cal.formats.text import not_utf8
 
     data = Path(name).read_bytes()

@@ -226,6 +226,7 @@ def _saved_result(out: Path) -> dict | None:
         return None
     return read_json(out / "result.json")
 
+
 class History:
     """A hook keeping the status before the first touch and after each touch, and the touch
     counts at which the hyper-parameters were refitted (the std may jump there)."""

@@ -2,8 +2,9 @@
 prediction, and the nuisance columns calibrated first (tilt per round, other unknown effects).
 
 Nominal reading = probe zero - z_mm + known effects (the cell's simulation.effects that are not
-marked unknown, and its height map, simulation.surface_file); the target of every fit is reading - nominal. Tilt is always calibrated per round
-(a x + b y + c: the offset c also takes the probe zero); other unknown linear effects are shared.
+marked unknown, and its height map, simulation.surface_file); the target of every fit is
+reading - nominal. Tilt is always calibrated per round (a x + b y + c: the offset c also takes
+the probe zero); other unknown linear effects are shared.
 """
 from __future__ import annotations
 
