@@ -339,4 +339,3 @@ def run_loop(plan: SurveyPlan, state: sv.SurveyState, cycle: ProbeCycle, **optio
     loop = SurveyLoop(plan, state, cycle, **options)
     reason = loop.run()
     return loop.state, reason
-
