@@ -246,6 +246,18 @@ def test_study_map_beyond_the_probes_reach_is_refused_naming_it(tmp_path):
         load_study(path)
 
 
+def test_set_surface_files_is_relative_to_the_study_file_as_in_the_file(tmp_path, monkeypatch):
+    """--set plate.surface_files=maps/p*.csv names the maps as the study file would: relative
+    to the study file, not to the folder the command runs in (which found nothing)."""
+    from adaptive_cal.study.overrides import apply_overrides
+    path = _study(tmp_path, 2)
+    study, base = load_study(path)
+    monkeypatch.chdir(tmp_path.parent)  # elsewhere
+    moved = apply_overrides(study, base, settings=["plate.surface_files=maps/p1.csv"],
+                            study_path=path)
+    assert moved.plate.surface_files == str(tmp_path / "maps" / "p1.csv")
+
+
 def test_a_run_folder_keeps_a_relative_map_findable(tmp_path):
     """The run folder's copy of the cell names the map by an absolute path: --resume and report
     read the cell from the run folder, where the relative name would not resolve."""

@@ -35,7 +35,8 @@ def add_arguments(p) -> None:
     p.add_argument("--strategies", help="override the study's strategies (comma separated)")
     p.add_argument("--doc", metavar="PAGE.md", help="write the study page (docs/study.md)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override one study key, e.g. --set bound.true_rms_mm=0.01 (YAML value)")
+                   help="override one study key, e.g. --set bound.true_rms_mm=0.01 (YAML value; "
+                        "a relative plate.surface_files is, as in the file, relative to STUDY)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -123,7 +124,7 @@ def command(args) -> int:
 
     study, base = load_study(args.study)
     study = apply_overrides(study, base, plates=args.plates, strategies=args.strategies,
-                            settings=args.set)
+                            settings=args.set, study_path=args.study)
     out_json = Path(args.json)
     out_dir = Path(args.out) if args.out else None
     checkpoint = (out_dir / "plates.jsonl" if out_dir

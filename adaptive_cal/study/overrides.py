@@ -8,6 +8,7 @@ from typing import Sequence
 import yaml
 
 from adaptive_cal.cell.schema import ConfigError, parse_cell
+from adaptive_cal.formats.heightmap import beside
 from adaptive_cal.study.config import Study, check_feasible, parse_study
 
 
@@ -31,11 +32,12 @@ def set_key(data: dict, item: str) -> dict:
 
 def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
                     strategies: str | None = None, settings: Sequence[str] = (),
-                    source: str = "overrides") -> Study:
+                    source: str = "overrides", study_path=None) -> Study:
     """The study with the command line's changes: ``plates`` (None: keep; at least 1),
     ``strategies`` (comma separated), ``settings`` (KEY=VALUE items, in order). Re-validated and
     checked against the base cell whenever anything changes (``example_plate`` below ``plates``
-    included)."""
+    included). A ``plate.surface_files`` given relative is taken, as in the file, relative to
+    the study file (``study_path``), not to the folder the command runs in."""
     if plates is not None and plates < 1:
         raise ConfigError(f"--plates {plates}: a study runs at least 1 plate")
     if not (plates or strategies or settings):
@@ -47,6 +49,9 @@ def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
         data["strategies"] = [s.strip() for s in strategies.split(",") if s.strip()]
     for item in settings:
         data = set_key(data, item)
+        if item.partition("=")[0] == "plate.surface_files" and study_path is not None \
+                and isinstance(data["plate"].get("surface_files"), str):
+            data["plate"]["surface_files"] = beside(data["plate"]["surface_files"], study_path)
     study = parse_study(data, source)
     check_feasible(study, parse_cell(base), source)
     return study
