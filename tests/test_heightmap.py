@@ -258,6 +258,16 @@ def test_set_surface_files_is_relative_to_the_study_file_as_in_the_file(tmp_path
     assert moved.plate.surface_files == str(tmp_path / "maps" / "p1.csv")
 
 
+def test_an_empty_map_name_is_refused_as_empty_not_as_a_folder(tmp_path):
+    data = load_yaml(SIM_CELL)
+    data["simulation"] = {**data["simulation"], "surface_file": ""}
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"simulation.surface_file: String should have at least "
+                                          r"1 character \(got ''\)"):
+        load_cell(path)
+
+
 def test_a_run_folder_keeps_a_relative_map_findable(tmp_path):
     """The run folder's copy of the cell names the map by an absolute path: --resume and report
     read the cell from the run folder, where the relative name would not resolve."""

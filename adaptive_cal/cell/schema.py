@@ -269,7 +269,7 @@ def parse_cell(data: dict, source: str = "cell") -> Cell:
 def resolve_files(data: dict, path: str | Path) -> dict:
     """``data`` read from ``path`` with simulation.surface_file relative to the file's folder."""
     sim = data.get("simulation") if isinstance(data, dict) else None
-    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str):
+    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str) and sim["surface_file"]:
         data = {**data, "simulation": {**sim, "surface_file": beside(sim["surface_file"], path)}}
     return data
 

@@ -33,7 +33,8 @@ class Simulation(Block):
         None, description="the tilt correction applied to the robot's user frame (e.g. the one a "
         "run proposed, result.json tilt): the robot then moves and probes in the rotated frame, "
         "about the frame's origin; see run --correction-applied")
-    surface_file: str | None = Field(None, description="true plate from a height map (DESIGN.md; "
+    surface_file: str | None = Field(None, min_length=1,
+                                     description="true plate from a height map (DESIGN.md; "
                                      "relative to the cell file); effects add on top")
     outlier_rate: float = Field(0.0, ge=0, lt=0.5, description="share of readings replaced by a "
                                 "gross error, 0 to below 0.5")

@@ -45,7 +45,7 @@ class PlateDistribution(Strict):
                                     "datasheet; false: only the cell's first guess")
     keep_outs: list[Rect] | None = Field(None, description="replace the cell's keep-outs")
     surface_files: str | None = Field(
-        None, description="glob of height maps (DESIGN.md format; relative to the study file; "
+        None, min_length=1, description="glob of height maps (DESIGN.md format; relative to the study file; "
         "** matches any depth of folders): "
         "plate i is the i-th file in sorted order (cycling), its truth that map alone (tilt, "
         "offset and form above are not drawn); noise drawn as before")
@@ -149,7 +149,8 @@ def load_study(path: str | Path) -> tuple[Study, dict]:
     """Read a study file and its base cell; raise ConfigError naming each bad key."""
     data = load_yaml(path)
     plate = data.get("plate") if isinstance(data, dict) else None
-    if isinstance(plate, dict) and isinstance(plate.get("surface_files"), str):
+    if isinstance(plate, dict) and isinstance(plate.get("surface_files"), str) \
+            and plate["surface_files"]:
         data = {**data, "plate": {**plate, "surface_files": beside(plate["surface_files"], path)}}
     study = parse_study(data, str(path))
     cell_dict = base_cell_dict(study, path)

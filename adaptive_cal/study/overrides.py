@@ -50,7 +50,8 @@ def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
     for item in settings:
         data = set_key(data, item)
         if item.partition("=")[0] == "plate.surface_files" and study_path is not None \
-                and isinstance(data["plate"].get("surface_files"), str):
+                and isinstance(data["plate"].get("surface_files"), str) \
+                and data["plate"]["surface_files"]:
             data["plate"]["surface_files"] = beside(data["plate"]["surface_files"], study_path)
     study = parse_study(data, source)
     check_feasible(study, parse_cell(base), source)
