@@ -11,8 +11,9 @@ import pytest
 import spike_generator as gen
 from adaptive_cal.analysis.explain import explain
 from adaptive_cal.analysis.explain.candidates import nameable_reach
-from adaptive_cal.analysis.explain.suspects import (RATE, SCALE, SUSPECT, gross_error_log_odds,
-                                                    predictive, suspect_probability)
+from adaptive_cal.analysis.explain.suspects import (RATE, SCALE, SUSPECT, TAIL,
+                                                    gross_error_log_odds, predictive,
+                                                    suspect_probability)
 from adaptive_cal.cell.schema import load_cell
 from conftest import ROOT
 
@@ -124,14 +125,17 @@ def test_loo_odds_match_explicit_refits(ridge):
             rss = np.sum((y[keep] - D[keep] @ coef) ** 2)
             assert v[i] == pytest.approx(rss / (keep.sum() - D.shape[1]), rel=1e-8)
         good = v[i] * var_factor
-        expect = (stats.norm.logpdf(loo[i], scale=np.sqrt(good + SCALE ** 2 * v[i]))
-                  - stats.t.logpdf(loo[i] / np.sqrt(good), dof_full - 1) + 0.5 * np.log(good))
+        scale = np.sqrt(good + SCALE ** 2 * v[i])  # the gross error: normal, a Cauchy tail
+        gross = np.logaddexp(np.log1p(-TAIL) + stats.norm.logpdf(loo[i], scale=scale),
+                             np.log(TAIL) + stats.cauchy.logpdf(loo[i], scale=scale))
+        expect = (gross - stats.t.logpdf(loo[i] / np.sqrt(good), dof_full - 1)
+                  + 0.5 * np.log(good))
         assert logb[i] == pytest.approx(expect, rel=1e-6, abs=1e-6)
 
 
 def test_mixture_probabilities_are_calibrated_by_monte_carlo():
     """Readings drawn from the mixture itself (plane + noise; gross error with rate RATE and
-    sd SCALE noise sds), judged against the plane: among readings given P >= 0.5 the share that
+    scale SCALE noise sds, a tenth of them Cauchy), judged against the plane: among readings given P >= 0.5 the share that
     are gross errors lies within 0.1 of their mean P (about 250 such readings: 3 binomial sds
     are about 0.07), and gross errors larger than 6 noise sds are caught in >= 95 %."""
     rng = np.random.default_rng(15)
@@ -141,7 +145,9 @@ def test_mixture_probabilities_are_calibrated_by_monte_carlo():
     for _ in range(1500):
         noise = rng.normal(0, 1, x.size)
         gross = rng.random(x.size) < RATE
-        err = np.where(gross, rng.normal(0, SCALE, x.size), 0.0)
+        tail = rng.random(x.size) < TAIL  # the mixture's own gross errors: a Cauchy tenth
+        err = np.where(gross, np.where(tail, SCALE * rng.standard_cauchy(x.size),
+                                       rng.normal(0, SCALE, x.size)), 0.0)
         readings = D @ rng.normal(0, 1, 3) + noise + err
         p, _ = suspect_probability([(D, np.zeros((3, 3)))], readings, [1.0], 0.0)
         probs.append(p), truth.append(gross), big.append(gross & (np.abs(err) > 6))
