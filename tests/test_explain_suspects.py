@@ -135,9 +135,10 @@ def test_loo_odds_match_explicit_refits(ridge):
 
 def test_mixture_probabilities_are_calibrated_by_monte_carlo():
     """Readings drawn from the mixture itself (plane + noise; gross error with rate RATE and
-    scale SCALE noise sds, a tenth of them Cauchy), judged against the plane: among readings given P >= 0.5 the share that
-    are gross errors lies within 0.1 of their mean P (about 250 such readings: 3 binomial sds
-    are about 0.07), and gross errors larger than 6 noise sds are caught in >= 95 %."""
+    scale SCALE noise sds, a tenth of them Cauchy), judged against the plane: among readings
+    given P >= 0.5 the share that are gross errors lies within 0.1 of their mean P (about 250
+    such readings: 3 binomial sds are about 0.07), and gross errors larger than 6 noise sds are
+    caught in >= 95 %."""
     rng = np.random.default_rng(15)
     x, y = gen.s_path()
     D = np.column_stack([x, y, np.ones_like(x)])
