@@ -1,7 +1,10 @@
 """adaptive-cal compensate: toolpath parsing and writing, splitting against a brute-force check,
 refusals, the grid export, and the acceptance test on the simulated cell (the compensated
 engraving follows the TRUE plate within the tolerance where the map is confident)."""
+import contextlib
+import io
 import json
+import re
 
 import numpy as np
 import pytest
@@ -468,3 +471,27 @@ def test_grid_export_says_where_the_map_is_extrapolated(mapped, tmp_path, capsys
     assert main(["compensate", "--map", str(run_dir), "--grid", str(tmp_path / "g.csv")]) == 0
     assert ("outside x [-215, 215] mm, y [-175, 175] mm (the workplane's edge margin) the map "
             "is an extrapolation") in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("code", ["M2", "M30", "M0", "M1", "M60"])
+def test_a_stop_or_end_on_a_split_cut_goes_with_its_last_piece(mapped, tmp_path, code):
+    """M0, M1, M2, M30 and M60 act after the line's motion. On a split cut they stayed on the
+    first piece: the program ended (or paused, the cutter in the cut) 25 mm into a 200 mm cut,
+    with six moves after its end -- and compensate refused its own output (an audit,
+    2026-11-24). Now they end the last piece, and the output reads back."""
+    run_dir, _ = mapped
+    prog = tmp_path / "p.gcode"
+    prog.write_text(f"G21 G90\nG0 X-150. Y-100. Z5.\nG1 Z-0.1 F100\nG1 X-150. Y100. {code} (end)\n")
+    out = tmp_path / "o.gcode"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["compensate", str(prog), "--map", str(run_dir), "--out", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    cut = [ln for ln in lines[3:] if ln.startswith("G1 X")]
+    assert len(cut) > 2  # split
+    has = [re.search(rf"\bM{int(code[1:])}\b", ln) is not None for ln in cut]
+    assert has == [False] * (len(cut) - 1) + [True]
+    assert "(end)" in cut[0]  # the line's comment stays on it, with the first piece
+    assert cut[-1].startswith("G1 X-150.0000 Y100.0000 Z")
+    back = tmp_path / "o2.gcode"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["compensate", str(out), "--map", str(run_dir), "--out", str(back)]) == 0

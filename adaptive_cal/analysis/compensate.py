@@ -207,6 +207,11 @@ def _rapid(out: Compensated, move: Move, height: Height, top_mm: float, sample_m
     out.rapid_dip_mm = max(out.rapid_dip_mm, float(np.max(mean - (h0 + t * (h1 - h0)))))
 
 
+def beyond_text(mm: float) -> str:
+    """How far beyond the box, never "0.0" for a cut that is beyond it (0.001 mm)."""
+    return f"{mm:.1f}" if mm >= 0.05 else f"{mm:.3f}"
+
+
 def refusal(wide: list, tolerance_mm: float, name: str = "program", shown: int = 5,
             beyond: list = (), reach_mm=None) -> str:
     """The message refusing a path whose band exceeds the tolerance (``wide``) or whose cuts
@@ -224,7 +229,7 @@ def refusal(wide: list, tolerance_mm: float, name: str = "program", shown: int =
             "or raise --tolerance-mm")
     if beyond:
         (x0, x1), (y0, y1) = reach_mm
-        lines = [f"line {b.line} at ({b.x_mm:.1f}, {b.y_mm:.1f}) mm, {b.outside_mm:.1f} mm "
+        lines = [f"line {b.line} at ({b.x_mm:.1f}, {b.y_mm:.1f}) mm, {beyond_text(b.outside_mm)} mm "
                  "beyond it" for b in sorted(beyond, key=lambda b: -b.outside_mm)[:shown]]
         more = f" and {len(beyond) - shown} more" if len(beyond) > shown else ""
         parts.append(

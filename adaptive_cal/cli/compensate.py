@@ -154,7 +154,7 @@ def _grid(hmap, args) -> int:
 def _program(hmap, args) -> int:
     from pathlib import Path
 
-    from adaptive_cal.analysis.compensate import compensate, refusal
+    from adaptive_cal.analysis.compensate import beyond_text, compensate, refusal
     from adaptive_cal.cli.common import UserError
     from adaptive_cal.formats.toolpath import read_toolpath, write_toolpath
 
@@ -176,7 +176,8 @@ def _program(hmap, args) -> int:
                 f"95 % band {w.band_mm * 1e3:.1f} um exceeds the tolerance {T * 1e3:.4g} um")
         for b in result.beyond:
             notes.setdefault(by_line[b.line], []).append(
-                f"{b.outside_mm:.1f} mm beyond the reach of the touches: the map is extrapolated")
+                f"{beyond_text(b.outside_mm)} mm beyond the reach of the touches: the map is "
+                "extrapolated")
         marks = {item: "adaptive-cal: " + "; ".join(n) for item, n in notes.items()}
     where = str(args.map).replace("(", "[").replace(")", "]")
     text = write_toolpath(path, result.pieces, marks, header_comment=(

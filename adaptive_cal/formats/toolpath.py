@@ -39,6 +39,8 @@ WORK_OFFSETS = {54, 55, 56, 57, 58, 59}
 REFUSED_M = {97: "M97 (local subprogram call)", 98: "M98 (subprogram call)",
              99: "M99 (subprogram return or program loop)", 198: "M198 (external subprogram call)"}
 PROGRAM_END_M = {2, 30}
+#: M codes a control runs after the line's motion: stop, optional stop, end, pallet change
+AFTER_MOTION_M = {0, 1, 2, 30, 60}
 # inside a line: control characters other than a tab (some readers end a block at them)
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f\x85\u2028\u2029]")
 REFUSED_G = {
@@ -306,8 +308,17 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
             first, *rest = pieces[i]
             # unsplit: only Z changes (X, Y as written, or modal); split: the first piece in full
             given = {k: v for k, v in zip("XYZ", first) if v is not None and (rest or k == "Z")}
+            # a stop or the program's end acts after the line's motion: it goes with the last
+            # piece (on the first, the program would end 25 mm into a 200 mm cut)
+            after = [(span, v) for k, v, span in _words(line, "line")
+                     if rest and k == "M" and v in AFTER_MOTION_M]
+            for (a, b), _ in sorted(after, reverse=True):
+                tail = line[b:].strip()
+                line = line[:a].rstrip() + (" " + tail if tail else "")
+            ends = "".join(f" M{v:g}" for _, v in after)
             out.append(_replace_words(line, given) + note)
-            out += [f"G1 X{fmt(x)} Y{fmt(y)} Z{fmt(z)}{note}" for x, y, z in rest]
+            out += [f"G1 X{fmt(x)} Y{fmt(y)} Z{fmt(z)}{ends if j == len(rest) - 1 else ''}{note}"
+                    for j, (x, y, z) in enumerate(rest)]
         else:
             out.append(line + note)
     if lead == len(path.lines) and header_comment:
