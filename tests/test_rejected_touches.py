@@ -74,3 +74,23 @@ def test_a_plate_6_mm_off_nominal_stops_after_three_touches_with_exit_1(tmp_path
     assert "where the cell file puts it" in text
     rec = read_recording(tmp_path / "run" / "recording.csv")
     assert len(rec.reading_mm) == 3
+
+
+def test_a_steep_plate_in_a_shallow_workspace_gets_only_approach_heights_inside_it(tmp_path):
+    """The gradient refinement of a pick checked the workplane and the stroke but not the
+    workspace's z range: on a plate tilted 0.08 / 0.05 mm/mm in a workspace of z -15..15 mm it
+    proposed z 19.2 mm, the motion's safety check refused it (nothing was sent) and the run
+    ended on an error after 7 touches (an audit, 2026-11-24). Now the run goes on to its
+    budget, every approach height inside the box."""
+    data = yaml.safe_load(SIM_CELL.read_text())
+    data["simulation"]["effects"]["tilt"].update(a=0.08, b=0.05)
+    data["workspace"]["z_mm"] = [-15, 15]
+    data["plan"]["stop"]["max_touches"] = 25
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(yaml.safe_dump(data))
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = main(["run", "--robot", str(cell), "--out", str(tmp_path / "run"),
+                     "--no-progress"])
+    rec = read_recording(tmp_path / "run" / "recording.csv")
+    assert code == 0 and len(rec.z_mm) == 25
+    assert rec.z_mm.min() >= -15 and rec.z_mm.max() <= 15

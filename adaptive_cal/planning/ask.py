@@ -239,6 +239,10 @@ def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray, value,
             return False
         h = plan.model.surface.basis(np.array([x]), np.array([y]))
         var = float(h[0] @ cov @ h[0])
+        if plan.z_range_mm is not None:  # its approach height inside the box, as a candidate's
+            z = plan.approach_height(float(h[0] @ state.belief.mean))
+            if not plan.z_range_mm[0] <= z <= plan.z_range_mm[1]:
+                return False
         return plan.allows(x, y) and bool(stroke_ok(np.array([var]), r, plan.usable_mm)[0])
 
     results = [refine(plan.model.surface, xy, cov, plan.gram, r, list(plan.bounds_mm), accept)
