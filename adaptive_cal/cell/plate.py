@@ -38,6 +38,18 @@ class Rect(Block):
         return self.x_mm[0] <= x <= self.x_mm[1] and self.y_mm[0] <= y <= self.y_mm[1]
 
 
+def _left_free(inner: "Rect", keep_outs) -> bool:
+    """Whether some point of ``inner`` lies outside every keep-out: the cells between all the
+    rectangles' edges are each wholly in or wholly out of every one, so their midpoints decide."""
+    def mids(lo, hi, edges):
+        v = sorted({lo, hi} | {e for e in edges if lo < e < hi})
+        return [0.5 * (a + b) for a, b in zip(v, v[1:])] or [lo]
+
+    xs = mids(*inner.x_mm, [e for k in keep_outs for e in k.x_mm])
+    ys = mids(*inner.y_mm, [e for k in keep_outs for e in k.y_mm])
+    return any(not any(k.contains(x, y) for k in keep_outs) for x in xs for y in ys)
+
+
 class Workplane(Block):
     """The plate to map: its extent, an edge margin no touch goes inside, and keep-outs."""
 
@@ -73,6 +85,10 @@ class Workplane(Block):
                                  f"wholly outside the workplane x_mm={list(self.x_mm)}, "
                                  f"y_mm={list(self.y_mm)}: it keeps nothing out (keep-outs are "
                                  "in the workplane frame, mm); move it onto the plate or delete it")
+        if self.keep_outs and not _left_free(inner, self.keep_outs):
+            raise ValueError(f"keep_outs cover the whole plate together (x {list(inner.x_mm)}, "
+                             f"y {list(inner.y_mm)} mm inside the edge margin): nothing is left "
+                             "to touch; shrink or delete some of them")
         return self
 
     @property

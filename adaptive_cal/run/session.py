@@ -42,10 +42,21 @@ class NoAdmissiblePoint(AdapterError):
 
 
 def no_admissible_point(cell: Cell) -> str:
-    """Why a run (or its dry run) cannot make its first touch: no point the prior allows."""
+    """Why a run (or its dry run) cannot make its first touch: no point the prior allows --
+    the workspace's z range missing the approach height of a nominal plate, named first."""
+    lo, hi = cell.probe.usable_mm
+    z0 = cell.probe.zero_mm - 0.5 * (lo + hi)  # the approach height over the nominal plate
+    box = cell.workspace
+    if box is not None and not box.z_mm[0] <= z0 <= box.z_mm[1]:
+        return (f"workspace.z_mm {list(box.z_mm)} mm: the nominal plate (z 0) is read mid-stroke "
+                f"from an approach height of {z0:g} mm (probe.zero_mm {cell.probe.zero_mm:g} "
+                f"less the middle of probe.usable_mm {[lo, hi]}), outside that range: no touch "
+                "can be made. Widen workspace.z_mm to hold it")
     return ("no allowed point can be promised to land inside the usable probe stroke "
-            f"{list(cell.probe.usable_mm)} mm: the prior is too wide for the stroke. Level the "
-            "plate first, or narrow model.offset_std_mm / tilt_std_deg")
+            f"{[lo, hi]} mm: the prior is too wide for the stroke (level the plate first, or "
+            "narrow model.offset_std_mm / tilt_std_deg), or the keep-outs and the edge margin "
+            "leave no point near the plate's centre, where the first touches must be while the "
+            "tilt is unknown")
 
 
 @dataclass(frozen=True)
@@ -150,6 +161,11 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
               file=sys.stderr, flush=True)
     else:
         fused_t_s = None
+    if state.touches == 0:  # refused before a device is opened (a controller connected to)
+        from adaptive_cal.planning.ask import ask
+
+        if not ask(plan, state):
+            raise NoAdmissiblePoint(no_admissible_point(cell))
     start_touch = state.touches
     seq_offset = next_seq - start_touch  # new rows continue from the last seq + 1
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
