@@ -45,3 +45,26 @@ def test_keep_outs_that_cover_the_plate_together_are_refused_at_load(tmp_path):
         parse_cell(data, "cell")
     data["workplane"]["keep_outs"][1]["x_mm"] = [1, 300]  # a 0.5 mm strip left free
     parse_cell(data, "cell")
+
+
+def test_an_interrupt_outside_the_touch_loop_says_the_recording_is_kept(tmp_path, monkeypatch):
+    """Ctrl-C outside the loop (at set-up or while the results are written) reached the top
+    level, which said only "interrupted"; the recording was intact and --resume continued it."""
+    import adaptive_cal.cli.run as run_cli
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "recording.csv").write_text("# adaptive-cal recording v1\n")
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run_cli, "command", interrupted)
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["run", "--robot", str(SIM_CELL), "--out", str(out)]) == 130
+    assert f"--resume {out} continues it" in err.getvalue()
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):  # nothing recorded: nothing to resume
+        assert main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "new")]) == 130
+    assert err.getvalue().strip() == "adaptive-cal run: interrupted"

@@ -84,7 +84,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"adaptive-cal {args.subcommand}: error: {_said(e)}{notes}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"adaptive-cal {args.subcommand}: interrupted", file=sys.stderr)
+        out = getattr(args, "out", None) or getattr(args, "resume", None)
+        kept = (f"; the touches taken are kept in {out}/recording.csv: adaptive-cal run --resume "
+                f"{out} continues it" if args.subcommand == "run" and out
+                and os.path.isfile(os.path.join(out, "recording.csv")) else "")
+        print(f"adaptive-cal {args.subcommand}: interrupted{kept}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # the reader of stdout left (`| head`): not an error of ours
         try:  # nothing more reaches the closed pipe, not even Python's flush at exit
