@@ -68,3 +68,33 @@ def test_an_interrupt_outside_the_touch_loop_says_the_recording_is_kept(tmp_path
     with contextlib.redirect_stderr(err):  # nothing recorded: nothing to resume
         assert main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "new")]) == 130
     assert err.getvalue().strip() == "adaptive-cal run: interrupted"
+
+
+def test_a_reversed_gauge_range_is_refused_at_load():
+    from adaptive_cal.cell.schema import load_yaml
+    from conftest import ROOT
+
+    data = load_yaml(ROOT / "configs" / "cell-hses-emulated.yaml")
+    data["probe"]["serial"]["range_mm"] = [10, 0]
+    with pytest.raises(ConfigError, match=r"probe.serial.range_mm: .*\[10.0, 0.0\] must be "
+                                          r"\[low, high\]"):
+        parse_cell(data, "cell")
+
+
+def test_a_device_that_never_answered_is_not_resumed(tmp_path, monkeypatch):
+    """Nothing recorded: the adapter's "then continue with --resume" became "run the same
+    command again", the one the next line gives (the two disagreed)."""
+    from adaptive_cal.hardware.base import AdapterError
+    from adaptive_cal.run import session
+
+    def no_answer(*a, **k):
+        raise AdapterError("robot.hses 127.0.0.1:10940: no answer; check the network, then "
+                           "continue with --resume")
+
+    monkeypatch.setattr(session, "open_cell", no_answer)
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        assert main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "r")]) == 2
+    text = err.getvalue()
+    assert "then run the same command again." in text and "continue with --resume" not in text
+    assert "run the same command again (not --resume)" in text

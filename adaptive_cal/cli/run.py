@@ -105,7 +105,9 @@ def command(args) -> int:
         undone = (created is not None and not isinstance(e, RunFolderBusy)
                   and _undo_if_empty(out, created))
         if undone and isinstance(e, AdapterError):
-            raise UserError(f"{e}.\nNothing was recorded, and {out} is left as it was before: "
+            said = str(e).replace("then continue with --resume", "then run the same command "
+                                  "again")  # nothing to resume: no two answers that disagree
+            raise UserError(f"{said}.\nNothing was recorded, and {out} is left as it was before: "
                             "once the cause is fixed, run the same command again (not --resume)") from e
         raise
     if result.get("already_finished"):

@@ -1,6 +1,7 @@
 """The ``probe.serial`` block: a digital indicator on a serial port or a pyserial URL."""
 from __future__ import annotations
 
+import math
 import re
 from typing import Literal
 
@@ -29,6 +30,13 @@ class SerialConfig(Strict):
     dtr: bool | None = None
     rts: bool | None = None
     range_mm: tuple[float, float] | None = Field(None, description="values outside are rejected")
+
+    @field_validator("range_mm")
+    @classmethod
+    def _range(cls, v):
+        if v is not None and not (math.isfinite(v[0]) and math.isfinite(v[1]) and v[0] < v[1]):
+            raise ValueError(f"range_mm {list(v)} must be [low, high], finite, low below high")
+        return v
 
     @field_validator("baudrate")
     @classmethod
