@@ -72,7 +72,7 @@ def test_compare_prints_a_table_with_units_and_p_worse():
     ls = lines[head + 2].split()
     assert ls[:2] == ["least", "squares"]
     assert ls[2:5] == ["541.7", "596.0", "+54.4"]  # um, as each round's own lines
-    assert ls[-4:] == ["0.77", "within", "the", "noise"]
+    assert ls[-4:] == ["0.90", "within", "the", "noise"]
     assert lines[head + 4].startswith("  range (tilt incl.)") and lines[head + 4].endswith("smaller")
     assert "{" not in p.stdout  # no raw dicts
 

@@ -264,7 +264,7 @@ def test_touch_prior_is_the_cell_files_prior_in_numbers():
 def test_recording_flatness_reproduces_the_papers_round0(cheng_round0):
     from adaptive_cal.analysis.flatness_intervals import recording_flatness
 
-    out, sampled = recording_flatness(cheng_round0, np.random.default_rng(0), 100)
+    out, sampled, _ = recording_flatness(cheng_round0, np.random.default_rng(0), 100)
     ls = out["flatness_mm"]["least_squares"]
     assert ls["value"] == pytest.approx(0.5414, abs=1e-3)  # the paper's eq. 5 value
     assert ls["ci95"][0] < ls["value"] < ls["ci95"][1]

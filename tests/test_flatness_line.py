@@ -53,7 +53,7 @@ def test_touches_on_or_near_one_line_are_refused(tmp_path, off_mm):
 
 def test_a_narrow_strip_still_spans_an_area_and_its_zone_is_the_linprog_one(tmp_path):
     x, y, z = _line_with_one_off(5.0)  # one touch 5 mm off the line: an area, if a thin one
-    out, _ = recording_flatness(_write(tmp_path / "strip.csv", x, y, z),
+    out, _, _ = recording_flatness(_write(tmp_path / "strip.csv", x, y, z),
                                 np.random.default_rng(0), 50)
     mz = out["flatness_mm"]["minimum_zone"]["value"]
     # the LP's plane is the vertical optimum; the product minimises the normal width by

@@ -75,7 +75,7 @@ def test_flatness_of_twenty_thousand_rows_runs(tmp_path):
     path = tmp_path / "long.csv"
     path.write_text("\n".join(lines) + "\n")
     adaptive_cal.use_float64()
-    out, _ = recording_flatness(path, np.random.default_rng(0), 40)
+    out, _, _ = recording_flatness(path, np.random.default_rng(0), 40)
     assert abs(out["noise_std_mm"] - 0.002) < 2e-4
     lo, hi = out["flatness_mm"]["least_squares"]["ci95"]
     assert lo < hi

@@ -48,9 +48,12 @@ def command(args) -> int:
     if args.compare:
         check_recording(args.compare)
         rng = np.random.default_rng(args.seed)
-        out, sampled = recording_flatness(args.recording, rng, bare_samples)
-        other, sampled_b = recording_flatness(args.compare, rng, bare_samples)
-        out = {"first": out, "second": other, "change": compare(sampled, sampled_b)}
+        out, _, sampled = recording_flatness(args.recording, rng, bare_samples)
+        other, _, sampled_b = recording_flatness(args.compare, rng, bare_samples)
+        change = compare(sampled, sampled_b)
+        for k, c in change.items():  # the table's "change": the figures as measured
+            c["measured_mm"] = other["flatness_mm"][k]["value"] - out["flatness_mm"][k]["value"]
+        out = {"first": out, "second": other, "change": change}
     else:
         out = map_flatness(args) or recording_flatness(args.recording, np.random.default_rng(
             args.seed), bare_samples)[0]
@@ -221,11 +224,12 @@ def compare_table(out: dict) -> list[str]:
         lines.append(f"  {LABELS[k]:<19}{um(va):>9}{um(vb):>9}{um(vb - va, '+'):>9}   "
                      f"{um(lo, '+') + ' .. ' + um(hi, '+'):<26}{c['p_b_greater']:>8.2f}  "
                      f"{_verdict(c)}")
-    lines += ["  95 % interval of change: the interval of the change given the two recordings, over",
-              "  predicted repeat measurements of each round from its own fit (the reading noise above",
-              "  is each round's scatter about a smooth surface fitted to it alone). P(worse): the",
-              "  probability that the later figure is larger (not a p-value). Range: max - min of the",
-              "  heights, the tilt included (not flatness): a corrected tilt shows there.",
+    lines += ["  change: the later figure minus the earlier, as measured. 95 % interval of change: of",
+              "  the plate's figure at the touches, given the two recordings (each round's smooth",
+              "  surface fitted to it alone, the readings' noise removed; the reading noise above is",
+              "  each round's scatter about it). P(worse): the probability that the plate's figure",
+              "  grew (not a p-value). Range: max - min of the heights, the tilt included (not",
+              "  flatness): a corrected tilt shows there.",
               "  A test of \"plate unchanged\" with a p-value instead: adaptive-cal explain FIRST.csv",
               "  LATER.csv --robot CELL.yaml (its repeatability, from the rounds' difference at the",
               "  same points, leaves out the form both share, so it is smaller)."]
