@@ -115,6 +115,34 @@ def _where(args) -> str:
     return "in this process (1 worker)"
 
 
+def _check_outputs(args, study, checkpoint: Path) -> None:
+    """Before any plate runs: --json and --doc overwrite neither the study file, its cell file,
+    the checkpoint nor each other, and each can be written (its folder is not a file)."""
+    from adaptive_cal.cli.common import UserError, refuse_input_as_output
+
+    inputs = [args.study, checkpoint]
+    if isinstance(study.cell, str):
+        cell = Path(study.cell)
+        inputs.append(cell if cell.is_absolute() else Path(args.study).resolve().parent / cell)
+    outs = [("--json", args.json)] + ([("--doc", args.doc)] if args.doc else [])
+    for option, out in outs:
+        refuse_input_as_output(option, out, inputs)
+        if Path(out).is_dir():
+            raise UserError(f"{option} {out}: a folder; give a file name")
+        parent = next((q for q in Path(out).absolute().parents if q.exists()), None)
+        if parent is not None and not parent.is_dir():
+            raise UserError(f"{option} {out}: {parent} is a file, not a folder")
+    out = Path(args.json)
+    if out.is_file() and out.stat().st_size:
+        try:
+            json.loads(out.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError):
+            raise UserError(f"--json {out}: exists and is not JSON (not an earlier study's "
+                            "--json): it is left as it is; give another file") from None
+    if args.doc and Path(args.doc).absolute() == Path(args.json).absolute():
+        raise UserError(f"--doc {args.doc} is --json {args.json}: give two files")
+
+
 def command(args) -> int:
     from adaptive_cal.study.config import load_study
     from adaptive_cal.study.doc import write_doc
@@ -129,6 +157,7 @@ def command(args) -> int:
     out_dir = Path(args.out) if args.out else None
     checkpoint = (out_dir / "plates.jsonl" if out_dir
                   else out_json.with_name(out_json.name + ".plates.jsonl"))
+    _check_outputs(args, study, checkpoint)
     runs = study.plates * len(study.strategies)
     progress = Progress(study.name, runs, checkpoint)
     if not args.quiet:
