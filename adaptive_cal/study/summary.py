@@ -164,7 +164,9 @@ def table(summary: dict) -> str:
         lines += ["", "touches to true bound: a plate that never reached it counts at the touch "
                   f"budget (max_touches{'' if budget is None else f' = {budget}'}); reached: "
                   + (", ".join(missed) if missed else "every plate, every strategy")
-                  + " (the 'reached' column)"]
+                  + " (the 'reached' column)"
+                  + ("; its robot time is the mean over the plates that reached it only"
+                     if missed else "")]
     lb = summary.get("lower_bound") or {}
     if lb.get("plates"):
         lines += ["", f"lower bound (relaxed optimal design, same hyper-parameters, first "
