@@ -78,6 +78,10 @@ def test_report_of_an_interrupted_run_opens_with_what_is_missing(interrupted, ca
     assert banner < page.index("class='cards'")
     assert "tilt correction (provisional)" in page
     assert f"adaptive-cal run --resume {out}" in page
+    # the flatness too, in its card and its section (an audit found them unmarked)
+    assert banner < page.index("<h2>Flatness (provisional)</h2>")
+    cards = page[page.index("class='cards'"):]
+    assert "provisional" in cards[cards.index("flatness"):cards.index("RMS posterior std")]
 
 
 def _silent_cell(tmp_path):

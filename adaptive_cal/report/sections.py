@@ -233,7 +233,10 @@ def flatness_section(result: dict) -> str:
     notes += [feature_line(f) for f in result.get("local_features") or ()]
     if result.get("largest_gap"):
         notes.append(gap_line(result["largest_gap"]))
-    return ("<h2>Flatness</h2>"
+    head = ("<h2>Flatness (provisional)</h2><p><b>Provisional:</b> the run is not finished "
+            "(above); these figures are of a map that does not meet its bound.</p>"
+            if missing(result) else "<h2>Flatness</h2>")
+    return (head
             + _table(rows, head=("flatness", "figure", "value (95 % interval)", "value is"))
             + "".join(f"<p class='note'>{escape(n)}</p>" for n in notes)
             + "<p class='note'>Both figures remove the tilt: least squares is the spread of the "
@@ -314,7 +317,8 @@ def cards(result: dict, run_dir: Path | None) -> str:
     text = value_text(ls).split(" (", 1)
     cards = [(f"rx {signed(t['rx_deg'], 4)} deg<br>ry {signed(t['ry_deg'], 4)} deg", tilt_label),
              (escape(text[0]), f"flatness {PLATE}, least squares"
-              + (f" ({escape(text[1])}" if len(text) > 1 else "")),
+              + (f" ({escape(text[1])}" if len(text) > 1 else "")
+              + (" (provisional)" if missing(result) else "")),
              (f"{_um(p['mean_std_mm'])}", f"RMS posterior std after {result['touches']} touches")]
     ex = run_dir / "explain.json" if run_dir is not None else None
     if ex is not None and ex.exists():
