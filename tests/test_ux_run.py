@@ -145,6 +145,19 @@ def test_the_html_and_the_dry_run_say_rms_std_bound():
     assert "covers 98 % of the plate" in page
 
 
+def test_a_recheck_page_says_it_is_one_and_that_its_noise_was_carried_not_learned():
+    """A --prior-from re-check learns nothing (its belief and noise are the earlier run's); its
+    page called them "(learned)" and did not say it was a re-check (an audit, 2026-11-24)."""
+    base = {"touches": 10, "fused": 10, "stopped_because": "mean_std_bound",
+            "posterior": {"mean_std_mm": 0.0036, "max_std_mm": 0.0094},
+            "hyper": {"noise_std_mm": 0.0054, "form_std_mm": 0.49, "length_scale_mm": 418.0}}
+    page = run_section({**base, "prior_from": {"run": "runs/demo", "assumed": "proposed",
+                                               "correction_deg": {"rx": 0.1088, "ry": -0.8021}}})
+    assert "a re-check of" in page and "runs/demo" in page and "rx +0.1088, ry -0.8021 deg" in page
+    assert "reading noise (carried from the earlier run)" in page and "(learned)" not in page
+    assert "reading noise (learned)" in run_section(base) and "re-check" not in run_section(base)
+
+
 def test_dry_run_gives_the_first_approach_height_and_says_the_rest_are_set_at_run_time(capsys):
     assert main(["run", "--robot", str(SIM_CELL), "--dry-run"]) == 0
     lines = capsys.readouterr().out.splitlines()

@@ -123,13 +123,21 @@ def _robot_time(result: dict) -> str:
 
 def run_section(result: dict) -> str:
     p, h = result["posterior"], result.get("hyper", {})
+    pf = result.get("prior_from")
+    how = "(carried from the earlier run)" if pf else "(learned)"
     rows = [("touches", f"{result['touches']} ({result['fused']} fused)"),
             ("robot time (estimate)", _robot_time(result)),
             ("stopped because", escape(reason_text(result["stopped_because"]))),
             ("posterior std over the plate", f"RMS {_um(p['mean_std_mm'])}, max {_um(p['max_std_mm'])}"),
-            ("reading noise (learned)", _um(h.get("noise_std_mm"))),
-            ("form prior (learned)", f"amplitude {_um(h.get('form_std_mm'))}, length scale "
-                                     f"{h.get('length_scale_mm', float('nan')):.0f} mm")]
+            (f"reading noise {how}", _um(h.get("noise_std_mm"))),
+            (f"form prior {how}", f"amplitude {_um(h.get('form_std_mm'))}, length scale "
+                                  f"{h.get('length_scale_mm', float('nan')):.0f} mm")]
+    if pf:
+        c = pf.get("correction_deg") or {}
+        rows.insert(0, ("a re-check of", f"{escape(str(pf.get('run', '-')))}, its belief the "
+                        f"prior, the correction assumed applied: {escape(str(pf.get('assumed')))}"
+                        + (f" (rx {signed(c['rx'], 4)}, ry {signed(c['ry'], 4)} deg)"
+                           if 'rx' in c and 'ry' in c else "")))
     if "truth" in result:
         t = result["truth"]
         rows.append(("simulated cell: true error", f"RMS {_um(t['rms_error_mm'])}, max "
