@@ -16,7 +16,7 @@ from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE,
                                                    within_what)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
-from adaptive_cal.formats.numbers import fixed
+from adaptive_cal.formats.numbers import count, fixed
 from adaptive_cal.report.explain_text import readings_lines, rounds_lines, verdict_lines
 from adaptive_cal.report.status import missing, next_step
 
@@ -157,7 +157,7 @@ def model_section(result: dict) -> str:
              for k, c in m.get("checks", {}).items()]
     rows += [(f"x {w['x_mm'][0]:.0f}..{w['x_mm'][1]:.0f} mm, y {w['y_mm'][0]:.0f}.."
               f"{w['y_mm'][1]:.0f} mm", f"about {_um(w['unresolved_rms_mm'])} RMS unresolved "
-              f"({w['readings']} readings): do not trust the map here to better than this")
+              f"({count(w['readings'], 'reading')}): do not trust the map here to better than this")
              for w in m.get("where", [])]
     c = result.get("closure")
     if c:  # the closure touch: did the cell drift during the run?
@@ -192,7 +192,7 @@ def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = No
     rx, ry = tilt["rx_deg"], tilt["ry_deg"]
     R = rotation(rx, ry)
     sx, sy = tilt.get("rx_std_deg"), tilt.get("ry_std_deg")
-    pm = lambda s: "" if s is None else f" &plusmn; {s:.4f}"
+    pm = lambda s: "" if s is None else f" &plusmn; {s:.4f} deg"
     rows = [("rx (about the user frame's x axis)",
              f"<b>{signed(rx, 4)} deg</b>{pm(sx)} ({signed(np.radians(rx), 6)} rad)"),
             ("ry (about the rotated y axis)",
