@@ -120,7 +120,7 @@ def test_compare_table_is_in_um_and_names_its_interval():
     assert lines[2].split()[2:7] == ["541.7", "596.0", "+54.3", "-59.8", ".."]
     assert "+139.2" in lines[2] and "6431.1" in lines[4]
     text = " ".join(line.strip() for line in lines[5:])
-    assert "the interval of the change given the two recordings" in text
+    assert "of the plate's figure at the touches, given the two recordings" in text
     assert "(not a p-value)" in text
     assert 'A test of "plate unchanged" with a p-value instead: adaptive-cal explain' in text
 
