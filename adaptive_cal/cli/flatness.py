@@ -224,12 +224,12 @@ def compare_table(out: dict) -> list[str]:
         lines.append(f"  {LABELS[k]:<19}{um(va):>9}{um(vb):>9}{um(vb - va, '+'):>9}   "
                      f"{um(lo, '+') + ' .. ' + um(hi, '+'):<26}{c['p_b_greater']:>8.2f}  "
                      f"{_verdict(c)}")
-    lines += ["  change: the later figure minus the earlier, as measured. 95 % interval of change: of",
-              "  the plate's figure at the touches, given the two recordings (each round's smooth",
-              "  surface fitted to it alone, the readings' noise removed; the reading noise above is",
-              "  each round's scatter about it). P(worse): the probability that the plate's figure",
-              "  grew (not a p-value). Range: max - min of the heights, the tilt included (not",
-              "  flatness): a corrected tilt shows there.",
+    lines += ["  change: the later figure minus the earlier, as measured. 95 % interval of",
+              "  change: of the plate's figure at the touches, given the two recordings (each",
+              "  round's smooth surface fitted to it alone, the readings' noise removed; the",
+              "  reading noise above is each round's scatter about it). P(worse): the probability",
+              "  that the plate's figure grew (not a p-value). Range: max - min of the heights,",
+              "  the tilt included (not flatness): a corrected tilt shows there.",
               "  A test of \"plate unchanged\" with a p-value instead: adaptive-cal explain FIRST.csv",
               "  LATER.csv --robot CELL.yaml (its repeatability, from the rounds' difference at the",
               "  same points, leaves out the form both share, so it is smaller)."]

@@ -45,7 +45,8 @@ class PlateDistribution(Strict):
                                     "datasheet; false: only the cell's first guess")
     keep_outs: list[Rect] | None = Field(None, description="replace the cell's keep-outs")
     surface_files: str | None = Field(
-        None, min_length=1, description="glob of height maps (DESIGN.md format; relative to the study file; "
+        None, min_length=1,
+        description="glob of height maps (DESIGN.md format; relative to the study file; "
         "** matches any depth of folders): "
         "plate i is the i-th file in sorted order (cycling), its truth that map alone (tilt, "
         "offset and form above are not drawn); noise drawn as before")
