@@ -27,3 +27,11 @@ def cheng_round0():
 @pytest.fixture
 def cheng_round1():
     return CHENG / "round1_first_correction.csv"
+
+
+@pytest.fixture(scope="session")
+def cheng_cell():
+    """The reference cell's file (configs/cheng2025-cell.yaml), loaded once."""
+    from adaptive_cal.cell.schema import load_cell
+
+    return load_cell(ROOT / "configs" / "cheng2025-cell.yaml")

@@ -18,13 +18,6 @@ from adaptive_cal.analysis.explain.design import build_design
 from adaptive_cal.analysis.explain.suspects import (RATE, gross_log_density, integrated_log_odds,
                                                     mixed_log_bf, model_probabilities, scored,
                                                     screened)
-from adaptive_cal.cell.schema import load_cell
-from conftest import ROOT
-
-
-@pytest.fixture(scope="module")
-def cheng_cell():
-    return load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
 
 
 def _design(tmp_path, cell, x, y, reading, name="r"):

@@ -13,13 +13,6 @@ import pytest
 
 import spike_generator as gen
 from adaptive_cal.analysis.explain import explain
-from adaptive_cal.cell.schema import load_cell
-from conftest import ROOT
-
-
-@pytest.fixture(scope="module")
-def cheng_cell():
-    return load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
 
 
 def _findings(tmp_path, cell, case, name):

@@ -18,11 +18,6 @@ from adaptive_cal.cell.schema import load_cell
 from conftest import ROOT
 
 
-@pytest.fixture(scope="module")
-def cheng_cell():
-    return load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
-
-
 def _explain(tmp_path, cell, case, name):
     rec = gen.write(tmp_path / f"{name}.csv", case)
     return explain([rec], cell, identifiability=False).findings
