@@ -74,10 +74,7 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         here = plan.here_xy_mm(state.touched_xy_mm)
     timed = plan.time_aware and plan.criterion == "integrated"
     mean = rows @ state.belief.mean
-    z_ok = np.ones(len(mean), bool)
-    if plan.z_range_mm is not None:
-        z = plan.approach_height(mean)
-        z_ok = (z >= plan.z_range_mm[0]) & (z <= plan.z_range_mm[1])
+    z_ok = plan.z_allowed(plan.approach_height(mean))
 
     d0, var0 = variance_drop(rows, cov, plan.gram, r)
     # approach heights come from the belief now, so every touch of a batch must be promised
@@ -239,10 +236,8 @@ def _refined(plan: SurveyPlan, state: SurveyState, starts: np.ndarray, value,
             return False
         h = plan.model.surface.basis(np.array([x]), np.array([y]))
         var = float(h[0] @ cov @ h[0])
-        if plan.z_range_mm is not None:  # its approach height inside the box, as a candidate's
-            z = plan.approach_height(float(h[0] @ state.belief.mean))
-            if not plan.z_range_mm[0] <= z <= plan.z_range_mm[1]:
-                return False
+        if not plan.z_allowed(plan.approach_height(float(h[0] @ state.belief.mean))):
+            return False  # its approach height inside the box, as a candidate's
         return plan.allows(x, y) and bool(stroke_ok(np.array([var]), r, plan.usable_mm)[0])
 
     results = [refine(plan.model.surface, xy, cov, plan.gram, r, list(plan.bounds_mm), accept)

@@ -98,3 +98,11 @@ class SurveyPlan:
         z = mean - (lo + hi) / 2 + zero (mm)."""
         lo, hi = self.usable_mm
         return mean_mm + self.zero_mm - 0.5 * (lo + hi)
+
+    def z_allowed(self, z_mm) -> np.ndarray:
+        """Whether approach heights ``z_mm`` lie inside the workspace box's z range (every one
+        does without a box): the one check of the candidates, a refined pick and the closure."""
+        z = np.asarray(z_mm, float)
+        if self.z_range_mm is None:
+            return np.ones(z.shape, bool)
+        return (z >= self.z_range_mm[0]) & (z <= self.z_range_mm[1])

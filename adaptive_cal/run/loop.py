@@ -184,8 +184,7 @@ class SurveyLoop:
         first_rows, first_mm = state.rows[start].copy(), state.heights_mm[start].copy()
         first_t = self.fused_t_s[i] if i < len(self.fused_t_s) else math.nan
         target = target_at(plan, state, x, y)
-        if plan.z_range_mm is not None and not (
-                plan.z_range_mm[0] <= target.z_mm <= plan.z_range_mm[1]):
+        if not plan.z_allowed(target.z_mm):
             return self._closed(cl.Closure(False, x_mm=x, y_mm=y, first_touch=first,
                                            why=f"its approach height {target.z_mm:.3f} mm is "
                                                "outside the workspace box; nothing was sent"))

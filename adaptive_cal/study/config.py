@@ -193,9 +193,8 @@ def map_in_reach(path: str, cell: Cell, source: str) -> None:
     import numpy as np
 
     from adaptive_cal.formats.heightmap import load_heightmap
-    from adaptive_cal.planning.scoring import STROKE_Z
 
-    hm, wp, m, probe = load_heightmap(path), cell.workplane, cell.model, cell.probe
+    hm, wp, probe = load_heightmap(path), cell.workplane, cell.probe
     X, Y = np.meshgrid(hm.x_mm, hm.y_mm, indexing="ij")
     on = ((X >= wp.x_mm[0]) & (X <= wp.x_mm[1]) & (Y >= wp.y_mm[0]) & (Y <= wp.y_mm[1])).ravel()
     cx, cy = 0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)
@@ -203,15 +202,25 @@ def map_in_reach(path: str, cell: Cell, source: str) -> None:
     z = hm.z_mm.ravel()[on]
     a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
     form = float(np.abs(z - A @ np.array([a, b, c])).max())
-    allowed = STROKE_Z * math.tan(math.radians(m.tilt_std_deg))
-    half = 0.5 * (probe.usable_mm[1] - probe.usable_mm[0])
-    if math.hypot(a, b) > allowed or abs(c) > STROKE_Z * m.offset_std_mm or abs(c) + form > half:
+    allowed, offset, half = reach(cell)
+    if math.hypot(a, b) > allowed or abs(c) > offset or abs(c) + form > half:
         raise ConfigError(
             f"{source}: plate.surface_files: {path} is beyond the probe's reach: its plane has a "
             f"slope of {math.hypot(a, b):.4f} mm/mm (the planner serves up to {allowed:.4f}), a "
-            f"height of {c:+.3f} mm at the plate centre (the prior reaches +-"
-            f"{STROKE_Z * m.offset_std_mm:.3f} mm, model.offset_std_mm) and {form:.3f} mm of "
-            f"form about it; the usable stroke {list(probe.usable_mm)} mm holds +-{half:.3f} mm")
+            f"height of {c:+.3f} mm at the plate centre (the prior reaches +-{offset:.3f} mm, "
+            f"model.offset_std_mm) and {form:.3f} mm of form about it; the usable stroke "
+            f"{list(probe.usable_mm)} mm holds +-{half:.3f} mm")
+
+
+def reach(cell: Cell) -> tuple[float, float, float]:
+    """What the planner serves on ``cell`` (``check_feasible``): the steepest slope (mm/mm,
+    STROKE_Z x tan(model.tilt_std_deg)), the largest offset at the plate centre (mm, STROKE_Z x
+    model.offset_std_mm) and half the usable stroke (mm)."""
+    from adaptive_cal.planning.scoring import STROKE_Z
+
+    m, usable = cell.model, cell.probe.usable_mm
+    return (STROKE_Z * math.tan(math.radians(m.tilt_std_deg)), STROKE_Z * m.offset_std_mm,
+            0.5 * (usable[1] - usable[0]))
 
 
 def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
@@ -241,8 +250,7 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
             "planner is told the noise span as probe.noise_range_mm, whose low end must be "
             "above 0 mm; give a low end above 0, or plate.noise_range_known: false")
     steepest = math.sqrt(2.0) * math.tan(math.radians(p.tilt_deg))
-    allowed = STROKE_Z * math.tan(math.radians(m.tilt_std_deg))
-    half = 0.5 * (probe.usable_mm[1] - probe.usable_mm[0])
+    allowed, offset, half = reach(cell)
     if steepest > allowed:
         raise ConfigError(
             f"{source}: plate.tilt_deg={p.tilt_deg} is beyond what the probe stroke allows: the "
@@ -250,7 +258,7 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
             f"{list(probe.usable_mm)} mm for slopes up to {allowed:.4f} mm/mm "
             f"({STROKE_Z:.1f} x tan(model.tilt_std_deg={m.tilt_std_deg})); this plate's steepest "
             f"slope is {steepest:.4f}. Lower plate.tilt_deg or widen the cell's model.tilt_std_deg")
-    if p.offset_mm > STROKE_Z * m.offset_std_mm or p.offset_mm + p.form_pv_mm[1] > half:
+    if p.offset_mm > offset or p.offset_mm + p.form_pv_mm[1] > half:
         raise ConfigError(
             f"{source}: plate.offset_mm={p.offset_mm} with form up to {p.form_pv_mm[1]} mm puts "
             f"the first reading outside the usable stroke {list(probe.usable_mm)} mm "
