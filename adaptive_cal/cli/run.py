@@ -293,7 +293,7 @@ def _dry_run(cell) -> int:
     if not targets:  # as the run would say before its first touch
         from adaptive_cal.run.session import no_admissible_point
 
-        raise UserError(no_admissible_point(cell))
+        raise UserError(no_admissible_point(cell, plan))
     from adaptive_cal.report.sections import reason_text, signed
 
     targets = targets[:20]

@@ -41,13 +41,13 @@ class NoAdmissiblePoint(AdapterError):
     """No allowed point can be promised to land inside the probe stroke."""
 
 
-def no_admissible_point(cell: Cell) -> str:
+def no_admissible_point(cell: Cell, plan: SurveyPlan) -> str:
     """Why a run (or its dry run) cannot make its first touch: no point the prior allows --
     the workspace's z range missing the approach height of a nominal plate, named first."""
     lo, hi = cell.probe.usable_mm
-    z0 = cell.probe.zero_mm - 0.5 * (lo + hi)  # the approach height over the nominal plate
+    z0 = float(plan.approach_height(0.0))  # over the nominal plate
     box = cell.workspace
-    if box is not None and not box.z_mm[0] <= z0 <= box.z_mm[1]:
+    if not plan.z_allowed(z0):
         return (f"workspace.z_mm {list(box.z_mm)} mm: the nominal plate (z 0) is read mid-stroke "
                 f"from an approach height of {z0:g} mm (probe.zero_mm {cell.probe.zero_mm:g} "
                 f"less the middle of probe.usable_mm {[lo, hi]}), outside that range: no touch "
@@ -165,7 +165,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         from adaptive_cal.planning.ask import ask
 
         if not ask(plan, state):
-            raise NoAdmissiblePoint(no_admissible_point(cell))
+            raise NoAdmissiblePoint(no_admissible_point(cell, plan))
     start_touch = state.touches
     seq_offset = next_seq - start_touch  # new rows continue from the last seq + 1
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
@@ -208,7 +208,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         try:
             stopped = loop.run()
             if stopped == NO_ADMISSIBLE_POINT:
-                stopped, error = "interrupted", NoAdmissiblePoint(no_admissible_point(cell))
+                stopped, error = "interrupted", NoAdmissiblePoint(no_admissible_point(cell, plan))
         except KeyboardInterrupt:
             stopped = "interrupted"
         except AdapterError as e:  # a device stopped the run: report what was measured, then raise
