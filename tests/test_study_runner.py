@@ -176,3 +176,46 @@ def test_a_task_refuses_float32_and_names_the_setup():
     with jax.enable_x64(False), pytest.raises(RuntimeError, match="worker_setup=use_float64"):
         plate_task(study.model_dump(mode="json"), base, 0, ("adaptive",))
     assert jax.config.jax_enable_x64
+
+
+def test_adaptive_touches_to_target_count_against_the_target_beside_paper():
+    """With `paper` among the strategies the planner runs on to the paper's accuracy where that
+    is stricter, but its touches to the true target are counted against the study's target, as
+    the grid's and the paper's are: the first trajectory point at or below it. (They were counted
+    against the stricter of the two, which charged adaptive more touches than the grid.)"""
+    from adaptive_cal.study.tasks import plate_task
+
+    use_float64()
+    study, base = _small(strategies=["adaptive", "paper"], estimator="learned")
+    data = study.model_dump(mode="json")
+    data["bound"].update(mean_std_mm=0.012, true_rms_mm=0.03, max_touches=40)
+    recs = {r["strategy"]: r for r in plate_task(data, base, 0, ("adaptive", "paper"))}
+    a, p = recs["adaptive"], recs["paper"]
+    target = 0.03
+    assert p["true_rms_mm"] < target  # the paper's accuracy is the stricter one here
+    first = next(t for t, _, rms in a["trajectory"] if rms <= target)
+    assert a["touches_true"] == first
+    # and the trajectory went on past it towards the paper's accuracy
+    assert a["trajectory"][-1][0] > first or a["trajectory"][-1][2] <= p["true_rms_mm"]
+
+
+def test_a_bound_stop_on_the_last_touch_of_the_budget_pays_no_closure():
+    """A run makes no closure touch once the budget is spent (run.loop): a study record stopped
+    on the bound at the budget's last touch charges none, one touch earlier it does."""
+    from types import SimpleNamespace
+
+    from adaptive_cal.study.strategies import record
+
+    study, _ = _small(strategies=["adaptive"])
+    budget = study.bound.max_touches
+    ctx = SimpleNamespace(plan=SimpleNamespace(closure=True), study=study,
+                          plate=SimpleNamespace(index=0, seed=1, noise_std_mm=0.01),
+                          robot=lambda xy: (float(len(xy)), 0.0),
+                          robot_time_s=lambda xy: float(len(xy)))
+    final = dict(mean_std_mm=0.01, true_rms_mm=0.01, true_max_mm=0.02, coverage95=0.95)
+    xy = np.random.default_rng(0).uniform(-50, 50, (budget, 2))
+    traj = [[t, 0.01, 0.01] for t in range(1, budget + 1)]
+    at_budget = record(ctx, "adaptive", traj, budget, final, xy, "mean_std_bound", 0.01)
+    before = record(ctx, "adaptive", traj, budget - 1, final, xy, "mean_std_bound", 0.01)
+    assert (at_budget["touches"], at_budget["closure"]) == (budget, False)
+    assert (before["touches"], before["closure"]) == (budget, True)
