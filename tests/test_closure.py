@@ -236,7 +236,8 @@ def test_studies_charge_the_closure_to_bound_stops_only():
             return robot_time_s((0.0, 0.0), xy, 100.0, 3.0)
         return SimpleNamespace(plan=SimpleNamespace(closure=closure), robot=robot,
                                robot_time_s=lambda xy: robot(xy)[0],
-                               plate=SimpleNamespace(index=0, seed=1, noise_std_mm=0.005))
+                               plate=SimpleNamespace(index=0, seed=1, noise_std_mm=0.005),
+                               study=SimpleNamespace(bound=SimpleNamespace(max_touches=60)))
 
     xy = np.array([[100.0, 0.0], [100.0, 300.0], [400.0, 300.0]])
     final = {"mean_std_mm": 0.004, "true_rms_mm": 0.004, "true_max_mm": 0.01,

@@ -59,7 +59,9 @@ def _check_files(out, rows_written):
 
 
 def _resume_to_the_end(out, rec_before):
-    assert main(["run", "--resume", str(out), "--no-progress"]) == 0
+    # the budget spent with the 4 um bound unmet: not a result, exit 1 (report.status)
+    assert main(["run", "--resume", str(out), "--no-progress"]) == 1
+    assert json.loads((out / "result.json").read_text())["stopped_because"] == "touch_budget"
     rec = _written(out)
     assert list(rec.seq) == list(range(len(rec))) and len(rec) >= len(rec_before)
     for col in ("x_mm", "y_mm", "z_mm", "reading_mm"):  # no row lost or changed

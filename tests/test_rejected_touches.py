@@ -3,6 +3,7 @@ nothing, so it asked the same touch again until the budget was spent -- 120 time
 6 mm above where the cell file put it -- and the run exited 0. Now three in a row end the loop,
 the summary says what to check, and the exit code says "not a result"."""
 import contextlib
+import json
 import io
 
 import yaml
@@ -92,5 +93,7 @@ def test_a_steep_plate_in_a_shallow_workspace_gets_only_approach_heights_inside_
         code = main(["run", "--robot", str(cell), "--out", str(tmp_path / "run"),
                      "--no-progress"])
     rec = read_recording(tmp_path / "run" / "recording.csv")
-    assert code == 0 and len(rec.z_mm) == 25
+    assert code == 1 and len(rec.z_mm) == 25  # the budget spent, the bound unmet
+    assert json.loads((tmp_path / "run" / "result.json").read_text())["stopped_because"] == \
+        "touch_budget"
     assert rec.z_mm.min() >= -15 and rec.z_mm.max() <= 15

@@ -209,8 +209,10 @@ def test_result_json_terminal_and_report_give_touches_and_robot_time_side_by_sid
     cell = tmp_path / "cell.yaml"
     cell.write_text(yaml.safe_dump(data))
     out = tmp_path / "run"
-    assert main(["run", "--robot", str(cell), "--out", str(out), "--no-progress"]) == 0
+    # 12 touches, the bound unmet: not a result (exit 1), its figures written all the same
+    assert main(["run", "--robot", str(cell), "--out", str(out), "--no-progress"]) == 1
     r = json.loads((out / "result.json").read_text())
+    assert r["stopped_because"] == "touch_budget"
     rec = read_recording(out / "recording.csv")
     xy = np.column_stack([rec.x_mm, rec.y_mm])
     s, travel = route.robot_time_s((0.0, 0.0), xy, 150.0, 3.0)  # sim-cell: 150 mm/s, 3 s

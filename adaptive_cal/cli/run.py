@@ -118,9 +118,9 @@ def command(args) -> int:
     if result.get("prior_from", {}).get("disagreement"):
         print(f"re-check stopped: {result['prior_from']['disagreement']}")
         return 1
-    if result["stopped_because"] in ("drift", "touches_rejected", "invalid_readings"):
-        return 1  # the map is not a result (a script must not use it); the summary said why
-    return 130 if result["stopped_because"] == "interrupted" else 0
+    from adaptive_cal.report.status import exit_status
+
+    return exit_status(result)  # 1 where the map is not a result: the summary said why
 
 
 #: keys of a cell that may differ on --resume: they change neither the map nor the touches (the

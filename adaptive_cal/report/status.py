@@ -59,6 +59,15 @@ def missing(result: dict) -> str | None:
     return "; ".join([text] + unmet)
 
 
+def exit_status(result: dict) -> int:
+    """``adaptive-cal run``'s exit status: 130 interrupted (``--resume`` continues it), 1 where
+    the map is not a result (``missing``: drift, rejected touches or readings, a budget spent or
+    no admissible point with a bound unmet) -- a script must not use it --, else 0."""
+    if result["stopped_because"] == "interrupted":
+        return 130
+    return 1 if missing(result) is not None else 0
+
+
 def next_step(result: dict, resume: str | None) -> str:
     """What to do with an unfinished run, one sentence: ``resume`` is the command that continues
     it (None when nothing continues it, e.g. a page built from a recording)."""
