@@ -64,3 +64,49 @@ def test_emulated_mitutoyo_line_has_the_manuals_width():
         line = answer_line("mitutoyo", mm)
         assert len(line) == len(published) and re.fullmatch(rb"01A[-+][0-9.]{8}\r", line)
         assert float(line[3:-1]) == pytest.approx(mm, abs=1e-4)
+
+
+def test_a_streaming_gauge_read_mid_line_gives_whole_values_only():
+    """A gauge that sends continuously (preset custom, no request) is mid-line when the buffer
+    is cleared: the tail of a line ("1.2345" of "-1.2345") must not be read as a value -- it
+    would flip the sign. The adapter drops everything up to the first line end first. Written a
+    byte at a time on a pty, read at 40 moments: every sample is the whole value."""
+    import os
+    import random
+    import threading
+    import time
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    stop = threading.Event()
+
+    def stream():
+        line = b"-1.2345\r"
+        while not stop.is_set():
+            for b in line:
+                try:
+                    os.write(master, bytes([b]))
+                except OSError:
+                    return
+                time.sleep(0.0005)
+
+    t = threading.Thread(target=stream, daemon=True)
+    t.start()
+    cfg = SerialConfig(port=os.ttyname(slave), timeout_s=0.5, preset="custom", request="",
+                       pattern=r"^([-+]?\d+\.\d+)$")
+    probe = SerialProbe(cfg)
+    rng = random.Random(0)
+    try:
+        got = []
+        for _ in range(40):
+            time.sleep(rng.uniform(0.0, 0.004))
+            got.append(probe.read().reading_mm)
+    finally:
+        stop.set()
+        probe.close()
+        t.join(1.0)
+        os.close(master)
+        os.close(slave)
+    assert got == [-1.2345] * 40

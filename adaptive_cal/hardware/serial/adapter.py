@@ -106,9 +106,11 @@ class SerialProbe:
     def read(self) -> Sample:
         try:
             self.port.reset_input_buffer()  # a late answer to an earlier request is stale
+            end = b"\n" if self.request.endswith(b"\n") else b"\r"
             if self.request:
                 self.port.write(self.request)
-            end = b"\n" if self.request.endswith(b"\n") else b"\r"
+            else:  # a streaming gauge is mid-line now: its tail ("1.2345" of "-1.2345") is
+                self.port.read_until(end)  # no value -- drop it, read the next whole line
             line = self.port.read_until(end)
             if self.request and line.strip() == self.request.strip():
                 line = self.port.read_until(end)  # the gauge echoed the request: skip it
