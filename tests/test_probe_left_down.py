@@ -69,3 +69,30 @@ def test_the_cli_prints_the_warning_first(tmp_path, monkeypatch, capsys):
     rows = [line for line in (tmp_path / "run" / "recording.csv").read_text().splitlines()
             if line and not line.startswith("#")]
     assert len(rows) == 1 + 2
+
+
+def test_a_touch_that_begins_below_the_safe_height_and_cannot_lift_says_the_probe_may_be_down():
+    """A touch that begins with the tip below the safe height (an earlier stop, a resume) lifts
+    first; when that lift fails the tip may still be on the plate: the warning comes first, at
+    the last known position. A failure of a later move before the approach does not say so."""
+    cell = sim_cell()
+    opened = open_cell(cell)
+    cycle = opened.cycle
+    x, y = 0.0, 0.0
+    low = cycle.safe_height_mm - 3.0
+    cycle.motion.move_to(x, y, low)  # left low by an earlier stop
+    cycle.motion = RetractFailsOnce(cycle.motion, fail_on=1)
+    with pytest.raises(ProbeLeftDown) as e:
+        cycle.touch(50.0, 40.0, 0.0)
+    text = str(e.value)
+    assert text.startswith(f"THE PROBE MAY BE DOWN at x={x:.3f} y={y:.3f} mm (last known z="
+                           f"{low:.3f} mm)")
+    assert "below the safe height when this touch began" in text
+    # from the safe height, a failed travel is the adapter's error, not a probe-down warning
+    cycle.motion = RetractFailsOnce(cycle.motion.motion, fail_on=99)
+    cycle.motion.move_to(x, y, cycle.safe_height_mm)
+    cycle.motion.fail_on = cycle.motion.moves + 1
+    with pytest.raises(AdapterError) as e:
+        cycle.touch(50.0, 40.0, 0.0)
+    assert not isinstance(e.value, ProbeLeftDown)
+    opened.close()

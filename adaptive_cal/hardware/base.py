@@ -40,9 +40,9 @@ class ProbeLeftDown(AdapterError):
 
 
 def _left_down(x_mm, y_mm, z_mm, safe_mm, lift: Exception, then: str,
-               touch: "Touch | None" = None) -> ProbeLeftDown:
+               touch: "Touch | None" = None, z_is: str = "approach") -> ProbeLeftDown:
     return ProbeLeftDown(
-        f"THE PROBE MAY BE DOWN at x={x_mm:.3f} y={y_mm:.3f} mm (approach z={z_mm:.3f} mm): the "
+        f"THE PROBE MAY BE DOWN at x={x_mm:.3f} y={y_mm:.3f} mm ({z_is} z={z_mm:.3f} mm): the "
         f"retract to z={safe_mm:.3f} mm failed ({lift}). Jog the probe clear by hand before "
         f"anything moves again. {then}", touch)
 
@@ -153,9 +153,17 @@ class ProbeCycle:
         path += [(x_mm, y_mm, safe), (x_mm, y_mm, z_mm)]
         self._check(path)  # every target of this touch, before the first is sent
         approached = False
+        below = bool(path) and path[0] == (cx, cy, safe)  # began below the safe height
         try:
-            for target in path[:-1]:
-                self.motion.move_to(*target)
+            for k, target in enumerate(path[:-1]):
+                try:
+                    self.motion.move_to(*target)
+                except Exception as lift:  # a first lift that failed: the tip may be down
+                    if k or not below:
+                        raise
+                    raise _left_down(cx, cy, cz, safe, lift, "The probe was below the safe "
+                                     "height when this touch began (an earlier stop, a resume); "
+                                     "no touch was made", z_is="last known") from lift
             approached = True  # from here on the tip may be down: always retract
             self.motion.move_to(*path[-1])
             touch = self._read(x_mm, y_mm, z_mm)
