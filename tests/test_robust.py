@@ -224,3 +224,45 @@ def test_a_mixture_component_of_weight_zero_adds_nothing_and_warns_nothing():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert with_zero.log_density(0.01) == pytest.approx(alone.log_density(0.01), rel=1e-12)
+
+
+def test_a_reading_outside_the_usable_stroke_is_refused_even_twice(plan):
+    """A reading the probe cannot give (5000 mm on a 10 mm stroke: um for mm; 0.0057: m for
+    mm) was gated, and its retake -- the same value again, as a unit mistake repeats itself --
+    was fused as a 'surprise': the map went 4994 mm off. Now refused naming the value and the
+    stroke, nothing changed, as a probe cycle rejects it."""
+    state, _, _ = _learned_state(plan)
+    x, y = plan.candidates.xy_mm[0]
+    lo, hi = plan.usable_mm
+    for bad in (5000.0, hi + 1e-6, lo - 1e-6, 0.0057 if lo > 0.0057 else -1.0):
+        for _ in range(2):
+            with pytest.raises(InvalidReading, match=f"reading_mm = {bad:g} is outside the "
+                                                     f"probe's usable stroke"):
+                sv.tell(plan, state, x, y, 0.0, bad)
+    assert sv.tell(plan, state, x, y, 0.0, lo)[1] is not None  # the ends are inside
+
+
+def test_only_a_touch_at_the_gated_point_is_its_retake(plan):
+    """A retake is owed at the gated reading's point. A reading told elsewhere before it (a
+    batch told in order, a retake not taken) was taken as the retake: 0.5 mm off at a point
+    150 mm away was fused at full weight as a 'surprise'. Now it is judged as a new reading
+    (gated here) and the retake stays owed at its point; the retake there is then judged as one."""
+    state, truth, rng = _learned_state(plan)
+    xy = plan.candidates.xy_mm
+    (x, y), (x2, y2) = xy[0], xy[np.argmax(np.hypot(*(xy - xy[0]).T))]
+
+    def reading(px, py, off=0.0):
+        h = plan.model.surface.basis(np.array([px]), np.array([py]))[0]
+        return float(h @ truth) + off + plan.zero_mm
+
+    s1, t1 = sv.tell(plan, state, x, y, 0.0, reading(x, y, 0.5))
+    assert "gated" in t1.flags and s1.retake is not None
+    s2, t2 = sv.tell(plan, s1, x2, y2, 0.0, reading(x2, y2, 0.5))
+    assert not t2.fused and "retake" not in t2.flags and "surprise" not in t2.flags
+    # a genuine reading elsewhere is fused as a new one; the retake is still owed at (x, y)
+    s3, t3 = sv.tell(plan, s1, x2, y2, 0.0, reading(x2, y2))
+    assert t3.fused and "retake" not in t3.flags
+    assert s3.retake is not None and s3.retake.at(x, y)
+    # and the retake at its point settles it
+    s4, t4 = sv.tell(plan, s3, x, y, 0.0, reading(x, y))
+    assert "retake" in t4.flags and t4.fused and s4.retake is None

@@ -32,10 +32,9 @@ from scipy.stats import norm
 
 from adaptive_cal.formats.recording import Recording, surface_height_mm
 from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.planning.gate import flagged_p
+from adaptive_cal.planning.gate import SAME_POINT_MM, flagged_p
 
 ALPHA = 0.01  # false-alarm level over all of a run's retakes
-SAME_POINT_MM = 1e-3  # a retake is taken at the gated reading's point
 MIN_RADIUS_MM = 5.0  # the bands widen at least this far around a confirmed feature
 FOLLOWS = 2.0  # the map follows a retake it ends within this many reading sds of
 

@@ -43,6 +43,9 @@ GATE_P = 0.5
 OUTLIER_FLAG = "outlier="
 
 
+SAME_POINT_MM = 1e-3  # a retake is taken at the gated reading's point (the commanded x, y)
+
+
 class Retake(NamedTuple):
     """A gated reading that owes a second touch at the same point and approach height (mm)."""
 
@@ -51,12 +54,17 @@ class Retake(NamedTuple):
     z_mm: float
     height_mm: float
 
+    def at(self, x_mm: float, y_mm: float) -> bool:
+        """True for a touch at this retake's point: only that one is its retake."""
+        return abs(x_mm - self.x_mm) <= SAME_POINT_MM and abs(y_mm - self.y_mm) <= SAME_POINT_MM
+
 
 class Told(NamedTuple):
     """The judgement of one reading: fused or not, the flags for the recording, the Mahalanobis
     distance, and whether the next ask is a retake. Carries the touch (position, approach
     height, the height it implies) so that ``survey.fuse`` needs nothing else; ``outlier_p`` is
-    the posterior outlier probability the fusion uses (0 below ``FLAG_P``; as flagged)."""
+    the posterior outlier probability the fusion uses: for a fused reading as flagged (0 below
+    ``FLAG_P``); 0 for one not fused (nothing uses it; its ``outlier=p`` flag has the figure)."""
 
     fused: bool
     flags: tuple[str, ...]
@@ -151,8 +159,12 @@ def judge(predictive: Predictive, height_mm: float, noise_var: float, gate_sigma
     return Told(False, ("retake", "rejected") + flag, d, False, *where, 0.0)
 
 
-def pending_after(told: Told) -> Retake | None:
-    """The retake owed after a judged reading: its own point when it was gated, else none."""
+def pending_after(told: Told, owed: Retake | None = None) -> Retake | None:
+    """The retake owed after a judged reading: its own point when it was gated; else the one
+    ``owed`` before it unless this reading was taken at its point (a reading elsewhere -- a
+    batch told in order, a retake not taken -- is judged as a new one and leaves it owed)."""
     if told.retake_next:
         return Retake(told.x_mm, told.y_mm, told.z_mm, told.height_mm)
+    if owed is not None and not owed.at(told.x_mm, told.y_mm):
+        return owed
     return None

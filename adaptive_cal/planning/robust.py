@@ -1,7 +1,8 @@
 """What a reading must be before it is judged, and what it is judged against.
 
-* ``check_touch``: a NaN or infinite reading or position, a position off the workplane or
-  inside a keep-out raises ``InvalidReading`` naming the value; nothing is fused.
+* ``check_touch``: a NaN or infinite reading or position, a reading outside the probe's usable
+  stroke, a position off the workplane or inside a keep-out raises ``InvalidReading`` naming
+  the value; nothing is fused.
 * ``predictive``: the law of a reading's height at a basis row. After the hyper-parameters are
   learned the belief already mixes their posterior points: one Gaussian. Before the first
   refit the belief rests on the configured first guess of the form amplitude and length scale
@@ -39,11 +40,13 @@ class InvalidReading(ValueError):
 
 
 def check_touch(plan: SurveyPlan, x_mm: float, y_mm: float, z_mm: float,
-                reading_mm: float) -> None:
-    """Raise ``InvalidReading`` unless the touch is finite, on the workplane (``plate_mm``) and
-    outside every keep-out. A point in the edge margin is on the plate and is accepted."""
-    for name, value in (("reading_mm", reading_mm), ("x_mm", x_mm), ("y_mm", y_mm),
-                        ("z_mm", z_mm)):
+                reading_mm: float, *, position_only: bool = False) -> None:
+    """Raise ``InvalidReading`` unless the touch is finite, its reading inside the probe's usable
+    stroke (``usable_mm``: a probe cycle rejects any other), on the workplane (``plate_mm``) and
+    outside every keep-out. A point in the edge margin is on the plate and is accepted.
+    ``position_only``: the position alone (a touch the probe cycle rejected, ``skip``)."""
+    told = () if position_only else (("reading_mm", reading_mm),)
+    for name, value in told + (("x_mm", x_mm), ("y_mm", y_mm), ("z_mm", z_mm)):
         try:  # a float, numpy or JAX scalar; not a string (float("5") would take it)
             if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
                 raise TypeError
@@ -52,6 +55,11 @@ def check_touch(plan: SurveyPlan, x_mm: float, y_mm: float, z_mm: float,
             raise TypeError(f"{name} = {value!r} is not a number (mm): not fused") from None
         if not finite:
             raise InvalidReading(f"{name} = {value} is not a finite number: not fused")
+    lo, hi = plan.usable_mm
+    if not position_only and not lo <= reading_mm <= hi:
+        raise InvalidReading(f"reading_mm = {reading_mm:g} is outside the probe's usable stroke "
+                             f"[{lo:g}, {hi:g}] mm (probe.usable_mm): not fused (a reading in "
+                             "um or m, or an approach height off the plate?)")
     (x0, x1), (y0, y1) = plan.plate_mm
     if not (x0 <= x_mm <= x1 and y0 <= y_mm <= y1):
         raise InvalidReading(f"touch at x_mm = {x_mm:g}, y_mm = {y_mm:g} is outside the "

@@ -49,7 +49,7 @@ class Survey:
         """Count a touch whose reading the probe cycle rejected (not fused). The position must be
         one a touch can have (finite, on the workplane, outside the keep-outs): else
         ``InvalidReading`` naming it, and nothing is counted."""
-        check_touch(self.plan, x_mm, y_mm, 0.0, 0.0)
+        check_touch(self.plan, x_mm, y_mm, 0.0, 0.0, position_only=True)
         self.state = sv.skip(self.plan, self.state, x_mm, y_mm)
         self.history.append(self.status())
 

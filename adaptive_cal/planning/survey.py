@@ -181,15 +181,17 @@ def judge(plan: SurveyPlan, state: SurveyState, x_mm: float, y_mm: float, z_mm: 
     pred = predictive(plan, state.belief, state.hyper, state.rows, state.heights_mm,
                       state.fused_weights, row, unlearned)
     lo, hi = plan.usable_mm
-    return gate_judge(pred, height, state.noise_var, plan.gate_sigma, state.retake, x_mm, y_mm,
+    owed = state.retake if state.retake is not None and state.retake.at(x_mm, y_mm) else None
+    return gate_judge(pred, height, state.noise_var, plan.gate_sigma, owed, x_mm, y_mm,
                       z_mm, stroke_mm=hi - lo)
 
 
 def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
     """The state after a judged reading: the touch counted, the retake owed (if any), and the
     reading fused when the gate let it through -- with a refit when the schedule says so."""
-    gated = state.retake
-    state = replace(state, touches=state.touches + 1, retake=pending_after(told),
+    gated = state.retake if state.retake is not None and state.retake.at(told.x_mm, told.y_mm) \
+        else None
+    state = replace(state, touches=state.touches + 1, retake=pending_after(told, state.retake),
                     touched_xy_mm=state.touched_xy_mm + ((told.x_mm, told.y_mm),))
     if not told.fused:
         return state
