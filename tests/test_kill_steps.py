@@ -172,3 +172,28 @@ def test_a_real_sigkill_at_a_random_moment_loses_no_row(tmp_path, cell_file):
     if (out / "result.json").exists():
         assert json.loads((out / "result.json").read_text())["touches"] <= len(rec)
     _resume_to_the_end(out, rec)
+
+
+def test_one_ctrl_c_while_the_results_are_written_still_writes_them(tmp_path, monkeypatch,
+                                                                     cell_file):
+    """The touches done, one Ctrl-C while the figures and result.json were written (the last
+    second of a run) raised at once -- the deferred handler had been taken down with the loop --
+    and left a folder of a finished run without its result, which --resume then took a second
+    closure touch to make. It is deferred there too now: the results are written whole."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "cell.yaml").write_text(cell_file.read_text())
+    real = session.write_results
+
+    def ctrl_c_then_write(*a, **k):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # the signal is handled here
+        return real(*a, **k)
+
+    monkeypatch.setattr(session, "write_results", ctrl_c_then_write)
+    result = session.run(load_cell(cell_file), out, progress=False)
+    rec = _written(out)
+    saved = json.loads((out / "result.json").read_text())
+    assert saved["touches"] == len(rec) == result["touches"] == BUDGET
+    assert saved["stopped_because"] == "touch_budget"
+    assert int(np.load(out / "belief.npz")["touches"]) == len(rec)

@@ -218,18 +218,20 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             opened.close()
             if bar is not None:
                 _close_bar(bar, stopped)
-    state = loop.state
-    result = None
-    if error is None or state.touches:
-        result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
-                               rng=np.random.default_rng(RESULTS_SEED), history=history.statuses,
-                               refits=history.refits,
-                               truth=truth, true_rms_mm=true_rms.rms_mm if true_rms else None)
-        if carried is not None:
-            if stopped == PRIOR_DISAGREES:
-                carried = {**carried, "disagreement": disagreement(carried, surprises)}
-            result = {**result, "prior_from": carried}
-            write_json(paths.out / "result.json", result)
+        # still under the deferred Ctrl-C: one pressed while the results are written (the
+        # touches done) must not leave a folder without them
+        state = loop.state
+        result = None
+        if error is None or state.touches:
+            result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
+                                   rng=np.random.default_rng(RESULTS_SEED),
+                                   history=history.statuses, refits=history.refits, truth=truth,
+                                   true_rms_mm=true_rms.rms_mm if true_rms else None)
+            if carried is not None:
+                if stopped == PRIOR_DISAGREES:
+                    carried = {**carried, "disagreement": disagreement(carried, surprises)}
+                result = {**result, "prior_from": carried}
+                write_json(paths.out / "result.json", result)
     if error is not None:
         raise error
     return result
