@@ -99,3 +99,36 @@ def test_explain_takes_paths_as_well_as_recordings_and_cells(tmp_path):
         adaptive_cal.explain([], cell)
     with pytest.raises(ValueError, match="nope.csv: no such file"):
         adaptive_cal.explain(tmp_path / "nope.csv", cell)
+
+
+def test_survey_grid_ask_from_and_tell_refuse_what_cannot_be_meant_and_grid_bands_match_status():
+    """grid(-5) / grid(2.5) / ask(from_xy='ab') gave numpy's errors, tell(..., True) was a 1 mm
+    reading; grid's std left out the unresolved structure status() counts. Now clear errors
+    naming the value, and the grid's RMS std is status()'s on a fine grid."""
+    import numpy as np
+
+    adaptive_cal.use_float64()
+    survey = adaptive_cal.start_survey(adaptive_cal.load_cell(ROOT / "configs" / "sim-cell.yaml"))
+    for n in (-5, 2.5, 1, True):
+        with pytest.raises(ValueError, match=f"n = {n!r}: a grid needs"):
+            survey.grid(n)
+    for bad in ("ab", (1.0,), (float("nan"), 0.0)):
+        with pytest.raises(ValueError, match="from_xy = "):
+            survey.ask(1, from_xy=bad)
+    t = survey.ask(1, from_xy=(0, 0))[0]
+    with pytest.raises(TypeError, match="reading_mm = True is not a number"):
+        survey.tell(t.x_mm, t.y_mm, t.z_mm, True)
+    assert survey.touches == 0
+    # unresolved structure in the state: the grid's bands carry it, as status() does
+    from dataclasses import replace
+
+    from adaptive_cal.planning import survey as sv
+
+    class Found:  # 10 um RMS of structure finer than the spline, everywhere
+        def unresolved_var_mm2(self, x, y):
+            return np.full(np.shape(x), 1e-4)
+
+    survey.state = replace(survey.state, adequacy=Found())
+    _, _, _, std = survey.grid(11)
+    _, _, _, bare = sv.grid(survey.plan, survey.state.belief, 11)
+    assert np.allclose(std ** 2 - bare ** 2, 1e-4, rtol=1e-9, atol=1e-12)

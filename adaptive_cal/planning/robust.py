@@ -48,7 +48,7 @@ def check_touch(plan: SurveyPlan, x_mm: float, y_mm: float, z_mm: float,
     told = () if position_only else (("reading_mm", reading_mm),)
     for name, value in told + (("x_mm", x_mm), ("y_mm", y_mm), ("z_mm", z_mm)):
         try:  # a float, numpy or JAX scalar; not a string (float("5") would take it)
-            if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
+            if isinstance(value, (str, bytes, bool, np.bool_)) or np.ndim(value) != 0:
                 raise TypeError
             finite = math.isfinite(float(value))
         except (TypeError, ValueError):

@@ -37,6 +37,8 @@ class Survey:
         if n is not None and (isinstance(n, bool) or not isinstance(n, numbers.Integral)
                               or n < 1):
             raise ValueError(f"n = {n!r}: ask for at least 1 touch (None: the plan's batch)")
+        if from_xy is not None:
+            from_xy = _point(from_xy, "from_xy")
         return ask(self.plan, self.state, n, from_xy=from_xy)
 
     def tell(self, x_mm: float, y_mm: float, z_mm: float, reading_mm: float) -> Told:
@@ -62,8 +64,12 @@ class Survey:
         return sv.stop_reason(self.plan, self.state)
 
     def grid(self, n: int = 61):
-        """(gx, gy, mean, std) on an n x n grid over the whole plate (mm)."""
-        return sv.grid(self.plan, self.state.belief, n)
+        """(gx, gy, mean, std) on an n x n grid over the whole plate (mm); the std includes the
+        unresolved structure the self-checks found, as ``status().mean_std_mm`` does."""
+        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 2:
+            raise ValueError(f"n = {n!r}: a grid needs a whole number of at least 2 points "
+                             "per side")
+        return sv.grid(self.plan, self.state.belief, int(n), state=self.state)
 
     @property
     def belief(self) -> bl.Belief:
@@ -89,3 +95,16 @@ class Survey:
     def retake_pending(self) -> bool:
         """True after a gated reading: the next ask returns the same point again."""
         return self.state.retake is not None
+
+
+def _point(xy, name: str) -> tuple[float, float]:
+    """``xy`` as two finite floats (mm), else a ValueError naming ``name``."""
+    import math
+
+    try:
+        x, y = (float(v) for v in xy)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} = {xy!r}: give (x_mm, y_mm), two numbers") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise ValueError(f"{name} = {xy!r}: not finite")
+    return x, y

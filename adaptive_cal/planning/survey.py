@@ -1,8 +1,12 @@
 """The survey state of one workplane and the pure functions that return it new.
 
 A reading (mm) becomes the surface height y = reading - probe zero + z (DESIGN.md: reading =
-surface - z + zero + noise). The belief is always the posterior of every fused reading under
-the current hyper-parameters; nothing here touches hardware or files. ``tell`` is ``judge``
+surface - z + zero + noise). At a refit the belief is the posterior of every fused reading,
+mixed over the hyper-parameter points (moment-matched: one Gaussian); between refits each new
+reading is fused into that Gaussian under the last refit's noise (a Kalman step, exact for a
+fixed hyper-parameter point, a close approximation of the mixture: an outside check put the
+RMS std up to 10 % under the exact mixture's at 10 readings, 2 % later; the next refit mends
+it). Nothing here touches hardware or files. ``tell`` is ``judge``
 (the gate: flags, changes nothing) then ``fuse`` (counts the touch, fuses a reading the gate
 let through, refits on schedule): a loop writes the reading to the recording between the two.
 
