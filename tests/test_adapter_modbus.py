@@ -259,3 +259,20 @@ def test_a_plc_that_mirrors_the_robots_done_is_refused_before_start():
     finally:
         link.close()
         plc.close()
+
+
+def test_a_refusal_names_its_exception_code_and_what_to_check():
+    """A wrong device_id behind a gateway answers exception 4 / 11; the message said 'check the
+    register map'. Now the code, its name (Modbus Application Protocol s.7) and the device_id,
+    with the key to check for each kind."""
+    from pymodbus.pdu import ExceptionResponse
+
+    from adaptive_cal.hardware.modbus.adapter import _refusal
+
+    assert _refusal(ExceptionResponse(3, 2), 7) == (
+        "exception 2 (illegal data address) from device_id 7; check the register map in "
+        "robot.modbus.registers")
+    for code, name in ((4, "server device failure"), (11, "gateway target device failed")):
+        text = _refusal(ExceptionResponse(3, code), 7)
+        assert text.startswith(f"exception {code} ({name}") and "robot.modbus.device_id" in text
+        assert "register map" not in text

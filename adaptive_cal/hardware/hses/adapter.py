@@ -147,9 +147,9 @@ class HsesMotion:
                                  0xFF, added)
         if not d2 & P.SERVO:
             return HsesError(f"{self.where}: SERVO POWER IS OFF {during} (e-stop, door, safety "
-                             "fence, or switched off): find why, switch servo power on at the "
-                             "pendant, then continue with --resume (it is never switched on "
-                             "again from here)", 0xFF, 0x3010)
+                             "fence, or switched off): find why and clear it, then continue "
+                             "with --resume, which switches servo power on as every start does "
+                             "(nothing here switches it on during a run)", 0xFF, 0x3010)
         return None
 
     def to_base(self, p):

@@ -75,8 +75,8 @@ class ModbusLink:
                     raise AdapterError(f"{self.where}: link lost during {what} ({e}); check the "
                                        "PLC and cable, then continue with --resume") from e
                 if resp.isError():
-                    raise AdapterError(f"{self.where}: the PLC refused {what}: {resp}; check "
-                                       "the register map in robot.modbus.registers")
+                    raise AdapterError(f"{self.where}: the PLC refused {what}: "
+                                       f"{_refusal(resp, self.cfg.device_id)}")
                 return resp
         raise AssertionError("unreachable")
 
@@ -257,3 +257,24 @@ class ModbusProbe:
 
     def close(self) -> None:
         self.link.close()
+
+
+# Modbus Application Protocol V1.1b3, s.7: exception codes
+EXCEPTIONS = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
+              4: "server device failure", 5: "acknowledge", 6: "server device busy",
+              8: "memory parity error", 10: "gateway path unavailable",
+              11: "gateway target device failed to respond"}
+
+
+def _refusal(resp, device_id: int) -> str:
+    """A refusal in words: its exception code and what to check."""
+    code = getattr(resp, "exception_code", None)
+    if code is None:
+        return f"{resp}; check the register map in robot.modbus.registers"
+    said = f"exception {code} ({EXCEPTIONS.get(code, 'unknown')}) from device_id {device_id}"
+    if code in (2, 3):
+        return f"{said}; check the register map in robot.modbus.registers"
+    if code in (4, 10, 11):
+        return (f"{said}; check robot.modbus.device_id (the PLC's station number, or the unit "
+                "behind a gateway) and that the PLC is running")
+    return f"{said}; check the PLC"
