@@ -301,3 +301,31 @@ def test_a_position_of_another_tool_is_refused(controller):
     with pytest.raises(AdapterError, match="tool 3, but robot.hses.tool is 0"):
         m.robot_position()
     m.close()
+
+
+def test_every_move_keeps_the_arms_configuration_it_stood_in():
+    """The move's type word (the arm's configuration: front / back, upper / lower arm, flip)
+    was always 0 -- 'flip' by the manual's bits, as transcribed by moto-hses -- whatever the
+    robot stood in. Now the form the position answer gives at connect (word 1), or the number
+    robot.hses.form says."""
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.simulation.emulator.hses_server import HsesServer
+    from adaptive_cal.simulation.emulator.robot import EmulatedRobot
+    from tests.devices import ROOT, UFRAME
+
+    assert struct.unpack("<26i", P.move_payload((0, 0, 0), (180, 0, 0), coord=18,
+                                                speed_mm_per_s=50, tool=0, user_frame=1,
+                                                form=5))[13] == 5
+    cell = load_cell(ROOT / "configs" / "cell-hses-emulated.yaml")
+    for form, expect in (("current", 4), (1, 1)):
+        server = HsesServer(EmulatedRobot.from_cell(cell, move_s=0.01), offset_mm=(100, 0, 300),
+                            user_frame=UFRAME).start()
+        server.form = 4  # no flip (bit 2), front, upper arm
+        try:
+            m = connect(server, form=form)
+            m.move_to(10.0, 20.0, 5.0)
+            move = [r for r in server.requests if r.command == P.CMD_MOVE][-1]
+            assert P.unpack_move(move.payload)["form"] == expect
+            m.close()
+        finally:
+            server.close()

@@ -48,6 +48,7 @@ class HsesMotion:
         if not d1 & P.REMOTE:
             raise AdapterError(f"{self.where}: command remote is off; set the pendant to REMOTE "
                                "and enable command remote")
+        self.form = cfg.form if cfg.form != "current" else self._current_form()
         self.servo(True)
 
     # -- transport --------------------------------------------------------------------
@@ -120,6 +121,13 @@ class HsesMotion:
         """0x82 instance 2: cancel an error (the manual; fs100's RESET_ALARM_TYPE_ERROR)."""
         self.call(P.CMD_ALARM_RESET, P.ERROR_CANCEL, 1, P.SET_ONE, struct.pack("<I", 1))
 
+    def _current_form(self) -> int:
+        """The form (configuration bits) of the robot's pose now, from a 0x75 answer."""
+        try:
+            return P.unpack_form(self.call(P.CMD_POSITION, P.POSITION_INSTANCE, 0, P.GET_ALL))
+        except ValueError as e:
+            raise AdapterError(f"{self.where}: {e}") from None
+
     def robot_position(self) -> tuple[float, float, float]:
         """Position the controller reports: the base frame (data type 16), mm, of robot.hses.tool."""
         try:
@@ -176,7 +184,8 @@ class HsesMotion:
         target = tuple(v + o for v, o in zip((x_mm, y_mm, z_mm), c.offset_mm))
         payload = P.move_payload(target, c.orientation_deg, coord=P.COORD[c.frame],
                                  speed_mm_per_s=c.speed_mm_per_s, tool=c.tool,
-                                 user_frame=c.user_frame if c.frame == "user" else 0)
+                                 user_frame=c.user_frame if c.frame == "user" else 0,
+                                 form=self.form)
         before, self.pose = self.pose, None  # unknown while moving: ask the controller
         reset = c.reset_alarms
         for _ in range(c.retries + 2):

@@ -45,6 +45,18 @@ class HsesConfig(Strict):
     speed_mm_per_s: float = Field(50.0, gt=0, le=1000)
     orientation_deg: tuple[float, float, float] = Field(
         (180.0, 0.0, 0.0), description="Rx Ry Rz of the tool held during every move")
+    form: int | Literal["current"] = Field(
+        "current", description="the type word sent with every move (the arm's configuration "
+        "bits: front / back, upper / lower arm, flip); 'current': the form the controller "
+        "reports for the robot's pose at connect (0x75 word 1), so no move asks for another "
+        "configuration; a number 0-255 sends that")
+
+    @field_validator("form")
+    @classmethod
+    def _form(cls, v):
+        if v != "current" and not 0 <= v <= 255:
+            raise ValueError(f"form {v}: 'current' or a type word 0-255")
+        return v
     offset_mm: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="workplane origin in the robot frame")
     user_frame_in_base: UserFrameInBase | None = Field(

@@ -50,6 +50,7 @@ class HsesServer:
         self.faults = HsesFaults()
         self.servo = self.hold = self.hlock = self.error = False
         self.tool = 0  # the tool of the last move: the position answer is of it
+        self.form = 0  # the arm's configuration bits the position answer gives (word 1)
         self.requests: list[P.Request] = []
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
@@ -175,7 +176,7 @@ class HsesServer:
                 return self._status(req, 0x28)
             x, y, z = self.to_base(r.pose())
             x += self.faults.report_error_mm
-            return ok(P.position_payload((x, y, z), (180.0, 0.0, 0.0), self.tool))
+            return ok(P.position_payload((x, y, z), (180.0, 0.0, 0.0), self.tool, self.form))
         if req.command == P.CMD_ALARM_RESET:
             return self._reset(req)
         if req.command == P.CMD_SERVO:
