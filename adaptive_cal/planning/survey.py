@@ -1,12 +1,10 @@
 """The survey state of one workplane and the pure functions that return it new.
 
 A reading (mm) becomes the surface height y = reading - probe zero + z (DESIGN.md: reading =
-surface - z + zero + noise). At a refit the belief is the posterior of every fused reading,
-mixed over the hyper-parameter points (moment-matched: one Gaussian); between refits each new
-reading is fused into that Gaussian under the last refit's noise (a Kalman step, exact for a
-fixed hyper-parameter point, a close approximation of the mixture: an outside check put the
-RMS std up to 10 % under the exact mixture's at 10 readings, 2 % later; the next refit mends
-it). Nothing here touches hardware or files. ``tell`` is ``judge``
+surface - z + zero + noise). At a refit the belief is the posterior of every fused reading
+mixed over the hyper-parameter points (moment-matched); between refits a reading is fused into
+it under the last refit's noise (exact for one point; against the mixture an outside check put
+the RMS std up to 10 % low at 10 readings, 2 % later). Nothing here touches files or hardware. ``tell`` is ``judge``
 (the gate: flags, changes nothing) then ``fuse`` (counts the touch, fuses a reading the gate
 let through, refits on schedule): a loop writes the reading to the recording between the two.
 
@@ -193,8 +191,7 @@ def judge(plan: SurveyPlan, state: SurveyState, x_mm: float, y_mm: float, z_mm: 
 def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
     """The state after a judged reading: the touch counted, the retake owed (if any), and the
     reading fused when the gate let it through -- with a refit when the schedule says so."""
-    gated = state.retake if state.retake is not None and state.retake.at(told.x_mm, told.y_mm) \
-        else None
+    gated = state.retake if state.retake and state.retake.at(told.x_mm, told.y_mm) else None
     state = replace(state, touches=state.touches + 1, retake=pending_after(told, state.retake),
                     touched_xy_mm=state.touched_xy_mm + ((told.x_mm, told.y_mm),))
     if not told.fused:
