@@ -113,3 +113,22 @@ def test_a_touch_off_the_workplane_is_refused_naming_it(tmp_path):
     wp = sim_cell().workplane
     assert wp.first_outside([0.0, 225.0 + 1e-10], [-185.0, 185.0]) is None  # round-off allowed
     assert wp.first_outside([0.0, 1.0], [186.0, -300.0]) == ("y_mm", 0, 2)
+
+
+def test_a_rounded_copy_of_a_round_is_refused_a_genuine_repeat_is_not(tmp_path):
+    """Only exact copies were refused: a recording re-written with its readings rounded to 1 um
+    passed as a second round (its missing scatter read as structure). Refused now when the
+    readings at the same positions differ by less than 0.2 x the stated noise (sim cell:
+    probe.noise_std_mm 5 um, so 1 um); two genuine rounds (2 um noise each) pass."""
+    cell = sim_cell()
+    a, b = _rounds_of(tmp_path, ("a.csv", 1), ("b.csv", 2))
+    lines = a.read_text().splitlines()
+    rounded = lines[:2] + [",".join(p[:5] + [f"{float(p[5]):.3f}"])
+                           for p in (line.split(",") for line in lines[2:])]
+    copy = tmp_path / "rounded.csv"
+    copy.write_text("\n".join(rounded) + "\n")
+    with pytest.raises(RecordingError, match=rf"{a} and {copy} touch the same positions and "
+                                             r"their readings differ by 0\.\d+ um RMS, below 1 um "
+                                             r"from probe.noise_std_mm"):
+        explain([a, copy], cell)
+    explain([a, b], cell)

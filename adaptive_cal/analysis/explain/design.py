@@ -143,7 +143,7 @@ def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
                              "calibrated (columns x_mm, y_mm)")
 
 
-def _refuse_repeats(recordings: list[Recording]) -> None:
+def _refuse_repeats(recordings: list[Recording], probe) -> None:
     """One recording given twice is not two rounds: the second round repeats every reading
     exactly, and the "repeatability" between them (zero) reads as structure the noise cannot
     explain. Refused when two are the same file (resolved path) or hold the same positions and
@@ -170,6 +170,34 @@ def _refuse_repeats(recordings: list[Recording]) -> None:
                     "second round (its readings repeat exactly, and explain would read the "
                     "missing scatter as structure); give each round once")
             seen[key] = label
+    _refuse_near_copies(recordings, probe)
+
+
+def _refuse_near_copies(recordings: list[Recording], probe) -> None:
+    """Two rounds at the same positions whose readings differ by far less than the probe's
+    stated noise are one round copied (rounded, or its readings re-written): genuine repeats
+    differ by about sqrt(2) noise RMS; below 0.2 x the stated noise that has a chance of about
+    0.02^(n/2) over n rows. No noise stated: within the readout step (``resolution_mm``)."""
+    if probe.noise_range_mm is not None:
+        floor, key = 0.2 * probe.noise_range_mm[0], "probe.noise_range_mm (its lower end)"
+    elif "noise_std_mm" in probe.model_fields_set:
+        floor, key = 0.2 * probe.noise_std_mm, "probe.noise_std_mm"
+    else:
+        floor, key = probe.resolution_mm, "probe.resolution_mm (no noise stated)"
+    for j, b in enumerate(recordings):
+        for a in recordings[:j]:
+            if len(a) != len(b) or len(a) < 4 or not all(
+                    np.allclose(getattr(a, c), getattr(b, c), rtol=0, atol=1e-3)
+                    for c in ("x_mm", "y_mm", "z_mm")):
+                continue
+            rms = float(np.sqrt(np.nanmean((a.reading_mm - b.reading_mm) ** 2)))
+            if rms < floor:
+                raise RecordingError(
+                    f"{a.path or 'a recording'} and {b.path or 'another'} touch the same "
+                    f"positions and their readings differ by {rms * 1e3:.3g} um RMS, below "
+                    f"{floor * 1e3:.3g} um from {key}: genuine repeats differ by about "
+                    "1.4 x the noise; one looks like a copy of the other (rounded?) and is not "
+                    "a second round. Give each round once, or state the probe's noise")
 
 
 def build_design(recordings: list[Recording], cell: Cell) -> Design:
@@ -190,7 +218,7 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
         raise RecordingError(f"{total} rows in {len(recordings)} recording(s); explain takes at "
                              f"most {MAX_ROWS} rows at once: split the recordings by round")
     recordings = [part for rec in recordings for part in split_rounds(rec)]
-    _refuse_repeats(recordings)
+    _refuse_repeats(recordings, cell.probe)
     cols = {k: [] for k in ("x", "y", "t", "d", "z", "r", "seq", "read")}
     blank_rows, none_known = [], []
     for i, rec in enumerate(recordings):
