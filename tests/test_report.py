@@ -253,3 +253,42 @@ def test_report_from_a_bare_recording_with_its_cell(run_dir, tmp_path, capsys):
     assert len(texts) == 4
     for text in texts:
         assert text in page, text
+
+
+def test_a_bare_recordings_page_judges_its_closure_touch_again(run_dir, tmp_path, capsys):
+    """A page built from a bare recording showed no drift check; the run folder's page did. It
+    is judged again from the recording now (the map of the readings before it): the run's
+    verdict within a fifth of its sd (the run also relearns the noise without the drift), and a
+    closure reading moved by 10 sd is called a drift."""
+    import json
+    from html import unescape
+
+    closure = json.loads((run_dir / "result.json").read_text())["closure"]
+    assert closure["made"]
+    cell = tmp_path / "cell.yaml"
+    shutil.copyfile(run_dir / "cell.yaml", cell)
+    lines = (run_dir / "recording.csv").read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("seq,"))
+    cols = lines[head].split(",")
+    for name, shift in (("same", 0.0), ("drift", 10 * closure["sd_mm"])):
+        moved = list(lines)
+        for i in range(head + 1, len(moved)):
+            p = moved[i].split(",")
+            if "closure" in p[cols.index("flags")]:
+                r = cols.index("reading_mm")
+                p[r] = f"{float(p[r]) + shift:.6f}"
+                moved[i] = ",".join(p)
+        rec = tmp_path / f"{name}.csv"
+        rec.write_text("\n".join(moved) + "\n")
+        assert main(["report", str(rec), "--robot", str(cell)]) == 0
+        capsys.readouterr()
+        page = unescape((tmp_path / f"{name}.html").read_text(encoding="utf-8"))
+        row = page[page.index("closure touch (drift)"):][:700]
+        assert "judged again from the recording" in row
+        if name == "same":
+            import re
+            d = float(re.search(r"read ([+-]\d+\.\d) um against", row).group(1)) / 1e3
+            assert abs(d - closure["difference_mm"]) < 0.2 * closure["sd_mm"] + 5e-5
+            assert "no drift seen" in row
+        else:
+            assert "the cell drifted during the run" in row

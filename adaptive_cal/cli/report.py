@@ -83,7 +83,7 @@ def _from_recording(recording, cell_file, out) -> "Path":
 
     cell = load_cell(cell_file)
     plan = survey_plan(cell)
-    from adaptive_cal.report.replay import for_replay
+    from adaptive_cal.report.replay import closure_of, for_replay
 
     rec = for_replay(read_recording(recording).one_round("a report's map"), cell, cell_file)  # as the run judges a reading
     if rec.fused.sum() < 4:
@@ -92,6 +92,10 @@ def _from_recording(recording, cell_file, out) -> "Path":
     state = sv.replay(plan, sv.start(plan), rec)  # the recording read once, above
     stopped = plan.stop(sv.status(plan, state)) or "recording_ended"
     result = result_of(cell, plan, state, rec, stopped, rng=np.random.default_rng(SEED))
+    closure = closure_of(plan, rec)  # the drift check, judged again from the recording
+    if closure is not None:
+        result["closure"] = {**closure.as_dict(), "text": closure.text() + " (judged again "
+                             "from the recording; the run's own verdict is in its result.json)"}
     s = plan.model.surface
     belief = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
               "knots_y": s.sy.knots,

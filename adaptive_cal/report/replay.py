@@ -7,7 +7,8 @@
   recording is not of this cell, or a value is a typo).
 
 Rows already flagged as not fused are left as they are (``run`` writes off-workplane touches
-flagged ``invalid;rejected``). The file itself is never changed.
+flagged ``invalid;rejected``). The file itself is never changed. ``closure_of`` judges a
+recording's closure touch (rows flagged ``closure``) again, for the report's drift row.
 """
 from __future__ import annotations
 
@@ -80,3 +81,51 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
     for i in idx:
         flags[i] = flags[i] | STROKE_END
     return replace(rec, flags=tuple(flags))
+
+
+def closure_of(plan, rec: Recording):
+    """The closure touch of a recording judged again (``planning.closure``) against the map of
+    the readings before it, as the run judged it -- except that the run also relearns the noise
+    without the drift the closure reads; so the figures can differ a little from its
+    result.json. None when the recording has no closure touch."""
+    from types import SimpleNamespace
+
+    from adaptive_cal.formats.recording import surface_height_mm
+    from adaptive_cal.planning import closure as cl
+    from adaptive_cal.planning import survey as sv
+
+    flags = list(rec.flags) if rec.flags else []
+    at = [j for j, f in enumerate(flags) if cl.FLAG in f]
+    if not at:
+        return None
+    before = sv.replay(plan, sv.start(plan), rec.select(np.arange(len(rec)) < at[0]))
+    i = cl.first_place(before.fused_weights)
+    if i is None:
+        return cl.Closure(False, why="every one of the first readings was flagged an outlier")
+    rows_at = np.flatnonzero(rec.fused & (np.arange(len(rec)) < at[0]))  # fused, in order
+    xy = np.column_stack([rec.x_mm[rows_at], rec.y_mm[rows_at]])
+    start = cl.start_cluster(before.fused_weights, xy, i)
+    where = dict(x_mm=float(xy[i, 0]), y_mm=float(xy[i, 1]), first_touch=int(rec.seq[rows_at[i]]))
+    used: list[int] = []
+    verdict = None
+    for part in (at[:2], at[2:4]):  # the repeat (and its retake), then a confirmation
+        told = [SimpleNamespace(fused=bool(rec.fused[j]), flags=flags[j]) for j in part]
+        keep, why = cl.repeats_to_judge(told)
+        if why and not used:
+            return cl.Closure(False, repeat_touches=tuple(int(rec.seq[j]) for j in part),
+                              why=why, **where)
+        if why or (verdict is not None and (verdict.passed or len(used) != 1)):
+            break
+        used += [part[k] for k in keep]
+        u = np.array(used)
+        heights = surface_height_mm(rec.reading_mm[u], rec.z_mm[u], plan.zero_mm)
+        dof = cl.residual_dof(before.rows, before.fused_weights, before.belief.cov,
+                              before.noise_var)
+        elapsed = float(rec.t_s[u[-1]] - rec.t_s[rows_at[i]])
+        verdict = cl.judge(before.rows[start], before.heights_mm[start],
+                           plan.model.surface.basis(rec.x_mm[u], rec.y_mm[u]), heights,
+                           before.belief.mean, before.belief.cov, before.noise_var, dof,
+                           repeat_touches=tuple(int(rec.seq[j]) for j in used),
+                           elapsed_s=elapsed if np.isfinite(elapsed) else None, **where)
+    return verdict
+
