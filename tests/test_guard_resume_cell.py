@@ -34,7 +34,7 @@ def run_dir(tmp_path_factory):
     d = tmp_path_factory.mktemp("resume")
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["run", "--robot", str(_cell(d, "cell.yaml")), "--out", str(d / "run"),
-                     "--no-progress"]) == 0
+                     "--no-progress"]) == 1  # 6 touches, the 1 um bound unmet: not a result
     return d / "run"
 
 
@@ -70,7 +70,7 @@ def test_a_cell_differing_only_in_what_changes_no_map_resumes(run_dir, tmp_path,
     more = _cell(tmp_path, "more.yaml", name="renamed", **{"plan.stop": {"mean_std_mm": 0.001,
                                                                       "max_touches": 8},
                                                           "robot.speed_mm_per_s": 300})
-    assert main(["run", "--resume", str(d), "--robot", str(more), "--no-progress"]) == 0
+    assert main(["run", "--resume", str(d), "--robot", str(more), "--no-progress"]) == 1
     out = capsys.readouterr().out
     assert "differs from" in out and "name, plan.stop.max_touches, robot.speed_mm_per_s" in out
     rows = (d / "recording.csv").read_text().splitlines()
