@@ -329,3 +329,25 @@ def test_every_move_keeps_the_arms_configuration_it_stood_in():
             m.close()
         finally:
             server.close()
+
+
+def test_a_move_sent_while_an_earlier_one_still_runs_waits_for_it(controller):
+    """A Ctrl-C that cut short the wait for a move left it running; the retract sent next got
+    0x2010 (busy) and was given up after a few polls (0.1 s) -- the probe left down. A busy
+    robot is now waited for, as long as a move may take (move_timeout_s)."""
+    import threading
+
+    m = connect(controller)
+    m.move_to(0.0, 0.0, 15.0)
+    controller.robot.move_s = 0.5
+    other = connect(controller)  # sends a move and does not wait for it
+    t = threading.Thread(target=lambda: other.call(P.CMD_MOVE, 2, 1, P.SET_ALL, P.move_payload(
+        other.to_base((100.0, 0.0, 300.0)), (180.0, 0.0, 0.0), coord=P.COORD["base"],
+        speed_mm_per_s=50.0, tool=0, user_frame=0)))
+    t.start()
+    t.join()
+    assert controller.robot.moving()
+    m.move_to(0.0, 0.0, 15.0)  # refused as busy at first, sent once the robot stopped
+    assert controller.robot.pose() == pytest.approx((0.0, 0.0, 15.0))
+    m.close()
+    other.close()

@@ -96,3 +96,43 @@ def test_a_touch_that_begins_below_the_safe_height_and_cannot_lift_says_the_prob
         cycle.touch(50.0, 40.0, 0.0)
     assert not isinstance(e.value, ProbeLeftDown)
     opened.close()
+
+
+def test_a_ctrl_c_during_the_retract_says_the_probe_may_be_down_first_and_exits_130(
+        monkeypatch, tmp_path, capsys):
+    """A second Ctrl-C raises KeyboardInterrupt at once; landing in the retract it bypassed the
+    warning (the handler caught Exception only): the run said 'interrupted' with the probe at
+    z -0.8 mm. Now the warning comes first, and the CLI exits 130 (an interrupt, not bad
+    input)."""
+    from adaptive_cal.cli import main
+    from adaptive_cal.hardware import base
+
+    class CtrlCOnRetract(RetractFailsOnce):
+        def move_to(self, x, y, z):
+            self.moves += 1
+            if self.moves == self.fail_on:
+                raise KeyboardInterrupt
+            self.motion.move_to(x, y, z)
+
+    cell = sim_cell()
+    opened = open_cell(cell)
+    opened.cycle.motion = CtrlCOnRetract(opened.cycle.motion, fail_on=3)
+    with pytest.raises(ProbeLeftDown) as e:
+        opened.cycle.touch(50.0, 40.0, 0.0)
+    assert str(e.value).startswith("THE PROBE MAY BE DOWN at x=50.000 y=40.000 mm")
+    assert "failed (interrupted: Ctrl-C)" in str(e.value) and e.value.interrupted
+    opened.close()
+
+    real, calls = base.ProbeCycle.touch, []
+
+    def touch(self, x, y, z):  # the second touch's retract is interrupted
+        calls.append((x, y, z))
+        if len(calls) == 2:
+            self.motion = CtrlCOnRetract(self.motion, fail_on=3)
+        return real(self, x, y, z)
+
+    monkeypatch.setattr(base.ProbeCycle, "touch", touch)
+    code = main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "run"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 130
+    assert err.startswith("adaptive-cal run: error: THE PROBE MAY BE DOWN")

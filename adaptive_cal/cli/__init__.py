@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         notes = "".join(f"\n  {n}" for n in getattr(e, "__notes__", ()))
         print(f"adaptive-cal {args.subcommand}: error: {_said(e)}{notes}", file=sys.stderr)
-        return 2
+        return 130 if getattr(e, "interrupted", False) else 2
     except KeyboardInterrupt:
         out = getattr(args, "out", None) or getattr(args, "resume", None)
         kept = (f"; the touches taken are kept in {out}/recording.csv: adaptive-cal run --resume "

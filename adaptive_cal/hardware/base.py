@@ -37,14 +37,19 @@ class ProbeLeftDown(AdapterError):
     def __init__(self, message: str, touch: "Touch | None" = None):
         super().__init__(message)
         self.touch = touch
+        self.interrupted = False  # a Ctrl-C stopped the touch or its retract (exit 130)
 
 
-def _left_down(x_mm, y_mm, z_mm, safe_mm, lift: Exception, then: str,
-               touch: "Touch | None" = None, z_is: str = "approach") -> ProbeLeftDown:
-    return ProbeLeftDown(
+def _left_down(x_mm, y_mm, z_mm, safe_mm, lift: BaseException, then: str,
+               touch: "Touch | None" = None, z_is: str = "approach",
+               err: BaseException | None = None) -> ProbeLeftDown:
+    said = "interrupted: Ctrl-C" if isinstance(lift, KeyboardInterrupt) else lift
+    out = ProbeLeftDown(
         f"THE PROBE MAY BE DOWN at x={x_mm:.3f} y={y_mm:.3f} mm ({z_is} z={z_mm:.3f} mm): the "
-        f"retract to z={safe_mm:.3f} mm failed ({lift}). Jog the probe clear by hand before "
+        f"retract to z={safe_mm:.3f} mm failed ({said}). Jog the probe clear by hand before "
         f"anything moves again. {then}", touch)
+    out.interrupted = any(isinstance(e, KeyboardInterrupt) for e in (lift, err))
+    return out
 
 
 class BadSample(AdapterError):
@@ -158,7 +163,7 @@ class ProbeCycle:
             for k, target in enumerate(path[:-1]):
                 try:
                     self.motion.move_to(*target)
-                except Exception as lift:  # a first lift that failed: the tip may be down
+                except BaseException as lift:  # a first lift that failed: the tip may be down
                     if k or not below:
                         raise
                     raise _left_down(cx, cy, cz, safe, lift, "The probe was below the safe "
@@ -171,13 +176,13 @@ class ProbeCycle:
             if approached:
                 try:
                     self.motion.move_to(x_mm, y_mm, safe)
-                except Exception as lift:  # the danger first, then what stopped the touch
+                except BaseException as lift:  # the danger first (a Ctrl-C too), then the cause
                     raise _left_down(x_mm, y_mm, z_mm, safe, lift, "What stopped the touch: "
-                                     f"{type(err).__name__}: {err}") from err
+                                     f"{type(err).__name__}: {err}", err=err) from err
             raise
         try:
             self.motion.move_to(x_mm, y_mm, safe)  # retract
-        except Exception as lift:
+        except BaseException as lift:  # a Ctrl-C during the retract too: the warning first
             raise _left_down(x_mm, y_mm, z_mm, safe, lift, f"The reading {touch.reading_mm:.4f} "
                              "mm was taken and is kept", touch) from lift
         return touch

@@ -188,7 +188,10 @@ class HsesMotion:
                                  form=self.form)
         before, self.pose = self.pose, None  # unknown while moving: ask the controller
         reset = c.reset_alarms
-        for _ in range(c.retries + 2):
+        # busy (0x2010: an earlier move still running, e.g. one whose wait a Ctrl-C cut short)
+        # clears by itself: wait for it as long as a move may take
+        deadline = self.clock() + c.move_timeout_s
+        while True:
             try:
                 try:
                     self.call(P.CMD_MOVE, 2, 1, P.SET_ALL, payload)
@@ -206,15 +209,18 @@ class HsesMotion:
                 self.pose = (x_mm, y_mm, z_mm)
                 return
             except HsesError as e:
-                if e.added in P.RETRYABLE:
+                if e.added in P.RETRYABLE and self.clock() < deadline:
                     self.sleep(c.poll_s)
                     continue
+                if e.added in P.RETRYABLE:
+                    break
                 if reset and (e.alarm or e.error):
                     reset = False  # one reset per move; a second alarm stops the run
                     self._reset(e)
                     continue
                 raise
-        raise AdapterError(f"{self.where}: the robot stayed busy (added status 0x2010); the "
+        raise AdapterError(f"{self.where}: the robot stayed busy (added status 0x2010) for "
+                           f"move_timeout_s = {c.move_timeout_s:g} s; the "
                            f"move to ({x_mm:.3f}, {y_mm:.3f}, {z_mm:.3f}) was not sent")
 
     def _refusal(self, e: HsesError) -> HsesError:
