@@ -288,3 +288,18 @@ def test_cli_resume_of_a_recheck_says_what_it_continues(first_map, tmp_path, cap
     rc = main(["run", "--resume", str(tmp_path / "r"), "--prior-from", str(tmp_path),
                "--no-progress"])
     assert rc != 0 and "resume it without --prior-from" in capsys.readouterr().err
+
+
+def test_a_recheck_on_another_plate_does_not_stop_on_its_bound_after_one_surprise(first_map,
+                                                                                tmp_path):
+    """The earlier belief is tight: a re-check of a level plate with the belief of a tilted one
+    met its bound after 2 touches (1 fused, 1 surprise) and gave the earlier plate's tilt, true
+    RMS 1874 um, exit 0 (outside CLI audit). After a confirmed surprise a bound stop now waits
+    PRIOR_HOLD touches: the next readings disagree too and the re-check stops as such."""
+    from adaptive_cal.cell.schema import load_cell
+
+    out, _ = first_map
+    level = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")  # its simulated plate is level
+    r = session.run(level, tmp_path / "other", prior_from=out, correction_applied="none",
+                    progress=False)
+    assert r["stopped_because"] == session.PRIOR_DISAGREES, (r["stopped_because"], r["touches"])

@@ -24,6 +24,10 @@ CORRECTION_RANGE_DEG = 10.0  # as simulation.frame_correction_deg
 # confirmed (flag "surprise"): the plate is not where the earlier belief, moved by the
 # correction assumed applied, puts it
 PRIOR_SURPRISES = 3
+# after a confirmed surprise, touches before a bound may stop a re-check: each further touch on
+# a plate the earlier belief misplaces is another surprise (gated, then confirmed: 2 touches),
+# so a wrong prior reaches PRIOR_SURPRISES first; a lone burr costs these touches only
+PRIOR_HOLD = 2 * PRIOR_SURPRISES
 PRIOR_DISAGREES = "prior_disagrees_with_readings"
 
 

@@ -28,8 +28,8 @@ from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock, write_json
-from adaptive_cal.run.loop import NO_ADMISSIBLE_POINT, Row, Step, SurveyLoop
-from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_RECORD, PRIOR_SURPRISES,
+from adaptive_cal.run.loop import CLOSING, NO_ADMISSIBLE_POINT, Row, Step, SurveyLoop
+from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_HOLD, PRIOR_RECORD, PRIOR_SURPRISES,
                                       disagreement, load_prior, saved_prior)
 from adaptive_cal.run.results import write_results
 from adaptive_cal.run.truth import TrueError
@@ -192,10 +192,17 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
 
     stopped, error = None, None
     with _deferred_interrupt() as flag:
+        held = {"n": 0, "at": 0}  # surprises seen, touches at the last
+
         def stop(state, status):
             if carried is not None and len(surprises) >= PRIOR_SURPRISES:
                 return PRIOR_DISAGREES
+            if len(surprises) > held["n"]:
+                held.update(n=len(surprises), at=state.touches)
             why = plan.stop(status)
+            if why in CLOSING and carried is not None and held["n"] \
+                    and state.touches - held["at"] < PRIOR_HOLD:
+                why = None  # a reading far from the earlier belief: look again first
             if why:
                 return why
             new = state.touches - start_touch
