@@ -249,3 +249,35 @@ def test_a_check_across_a_block_is_not_echoed_whole(tmp_path, capsys):
     assert ("  probe: noise_range_mm must be [low, high] with low < high, got [0.004, 0.001]\n"
             in err), err
     assert "(got {" not in err and "'adapter'" not in err
+
+
+def test_run_refuses_out_with_resume_prior_from_on_a_fresh_runs_resume_and_anothers_results(
+        tmp_path, capsys):
+    """Outside CLI audit: --out with --resume was silently ignored (the other folder changed);
+    --resume of a run mapped from scratch took --prior-from of another run (its map then
+    another plate's, exit 0); run --out into a folder holding another run's result.json and
+    belief.npz (its recording moved away) overwrote them. Each refused now, exit 2, nothing
+    changed."""
+    import shutil
+
+    from adaptive_cal.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "recording.csv").write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,"
+                                       "reading_mm\n")
+    shutil.copyfile(CELL, run / "cell.yaml")
+    before = sorted(p.name for p in run.iterdir())
+    assert main(["run", "--resume", str(run), "--out", str(tmp_path / "elsewhere")]) == 2
+    assert "leave --out out" in capsys.readouterr().err
+    assert not (tmp_path / "elsewhere").exists()
+    assert main(["run", "--resume", str(run), "--prior-from", str(tmp_path)]) == 2
+    assert "mapped from scratch (it has no prior_from.json)" in capsys.readouterr().err
+    assert sorted(p.name for p in run.iterdir()) == before
+    other = tmp_path / "other"
+    other.mkdir()
+    for name in ("result.json", "belief.npz"):
+        (other / name).write_text("another run's")
+    assert main(["run", "--robot", str(CELL), "--out", str(other), "--no-progress"]) == 2
+    assert "holds result.json and belief.npz of another run" in capsys.readouterr().err
+    assert all((other / n).read_text() == "another run's" for n in ("result.json", "belief.npz"))

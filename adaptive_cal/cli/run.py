@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from adaptive_cal.cli.common import UserError, check_cell_file
+from adaptive_cal.cli.run_guards import check_prior_from, same_cell
 
 
 def add_arguments(p) -> None:
@@ -42,6 +43,8 @@ def command(args) -> int:
                             "--dry-run out to run it)")
         return _dry_run(load_cell(args.robot))
     if args.resume:
+        if args.out:  # a resumed run goes on in its own folder
+            raise UserError(f"--resume {args.resume} goes on in that folder: leave --out out")
         out = Path(args.resume)
         if not out.is_dir():
             raise UserError(f"--resume {out}: {'a file, not a' if out.exists() else 'no such'} "
@@ -49,7 +52,7 @@ def command(args) -> int:
                             "wrote)")
         cell_path = Path(args.robot) if args.robot else out / "cell.yaml"
         if args.robot and (out / "cell.yaml").exists():
-            _same_cell(out, cell_path)
+            same_cell(out, cell_path)
     else:
         if not args.robot or not args.out:
             raise UserError("run needs --robot CELL.yaml and --out DIR (or --resume DIR)")
@@ -69,12 +72,15 @@ def command(args) -> int:
         if (out / "recording.csv").exists():
             raise UserError(f"{out}/recording.csv exists: continue it with --resume {out}, or "
                             "choose another --out")
+        held = [n for n in ("result.json", "belief.npz") if (out / n).exists()]
+        if held:  # another run's results, its recording moved away: never overwritten
+            raise UserError(f"{out} holds {' and '.join(held)} of another run: choose another --out")
         folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
         created = (folders, before)
     correction = _correction(args)
     if args.prior_from and not args.resume:  # a resume keeps its own prior (recheck.saved_prior)
-        _check_prior_from(Path(args.prior_from), correction)
+        check_prior_from(Path(args.prior_from), correction)
     if args.resume:
         try:
             was, c = recheck.saved_prior(out, True, args.prior_from, correction)
@@ -121,65 +127,6 @@ def command(args) -> int:
     from adaptive_cal.report.status import exit_status
 
     return exit_status(result)  # 1 where the map is not a result: the summary said why
-
-
-#: keys of a cell that may differ on --resume: they change neither the map nor the touches (the
-#: run's name, how long it goes on, how the robot and probe are reached and timed)
-RESUME_MAY_DIFFER = ("name", "plan.stop.", "robot.speed_mm_per_s", "robot.touch_time_s",
-                     "robot.safe_height_mm", "robot.manual.", "robot.hses.", "robot.modbus.",
-                     "robot.robodk.", "probe.serial.", "probe.modbus.", "probe.settle_s")
-
-
-def _flat(value, prefix: str = "") -> dict:
-    if isinstance(value, dict):
-        out = {}
-        for k, v in value.items():
-            out.update(_flat(v, f"{prefix}{k}."))
-        return out if out or not prefix else {prefix[:-1]: value}
-    return {prefix[:-1]: value}
-
-
-def _same_cell(out: Path, given: Path) -> None:
-    """--resume DIR --robot CELL.yaml: CELL must be the cell DIR was mapped with (DIR/cell.yaml)
-    in everything that changes the map or the touches (the knots, the workplane, the probe, the
-    prior, the plan, the simulation), else the old touches would be fused into another map while
-    DIR/cell.yaml stays the old one. Raises UserError naming the keys that differ."""
-    from adaptive_cal.cell.schema import load_cell
-
-    was = _flat(load_cell(out / "cell.yaml").model_dump(mode="json"))
-    now = _flat(load_cell(given).model_dump(mode="json"))
-    differ = [k for k in sorted(set(was) | set(now)) if was.get(k) != now.get(k)]
-    bad = [k for k in differ if not any(k == m or k.startswith(m) for m in RESUME_MAY_DIFFER)]
-    if bad:
-        shown = "; ".join(f"{k}: {was.get(k)!r} in {out / 'cell.yaml'}, {now.get(k)!r} in {given}"
-                          for k in bad[:6]) + (f"; and {len(bad) - 6} more" if len(bad) > 6 else "")
-        raise UserError(f"--resume {out} --robot {given}: not the cell {out} was mapped with, it "
-                        f"differs in {shown}. The touches in {out}/recording.csv belong to "
-                        f"{out / 'cell.yaml'}: resume without --robot (adaptive-cal run --resume "
-                        f"{out}), or map with {given} into a new folder (adaptive-cal run --robot "
-                        f"{given} --out NEW_DIR)")
-    if differ:
-        print(f"resuming with {given}, which differs from {out / 'cell.yaml'} only in "
-              f"{', '.join(differ)} (neither the map nor the touches change; {out / 'cell.yaml'} "
-              "is kept as it is)")
-
-
-def _check_prior_from(prior: Path, correction) -> None:
-    """--prior-from RUN_DIR must be a run folder with its map (and, for the proposed correction,
-    its result.json): say so plainly, not as an OS error on a file in it."""
-    if not prior.exists():
-        raise UserError(f"--prior-from {prior}: no such run folder")
-    if not prior.is_dir():
-        raise UserError(f"--prior-from {prior}: a file, not a run folder (give the folder an "
-                        "earlier 'adaptive-cal run --out DIR' wrote)")
-    if correction == "proposed" and not (prior / "result.json").is_file():
-        raise UserError(f"--prior-from {prior}: it has no result.json, so no proposed tilt "
-                        "correction to assume applied; pass the applied one as "
-                        "--correction-applied RX,RY (deg), or none")
-    if not (prior / "belief.npz").is_file():
-        raise UserError(f"--prior-from {prior}: not a run folder with a map, it has no "
-                        "belief.npz (give the folder an earlier 'adaptive-cal run --out DIR' "
-                        "wrote)")
 
 
 def _correction(args):

@@ -89,8 +89,16 @@ def corrected_belief(model, belief: bl.Belief, rx_deg: float, ry_deg: float) -> 
 def saved_prior(out: Path, resume: bool, prior_from, correction):
     """A resumed re-check continues from the prior its start recorded (``PRIOR_RECORD``): the
     --prior-from run and --correction-applied, which --resume then need not repeat. A different
-    --prior-from on resume is refused (the touches so far were planned from the recorded one)."""
+    --prior-from on resume is refused (the touches so far were planned from the recorded one),
+    and so is one on resuming a run mapped from scratch (it has no record: its touches so far
+    were planned from the cell's prior, and an earlier belief fused under them gives another
+    plate's map)."""
     path = Path(out) / PRIOR_RECORD
+    if resume and prior_from is not None and not path.exists():
+        raise ValueError(f"--resume {out} --prior-from {prior_from}: {out} was mapped from "
+                         f"scratch (it has no {PRIOR_RECORD}), not as a re-check; resume it "
+                         "without --prior-from, or start a re-check in a new folder (adaptive-cal "
+                         f"run --robot CELL.yaml --out NEW_DIR --prior-from {prior_from})")
     if not resume or not path.exists():
         return prior_from, correction
     try:
