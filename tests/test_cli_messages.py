@@ -281,3 +281,34 @@ def test_run_refuses_out_with_resume_prior_from_on_a_fresh_runs_resume_and_anoth
     assert main(["run", "--robot", str(CELL), "--out", str(other), "--no-progress"]) == 2
     assert "holds result.json and belief.npz of another run" in capsys.readouterr().err
     assert all((other / n).read_text() == "another run's" for n in ("result.json", "belief.npz"))
+
+
+def test_flatness_marks_an_unfinished_runs_figures_and_refuses_comparing_a_round_with_itself(
+        tmp_path, capsys):
+    """Outside CLI audit: flatness of a run folder that stopped on its budget with the bound
+    unmet (run said INCOMPLETE, exit 1) printed its figures as a result; --compare of a
+    recording with itself printed 'change +0.0, within the noise'. Now INCOMPLETE and
+    provisional as run and report say it, and the comparison is refused."""
+    import yaml
+
+    from adaptive_cal.cli import main
+
+    data = yaml.safe_load(CELL.read_text())
+    data["plan"]["stop"]["max_touches"] = 8
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(data))
+    run = tmp_path / "run"
+    assert main(["run", "--robot", str(tmp_path / "cell.yaml"), "--out", str(run),
+                 "--no-progress"]) == 1
+    capsys.readouterr()
+    assert main(["flatness", str(run / "recording.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "INCOMPLETE: touch budget spent after 8 touches" in out
+    assert "flatness of the whole plate (from the map), provisional" in out
+    assert main(["flatness", str(run / "recording.csv"), "--json"]) == 0
+    import json
+    assert json.loads(capsys.readouterr().out)["incomplete"].startswith("touch budget spent")
+    copy = tmp_path / "copy.csv"
+    copy.write_bytes((run / "recording.csv").read_bytes())
+    for other in (run / "recording.csv", copy):
+        assert main(["flatness", str(run / "recording.csv"), "--compare", str(other)]) == 2
+        assert "the same recording as" in capsys.readouterr().err

@@ -47,6 +47,7 @@ def command(args) -> int:
         check_cell_file(args.robot)
     if args.compare:
         check_recording(args.compare)
+        _not_itself(args.recording, args.compare)
         rng = np.random.default_rng(args.seed)
         out, _, sampled = recording_flatness(args.recording, rng, bare_samples)
         other, _, sampled_b = recording_flatness(args.compare, rng, bare_samples)
@@ -129,7 +130,33 @@ def map_flatness(args) -> dict | None:
                             if w <= 0.5] if weights is not None else [])
     return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
             "noise_std_mm": noise_mm, **out, "local_features": features,
-            "largest_gap": largest_gap(plan, np.c_[xyz[0], xyz[1]])}
+            "largest_gap": largest_gap(plan, np.c_[xyz[0], xyz[1]]),
+            **({} if args.robot else _unfinished(folder))}
+
+
+def _unfinished(folder) -> dict:
+    """{"incomplete": why} for a run folder whose run did not finish (interrupted, budget spent
+    with the bound unmet, ...; ``report.status.missing``), as run and report mark it."""
+    from adaptive_cal.formats.jsonfile import read_json
+    from adaptive_cal.report.status import missing
+
+    path = folder / "result.json"
+    if not path.is_file():
+        return {"incomplete": "the run wrote no result.json (interrupted before its results)"}
+    gap = missing(read_json(path))
+    return {"incomplete": gap} if gap else {}
+
+
+def _not_itself(first: str, second: str) -> None:
+    """--compare of a recording with itself (or a copy) reads zero change "within the noise":
+    no second round was measured. Refused."""
+    import filecmp
+    import os
+
+    if os.path.realpath(first) == os.path.realpath(second) or filecmp.cmp(first, second,
+                                                                          shallow=False):
+        raise UserError(f"--compare {second}: the same recording as {first} (or a copy of it); "
+                        "compare two rounds measured apart")
 
 
 def check_belief(folder, surface, data, command: str = "flatness") -> None:
@@ -158,11 +185,16 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
 
     t = r["tilt"]
     if "map" in r:  # both answers, the tilt of the whole plate's map
+        gap = r.get("incomplete")
         return ([f"{r['recording']}: {r['touches']} touches, reading noise "
-                 f"{r['noise_std_mm'] * 1e3:.1f} um; map: {r['map']}",
-                 f"  tilt correction (whole plate): {tilt_angles(t)}; a {t['a']:+.6f}, "
-                 f"b {t['b']:+.6f} mm/mm"]
-                + ["  " + line for line in answer_lines(r)] + _weighted_out(r))
+                 f"{r['noise_std_mm'] * 1e3:.1f} um; map: {r['map']}"]
+                + ([f"  INCOMPLETE: {gap}. Not a result: the figures are provisional"]
+                   if gap else [])
+                + [f"  tilt correction (whole plate): {tilt_angles(t)}"
+                   + (" (provisional)" if gap else "")
+                   + f"; a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm"]
+                + ["  " + line for line in answer_lines(r, provisional=bool(gap))]
+                + _weighted_out(r))
     touched = {**r["flatness_mm"], "points": r["touches"]}
     lines = [f"{r['recording']}: {r['touches']} touches, reading noise {r['noise_std_mm'] * 1e3:.1f} um",
              f"  tilt correction (touched points): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
