@@ -118,3 +118,26 @@ def test_a_failed_start_keeps_what_the_folder_held(tmp_path, capsys):
                "--no-progress"])
     assert rc == 2
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
+def test_a_spent_budget_is_continued_with_a_larger_one_as_the_advice_says(tmp_path, capsys):
+    """A run that spent its budget said 'Continue with adaptive-cal run --resume DIR', which
+    answered 'already finished: nothing to do' (outside CLI audit). The advice names the larger
+    plan.stop.max_touches it needs, and that resume goes on."""
+    from adaptive_cal.report.status import next_step
+
+    assert next_step(_result("touch_budget", 6, 0.1), "adaptive-cal run --resume r") == (
+        "Continue with adaptive-cal run --resume r --robot MORE.yaml, a copy of the run's "
+        "cell.yaml with a larger plan.stop.max_touches")
+    data = yaml.safe_load((ROOT / "configs" / "sim-cell.yaml").read_text())
+    data["plan"]["stop"]["max_touches"] = 6
+    (tmp_path / "six.yaml").write_text(yaml.safe_dump(data))
+    data["plan"]["stop"]["max_touches"] = 9
+    (tmp_path / "more.yaml").write_text(yaml.safe_dump(data))
+    run = tmp_path / "run"
+    assert main(["run", "--robot", str(tmp_path / "six.yaml"), "--out", str(run),
+                 "--no-progress"]) == 1
+    assert "--robot MORE.yaml, a copy of the run's cell.yaml" in capsys.readouterr().out
+    assert main(["run", "--resume", str(run), "--robot", str(tmp_path / "more.yaml"),
+                 "--no-progress"]) == 1
+    assert "stopped: touch_budget after 9 touches" in capsys.readouterr().out

@@ -74,6 +74,9 @@ def next_step(result: dict, resume: str | None) -> str:
     instead = INSTEAD.get(result.get("stopped_because", ""))
     if instead:
         return instead[0].upper() + instead[1:]
+    if resume and result.get("stopped_because") == "touch_budget":  # --resume alone stops again
+        return (f"Continue with {resume} --robot MORE.yaml, a copy of the run's cell.yaml with a "
+                "larger plan.stop.max_touches")
     if resume:
         return f"Continue with {resume}"
     return "Take more touches until the bound is met"
