@@ -148,9 +148,10 @@ class ProbeCycle:
         safe = max(self.safe_height_mm, z_mm)
         cx, cy, cz = self.motion.position()
         if all(map(math.isfinite, (cx, cy, cz))):
-            path = [(cx, cy, safe)] if cz < safe - 1e-9 else []  # lift before travelling
+            below = cz < safe - 1e-9  # the tip may be down until this lift is done
+            path = [(cx, cy, safe)] if below else []  # lift before travelling
         else:  # no absolute move is safer than the safe height above the target: say so
-            path = []
+            path, below = [], False
             log.warning("the probe position is unknown (the adapter reports %s): the first move "
                         "goes straight to the safe height z=%.3f mm above x=%.3f y=%.3f mm, "
                         "with no lift first; make sure the probe is clear of the plate",
@@ -158,7 +159,6 @@ class ProbeCycle:
         path += [(x_mm, y_mm, safe), (x_mm, y_mm, z_mm)]
         self._check(path)  # every target of this touch, before the first is sent
         approached = False
-        below = bool(path) and path[0] == (cx, cy, safe)  # began below the safe height
         try:
             for k, target in enumerate(path[:-1]):
                 try:
