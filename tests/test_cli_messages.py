@@ -312,3 +312,57 @@ def test_flatness_marks_an_unfinished_runs_figures_and_refuses_comparing_a_round
     for other in (run / "recording.csv", copy):
         assert main(["flatness", str(run / "recording.csv"), "--compare", str(other)]) == 2
         assert "the same recording as" in capsys.readouterr().err
+
+
+def test_emulate_a_busy_port_or_a_simulated_cell_and_an_unreadable_recording_are_named(
+        tmp_path, capsys, monkeypatch):
+    """Outside CLI audit: a second emulator on a port in use was an 'internal error: OSError'
+    (exit 1, 'please report it'); emulate of a simulated cell printed 'nothing to serve' and
+    exited 2 without an error line; an unreadable recording was 'not an adaptive-cal recording
+    (its first line is '')'. Each named now, exit 2."""
+    import socket
+    from pathlib import Path
+
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.cli import main
+
+    hses = ROOT / "configs" / "cell-hses-emulated.yaml"
+    port = load_cell(hses).robot.hses.port
+    held = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    held.bind(("127.0.0.1", port))
+    try:
+        assert main(["emulate", "--robot", str(hses), "--seconds", "0.1"]) == 2
+    finally:
+        held.close()
+    err = capsys.readouterr().err
+    assert "cannot serve its devices on 127.0.0.1" in err and "internal error" not in err
+    assert main(["emulate", "--robot", str(CELL), "--seconds", "0.1"]) == 2
+    assert "nothing to serve -- its robot and probe are simulated" in capsys.readouterr().err
+    rec = tmp_path / "r.csv"
+    rec.write_text("# adaptive-cal recording v1\n")
+    real = Path.open
+
+    def refuse(self, *a, **k):
+        if self == rec:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Path, "open", refuse)
+    assert main(["flatness", str(rec)]) == 2
+    assert f"{rec}: cannot be read (Permission denied)" in capsys.readouterr().err
+
+
+def test_a_studys_ctrl_c_says_the_finished_plates_are_kept(tmp_path, capsys, monkeypatch):
+    """It said only 'interrupted' (outside CLI audit)."""
+    from adaptive_cal.cli import main
+    from adaptive_cal.study import runner
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "run_study", interrupted)
+    code = main(["study", str(ROOT / "configs" / "study-smoke.yaml"), "--plates", "1",
+                 "--json", str(tmp_path / "s.json")])
+    assert code == 130
+    err = capsys.readouterr().err
+    assert f"the plates finished are kept in {tmp_path / 's.json.plates.jsonl'}" in err

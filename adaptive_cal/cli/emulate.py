@@ -25,14 +25,23 @@ def command(args: argparse.Namespace) -> int:
     from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.simulation.emulator import start_emulator
 
+    from adaptive_cal.cli.common import UserError
+
     cell = load_cell(args.robot)
-    emu = start_emulator(cell, move_s=args.move_s)
+    try:
+        emu = start_emulator(cell, move_s=args.move_s)
+    except OSError as e:  # a port another program (or emulator) holds
+        raise UserError(f"{args.robot}: cannot serve its devices on 127.0.0.1 ({e.strerror or e}"
+                        "): another emulator or program holds a port the cell file names; stop "
+                        "it, or give the cell other ports") from None
     try:
         ports = ", ".join(f"{k} 127.0.0.1:{v}" for k, v in emu.ports().items())
-        print(f"emulating '{cell.name}': {ports or 'nothing to serve'} "
-              f"(plate seed {emu.robot.sim.sim.seed}); Ctrl-C stops", flush=True)
         if not ports:
-            return 2
+            raise UserError(f"{args.robot}: nothing to serve -- its robot and probe are "
+                            "simulated (adapter sim); emulate serves hses, modbus and serial "
+                            "cells (e.g. configs/cell-hses-emulated.yaml)")
+        print(f"emulating '{cell.name}': {ports} (plate seed {emu.robot.sim.sim.seed}); "
+              "Ctrl-C stops", flush=True)
         end = None if args.seconds is None else time.monotonic() + args.seconds
         while end is None or time.monotonic() < end:
             time.sleep(0.1)

@@ -176,6 +176,11 @@ def command(args) -> int:
     try:
         records = run_study(study, base, checkpoint, client=client, worker_setup=worker_setup,
                             progress=None if args.quiet else progress)
+    except KeyboardInterrupt:
+        progress.close()
+        progress.say(f"the plates finished are kept in {checkpoint}: the same command again "
+                     "runs only the rest")
+        raise
     finally:
         progress.close()
         if client is not None:
