@@ -366,3 +366,21 @@ def test_a_studys_ctrl_c_says_the_finished_plates_are_kept(tmp_path, capsys, mon
     assert code == 130
     err = capsys.readouterr().err
     assert f"the plates finished are kept in {tmp_path / 's.json.plates.jsonl'}" in err
+
+
+def test_files_and_folders_given_for_each_other_are_named_as_such(tmp_path, capsys):
+    """Outside CLI audit: compensate --map FILE said 'no such folder', PROGRAM FOLDER 'no such
+    file', report RUN_DIR/result.json 'a bare recording'."""
+    from adaptive_cal.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("cell.yaml", "recording.csv", "result.json", "belief.npz"):
+        (run / name).write_text("x")
+    assert main(["compensate", "--map", str(run / "belief.npz"), "--grid",
+                 str(tmp_path / "g.csv")]) == 2
+    assert "a file, not a run folder" in capsys.readouterr().err
+    assert main(["compensate", str(run), "--map", str(run), "--out", str(tmp_path / "o")]) == 2
+    assert "a folder, not a toolpath file" in capsys.readouterr().err
+    assert main(["report", str(run / "result.json")]) == 2
+    assert f"a file of the run folder {run}: adaptive-cal report {run}" in capsys.readouterr().err

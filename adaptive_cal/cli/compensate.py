@@ -60,7 +60,9 @@ def command(args) -> int:
     if args.grid:
         refuse_input_as_output("--grid", args.grid, [], [args.map])
     if args.program and not Path(args.program).is_file():
-        raise UserError(f"PROGRAM {args.program}: no such file")
+        raise UserError(f"PROGRAM {args.program}: "
+                        + ("a folder, not a toolpath file" if Path(args.program).is_dir()
+                           else "no such file"))
 
     from adaptive_cal.run.heightmap import load_map
 

@@ -27,6 +27,10 @@ def command(args) -> int:
     if given.is_file():
         if not args.robot:
             folder = given.parent
+            if (folder / "cell.yaml").is_file() and given.name != "recording.csv" and \
+                    (folder / "recording.csv").is_file():  # result.json, belief.npz, ...
+                raise UserError(f"{given} is a file of the run folder {folder}: adaptive-cal "
+                                f"report {folder}")
             if given.name == "recording.csv" and (folder / "cell.yaml").is_file():
                 raise UserError(f"{given} is a file; report wants the run folder it is in "
                                 f"(adaptive-cal report {folder}), or, to replay the recording "

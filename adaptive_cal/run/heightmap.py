@@ -85,7 +85,8 @@ def load_map(run_dir: str | Path) -> HeightMap:
     """The map of a run folder written by ``adaptive-cal run --out RUN_DIR``."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
-        raise FileNotFoundError(f"--map {run_dir}: no such folder (give the run folder that "
+        what = "a file, not a run folder" if run_dir.exists() else "no such folder"
+        raise FileNotFoundError(f"--map {run_dir}: {what} (give the run folder that "
                                 "'adaptive-cal run --out' wrote)")
     for name in ("cell.yaml", "result.json", "belief.npz"):
         if not (run_dir / name).exists():
