@@ -384,3 +384,20 @@ def test_files_and_folders_given_for_each_other_are_named_as_such(tmp_path, caps
     assert "a folder, not a toolpath file" in capsys.readouterr().err
     assert main(["report", str(run / "result.json")]) == 2
     assert f"a file of the run folder {run}: adaptive-cal report {run}" in capsys.readouterr().err
+
+
+def test_a_folder_without_its_results_points_to_resume(tmp_path, capsys):
+    """A run stopped before writing its results (a double Ctrl-C then): report and compensate
+    said only 'result.json: missing' (outside CLI audit); they point to --resume now."""
+    import shutil
+
+    from adaptive_cal.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copyfile(CELL, run / "cell.yaml")
+    (run / "recording.csv").write_text("# adaptive-cal recording v1\n")
+    assert main(["report", str(run)]) == 2
+    assert f"adaptive-cal run --resume {run} writes them" in capsys.readouterr().err
+    assert main(["compensate", "--map", str(run), "--grid", str(tmp_path / "g.csv")]) == 2
+    assert f"adaptive-cal run --resume {run} writes them" in capsys.readouterr().err

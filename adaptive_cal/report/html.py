@@ -31,7 +31,7 @@ from adaptive_cal.formats.npz import read_npz, unresolved_at
 from adaptive_cal.gaussian.belief import Belief, predict
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report import figures as plots
-from adaptive_cal.report.status import missing
+from adaptive_cal.report.status import missing, unfinished
 from adaptive_cal.report.sections import (cards, cell_section, escape, explain_section,
                                           flatness_section, image, incomplete_banner, run_section,
                                           tilt_section)
@@ -145,8 +145,7 @@ def render(run_dir: str | Path) -> str:
         raise FileNotFoundError(f"{run_dir}: no such folder")
     for name in ("result.json", "recording.csv", "cell.yaml"):
         if not (run_dir / name).exists():
-            raise FileNotFoundError(f"{run_dir / name}: missing; is {run_dir} a folder written by "
-                                    "'adaptive-cal run --out DIR'?")
+            raise FileNotFoundError(f"{run_dir / name}: missing; " + unfinished(run_dir, name))
     result = read_json(run_dir / "result.json")
     cell = load_run_cell(run_dir / "cell.yaml")
     rec = read_recording(run_dir / "recording.csv")

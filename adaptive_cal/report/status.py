@@ -80,3 +80,17 @@ def next_step(result: dict, resume: str | None) -> str:
     if resume:
         return f"Continue with {resume}"
     return "Take more touches until the bound is met"
+
+
+def unfinished(run_dir, name: str) -> str:
+    """What to do about a run folder missing ``name``: a folder with its recording and cell
+    but not its results stopped before writing them (``run --resume`` writes them), else it is
+    not a folder ``run --out`` wrote."""
+    from pathlib import Path
+
+    run_dir = Path(run_dir)
+    if name in ("result.json", "belief.npz") and (run_dir / "recording.csv").is_file() \
+            and (run_dir / "cell.yaml").is_file():
+        return (f"the run stopped before writing its results; adaptive-cal run --resume "
+                f"{run_dir} writes them")
+    return f"is {run_dir} a folder written by 'adaptive-cal run --out DIR'?"

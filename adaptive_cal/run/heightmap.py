@@ -90,8 +90,10 @@ def load_map(run_dir: str | Path) -> HeightMap:
                                 "'adaptive-cal run --out' wrote)")
     for name in ("cell.yaml", "result.json", "belief.npz"):
         if not (run_dir / name).exists():
-            raise FileNotFoundError(f"--map {run_dir}: {name} is missing (a run folder holds "
-                                    "cell.yaml, result.json and belief.npz)")
+            from adaptive_cal.report.status import unfinished
+
+            raise FileNotFoundError(f"--map {run_dir}: {name} is missing; "
+                                    + unfinished(run_dir, name))
     cell = load_run_cell(run_dir / "cell.yaml")
     result = read_json(run_dir / "result.json")
     belief, _ = read_belief(run_dir, cell)
