@@ -401,3 +401,21 @@ def test_a_folder_without_its_results_points_to_resume(tmp_path, capsys):
     assert f"adaptive-cal run --resume {run} writes them" in capsys.readouterr().err
     assert main(["compensate", "--map", str(run), "--grid", str(tmp_path / "g.csv")]) == 2
     assert f"adaptive-cal run --resume {run} writes them" in capsys.readouterr().err
+
+
+def test_a_probe_noise_given_in_um_is_refused_at_load_naming_the_key(tmp_path, capsys):
+    """noise_std_mm: 5 (um typed as mm) was accepted and the run stopped on 'no allowed point
+    ... narrow model.offset_std_mm / tilt_std_deg' (outside CLI audit): refused at load."""
+    import yaml
+
+    from adaptive_cal.cli import main
+
+    for key, value in (("noise_std_mm", 5.0), ("noise_range_mm", [0.002, 2.0])):
+        data = yaml.safe_load(CELL.read_text())
+        data["probe"][key] = value
+        (tmp_path / "c.yaml").write_text(yaml.safe_dump(data))
+        assert main(["run", "--robot", str(tmp_path / "c.yaml"), "--out",
+                     str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err
+        assert key in err and "of the usable stroke" in err and "um given as mm?" in err
+        assert not (tmp_path / "o").exists()
