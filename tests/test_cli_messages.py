@@ -419,3 +419,12 @@ def test_a_probe_noise_given_in_um_is_refused_at_load_naming_the_key(tmp_path, c
         err = capsys.readouterr().err
         assert key in err and "of the usable stroke" in err and "um given as mm?" in err
         assert not (tmp_path / "o").exists()
+
+
+def test_a_study_set_of_its_base_cell_is_refused_not_ignored(tmp_path, capsys):
+    """--set cell=nope.yaml ran to exit 0 with the file's cell (outside CLI audit)."""
+    from adaptive_cal.cli import main
+
+    assert main(["study", str(ROOT / "configs" / "study-smoke.yaml"), "--plates", "1",
+                 "--set", "cell=nope.yaml", "--json", str(tmp_path / "s.json")]) == 2
+    assert "--set cell=nope.yaml: the base cell is the study file's" in capsys.readouterr().err

@@ -48,6 +48,9 @@ def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
     if strategies:
         data["strategies"] = [s.strip() for s in strategies.split(",") if s.strip()]
     for item in settings:
+        if item.partition("=")[0].strip() == "cell":  # the base cell was read with the file
+            raise ConfigError(f"--set {item}: the base cell is the study file's 'cell:', read "
+                              "with it; change it there (or copy the study file)")
         data = set_key(data, item)
         if item.partition("=")[0] == "plate.surface_files" and study_path is not None \
                 and isinstance(data["plate"].get("surface_files"), str) \
