@@ -428,3 +428,14 @@ def test_a_study_set_of_its_base_cell_is_refused_not_ignored(tmp_path, capsys):
     assert main(["study", str(ROOT / "configs" / "study-smoke.yaml"), "--plates", "1",
                  "--set", "cell=nope.yaml", "--json", str(tmp_path / "s.json")]) == 2
     assert "--set cell=nope.yaml: the base cell is the study file's" in capsys.readouterr().err
+
+
+def test_compensate_step_without_grid_is_refused(tmp_path, capsys):
+    """--step-mm without --grid was ignored without a word (outside CLI audit)."""
+    from adaptive_cal.cli import main
+
+    prog = tmp_path / "p.nc"
+    prog.write_text("G21 G90\nG1 X0 Y0 Z0\n")
+    assert main(["compensate", str(prog), "--map", str(tmp_path), "--out", str(tmp_path / "o"),
+                 "--step-mm", "7"]) == 2
+    assert "--step-mm sets the --grid file's spacing" in capsys.readouterr().err

@@ -23,9 +23,9 @@ def add_arguments(p) -> None:
                    help="--grid: leave out std_mm and write the height-map format itself "
                         "(x_mm,y_mm,height_mm: a simulation.surface_file or a study's "
                         "plate.surface_files)")
-    p.add_argument("--step-mm", type=float, default=5.0,
-                   help="--grid: the grid step, at most this (mm; the grid's ends lie on the "
-                        "workplane's edges)")
+    p.add_argument("--step-mm", type=float, default=None,
+                   help="--grid: the grid step, at most this (mm, default 5; the grid's ends "
+                        "lie on the workplane's edges)")
     p.add_argument("--tolerance-mm", type=float, default=0.01,
                    help="how closely the output follows the plate (mm): cuts are split until the "
                         "path departs from the map by at most the tolerance less the map's 95 %% "
@@ -54,6 +54,10 @@ def command(args) -> int:
                         "(the map on a grid)")
     if args.heights_only and not args.grid:
         raise UserError("--heights-only shapes the --grid file: give --grid OUT.csv with it")
+    if args.step_mm is not None and not args.grid:
+        raise UserError("--step-mm sets the --grid file's spacing: give --grid OUT.csv with it")
+    if args.step_mm is None:
+        args.step_mm = 5.0
     check_tolerance(args.tolerance_mm)
     if args.program:  # neither PROGRAM nor the map's run folder is overwritten
         refuse_input_as_output("--out", args.out, [args.program], [args.map])
