@@ -74,7 +74,7 @@ def command(args) -> int:
                             "choose another --out")
         held = [n for n in ("result.json", "belief.npz") if (out / n).exists()]
         if held:  # another run's results, its recording moved away: never overwritten
-            raise UserError(f"{out} holds {' and '.join(held)} of another run: choose another --out")
+            raise UserError(f"{out} holds {' and '.join(held)} of another run: another --out")
         folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
         created = (folders, before)

@@ -4,9 +4,9 @@ A reading (mm) becomes the surface height y = reading - probe zero + z (DESIGN.m
 surface - z + zero + noise). At a refit the belief is the posterior of every fused reading
 mixed over the hyper-parameter points (moment-matched); between refits a reading is fused into
 it under the last refit's noise (exact for one point; against the mixture an outside check put
-the RMS std up to 10 % low at 10 readings, 2 % later). Nothing here touches files or hardware. ``tell`` is ``judge``
-(the gate: flags, changes nothing) then ``fuse`` (counts the touch, fuses a reading the gate
-let through, refits on schedule): a loop writes the reading to the recording between the two.
+the RMS std up to 10 % low at 10 readings, 2 % later). No files or hardware here. ``tell`` is
+``judge`` (the gate: flags, changes nothing) then ``fuse`` (counts the touch, fuses a reading
+the gate let through, refits on schedule); a loop writes the reading to the recording between.
 
 >>> import adaptive_cal
 >>> adaptive_cal.use_float64()
