@@ -115,11 +115,11 @@ class Probe(Block):
         for key in ("resolution_mm", "noise_std_mm", "samples_tolerance_mm"):
             if getattr(self, key) >= self.stroke_mm:
                 raise ValueError(f"{key}={getattr(self, key)} must be below the stroke {self.stroke_mm} mm")
-        span = hi - lo  # a probe this noisy cannot keep a touch inside its stroke (um for mm?)
+        span = hi - lo  # 0.1 mm of noise or more, a tenth of the usable stroke: um for mm?
         noise = [("noise_std_mm", self.noise_std_mm)] + (
             [("noise_range_mm", self.noise_range_mm[1])] if self.noise_range_mm else [])
         for key, value in noise:
-            if value >= 0.1 * span:
+            if value >= max(0.1 * span, 0.1):
                 raise ValueError(f"{key}: {value} mm is {value / span:.0%} of the usable stroke "
                                  f"{span:g} mm (usable_mm): a probe that noisy cannot keep a "
                                  "touch inside it -- um given as mm? (5 um is 0.005)")
