@@ -230,7 +230,8 @@ def refusal(wide: list, tolerance_mm: float, name: str = "program", shown: int =
     if beyond:
         (x0, x1), (y0, y1) = reach_mm
         lines = [f"line {b.line} at ({b.x_mm:.1f}, {b.y_mm:.1f}) mm, "
-                 f"{beyond_text(b.outside_mm)} mm beyond it" for b in sorted(beyond, key=lambda b: -b.outside_mm)[:shown]]
+                 f"{beyond_text(b.outside_mm)} mm beyond it"
+                 for b in sorted(beyond, key=lambda b: -b.outside_mm)[:shown]]
         more = f" and {len(beyond) - shown} more" if len(beyond) > shown else ""
         parts.append(
             f"{len(beyond)} cut(s) leave the box touches could reach, x [{x0:g}, {x1:g}] mm, "

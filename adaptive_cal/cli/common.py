@@ -65,11 +65,13 @@ RECORDING_FORMAT = (
 
 
 def _first_line(path: Path) -> str:
+    """The file's first line; UserError naming it when it cannot be read (permissions): say so,
+    not "not a recording"."""
     try:
         with path.open(encoding="utf-8", errors="replace") as f:
             return f.readline().lstrip("\ufeff").strip()
-    except OSError:
-        return ""
+    except OSError as e:
+        raise UserError(f"{path}: cannot be read ({e.strerror or e})") from None
 
 
 def check_recording(path: str) -> None:
@@ -81,11 +83,6 @@ def check_recording(path: str) -> None:
         raise UserError(f"{p} is a folder; give the recording file inside it{hint}")
     if not p.is_file():
         return
-    try:
-        with p.open("rb"):
-            pass
-    except OSError as e:  # unreadable (permissions): say so, not "not a recording"
-        raise UserError(f"{p}: cannot be read ({e.strerror or e})") from None
     line = _first_line(p)
     if line.startswith("# adaptive-cal recording") and line != RECORDING_MAGIC:
         raise UserError(f"{p}: {line!r} is a recording version this adaptive-cal does not read. "

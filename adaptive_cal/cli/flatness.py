@@ -138,11 +138,11 @@ def _unfinished(folder) -> dict:
     """{"incomplete": why} for a run folder whose run did not finish (interrupted, budget spent
     with the bound unmet, ...; ``report.status.missing``), as run and report mark it."""
     from adaptive_cal.formats.jsonfile import read_json
-    from adaptive_cal.report.status import missing
+    from adaptive_cal.report.status import missing, unfinished
 
     path = folder / "result.json"
-    if not path.is_file():
-        return {"incomplete": "the run wrote no result.json (interrupted before its results)"}
+    if not path.is_file():  # the same words as report's and compensate's for such a folder
+        return {"incomplete": f"no result.json: {unfinished(folder, 'result.json')}"}
     gap = missing(read_json(path))
     return {"incomplete": gap} if gap else {}
 
