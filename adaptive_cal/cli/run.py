@@ -115,6 +115,9 @@ def command(args) -> int:
                                   "again")  # nothing to resume: no two answers that disagree
             raise UserError(f"{said}.\nNothing was recorded, and {out} is left as it was before: "
                             "once the cause is fixed, run the same command again (not --resume)") from e
+        if isinstance(e, AdapterError) and getattr(e, "result", None):
+            _summary(e.result, out, cell)  # the touches a device failure left: INCOMPLETE
+            sys.stdout.flush()  # before the error on stderr, which names the device
         raise
     if result.get("already_finished"):
         print(f"{out} is already finished ({result['already_finished']} after "

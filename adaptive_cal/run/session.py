@@ -240,6 +240,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                 result = {**result, "prior_from": carried}
                 write_json(paths.out / "result.json", result)
     if error is not None:
+        error.result = result  # what was measured before the device stopped: the CLI shows it
         raise error
     return result
 
