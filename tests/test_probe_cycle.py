@@ -152,3 +152,43 @@ def test_failed_travel_sends_no_approach():
     with pytest.raises(AdapterError):
         cycle(m, ScriptedProbe([])).touch(50, 50, 1.0)
     assert m.sent == [(50, 50, 15.0)]
+
+
+def test_a_reading_repeated_touch_after_touch_is_rejected_as_a_frozen_readout():
+    # frozen_after(4): the 4th touch in a row with the same reading is rejected, not returned
+    m = RecordingMotion()
+    p = ScriptedProbe([5.0123, 5.0123, 5.0123, 5.0123, 5.0123, 5.0311, 5.0123])
+    c = cycle(m, p, samples=1, frozen_after=4)
+    got = [c.touch(10.0 * i, 50, 1.0).reading_mm for i in range(3)]
+    assert got == [5.0123] * 3
+    for i in (3, 4):  # it stays rejected while the value does not change
+        with pytest.raises(TouchRejected, match="very same value for %d touches" % (i + 1)) as e:
+            c.touch(10.0 * i, 50, 1.0)
+        assert e.value.flags == ("rejected", "frozen") and e.value.reading_mm == 5.0123
+        assert m.pose[2] == 15.0  # retracted as after any rejected touch
+    assert c.touch(60, 50, 1.0).reading_mm == 5.0311  # a live value again: the count starts over
+    assert c.touch(70, 50, 1.0).reading_mm == 5.0123
+    # no check unless asked (the simulated probe's cycle: a noise-free simulation repeats)
+    c = cycle(RecordingMotion(), ScriptedProbe([5.0] * 6), samples=1)
+    assert [c.touch(10, 10 * i, 1.0).reading_mm for i in range(6)] == [5.0] * 6
+
+
+def test_frozen_after_follows_the_chance_that_a_live_probe_repeats_itself():
+    from adaptive_cal.hardware.base import frozen_after
+
+    rng = np.random.default_rng(0)
+    for step, noise in ((1e-4, 0.005), (1e-3, 0.003), (1e-3, 0.005), (5e-4, 0.001)):
+        k = frozen_after(step, noise, 200)
+        assert k is not None and 3 <= k <= 10
+        # Monte Carlo: live readings (noise at the stated floor, quantised) repeat k times in
+        # a row within 200 touches in fewer than 1 % of runs (the rule's bound is 0.1 %)
+        runs = np.round(rng.normal(0.0, noise, (4000, 200)) / step)
+        same = runs[:, 1:] == runs[:, :-1]
+        longest = np.zeros(len(runs), int)
+        count = np.zeros(len(runs), int)
+        for j in range(same.shape[1]):
+            count = np.where(same[:, j], count + 1, 0)
+            longest = np.maximum(longest, count + 1)
+        assert np.mean(longest >= k) < 0.01, (step, noise, k)
+    assert frozen_after(1e-3, 0.001, 200) is None  # a readout as coarse as the noise: no check
+    assert frozen_after(1e-4, 0.005, 200) == 4

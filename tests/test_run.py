@@ -199,6 +199,70 @@ def test_a_device_failure_keeps_every_reading_reports_and_resumes(tmp_path, monk
     np.testing.assert_array_equal(rec.seq, np.arange(len(rec)))
 
 
+def test_a_device_failure_mid_run_prints_the_incomplete_summary_then_the_error(tmp_path,
+                                                                              monkeypatch, capsys):
+    from adaptive_cal.hardware.base import AdapterError
+
+    real_open = session.open_cell
+
+    class _Dies:
+        def __init__(self, cycle):
+            self.cycle, self.motion, self.count = cycle, cycle.motion, 0
+
+        def touch(self, x, y, z):
+            self.count += 1
+            if self.count == 4:
+                raise AdapterError("link lost: reconnect, then continue with --resume")
+            return self.cycle.touch(x, y, z)
+
+    monkeypatch.setattr(session, "open_cell",
+                        lambda cell, **kw: setattr(oc := real_open(cell, **kw), "cycle",
+                                                   _Dies(oc.cycle)) or oc)
+    out = tmp_path / "d"
+    assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 2
+    said = capsys.readouterr()
+    # the three touches made are shown as what they are -- not a result -- and where they are
+    assert said.out.startswith("INCOMPLETE: interrupted after 3 touches")
+    assert "stopped: interrupted after 3 touches" in said.out and f"--resume {out}" in said.out
+    assert "link lost" in said.err and "link lost" not in said.out
+    assert len(read_recording(out / "recording.csv")) == 3
+
+
+def test_a_frozen_readout_stops_the_run_with_its_name_and_the_repeats_not_fused(tmp_path,
+                                                                               monkeypatch, capsys):
+    import dataclasses
+
+    real_open = session.open_cell
+
+    class _Freezes:  # the simulated probe, its readout stuck at the 8th reading's value
+        def __init__(self, probe):
+            self.probe, self.n, self.last = probe, 0, None
+
+        def read(self):
+            self.n += 1
+            if self.last is None or self.n < 9:
+                self.last = self.probe.read()
+            return self.last
+
+    def frozen_open(cell, **kw):
+        oc = real_open(cell, **kw)
+        oc.cycle = dataclasses.replace(oc.cycle, probe=_Freezes(oc.cycle.probe), frozen_after=4)
+        return oc
+
+    monkeypatch.setattr(session, "open_cell", frozen_open)
+    out = tmp_path / "f"
+    assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 1
+    said = capsys.readouterr().out
+    assert said.startswith("INCOMPLETE: stopped: the probe read the very same value")
+    assert "stopped: readout_frozen after 13 touches (10 fused)" in said
+    rec = read_recording(out / "recording.csv")
+    # the 8th reading and its first two repeats were fused (nothing was seen yet); the next
+    # three are kept, flagged and not fused
+    assert [set(f) for f in rec.flags[-3:]] == [{"rejected", "frozen"}] * 3
+    assert not any(rec.flags[:10])
+    assert len(set(rec.reading_mm[7:])) == 1 and len(set(rec.reading_mm[:8])) == 8
+
+
 def test_prior_from_an_earlier_run_needs_only_a_handful_of_touches(tmp_path):
     cell = sim_cell()
     fresh = session.run(cell, tmp_path / "a", progress=False)

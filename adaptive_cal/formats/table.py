@@ -36,8 +36,8 @@ class TableError(ValueError):
 #: A row with one of NOT_FUSED is never used (``invalid`` is written with ``rejected``, and is
 #: not used alone either).
 NOT_FUSED = frozenset({"gated", "rejected", "invalid"})
-KNOWN_FLAGS = NOT_FUSED | {"retake", "surprise", "closure", "spread", "stroke_end", "nonfinite",
-                           "cut"}  # cut: a row completed after a crash cut its flags
+KNOWN_FLAGS = NOT_FUSED | {"retake", "surprise", "closure", "spread", "stroke_end", "frozen",
+                           "nonfinite", "cut"}  # cut: a row completed after a crash cut its flags
 OUTLIER_FLAG = "outlier="
 
 

@@ -136,6 +136,10 @@ class ProbeCycle:
     settle_s: float = 0.0
     clock: Callable[[], float] = time.monotonic
     sleep: Callable[[float], None] = time.sleep
+    #: touches in a row with the very same reading that mark the readout frozen (a stale serial
+    #: value, a PLC register not updated): that touch is rejected ``frozen`` (``frozen_after``)
+    frozen_after: int | None = None
+    _same: list = field(default_factory=lambda: [math.nan, 0], init=False, repr=False)
 
     def _check(self, path: list[tuple[float, float, float]]) -> None:
         for x, y, z in path:
@@ -231,7 +235,31 @@ class ProbeCycle:
                                 f"[{lo}, {hi}] mm: the approach height is off the plate's "
                                 "height; the touch was not fused", reading,
                                 ("rejected", "stroke_end"), tuple(kept))
+        same = self._same
+        same[:] = [reading, same[1] + 1 if reading == same[0] else 1]
+        if self.frozen_after is not None and same[1] >= self.frozen_after:
+            raise TouchRejected(f"reading {reading:.4f} mm, the very same value for {same[1]} "
+                                "touches in a row, which the stated noise and readout step make "
+                                "all but impossible: is the readout frozen (a stale value, a "
+                                "register not updated)? The touch was not fused", reading,
+                                ("rejected", "frozen"), tuple(kept))
         return Touch(x_mm, y_mm, z_mm, reading, t_s, tuple(kept[-self.samples:]),
                      {"spread_mm": float(values.max() - values.min()),
                       "attempts": len(problems) + 1, "problems": problems,
                       "all_samples": tuple(kept)})
+
+
+def frozen_after(resolution_mm: float, noise_mm: float, touches: int) -> int | None:
+    """Touches in a row with one reading that mark a readout frozen: the fewest k >= 3 such
+    that a live probe, its readings quantised to ``resolution_mm`` with a noise of at least
+    ``noise_mm`` (the lower end of what the cell states), repeats one reading k times in a row
+    somewhere in ``touches`` touches with probability below 1e-3. Two readings differing by
+    N(0, 2 noise^2) round to the same step with probability about p = step / (2 sqrt(pi) noise)
+    (the innovations' own spread only lowers it). None where p >= 0.5 or k would exceed 10: a
+    readout that coarse repeats itself honestly. A false alarm costs one touch (recorded
+    ``rejected;frozen``): the next one reads another value."""
+    p = resolution_mm / (2.0 * math.sqrt(math.pi) * noise_mm)
+    if not 0 < p < 0.5:
+        return None
+    k = 1 + math.ceil(math.log(1e-3 / max(touches, 1)) / math.log(p))
+    return max(k, 3) if k <= 10 else None

@@ -15,6 +15,8 @@ WHY = {
     "invalid_readings": "stopped: 3 invalid readings in a row (NaN, infinite or off the plate)",
     "touches_rejected": "stopped: 3 touches in a row gave no usable reading (the probe at its "
                         "stroke's end, or its samples spread)",
+    "readout_frozen": "stopped: the probe read the very same value touch after touch (a "
+                      "frozen readout)",
     "prior_disagrees_with_readings": "stopped: the readings contradict the earlier belief "
                                      "(--prior-from) in the frame assumed",
     "drift": "stopped: the cell drifted during the run (the closure touch read the first place "
@@ -29,6 +31,10 @@ INSTEAD = {
                         "the tilt, the probe's zero and usable stroke: a reading at the stroke's "
                         "end means the approach height is off the plate) and that the probe "
                         "moves freely, then map again in a new folder",
+    "readout_frozen": "check that the probe's readout is live (the gauge's cable and port, "
+                      "the PLC's register and handshake: the value must change with the tip), "
+                      "then continue with --resume (the first few repeats were fused before they "
+                      "were seen to repeat; those flagged rejected;frozen were not)",
     "drift": "warm the cell up (run the robot over the plate for as long as the drift took) and "
              "map again in a new folder, or model the drift: adaptive-cal explain on the "
              "recording",

@@ -58,6 +58,8 @@ MAX_INVALID = 3
 #: they teach the planner nothing, so it would ask the same touch again and again
 TOUCHES_REJECTED = "touches_rejected"
 MAX_REJECTED = 3
+#: ... when those were rejected for one reading repeated (``ProbeCycle.frozen_after``)
+READOUT_FROZEN = "readout_frozen"
 #: the reason a loop ends when its closure touch found the cell drifting
 DRIFT = cl.DRIFT
 #: the stop reasons that close with a closure touch (a variance bound met)
@@ -142,7 +144,8 @@ class SurveyLoop:
                 if self.invalid_in_a_row >= MAX_INVALID:
                     return INVALID_READINGS
                 if self.rejected_in_a_row >= MAX_REJECTED:
-                    return TOUCHES_REJECTED
+                    frozen = step.rejected is not None and "frozen" in step.rejected.flags
+                    return READOUT_FROZEN if frozen else TOUCHES_REJECTED
                 if (step.invalid is not None or self.state.retake is not None or self.interrupt()
                         or self.stop(self.state, step.status) or self._last_touch()):
                     break  # a batch never runs past the stop rule (the touch budget included)
