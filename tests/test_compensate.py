@@ -495,3 +495,13 @@ def test_a_stop_or_end_on_a_split_cut_goes_with_its_last_piece(mapped, tmp_path,
     back = tmp_path / "o2.gcode"
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["compensate", str(out), "--map", str(run_dir), "--out", str(back)]) == 0
+
+
+def test_a_tolerance_that_looks_like_um_typed_as_mm_is_warned(capsys):
+    from adaptive_cal.cli.compensate import check_tolerance
+
+    check_tolerance(10.0)  # meant 10 um: valid, but said
+    assert "warning: --tolerance-mm 10 is 10000 um -- um given as mm? (10 um is 0.01)" in \
+        capsys.readouterr().err
+    check_tolerance(0.05)
+    assert capsys.readouterr().err == ""

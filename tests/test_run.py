@@ -492,3 +492,21 @@ def test_the_survey_shell_equals_the_pure_functions():
     np.testing.assert_array_equal(shell.belief.mean, state.belief.mean)
     assert shell.touches == state.touches == 10 and len(shell.history) == 11
     assert shell.stop_reason() == sv.stop_reason(plan, state)
+
+
+def test_a_bound_that_looks_like_um_typed_as_mm_is_warned_before_anything_moves(tmp_path,
+                                                                                 capsys):
+    import yaml
+
+    data = load_yaml(SIM_CELL)
+    data["plan"]["stop"]["mean_std_mm"] = 4  # meant 4 um
+    f = tmp_path / "cell.yaml"
+    f.write_text(yaml.safe_dump(data))
+    assert main(["run", "--robot", str(f), "--dry-run"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: plan.stop.mean_std_mm: 4 mm is 44% of the probe's usable stroke (9 mm)" in err
+    assert "(4 um is 0.004)" in err
+    data["plan"]["stop"]["mean_std_mm"] = 0.004
+    f.write_text(yaml.safe_dump(data))
+    assert main(["run", "--robot", str(f), "--dry-run"]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -56,3 +56,19 @@ def check_cell(cell) -> None:
         if same and a != b:
             raise ValueError("robot.modbus and probe.modbus name the same PLC with different "
                              "settings; make the two blocks identical")
+
+
+def doubts(cell) -> list[str]:
+    """Settings that are valid but look like a unit slip, as warnings the run prints before
+    anything moves: a variance bound of a tenth of the probe's usable stroke or more (and at
+    least 0.1 mm) -- um typed as mm (4 um is 0.004) stops a run before it maps anything finer
+    than the probe's own travel."""
+    lo, hi = cell.probe.usable_mm
+    span, stop, out = hi - lo, cell.plan.stop, []
+    for key in ("mean_std_mm", "max_std_mm"):
+        value = getattr(stop, key)
+        if value is not None and value >= max(0.1 * span, 0.1):
+            out.append(f"plan.stop.{key}: {value:g} mm is {value / span:.0%} of the probe's usable "
+                       f"stroke ({span:g} mm): the run stops once the map is known to that -- "
+                       f"um given as mm? ({value:g} um is {value / 1000:g})")
+    return out

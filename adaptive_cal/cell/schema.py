@@ -179,7 +179,8 @@ class Model(Block):
 
 
 class Stop(Block):
-    """When to stop: any bound met, or the touch budget spent."""
+    """When to stop: any bound met, or the touch budget spent. `run` warns about a bound of a
+    tenth of the probe's usable stroke or more (at least 0.1 mm): um typed as mm?"""
 
     mean_std_mm: float | None = Field(0.01, gt=0, description="RMS posterior std over the plate")
     max_std_mm: float | None = Field(None, gt=0, description="largest posterior std on the plate")

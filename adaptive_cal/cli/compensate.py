@@ -95,6 +95,14 @@ def check_tolerance(tolerance_mm: float) -> None:
         raise UserError(f"--tolerance-mm {tolerance_mm:g}: below {floor:g} mm "
                         f"({floor * 1e3:g} um), the resolution the output's coordinates are "
                         f"written to ({DIGITS} decimals): no output can be held to it")
+    if tolerance_mm >= LOOSE_MM:  # valid, but no cut is compensated to half a millimetre
+        import sys
+
+        print(f"warning: --tolerance-mm {tolerance_mm:g} is {tolerance_mm * 1e3:g} um -- um "
+              f"given as mm? ({tolerance_mm:g} um is {tolerance_mm / 1000:g})", file=sys.stderr)
+
+
+LOOSE_MM = 0.5  # a tolerance this loose or looser is warned about (check_tolerance)
 
 
 GRID_CHUNK = 65_536  # nodes evaluated at once (the spline basis of a chunk: a few tens of MB)

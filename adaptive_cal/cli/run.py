@@ -41,7 +41,7 @@ def command(args) -> int:
             raise UserError(f"--dry-run plans a fresh run from the cell file; it does not "
                             f"continue {'--resume' if args.resume else '--prior-from'} (leave "
                             "--dry-run out to run it)")
-        return _dry_run(load_cell(args.robot))
+        return _dry_run(_doubted(load_cell(args.robot)))
     if args.resume:
         if args.out:  # a resumed run goes on in its own folder
             raise UserError(f"--resume {args.resume} goes on in that folder: leave --out out")
@@ -57,7 +57,7 @@ def command(args) -> int:
         if not args.robot or not args.out:
             raise UserError("run needs --robot CELL.yaml and --out DIR (or --resume DIR)")
         out, cell_path = Path(args.out), Path(args.robot)
-    cell = load_cell(cell_path)
+    cell = _doubted(load_cell(cell_path))
     real = cell.robot.adapter not in ("sim", "manual") and not getattr(cell.robot, "emulated", False)
     if real and not args.yes:
         if not sys.stdin.isatty():
@@ -130,6 +130,15 @@ def command(args) -> int:
     from adaptive_cal.report.status import exit_status
 
     return exit_status(result)  # 1 where the map is not a result: the summary said why
+
+
+def _doubted(cell):
+    """``cell``, its doubtful settings (``cell.consistency.doubts``) warned on stderr."""
+    from adaptive_cal.cell.consistency import doubts
+
+    for line in doubts(cell):
+        print(f"warning: {line}", file=sys.stderr)
+    return cell
 
 
 def _correction(args):
