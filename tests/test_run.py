@@ -510,3 +510,16 @@ def test_a_bound_that_looks_like_um_typed_as_mm_is_warned_before_anything_moves(
     f.write_text(yaml.safe_dump(data))
     assert main(["run", "--robot", str(f), "--dry-run"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_commands_to_copy_quote_a_folder_with_spaces(tmp_path, monkeypatch, capsys):
+    import shlex
+
+    out = tmp_path / "my runs" / "plate 1"
+    # interrupted after 3 touches: the summary's --resume must survive a copy into a shell
+    real = session.run
+    monkeypatch.setattr(session, "run", lambda *a, **k: real(*a, **{**k, "max_new_touches": 3}))
+    assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 130
+    said = capsys.readouterr().out
+    command = said.split("Continue with ")[1].split("\n")[0]
+    assert shlex.split(command) == ["adaptive-cal", "run", "--resume", str(out)]

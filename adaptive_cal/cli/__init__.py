@@ -85,8 +85,10 @@ def main(argv: list[str] | None = None) -> int:
         return 130 if getattr(e, "interrupted", False) else 2
     except KeyboardInterrupt:
         out = getattr(args, "out", None) or getattr(args, "resume", None)
+        from adaptive_cal.report.status import quoted
+
         kept = (f"; the touches taken are kept in {out}/recording.csv: adaptive-cal run --resume "
-                f"{out} continues it" if args.subcommand == "run" and out
+                f"{quoted(out)} continues it" if args.subcommand == "run" and out
                 and os.path.isfile(os.path.join(out, "recording.csv")) else "")
         print(f"adaptive-cal {args.subcommand}: interrupted{kept}", file=sys.stderr)
         return 130

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from adaptive_cal.report.status import quoted
+
 
 def add_arguments(p) -> None:
     p.add_argument("run_dir", metavar="DIR|RECORDING.csv", help="a run folder written by "
@@ -30,13 +32,13 @@ def command(args) -> int:
             if (folder / "cell.yaml").is_file() and given.name != "recording.csv" and \
                     (folder / "recording.csv").is_file():  # result.json, belief.npz, ...
                 raise UserError(f"{given} is a file of the run folder {folder}: adaptive-cal "
-                                f"report {folder}")
+                                f"report {quoted(folder)}")
             if given.name == "recording.csv" and (folder / "cell.yaml").is_file():
                 raise UserError(f"{given} is a file; report wants the run folder it is in "
-                                f"(adaptive-cal report {folder}), or, to replay the recording "
-                                f"with a cell file: adaptive-cal report {given} --robot CELL.yaml")
+                                f"(adaptive-cal report {quoted(folder)}), or, to replay the recording "
+                                f"with a cell file: adaptive-cal report {quoted(given)} --robot CELL.yaml")
             raise UserError(f"{given} is a file, a bare recording: report replays it with the "
-                            f"cell file it was taken with: adaptive-cal report {given} --robot "
+                            f"cell file it was taken with: adaptive-cal report {quoted(given)} --robot "
                             "CELL.yaml (or give a run folder, which holds its own cell.yaml)")
         check_recording(str(given))
         check_cell_file(args.robot)

@@ -213,11 +213,11 @@ def _summary(r: dict, out: Path, cell=None) -> None:
     model of the estimated robot time)."""
     from adaptive_cal.analysis.flatness_answer import answer_lines
     from adaptive_cal.report.sections import percent, signed, tilt_angles
-    from adaptive_cal.report.status import missing, next_step
+    from adaptive_cal.report.status import missing, next_step, quoted
 
     gap = missing(r)
     t, p = r["tilt"], r["posterior"]
-    then = next_step(r, f"adaptive-cal run --resume {out}")
+    then = next_step(r, f"adaptive-cal run --resume {quoted(out)}")
     lines = [f"INCOMPLETE: {gap}. Not a result. {then}"] if gap else []
     lines += [
         f"stopped: {r['stopped_because']} after {r['touches']} touches ({r['fused']} fused)",

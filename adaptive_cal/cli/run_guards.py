@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from adaptive_cal.cli.common import UserError
+from adaptive_cal.report.status import quoted
 
 
 #: keys of a cell that may differ on --resume: they change neither the map nor the touches (the
@@ -40,8 +41,8 @@ def same_cell(out: Path, given: Path) -> None:
         raise UserError(f"--resume {out} --robot {given}: not the cell {out} was mapped with, it "
                         f"differs in {shown}. The touches in {out}/recording.csv belong to "
                         f"{out / 'cell.yaml'}: resume without --robot (adaptive-cal run --resume "
-                        f"{out}), or map with {given} into a new folder (adaptive-cal run --robot "
-                        f"{given} --out NEW_DIR)")
+                        f"{quoted(out)}), or map with {given} into a new folder (adaptive-cal run "
+                        f"--robot {quoted(given)} --out NEW_DIR)")
     if differ:
         print(f"resuming with {given}, which differs from {out / 'cell.yaml'} only in "
               f"{', '.join(differ)} (neither the map nor the touches change; {out / 'cell.yaml'} "

@@ -31,7 +31,7 @@ from adaptive_cal.formats.npz import read_npz, unresolved_at
 from adaptive_cal.gaussian.belief import Belief, predict
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report import figures as plots
-from adaptive_cal.report.status import missing, unfinished
+from adaptive_cal.report.status import missing, quoted, unfinished
 from adaptive_cal.report.sections import (cards, cell_section, escape, explain_section,
                                           flatness_section, image, incomplete_banner, run_section,
                                           tilt_section)
@@ -171,7 +171,7 @@ def page(result: dict, cell: Cell, rec, surface_b64: str | None, convergence_b64
     if source is None:
         origin = (f"Run folder <code>{escape(run_dir.resolve())}</code>.")
         footer = f"{escape(run_dir.name)}/result.json, recording.csv, cell.yaml, belief.npz"
-        resume = f"adaptive-cal run --resume {run_dir}"
+        resume = f"adaptive-cal run --resume {quoted(run_dir)}"
     else:
         rec_path, cell_path = source
         origin = (f"<b>Built from a recording, not a run:</b> <code>{escape(rec_path.resolve())}"

@@ -88,6 +88,14 @@ def next_step(result: dict, resume: str | None) -> str:
     return "Take more touches until the bound is met"
 
 
+def quoted(path) -> str:
+    """A path as a command to copy needs it: quoted for a POSIX shell where it has spaces or
+    other special characters (``run --resume 'my runs/plate 1'``), else as it is."""
+    import shlex
+
+    return shlex.quote(str(path))
+
+
 def unfinished(run_dir, name: str) -> str:
     """What to do about a run folder missing ``name``: a folder with its recording and cell
     but not its results stopped before writing them (``run --resume`` writes them), else it is
@@ -98,5 +106,5 @@ def unfinished(run_dir, name: str) -> str:
     if name in ("result.json", "belief.npz") and (run_dir / "recording.csv").is_file() \
             and (run_dir / "cell.yaml").is_file():
         return (f"the run stopped before writing its results; adaptive-cal run --resume "
-                f"{run_dir} writes them")
+                f"{quoted(run_dir)} writes them")
     return f"is {run_dir} a folder written by 'adaptive-cal run --out DIR'?"
