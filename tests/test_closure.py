@@ -220,6 +220,20 @@ def test_the_run_says_drift_in_result_json_the_summary_and_its_exit_status(tmp_p
     assert "drifted" in missing(result) and "warm the cell up" in next_step(result, "x").lower()
     assert printed.startswith("INCOMPLETE: stopped: the cell drifted")
     assert result["closure"]["text"] in printed
+    # the results lost (a crash while writing them): a resume ends the run where it ended, on
+    # the closure the recording holds, judged again -- no touch more, the drift still said
+    rows = (out / "recording.csv").read_text()
+    (out / "result.json").unlink()
+    assert main(["run", "--resume", str(out), "--no-progress"]) == 1
+    again = json.loads((out / "result.json").read_text())
+    assert (out / "recording.csv").read_text() == rows
+    assert again["stopped_because"] == "drift" and again["touches"] == result["touches"]
+    assert again["closure"]["passed"] is False
+    assert again["closure"]["repeat_touches"] == result["closure"]["repeat_touches"]
+    # the run judged on the noise relearned without the drift, the replay on the map before
+    # the closure (report.replay.closure_of): the same reading, a map a little apart
+    assert again["closure"]["difference_mm"] == pytest.approx(
+        result["closure"]["difference_mm"], abs=0.5 * result["closure"]["sd_mm"])
 
 
 def test_studies_charge_the_closure_to_bound_stops_only():

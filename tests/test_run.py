@@ -523,3 +523,16 @@ def test_commands_to_copy_quote_a_folder_with_spaces(tmp_path, monkeypatch, caps
     said = capsys.readouterr().out
     command = said.split("Continue with ")[1].split("\n")[0]
     assert shlex.split(command) == ["adaptive-cal", "run", "--resume", str(out)]
+
+
+def test_a_resume_of_a_finished_run_whose_results_were_lost_takes_no_touch(tmp_path):
+    out = tmp_path / "r"
+    first = session.run(sim_cell(), out, progress=False)
+    assert first["stopped_because"] == "mean_std_bound" and first["closure"]["made"]
+    rows = (out / "recording.csv").read_text()
+    (out / "result.json").unlink()  # as a crash while they were written leaves it
+    again = session.run(sim_cell(), out, resume=True, progress=False)
+    assert (out / "recording.csv").read_text() == rows  # the closure was not made twice
+    assert again["stopped_because"] == "mean_std_bound" and again["touches"] == first["touches"]
+    assert again["closure"]["repeat_touches"] == first["closure"]["repeat_touches"]
+    assert again["closure"]["passed"] is True

@@ -84,7 +84,7 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
 
 
 def closure_of(plan, rec: Recording):
-    """The closure touch of a recording judged again (``planning.closure``) against the map of
+    """The (last) closure touch of a recording judged again (``planning.closure``) against the map of
     the readings before it, as the run judged it -- except that the run also relearns the noise
     without the drift the closure reads; so the figures can differ a little from its
     result.json. None when the recording has no closure touch."""
@@ -98,6 +98,10 @@ def closure_of(plan, rec: Recording):
     at = [j for j, f in enumerate(flags) if cl.FLAG in f]
     if not at:
         return None
+    k = len(at) - 1  # the last closure: a run its first one moved off the bound closes again
+    while k and at[k - 1] == at[k] - 1:
+        k -= 1
+    at = at[k:]
     before = sv.replay(plan, sv.start(plan), rec.select(np.arange(len(rec)) < at[0]))
     i = cl.first_place(before.fused_weights)
     if i is None:
@@ -108,8 +112,14 @@ def closure_of(plan, rec: Recording):
     where = dict(x_mm=float(xy[i, 0]), y_mm=float(xy[i, 1]), first_touch=int(rec.seq[rows_at[i]]))
     used: list[int] = []
     verdict = None
-    for part in (at[:2], at[2:4]):  # the repeat (and its retake), then a confirmation
-        told = [SimpleNamespace(fused=bool(rec.fused[j]), flags=flags[j]) for j in part]
+    parts, rest = [], list(at)  # the repeat, then a confirmation: each with its retake where
+    while rest and len(parts) < 2:  # the gate held it back (a gated reading is never fused)
+        n = 2 if "gated" in flags[rest[0]] else 1
+        parts.append(rest[:n])
+        rest = rest[n:]
+    for part in parts:
+        told = [SimpleNamespace(fused=bool(rec.fused[j]), flags=flags[j]) for j in part
+                if "gated" in flags[j] or not ({"rejected", "invalid"} & flags[j])]
         keep, why = cl.repeats_to_judge(told)
         if why and not used:
             return cl.Closure(False, repeat_touches=tuple(int(rec.seq[j]) for j in part),

@@ -127,6 +127,9 @@ class SurveyLoop:
         """Ask, touch, record and fuse until the stop predicate fires; returns its reason,
         ``DRIFT`` when the closure touch found a drift, or ``NO_ADMISSIBLE_POINT`` when the
         planner has no point to offer."""
+        c = self.state.closure
+        if self.closed_at is not None and c is not None and c.made and not c.passed:
+            return DRIFT  # resumed after a closure that found a drift: the run ended there
         while True:
             why = self.stop(self.state, sv.status(self.plan, self.state))
             if (why and self._closes(why)) or (not why and self._last_touch()):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import signal
 import sys
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -24,6 +24,7 @@ from adaptive_cal.formats.recording import read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, repair_cut_row_said
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.closure import FLAG as CLOSURE_FLAG
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
@@ -71,15 +72,27 @@ class RunPaths:
 
 
 def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path
-           ) -> tuple[sv.SurveyState, float, int, np.ndarray]:
+           ) -> tuple[sv.SurveyState, float, int, np.ndarray, int | None]:
     """The state after a recording's touches (from a fresh ``state``), the last time (s), the
-    seq the next row takes (the last seq + 1: a recording may start above 0 or have gaps) and
-    the time (s, NaN where blank) of each fused reading, in order (the loop's closure touch)."""
+    seq the next row takes (the last seq + 1: a recording may start above 0 or have gaps), the
+    time (s, NaN where blank) of each fused reading, in order (the loop's closure touch), and
+    the touch at which its last closure began (None: none made). The state carries that
+    closure's verdict, judged again (``report.replay.closure_of``): a resume neither touches
+    the first place again nor loses what the closure found."""
     rec = read_recording(path)
     t = rec.t_s[np.isfinite(rec.t_s)]
     next_seq = int(rec.seq[-1]) + 1 if len(rec) else 0
-    return (sv.replay(plan, state, rec), float(t[-1]) if len(t) else 0.0, next_seq,
-            rec.t_s[rec.fused])
+    state = sv.replay(plan, state, rec)
+    at = [j for j, f in enumerate(rec.flags or ()) if CLOSURE_FLAG in f]
+    closed_at = None
+    if at:
+        from adaptive_cal.report.replay import closure_of
+
+        closed_at = at[-1]
+        while closed_at - 1 in at:
+            closed_at -= 1
+        state = replace(state, closure=closure_of(plan, rec))
+    return (state, float(t[-1]) if len(t) else 0.0, next_seq, rec.t_s[rec.fused], closed_at)
 
 
 @contextmanager
@@ -150,7 +163,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         said = repair_cut_row_said(paths.recording)  # a message line, not a Python warning
         if said is not None:
             say([said])
-        state, start_t, next_seq, fused_t_s = replay(plan, state, paths.recording)
+        state, start_t, next_seq, fused_t_s, closed_at = replay(plan, state, paths.recording)
         done = plan.stop(sv.status(plan, state))
         saved = _saved_result(paths.out)
         if done and saved is not None and saved.get("touches") == state.touches:
@@ -160,7 +173,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
               f"{paths.recording.name} ({state.fused} fused), going on from seq {next_seq}",
               file=sys.stderr, flush=True)
     else:
-        fused_t_s = None
+        fused_t_s, closed_at = None, None
     if state.touches == 0:  # refused before a device is opened (a controller connected to)
         from adaptive_cal.planning.ask import ask
 
@@ -212,6 +225,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
 
         loop = SurveyLoop(plan, state, opened.cycle, stop=stop, record=record, hooks=tuple(hooks),
                           interrupt=lambda: flag["stop"], fused_t_s=fused_t_s)
+        loop.closed_at = closed_at
         try:
             stopped = loop.run()
             if stopped == NO_ADMISSIBLE_POINT:
