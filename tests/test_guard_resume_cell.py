@@ -2,7 +2,7 @@
 changes the map or the touches (refused naming the keys, nothing in DIR changed); keys that do
 not (the name, the stopping rule, how the robot is reached) may differ. A folder whose
 belief.npz is not the map its cell.yaml gives is refused by flatness and report with a message,
-not a numpy error."""
+not a numpy error; its recording replayed with another cell (--robot) is warned about."""
 import contextlib
 import io
 from pathlib import Path
@@ -93,3 +93,23 @@ def test_a_belief_that_is_not_its_cells_map_is_refused_by_flatness_and_report(ru
         assert f"{d / 'belief.npz'} does not match {d / 'cell.yaml'}" in err
         assert "--robot CELL.yaml" in err and "matmul" not in err
     assert not (d / "report.html").exists()
+
+
+def test_a_run_folders_recording_replayed_with_another_cell_says_so(tmp_path, capsys):
+    cell = _cell(tmp_path, "a.yaml")
+    out = tmp_path / "run"
+    assert main(["run", "--robot", str(cell), "--out", str(out), "--no-progress"]) == 1
+    capsys.readouterr()
+    rec = out / "recording.csv"
+    other = _cell(tmp_path, "b.yaml", **{"probe.zero_mm": 5.01})
+    renamed = _cell(tmp_path, "c.yaml", name="renamed", **{"plan.stop.max_touches": 60})
+    assert main(["flatness", str(rec), "--robot", str(other), "--samples", "20"]) == 0
+    err = capsys.readouterr().err
+    assert f"--robot {other} differs from it in what changes the map (probe.zero_mm)" in err
+    assert "not the run's" in err
+    for same in (out / "cell.yaml", renamed):  # its own cell, or one that maps the same
+        assert main(["flatness", str(rec), "--robot", str(same), "--samples", "20"]) == 0
+        assert "warning" not in capsys.readouterr().err
+    assert main(["report", str(rec), "--robot", str(other), "--out",
+                 str(tmp_path / "r.html")]) == 0
+    assert "differs from it in what changes the map (probe.zero_mm)" in capsys.readouterr().err

@@ -44,7 +44,15 @@ def command(args) -> int:
     check_recording(args.recording)
     bare_samples = args.samples or 400
     if args.robot:
+        from pathlib import Path
+
+        from adaptive_cal.cli.run_guards import replay_cell_warning
+
         check_cell_file(args.robot)
+        said = None if args.compare else replay_cell_warning(Path(args.recording),
+                                                             Path(args.robot))
+        if said:
+            print(said, file=sys.stderr)
     if args.compare:
         check_recording(args.compare)
         _not_itself(args.recording, args.compare)

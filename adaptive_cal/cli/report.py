@@ -42,6 +42,13 @@ def command(args) -> int:
                             "CELL.yaml (or give a run folder, which holds its own cell.yaml)")
         check_recording(str(given))
         check_cell_file(args.robot)
+        from adaptive_cal.cli.run_guards import replay_cell_warning
+
+        said = replay_cell_warning(given, Path(args.robot))
+        if said:
+            import sys
+
+            print(said, file=sys.stderr)
         refuse_input_as_output("--out", args.out or given.with_suffix(".html"),
                                [given, args.robot])
         path = _from_recording(given, Path(args.robot), args.out)

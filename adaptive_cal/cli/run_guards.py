@@ -24,17 +24,50 @@ def _flat(value, prefix: str = "") -> dict:
     return {prefix[:-1]: value}
 
 
+def _differ(was: dict, now: dict) -> tuple[list[str], list[str]]:
+    """The keys two flattened cells differ in: (those that change the map or the touches,
+    those that do not -- ``RESUME_MAY_DIFFER``)."""
+    differ = [k for k in sorted(set(was) | set(now)) if was.get(k) != now.get(k)]
+    bad = [k for k in differ if not any(k == m or k.startswith(m) for m in RESUME_MAY_DIFFER)]
+    return bad, [k for k in differ if k not in bad]
+
+
+def _cells(was_path: Path, given: Path, load_was=None) -> tuple[dict, dict]:
+    """Both cells flattened; ``load_was`` reads the first (default ``load_cell``)."""
+    from adaptive_cal.cell.schema import load_cell
+
+    was = (load_was or load_cell)(was_path)
+    return tuple(_flat(c.model_dump(mode="json")) for c in (was, load_cell(given)))
+
+
+def replay_cell_warning(recording: Path, given: Path) -> str | None:
+    """A recording of a run folder replayed with another cell file (``flatness`` and
+    ``report`` with --robot): the keys where it differs from the folder's cell.yaml in what
+    changes the map, as a warning line (None where it does not, or the recording is in no run
+    folder). Allowed -- a corrected probe zero, say -- but said: the figures are not the run's."""
+    folder = Path(recording).parent
+    if not (folder / "cell.yaml").is_file() or \
+            (folder / "cell.yaml").resolve() == Path(given).resolve():
+        return None
+    from adaptive_cal.cell.schema import load_run_cell
+
+    bad, _ = _differ(*_cells(folder / "cell.yaml", Path(given), load_run_cell))
+    if not bad:
+        return None
+    more = f" and {len(bad) - 4} more" if len(bad) > 4 else ""
+    return (f"warning: {recording} was mapped with {folder / 'cell.yaml'}; --robot {given} differs "
+            f"from it in what changes the map ({', '.join(bad[:4])}{more}): the figures are a "
+            "replay with the file given, not the run's")
+
+
 def same_cell(out: Path, given: Path) -> None:
     """--resume DIR --robot CELL.yaml: CELL must be the cell DIR was mapped with (DIR/cell.yaml)
     in everything that changes the map or the touches (the knots, the workplane, the probe, the
     prior, the plan, the simulation), else the old touches would be fused into another map while
     DIR/cell.yaml stays the old one. Raises UserError naming the keys that differ."""
-    from adaptive_cal.cell.schema import load_cell
-
-    was = _flat(load_cell(out / "cell.yaml").model_dump(mode="json"))
-    now = _flat(load_cell(given).model_dump(mode="json"))
-    differ = [k for k in sorted(set(was) | set(now)) if was.get(k) != now.get(k)]
-    bad = [k for k in differ if not any(k == m or k.startswith(m) for m in RESUME_MAY_DIFFER)]
+    was, now = _cells(out / "cell.yaml", given)
+    bad, fine = _differ(was, now)
+    differ = sorted(bad + fine)
     if bad:
         shown = "; ".join(f"{k}: {was.get(k)!r} in {out / 'cell.yaml'}, {now.get(k)!r} in {given}"
                           for k in bad[:6]) + (f"; and {len(bad) - 6} more" if len(bad) > 6 else "")
