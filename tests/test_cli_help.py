@@ -192,3 +192,13 @@ def test_the_dispatcher_finds_the_command_after_global_options():
     assert _chosen(["--debug", "flatness", "x.csv"]) == "flatness"
     assert _chosen(["--help"]) == ""
     assert _chosen([]) == ""
+
+
+def test_an_option_given_twice_is_refused_not_the_last_taken(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["run", "--robot", "a.yaml", "--out", "x", "--robot", "b.yaml"])
+    assert e.value.code == 2
+    assert "--robot given twice (a.yaml, then b.yaml): give it once" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["flatness", "r.csv", "--samples", "10", "--samples=20"])
+    assert "--samples given twice (10, then 20)" in capsys.readouterr().err

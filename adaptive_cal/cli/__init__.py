@@ -42,7 +42,23 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         p.set_defaults(_module=module)
         if only is None or only == name:
             importlib.import_module(module).add_arguments(p)
+            for action in p._actions:  # an option with a value, given twice, is refused
+                if type(action) is argparse._StoreAction and action.option_strings:
+                    action.__class__ = _Once
     return parser
+
+
+class _Once(argparse._StoreAction):
+    """An option that takes a value refuses a second one (argparse keeps the last: `run --robot
+    a.yaml ... --robot b.yaml` ran b.yaml without a word)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        seen = namespace.__dict__.setdefault("_given", {})
+        if self.dest in seen:
+            parser.error(f"{option_string} given twice ({seen[self.dest]}, then {values}): give "
+                         "it once")
+        seen[self.dest] = values
+        super().__call__(parser, namespace, values, option_string)
 
 
 def _chosen(argv: list[str]) -> str:
