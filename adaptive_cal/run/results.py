@@ -137,15 +137,16 @@ def robot_time_is(speed_mm_per_s: float, touch_time_s: float) -> str:
 
 def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path,
                   stopped_because: str, *, rng: np.random.Generator, history=None, truth=None,
-                  true_rms_mm=None, refits=()) -> dict:
+                  true_rms_mm=None, refits=(), extra: dict | None = None) -> dict:
     """belief.npz, result.json, surface.png and convergence.png in ``out``, each replaced whole
     (a temporary file moved over the old one); returns the result dict (non-finite numbers as
     None). ``rng`` draws the posterior samples of the intervals; ``history``: the status before
-    the first touch and after each one (convergence figure)."""
+    the first touch and after each one (convergence figure); ``extra``: keys added to
+    result.json (a re-check's "prior_from"), in the one write that marks the results complete."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    result = result_of(cell, plan, state, out / "recording.csv", stopped_because, rng=rng,
-                       truth=truth)
+    result = {**result_of(cell, plan, state, out / "recording.csv", stopped_because, rng=rng,
+                          truth=truth), **(extra or {})}
     features = result.get("local_features") or ()
     save_belief(plan, state, out / "belief.npz", features)
     status = sv.status(plan, state)

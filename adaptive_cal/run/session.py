@@ -244,15 +244,13 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         state = loop.state
         result = None
         if error is None or state.touches:
+            if carried is not None and stopped == PRIOR_DISAGREES:
+                carried = {**carried, "disagreement": disagreement(carried, surprises)}
             result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
                                    rng=np.random.default_rng(RESULTS_SEED),
                                    history=history.statuses, refits=history.refits, truth=truth,
-                                   true_rms_mm=true_rms.rms_mm if true_rms else None)
-            if carried is not None:
-                if stopped == PRIOR_DISAGREES:
-                    carried = {**carried, "disagreement": disagreement(carried, surprises)}
-                result = {**result, "prior_from": carried}
-                write_json(paths.out / "result.json", result)
+                                   true_rms_mm=true_rms.rms_mm if true_rms else None,
+                                   extra=None if carried is None else {"prior_from": carried})
     if error is not None:
         error.result = result  # what was measured before the device stopped: the CLI shows it
         raise error
