@@ -323,3 +323,16 @@ def test_touches_on_one_line_have_no_minimum_zone():
     y[5] += 1.0
     zone = minimum_zone_mm(x, y, z)
     assert np.isfinite([zone.value_mm, zone.a, zone.b]).all() and zone.value_mm <= np.ptp(z)
+
+
+def test_the_average_ranges_groups_against_a_brute_force_grouping():
+    from adaptive_cal.analysis.flatness import _groups
+
+    rng = np.random.default_rng(4)
+    key = rng.choice([-165.0, -55.0, 55.0, 165.0], 40) + rng.normal(0, 1e-9, 40)
+    got = _groups(key)
+    values = np.unique(np.round(key, 6))
+    want = [np.flatnonzero(np.round(key, 6) == v) for v in values]
+    assert len(got) == len(want) and all(np.array_equal(g, w) for g, w in zip(got, want))
+    assert _groups(np.append(key, 7.0)) is None  # a key held by one touch: off the grid
+    assert _groups(rng.uniform(0, 1, 200_000)) is None  # at once (the loop took 10 s here)

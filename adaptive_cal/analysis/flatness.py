@@ -81,9 +81,12 @@ def range_mm(z_mm) -> float:
 
 def _groups(key_mm: np.ndarray) -> list[np.ndarray] | None:
     """Index sets of the points sharing a key value; None when a group has fewer than 2 points."""
-    _, inverse = np.unique(np.round(key_mm, _GROUP_DECIMALS), return_inverse=True)
-    groups = [np.flatnonzero(inverse == g) for g in range(inverse.max() + 1)]
-    return groups if all(len(g) >= 2 for g in groups) else None
+    _, inverse, counts = np.unique(np.round(key_mm, _GROUP_DECIMALS), return_inverse=True,
+                                   return_counts=True)
+    if counts.min() < 2:  # decided before the groups are built: touches off a grid are many
+        return None
+    order = np.argsort(inverse.ravel(), kind="stable")  # each group's indices, ascending
+    return np.split(order, np.cumsum(counts)[:-1])
 
 
 def _average_range(key_mm: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
@@ -227,10 +230,21 @@ def sampled_figures(x_mm, y_mm, surfaces_mm) -> dict[str, np.ndarray]:
     return {
         "least_squares": ls_flatness_samples_mm(x_mm, y_mm, surfaces_mm),
         "range": np.ptp(surfaces_mm, axis=1),
-        "minimum_zone": np.array([minimum_zone_mm(x_mm, y_mm, z).value_mm for z in surfaces_mm]),
+        "minimum_zone": np.array([minimum_zone_mm(x_mm, y_mm, z).value_mm
+                                  for z in _shown(surfaces_mm, "minimum-zone fits")]),
         "range_x_avg": _average_range(y_mm, surfaces_mm),
         "range_y_avg": _average_range(x_mm, surfaces_mm),
     }
+
+
+def _shown(samples: np.ndarray, what: str):
+    """``samples`` to iterate over, with a progress bar on a terminal where they are many
+    points each (a 200,000-touch recording takes a minute or more: 0.2 s a fit)."""
+    if samples.size < 2_000_000:
+        return samples
+    from tqdm import tqdm
+
+    return tqdm(samples, desc=what, unit="sample", disable=None, leave=False)
 
 
 def finite_or_none(value: float) -> float | None:
