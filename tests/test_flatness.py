@@ -336,3 +336,35 @@ def test_the_average_ranges_groups_against_a_brute_force_grouping():
     assert len(got) == len(want) and all(np.array_equal(g, w) for g, w in zip(got, want))
     assert _groups(np.append(key, 7.0)) is None  # a key held by one touch: off the grid
     assert _groups(rng.uniform(0, 1, 200_000)) is None  # at once (the loop took 10 s here)
+
+
+def test_a_figure_of_the_measured_heights_outside_its_interval_is_kept_and_said(tmp_path):
+    """A level plate on an 8 x 5 grid, no noise, one reading 50 um high and one 30 um low: the
+    figures are the readings' own (minimum zone 80 um vertically, less the plane's tilt), though
+    the map takes the two for noise and its repeats never reach them (an outside audit: the
+    median, 37.7 um, was printed in their place)."""
+    from scipy.optimize import linprog
+
+    from adaptive_cal.analysis.flatness_answer import OUTSIDE, OUTSIDE_NOTE, answer_lines
+    from adaptive_cal.analysis.flatness_intervals import recording_flatness
+
+    gx, gy = np.meshgrid(np.linspace(-200, 200, 8), np.linspace(-160, 160, 5))
+    x, y = gx.ravel(), gy.ravel()
+    reading = np.full(40, 1.0)
+    reading[17], reading[30] = 1.050, 0.970
+    rows = "\n".join(f"{i},,{a:.4f},{b:.4f},0.0,{r:.6f}" for i, (a, b, r)
+                     in enumerate(zip(x, y, reading)))
+    f = tmp_path / "bumps.csv"
+    f.write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm\n" + rows + "\n")
+    out = recording_flatness(f, np.random.default_rng(0), 200)[0]
+    mz = out["flatness_mm"]["minimum_zone"]
+    # the oracle: the vertical minimum zone by LP, min t s.t. |h - a x - b y - c| <= t / 2
+    ones = np.ones(40)
+    A = np.block([[-np.c_[x, y, ones], -0.5 * ones[:, None]], [np.c_[x, y, ones], -0.5 * ones[:, None]]])
+    h = reading - 1.0
+    lp = linprog([0, 0, 0, 1], A_ub=A, b_ub=np.r_[-h, h], bounds=[(None, None)] * 3 + [(0, None)])
+    assert mz["value"] == pytest.approx(lp.fun, rel=1e-6)  # normal and vertical: 1e-9 apart here
+    assert mz["value_is"] == OUTSIDE and mz["value"] > mz["ci95"][1]
+    assert out["flatness_mm"]["range"]["value"] == pytest.approx(0.080, abs=1e-9)
+    lines = answer_lines({"touched_flatness_mm": {**out["flatness_mm"], "points": 40}})
+    assert f"minimum zone {mz['value'] * 1e3:.1f} um**" in lines[0] and OUTSIDE_NOTE in lines

@@ -26,8 +26,9 @@ Both figures remove the tilt (the least-squares or minimum-zone plane); the raw 
 
 Flatness is a max - min statistic: under noise the figure of the measured heights is biased up,
 and the figure of the mean map (smoother than any sample) down, so either can fall outside its own
-sampled interval. A value is then replaced by the posterior median of the samples, and
-``value_is`` says which it is. Randomness is passed in: one generator, plate draws first, then
+sampled interval. The map's figure is then replaced by the posterior median of the samples; the
+measured heights' is kept (it is the readings' own: a map that does not reproduce them is said,
+``OUTSIDE``); ``value_is`` says which it is. Randomness is passed in: one generator, plate draws first, then
 touched ones, so the same seed gives the same digits wherever the answer is computed.
 """
 from __future__ import annotations
@@ -48,6 +49,15 @@ SPREAD = "height spread, max - min with the tilt included (not flatness)"
 MEDIAN = "posterior median"
 MEDIAN_NOTE = ("* posterior median of the samples: the figure itself lay outside its 95 % interval "
                "(flatness is a max - min statistic, biased by noise and by smoothing)")
+MEASURED = "figure of the measured heights"
+#: a figure of the measured heights outside its own interval: kept (it is the readings' own),
+#: marked with OUTSIDE_MARK and said (OUTSIDE_NOTE)
+OUTSIDE = "figure of the measured heights, outside the interval of a repeat"
+OUTSIDE_MARK = "**"  # ASCII, as every line the tool prints
+OUTSIDE_NOTE = (f"{OUTSIDE_MARK} the figure of the measured heights lies outside the 95 % interval "
+                "of a repeat measurement: the map does not reproduce these readings (a bump or "
+                "dent narrower than the touch spacing, a misreading, noise unlike the map's); the "
+                "figure is the readings' own, the interval the map's")
 
 
 def touched_what(points: int) -> str:
@@ -62,10 +72,15 @@ def within_what(within: dict) -> str:
 
 def entry(value: float, samples: np.ndarray, figure_is: str) -> dict:
     """{"value", "ci95", "value_is"}: the figure when it lies in its 95 % interval, else the
-    posterior median of the samples (JSON-ready; non-finite as None)."""
+    posterior median of the samples -- except a figure of the measured heights (``MEASURED``),
+    which is the readings' own and is kept, ``value_is`` OUTSIDE: a level plate with one reading
+    50 um high and one 30 um low has a minimum zone of 68 um; the map took the two for noise and
+    its median said 37.7 um (JSON-ready; non-finite as None)."""
     samples = np.asarray(samples, dtype=np.float64)
     lo, hi = fl._ci95(samples)
     if lo is not None and not lo <= value <= hi:
+        if figure_is == MEASURED:
+            return {"value": fl.finite_or_none(value), "ci95": [lo, hi], "value_is": OUTSIDE}
         return {"value": float(np.median(samples)), "ci95": [lo, hi], "value_is": MEDIAN}
     return {"value": fl.finite_or_none(value), "ci95": [lo, hi], "value_is": figure_is}
 
@@ -169,7 +184,7 @@ def touched_answer(x, y, z, rows, belief: bl.Belief, noise_std_mm: float,
     draws = bl.sample(belief, rng, samples) @ rows.T
     if noise_std_mm > 0:
         draws = draws + repeat_noise_mm(rows, belief, noise_std_mm, rng, samples, nu)
-    out = _figures(x, y, z, draws, "figure of the measured heights")
+    out = _figures(x, y, z, draws, MEASURED)
     return {"points": int(len(z)), **out}
 
 
@@ -295,7 +310,7 @@ def gap_line(gap: dict) -> str:
 # -- the words, shared by the terminal (run, flatness) and the report ---------------------------
 def value_text(f: dict) -> str:
     """e.g. "276.4 um (95 % 268.6 .. 293.6 um)"; a posterior median is marked with "*"."""
-    star = "*" if f.get("value_is") == MEDIAN else ""
+    star = {MEDIAN: "*", OUTSIDE: OUTSIDE_MARK}.get(f.get("value_is"), "")
     if f.get("value") is None:
         return "n/a"
     lo, hi = f.get("ci95", [None, None])
@@ -329,8 +344,9 @@ def answer_lines(result: dict, provisional: bool = False, no_plate: str | None =
             lines.append(f"{SPREAD}: {value_text(plate['range'])}")
     elif no_plate:
         lines.append(f"flatness {PLATE}: {no_plate}")
-    if any(f.get("value_is") == MEDIAN for u in used for f in u.values() if isinstance(f, dict)):
-        lines.append(MEDIAN_NOTE)
+    said = {f.get("value_is") for u in used for f in u.values() if isinstance(f, dict)}
+    lines += [note for kind, note in ((MEDIAN, MEDIAN_NOTE), (OUTSIDE, OUTSIDE_NOTE))
+              if kind in said]
     if plate:
         from adaptive_cal.analysis.local_features import feature_line
 

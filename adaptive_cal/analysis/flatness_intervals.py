@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from adaptive_cal.analysis import flatness as fl
-from adaptive_cal.analysis.flatness_answer import entry, repeat_noise_mm
+from adaptive_cal.analysis.flatness_answer import MEASURED, entry, repeat_noise_mm
 from adaptive_cal.formats.recording import (Recording, RecordingError, read_recording,
                                            surface_height_mm)
 from adaptive_cal.gaussian import belief as bl
@@ -122,7 +122,7 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
            "tilt": fl.plane_tilt(x, y, z),
            # figures of the measured heights; a posterior median where one lies outside its
            # interval (value_is says which: analysis.flatness_answer.entry)
-           "flatness_mm": {k: entry(values[k], sampled[k], "figure of the measured heights")
+           "flatness_mm": {k: entry(values[k], sampled[k], MEASURED)
                            for k in NAMES},
            # None where the touches are not a grid along that axis (the paper's method needs one)
            "average_range_mm": {"x": fl.finite_or_none(rx), "y": fl.finite_or_none(ry)},

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from adaptive_cal.analysis.local_features import feature_line
-from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, PLATE, SPREAD,
-                                                   gap_line, touched_what, value_text,
-                                                   within_what)
+from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, OUTSIDE,
+                                                   OUTSIDE_NOTE, PLATE, SPREAD, gap_line,
+                                                   touched_what, value_text, within_what)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.numbers import count, fixed
@@ -236,8 +236,9 @@ def flatness_section(result: dict) -> str:
             if key in figs:
                 rows.append((escape(what), escape(name), f"<b>{escape(value_text(figs[key]))}</b>",
                              escape(figs[key].get("value_is", "-"))))
-    notes = [n for n in (MEDIAN_NOTE,) if any(f.get("value_is") == MEDIAN for u in used
-                                              for f in u.values() if isinstance(f, dict))]
+    said = {f.get("value_is") for u in used for f in u.values() if isinstance(f, dict)}
+    notes = [note for kind, note in ((MEDIAN, MEDIAN_NOTE), (OUTSIDE, OUTSIDE_NOTE))
+             if kind in said]
     notes += [feature_line(f) for f in result.get("local_features") or ()]
     if result.get("largest_gap"):
         notes.append(gap_line(result["largest_gap"]))
