@@ -42,6 +42,9 @@ def test_shipped_studies_load():
     ("plate.tilt_dg", 1.0, "plate.tilt_dg"),
     ("bound.mean_std_mm", -1.0, "bound.mean_std_mm"),
     ("strategies", ["adaptive", "bogus"], "strategies"),
+    ("seed", -1, "seed"),  # refused here, not by numpy once the checkpoint exists
+    ("plate.repeatability_mm", 1e300, "plate.repeatability_mm"),  # an OverflowError later
+    ("bound.max_touches", 100_000_000, "bound.max_touches"),  # named as the cell's key later
 ])
 def test_schema_refuses_naming_the_key(key, value, words):
     with pytest.raises(ConfigError, match=words.replace(".", r"\.")):
@@ -109,3 +112,65 @@ def test_overrides_set_keys_strategies_and_plates_and_name_bad_keys():
                         ("bound.mean_std_mm=1e-9", "noise floor")):
         with pytest.raises(ConfigError, match=words):
             apply_overrides(study, base, settings=[item])
+
+
+def test_a_budget_below_the_papers_first_round_is_refused_with_paper():
+    data = _study(**{"bound.max_touches": 40, "strategies": ["adaptive", "paper"]})
+    with pytest.raises(ConfigError, match=r"bound\.max_touches=40 is less than the paper's first "
+                                          r"round, 45 touches"):
+        _check(data)
+    _check(_study(**{"bound.max_touches": 40, "strategies": ["adaptive", "grid"]}))
+
+
+def test_a_damaged_checkpoint_is_named_and_records_that_are_not_plates_run_again(tmp_path):
+    from adaptive_cal.study.checkpoint import read_checkpoint
+
+    f = tmp_path / "plates.jsonl"
+    for first in ("garbage", "[1, 2]", '{"other": 1}'):
+        f.write_text(first + "\n")
+        with pytest.raises(ValueError, match=r"plates\.jsonl: not a study's checkpoint"):
+            read_checkpoint(f, "k")
+    f.write_text('{"study_key": "k"}\n{"plate": 0, "strategy": "grid"}\n[1, 2]\n'
+                 '{"plate": 1, "strategy": "grid"}\n')
+    assert read_checkpoint(f, "k") == [{"plate": 0, "strategy": "grid"}]
+    with pytest.raises(ValueError, match="another study .*another --out, or another --json"):
+        read_checkpoint(f, "j")
+
+
+def test_a_plate_with_no_design_within_the_budget_leaves_the_bounds_means_finite(tmp_path):
+    """One plate's relaxed bound is inf (no design meets the bound within the budget): it is
+    counted, left out of every mean and ratio alike, and --json holds no Infinity."""
+    import json
+    import math
+
+    from adaptive_cal.run.folder import write_json
+    from adaptive_cal.study.summary import summarise, table
+
+    study = parse_study(_study(**{"strategies": ["adaptive"], "plates": 2}), "s")
+    lines = (ROOT / "docs" / "study" / "plates.jsonl").read_text().splitlines()[1:]
+    one = next(r for r in map(json.loads, lines) if r["strategy"] == "adaptive")
+    recs = [{**one, "plate": plate, "relaxed_touches": relaxed, "best_integer_touches": None}
+            for plate, relaxed in ((0, 20.0), (1, math.inf))]
+    s = summarise(study, recs)
+    lb = s["lower_bound"]
+    assert lb["plates"] == 1 and lb["plates_beyond_budget"] == 1
+    assert lb["relaxed_touches"] == 20.0 and math.isfinite(lb["adaptive_over_relaxed"])
+    assert "on 1 plate no design meets the bound within the touch budget" in table(s)
+    write_json(tmp_path / "s.json", {**s, "x": math.inf})
+    assert "Infinity" not in (tmp_path / "s.json").read_text()
+    assert json.loads((tmp_path / "s.json").read_text())["x"] is None
+
+
+def test_outputs_that_would_overwrite_what_they_should_not_are_refused(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "o"
+    # --json onto the table the study writes into --out (it was replaced by the table)
+    assert main(["study", str(SMOKE), "--out", str(out), "--json", str(out / "table.md")]) == 2
+    assert "the study writes its table.md there" in capsys.readouterr().err
+    # --json onto a JSON file that is not an earlier study's summary
+    precious = tmp_path / "calibration.json"
+    precious.write_text(json.dumps({"calibration": "do not lose"}))
+    assert main(["study", str(SMOKE), "--json", str(precious)]) == 2
+    assert "is not an earlier study's --json" in capsys.readouterr().err
+    assert json.loads(precious.read_text()) == {"calibration": "do not lose"}

@@ -41,6 +41,6 @@ def test_an_output_that_is_an_input_is_refused_before_any_plate(study, tmp_path,
             continue  # a page may replace a page; --json guards its own
         code, err = _run(study, *args, "--out", tmp_path / "out")
         assert code == 2, err
-        assert option in err and ("itself" in err or "not JSON" in err)
+        assert option in err and ("itself" in err or "not an earlier study" in err)
         assert (target.read_text() if target.exists() else None) == before
         assert not (tmp_path / "out" / "plates.jsonl").exists() or what == "checkpoint"

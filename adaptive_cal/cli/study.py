@@ -107,12 +107,26 @@ class Progress:
             self.open = False
 
 
+def _kept(checkpoint: Path) -> int:
+    """The plate runs a checkpoint holds (0 where it cannot be read)."""
+    try:
+        lines = checkpoint.read_text(encoding="utf-8").splitlines()[1:]
+    except (OSError, UnicodeDecodeError):
+        return 0
+    return sum(1 for line in lines if line.startswith("{"))
+
+
 def _where(args) -> str:
     if args.scheduler:
         return f"on the Dask scheduler at {args.scheduler}"
     if args.workers:
         return f"on {count(args.workers, 'worker')} (Dask LocalCluster)"
     return "in this process (1 worker)"
+
+
+#: what a study writes into --out (study.figures.write_summary and its checkpoint)
+OUT_FILES = ("plates.jsonl", "table.md", "touches_vs_bound.png", "coverage.png",
+             "example_plate.png")
 
 
 def _check_outputs(args, study, checkpoint: Path) -> None:
@@ -132,13 +146,22 @@ def _check_outputs(args, study, checkpoint: Path) -> None:
         parent = next((q for q in Path(out).absolute().parents if q.exists()), None)
         if parent is not None and not parent.is_dir():
             raise UserError(f"{option} {out}: {parent} is a file, not a folder")
+    if args.out:  # the files the study writes into --out
+        written = {(Path(args.out) / n).absolute(): n for n in OUT_FILES}
+        for option, out in outs:
+            if Path(out).absolute() in written:
+                raise UserError(f"{option} {out}: the study writes its "
+                                f"{written[Path(out).absolute()]} there (--out {args.out}); give "
+                                "another file")
     out = Path(args.json)
     if out.is_file() and out.stat().st_size:
         try:
-            json.loads(out.read_text(encoding="utf-8"))
+            earlier = json.loads(out.read_text(encoding="utf-8"))
         except (ValueError, UnicodeDecodeError):
-            raise UserError(f"--json {out}: exists and is not JSON (not an earlier study's "
-                            "--json): it is left as it is; give another file") from None
+            earlier = None
+        if not (isinstance(earlier, dict) and {"strategies", "bound"} <= earlier.keys()):
+            raise UserError(f"--json {out}: exists and is not an earlier study's --json: it is "
+                            "left as it is; give another file")
     if args.doc and Path(args.doc).absolute() == Path(args.json).absolute():
         raise UserError(f"--doc {args.doc} is --json {args.json}: give two files")
 
@@ -178,8 +201,10 @@ def command(args) -> int:
                             progress=None if args.quiet else progress)
     except KeyboardInterrupt:
         progress.close()
-        progress.say(f"the plates finished are kept in {checkpoint}: the same command again "
-                     "runs only the rest")
+        kept = _kept(checkpoint)
+        progress.say(f"{count(kept, 'run')} finished, kept in {checkpoint}: the same command "
+                     "again runs only the rest" if kept else
+                     "no run had finished: nothing kept, the same command again starts over")
         raise
     finally:
         progress.close()
@@ -188,7 +213,9 @@ def command(args) -> int:
     summary = summarise(study, records)
     summary["wall_s"] = round(time.monotonic() - progress.t0, 1)
     out_json.parent.mkdir(parents=True, exist_ok=True)
-    out_json.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    from adaptive_cal.run.folder import write_json
+
+    write_json(out_json, summary)  # atomic; an infinite figure (no bound in the budget) as null
     if out_dir:
         from adaptive_cal.study.figures import write_summary
 

@@ -27,16 +27,27 @@ def read_checkpoint(path: Path, key: str) -> list[dict]:
     lines = path.read_text(encoding="utf-8").splitlines()
     if not lines:
         return []
-    head = json.loads(lines[0])
-    if head.get("study_key") != key:
-        raise ValueError(f"{path} holds plates of another study (key {head.get('study_key')}, "
-                         f"this study {key}): delete it or choose another --out")
+    where = "delete it, or write this study elsewhere (another --out, or another --json)"
+    try:
+        head = json.loads(lines[0])
+    except json.JSONDecodeError:
+        head = None
+    if not isinstance(head, dict) or not isinstance(head.get("study_key"), str):
+        raise ValueError(f"{path}: not a study's checkpoint (its first line, {lines[0][:40]!r}, "
+                         f"is not a study key): {where}")
+    if head["study_key"] != key:
+        raise ValueError(f"{path} holds plates of another study (key {head['study_key']}, "
+                         f"this study {key}; its plates, strategies, seed or settings differ): "
+                         f"{where}")
     records = []
     for line in lines[1:]:
         try:
-            records.append(json.loads(line))
+            record = json.loads(line)
         except json.JSONDecodeError:  # a line cut by the interruption: that plate runs again
             break
+        if not isinstance(record, dict) or not {"plate", "strategy"} <= record.keys():
+            break  # not a plate's record: it and what follows run again
+        records.append(record)
     return records
 
 

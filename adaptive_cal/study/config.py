@@ -39,7 +39,8 @@ class PlateDistribution(Strict):
     form_pv_mm: Span = (0.02, 0.3)
     form_shapes: list[Literal["bow_x", "bow_y", "twist", "warp"]] = list(SHAPES)
     noise_std_mm: Span = (0.005, 0.02)
-    repeatability_mm: float = Field(0.0, ge=0, description="robot z repeatability (1 sigma)")
+    repeatability_mm: float = Field(0.0, ge=0, le=1.0, description="robot z repeatability (1 "
+                                    "sigma)")
     noise_range_known: bool = Field(True, description="tell the planner the span of the reading "
                                     "noise (probe.noise_range_mm), as a user quotes the probe's "
                                     "datasheet; false: only the cell's first guess")
@@ -70,7 +71,7 @@ class Bound(Strict):
     mean_std_mm: float = Field(0.005, gt=0, description="stop at this RMS posterior std")
     true_rms_mm: float | None = Field(None, gt=0, description="bound on the TRUE RMS error; "
                                       "default: mean_std_mm")
-    max_touches: int = Field(200, ge=1)
+    max_touches: int = Field(200, ge=1, le=100_000)
 
     @property
     def true_mm(self) -> float:
@@ -102,7 +103,7 @@ class Study(Strict):
     """A whole study file."""
 
     name: str = "study"
-    seed: int = 0
+    seed: int = Field(0, ge=0, description="seed of every plate's draws")
     plates: int = Field(ge=1)
     cell: str | dict = Field("sim-cell.yaml", description="cell file (relative to the study "
                              "file) or an inline cell mapping")
@@ -240,6 +241,13 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
 
     check_surface_files(study, cell, source)
     p, m, probe = study.plate, cell.model, cell.probe
+    first_round = 5 + study.paper.nx * study.paper.ny  # levelling, then one S path
+    if "paper" in study.strategies and study.bound.max_touches < first_round:
+        raise ConfigError(
+            f"{source}: bound.max_touches={study.bound.max_touches} is less than the paper's "
+            f"first round, {first_round} touches (5 levelling points and the paper.nx x paper.ny "
+            f"= {study.paper.nx} x {study.paper.ny} path): the paper strategy would run past the "
+            "budget; raise bound.max_touches or leave 'paper' out of strategies")
     told = math.hypot(p.noise_std_mm[0], p.repeatability_mm)
     if p.noise_range_known and not told > 0:
         # the planner is told probe.noise_range_mm from these: its low end must be above 0 (a
@@ -275,12 +283,14 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
                 f"{source}: plate.tilt_deg={p.tilt_deg} needs approach heights over "
                 f"+-{rise:.2f} mm, outside the cell's workspace z_mm={list(ws.z_mm)}")
     floor = noise_floor_mm(study, cell)
+    repeat = (f" and the robot's z repeatability {p.repeatability_mm} mm"
+              if p.repeatability_mm else "")
     for key, value in (("bound.mean_std_mm", study.bound.mean_std_mm),
                        ("bound.true_rms_mm", study.bound.true_rms_mm)):
         if value is not None and value < floor:
             raise ConfigError(
                 f"{source}: {key}={value} is below the noise floor: with reading noise up to "
-                f"{p.noise_std_mm[1]} mm and at most bound.max_touches={study.bound.max_touches} "
+                f"{p.noise_std_mm[1]} mm{repeat} and at most bound.max_touches={study.bound.max_touches} "
                 f"touches no design brings the RMS posterior std below {floor:.5f} mm "
                 "(relaxed optimal design); raise the bound or the touch budget")
 

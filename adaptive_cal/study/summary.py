@@ -57,10 +57,15 @@ def summarise(study: Study, records: list[dict]) -> dict:
             "robot_time_ratio": float(np.mean([a["robot_time_s"] for a, _ in same])
                                       / np.mean([g["robot_time_s"] for _, g in same]))}
     lb = [r for r in adaptive if r.get("relaxed_touches") is not None]
+    # a plate where no design meets the bound within the budget has no bound (inf): counted,
+    # and left out of every mean and ratio alike (one such plate made the mean inf, the ratio not)
+    beyond = sum(not np.isfinite(r["relaxed_touches"]) for r in lb)
+    lb = [r for r in lb if np.isfinite(r["relaxed_touches"])]
     relaxed = _mean(r["relaxed_touches"] for r in lb)
     best = [r.get("best_integer_touches") for r in lb]
     out["lower_bound"] = {
         "plates": len(lb),
+        "plates_beyond_budget": beyond,
         "relaxed_touches": relaxed,
         "best_integer_touches": _mean(best) if best and all(b is not None for b in best) else None,
         "adaptive_stop_touches_same_plates": _mean(to_bound(r) for r in lb),
@@ -83,12 +88,14 @@ def summarise(study: Study, records: list[dict]) -> dict:
     if marginal:  # the bound for the planner's own stop, under its hyper-parameter posterior
         out["lower_bound"].update(
             marginal_whole_touches_at_stop=_mean(r["marginal_whole_touches_at_stop"]
-                                                 for r in marginal),
+                                                 for r in marginal
+                                                 if np.isfinite(r["marginal_whole_touches_at_stop"])),
             adaptive_over_marginal_whole_at_stop=_mean(
                 to_bound(r) / r["marginal_whole_touches_at_stop"] for r in marginal
                 if np.isfinite(r["marginal_whole_touches_at_stop"])),
             adaptive_below_marginal_plates=sum(
-                to_bound(r) < r["marginal_whole_touches_at_stop"] for r in marginal))
+                to_bound(r) < r["marginal_whole_touches_at_stop"] for r in marginal
+                if np.isfinite(r["marginal_whole_touches_at_stop"])))
     greedy = [r for r in lb if r.get("greedy_known_touches")]
     if greedy:  # a feasible integer design under the same hyper-parameters: brackets the best one
         out["lower_bound"].update(
@@ -168,6 +175,10 @@ def table(summary: dict) -> str:
                   + ("; its robot time is the mean over the plates that reached it only"
                      if missed else "")]
     lb = summary.get("lower_bound") or {}
+    if lb.get("plates_beyond_budget"):
+        lines += ["", f"lower bound: on {count(lb['plates_beyond_budget'])} no design meets the "
+                  f"bound within the touch budget (max_touches = {b.get('max_touches')}): left out of "
+                  "the bound's figures below"]
     if lb.get("plates"):
         lines += ["", f"lower bound (relaxed optimal design, same hyper-parameters, first "
                   f"{count(lb['plates'])}): {_f(lb['relaxed_touches'])} touches; best integer "
