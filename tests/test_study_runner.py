@@ -131,7 +131,16 @@ def test_cli_writes_summary_table_and_plots(tmp_path, capsys):
     for f in ("table.md", "touches_vs_bound.png", "coverage.png", "example_plate.png",
               "plates.jsonl"):
         assert (tmp_path / "dir" / f).exists()
-    assert "| paper |" in (tmp_path / "study.md").read_text()
+    page = (tmp_path / "study.md").read_text()
+    assert "| paper |" in page
+    # the page's command is the one that ran (it added --workers 2 and dropped --strategies),
+    # and another study's page carries neither the project's provenance nor its targets
+    shown = next(line for line in page.splitlines() if line.startswith("OPENBLAS"))
+    assert shown == (f"OPENBLAS_NUM_THREADS=1 adaptive-cal study {SMOKE} --json {out} --out "
+                     f"{tmp_path / 'dir'} --doc {tmp_path / 'study.md'} --plates 1 --strategies "
+                     "paper,grid")
+    assert "## Targets" not in page and "63 minutes" not in page
+    assert "tilt uniform in +-" in page  # a drawn study says how its plates were drawn
 
 
 def test_summary_lower_bound_ratios_are_means_of_per_plate_ratios():

@@ -107,6 +107,22 @@ class Progress:
             self.open = False
 
 
+def _command(args) -> str:
+    """The command line that ran this study, as a page shows it to run again (paths quoted
+    for a shell where they need it; --quiet, which changes nothing written, left out)."""
+    from shlex import quote
+
+    words = ["adaptive-cal study", quote(args.study), "--json", quote(args.json)]
+    for option, value in (("--out", args.out), ("--doc", args.doc), ("--plates", args.plates),
+                          ("--strategies", args.strategies), ("--scheduler", args.scheduler),
+                          ("--workers", args.workers or None)):
+        if value is not None:
+            words += [option, quote(str(value))]
+    for item in args.set:
+        words += ["--set", quote(item)]
+    return "OPENBLAS_NUM_THREADS=1 " + " ".join(words)
+
+
 def _kept(checkpoint: Path) -> int:
     """The plate runs a checkpoint holds (0 where it cannot be read)."""
     try:
@@ -222,7 +238,6 @@ def command(args) -> int:
         write_summary(study, summary, records, base, out_dir)
     if args.doc:
         write_doc(Path(args.doc), study, summary, study_file=args.study, json_file=args.json,
-                  out_dir=args.out or str(out_json.parent), base=base,
-                  plates_arg=f"--plates {args.plates}" if args.plates else "")
+                  out_dir=args.out or str(out_json.parent), base=base, command=_command(args))
     print(table(summary))
     return 0

@@ -17,24 +17,15 @@ uncertainty honest? `adaptive-cal study` answers both on synthetic plates. This 
 figures, and the benchmark figures from `benchmarks/results/`) is written by one command:
 
 ```
-OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} \\
-    --out {out_dir} --doc {doc_file} --workers 2 {plates_arg}
+{command}
 ```
 
 Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun, so the page is
-rewritten in seconds; a fresh 40-plate run took 63 minutes on the 2-core development machine
-(2026-11-23, partly shared with other jobs), with the lower bound on 20 plates (11 minutes on
-2026-11-21, before the planner's self-checks and robot-time cost landed). On 2026-11-24 the
-planner's touches to the true bound in those records were re-counted from their trajectories
-against the bound itself (they had been counted against the stricter of the bound and the paper's
-accuracy, which a run goes on to for the comparison with the paper: 84.5 / 161 touches, 95 %
-reached), a closure touch charged past the touch budget (one random plate, 201 touches) was taken
-off, and the one planner record whose stored touches ended before the bound was run again.
+rewritten in seconds; this run took {took} of wall clock.{history}
 
 ## Headline ({plates} of `{study_file}`)
 
-Plates: tilt uniform in +-{tilt} deg about each axis, form (bow, twist, warp with random
-weights) {pv0}-{pv1} mm peak to valley, reading noise {n0}-{n1} um. Every strategy runs on the
+Plates: {plates_are}, reading noise {n0}-{n1} um. Every strategy runs on the
 same plates and is judged by the same spline model; the bound is {bound} um. {noise_prior}
 
 {table}
@@ -289,9 +280,39 @@ def _noise_prior_text(probe) -> str:
             "with 95 % inside), and learns the noise within it.")
 
 
+#: the provenance of the project's own page (configs/study-tilts.yaml -> docs/study.md): how
+#: long a fresh run took and what was re-counted since -- on no other study's page
+TILTS_HISTORY = """
+A fresh 40-plate run of this page took 63 minutes on the 2-core development
+machine (2026-11-23, partly shared with other jobs), with the lower bound on 20 plates (11
+minutes on 2026-11-21, before the planner's self-checks and robot-time cost landed). On
+2026-11-24 the planner's touches to the true bound in those records were re-counted from their
+trajectories against the bound itself (they had been counted against the stricter of the bound
+and the paper's accuracy, which a run goes on to for the comparison with the paper: 84.5 / 161
+touches, 95 % reached), a closure touch charged past the touch budget (one random plate, 201
+touches) was taken off, and the one planner record whose stored touches ended before the bound
+was run again."""
+REPO = Path(__file__).resolve().parents[2]
+SHIPPED_TILTS = REPO / "configs" / "study-tilts.yaml"
+
+
+def _plates_are(study: Study) -> str:
+    p = study.plate
+    if p.surface_files:
+        return (f"the height maps `{p.surface_files}` in turn, each with the tilt and form it "
+                "holds")
+    return (f"tilt uniform in +-{p.tilt_deg} deg about each axis, form (bow, twist, warp with "
+            f"random weights) {p.form_pv_mm[0]}-{p.form_pv_mm[1]} mm peak to valley")
+
+
 def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_file: str,
               out_dir: str, base: dict, plates_arg: str = "",
-              results: Path = Path("benchmarks/results")) -> None:
+              results: Path = REPO / "benchmarks" / "results", command: str | None = None
+              ) -> None:
+    """The page; ``command``: the command line that wrote it, as the page shows it (default:
+    the study file with --json, --out and --doc). The project's own page (SHIPPED_TILTS) also
+    gets its provenance, the issue's targets and the benchmark figures of ``results``; another
+    study's page, its own table and figures only."""
     path = Path(path)
     p = study.plate
     out_rel = Path(out_dir).name
@@ -300,15 +321,22 @@ def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_
     except ValueError:
         pass
     probe = _planner_probe(study, base)
-    text = DOC.format(minutes=max(1, round((summary.get("wall_s") or 60) / 60)),
-                      study_file=study_file, json_file=json_file, out_dir=out_dir,
-                      doc_file=str(path), plates_arg=plates_arg, plates=count(summary["plates"]),
-                      tilt=p.tilt_deg, pv0=p.form_pv_mm[0], pv1=p.form_pv_mm[1],
+    if command is None:
+        command = (f"OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} "
+                   f"\\\n    --out {out_dir} --doc {path} {plates_arg}").rstrip()
+    own = Path(study_file).resolve() == SHIPPED_TILTS
+    history = TILTS_HISTORY if own else ""
+    wall = float(summary.get("wall_s") or 0.0)
+    took = f"{wall:.0f} s" if wall < 90 else f"{wall / 60:.0f} min"
+    text = DOC.format(took=took,
+                      command=command, history=history, plates_are=_plates_are(study),
+                      study_file=study_file, out_dir=out_dir, plates=count(summary["plates"]),
                       n0=p.noise_std_mm[0] * 1e3, n1=p.noise_std_mm[1] * 1e3,
                       bound=study.bound.mean_std_mm * 1e3, budget=study.bound.max_touches,
                       noise_prior=_noise_prior_text(probe),
                       fixed_noise=round(probe.noise_prior()[0] * 1e3, 1),
                       table=table(summary), out_rel=out_rel)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text + "\n" + targets_section(summary, Path(results)) + "\n"
-                    + benchmarks_section(Path(results)), encoding="utf-8")
+    extra = ("\n" + targets_section(summary, Path(results)) + "\n"
+             + benchmarks_section(Path(results))) if own else ""
+    path.write_text(text + extra, encoding="utf-8")
