@@ -202,3 +202,18 @@ def test_an_option_given_twice_is_refused_not_the_last_taken(capsys):
     with pytest.raises(SystemExit):
         main(["flatness", "r.csv", "--samples", "10", "--samples=20"])
     assert "--samples given twice (10, then 20)" in capsys.readouterr().err
+
+
+def test_an_os_error_is_an_error_with_the_systems_words_not_an_internal_error(monkeypatch,
+                                                                              capsys):
+    import errno
+
+    import adaptive_cal.cli.flatness as flatness
+
+    def full(args):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(flatness, "command", full)
+    assert main(["flatness", "r.csv"]) == 2
+    err = capsys.readouterr().err
+    assert err == "adaptive-cal flatness: error: [Errno 28] No space left on device\n"

@@ -114,6 +114,11 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError, AttributeError):
             pass
         return 0
+    except OSError as e:  # a disk full, a device gone: the system's words, not an internal error
+        if args.debug:
+            raise
+        print(f"adaptive-cal {args.subcommand}: error: {_said(e)}", file=sys.stderr)
+        return 2
     except Exception as e:  # a bug, not bad input: still no traceback unless --debug
         if args.debug:
             raise
