@@ -117,7 +117,8 @@ def test_cli_writes_summary_table_and_plots(tmp_path, capsys):
     std = capsys.readouterr()
     err = std.err.splitlines()
     assert err[0] == "study smoke: 1 plate x 2 strategies = 2 runs in this process (1 worker)"
-    assert err[1].startswith("study smoke: 1/2 runs done, ") and err[1].endswith(" s left")
+    assert err[1].startswith("study smoke: 1/2 runs done, ")
+    assert err[1].endswith(" s, time left once a plate's strategies are done")
     assert err[2].startswith("study smoke: 2/2 runs done, ") and len(err) == 3
     assert std.out.startswith("bound: ") and "runs done" not in std.out
     summary = json.loads(out.read_text())

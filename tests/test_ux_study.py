@@ -139,3 +139,20 @@ def test_study_help_names_the_per_plate_file_without_out(capsys):
         main(["study", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "OUT.json.plates.jsonl" in text and "DIR/plates.jsonl" in text
+
+
+def test_progress_gives_no_time_left_before_a_plates_strategies_are_done():
+    import io
+
+    from adaptive_cal.cli.study import Progress
+
+    now = [0.0]
+    stream = io.StringIO()
+    p = Progress("s", 9, "DIR/plates.jsonl", stream=stream, clock=lambda: now[0], per_plate=3)
+    p(0, 9)
+    for done, t in ((1, 2.0), (3, 60.0)):  # a quick grid first, then the plate's slow ones
+        now[0] = t
+        p(done, 9)
+    assert stream.getvalue().splitlines() == [
+        "study s: 1/9 runs done, 2 s, time left once a plate's strategies are done",
+        "study s: 3/9 runs done, 60 s, about 2 min left"]
