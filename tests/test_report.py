@@ -292,3 +292,55 @@ def test_a_bare_recordings_page_judges_its_closure_touch_again(run_dir, tmp_path
             assert "no drift seen" in row
         else:
             assert "the cell drifted during the run" in row
+
+
+def test_explain_findings_of_an_earlier_recording_are_said_and_only_its_figures_shown(
+        explained, tmp_path, capsys):
+    """An outside audit: a run resumed after explain showed the earlier findings as the run's,
+    and a second explain left the first one's figures embedded under its new verdict."""
+    d = tmp_path / "run"
+    shutil.copytree(explained, d)
+    findings = json.loads((d / "explain.json").read_text())
+    (d / "fitted_effect.png").write_bytes((d / "residual_map.png").read_bytes())  # an old one
+    findings["readings"]["total"] -= 5  # as if explained before the last five touches
+    (d / "explain.json").write_text(json.dumps(findings))
+    html = _page(d, capsys)
+    result = json.loads((d / "result.json").read_text())
+    assert (f"<b>Out of date:</b> explain.json was made from {findings['readings']['total']} "
+            f"readings; the run has {result['fused']} fused now") in html
+    assert "out of date, of an earlier recording" in html  # its card too
+    listed = {Path(f).name for f in findings["figures"]}
+    assert "fitted_effect.png" not in listed and "alt='fitted_effect.png'" not in html
+    assert all(f"alt='{name}'" in html for name in listed)
+    # the page's --out never replaces a file the page embeds
+    capsys.readouterr()
+    for name in ("convergence.png", "surface.png", "residual_map.png"):
+        assert main(["report", str(d), "--out", str(d / name)]) == 2
+        assert "itself" in capsys.readouterr().err
+
+
+def test_the_pages_explain_words_and_units_are_the_terminals(explained, tmp_path, capsys):
+    """A left-out warm-up as explain.json holds it (mm, s): the page says it as the terminal
+    does, in um with the terminal's digits (it printed the raw "amplitude_mm = 0.1991")."""
+    from adaptive_cal.effects import EFFECTS
+    from adaptive_cal.report.explain_text import left_out_line
+
+    d = tmp_path / "run"
+    shutil.copytree(explained, d)
+    rep = json.loads((d / "explain.json").read_text())
+    rep["left_out"] = [{"effect": "thermal_drift", "log_bayes_factor": 222.96,
+                        "params": {"amplitude_mm": 0.1991, "tau_s": 61.6755},
+                        "params_std": {"amplitude_mm": 0.003863, "tau_s": 3.2},
+                        "summary": "amplitude_mm = 0.1991 +- 0.003863 at tau_s = 61.6755"}]
+    (d / "explain.json").write_text(json.dumps(rep))
+    html = _page(d, capsys)
+    units = {name: {p.name: p.unit for p in e.params} for name, e in EFFECTS.items()}
+    line = left_out_line(rep["left_out"][0], units["thermal_drift"], rep["verdict"]).strip()
+    assert "199.1" in line and f"<li>{escape(line)}</li>" in html
+    assert "amplitude_mm = 0.1991" not in html
+
+
+def test_a_missing_recording_is_said_missing(tmp_path, capsys):
+    assert main(["report", str(tmp_path / "typo.csv"), "--robot",
+                 str(ROOT / "configs" / "cheng2025-cell.yaml")]) == 2
+    assert "typo.csv: no such recording" in capsys.readouterr().err

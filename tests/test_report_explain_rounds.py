@@ -4,7 +4,7 @@ import json
 import subprocess
 import sys
 
-from adaptive_cal.report.sections import explain_section
+from adaptive_cal.report.explain_page import explain_section
 
 from helpers import ROOT
 

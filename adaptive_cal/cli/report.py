@@ -53,6 +53,10 @@ def command(args) -> int:
                                [given, args.robot])
         path = _from_recording(given, Path(args.robot), args.out)
     else:
+        if not given.exists():
+            raise UserError(f"{given}: " + ("no such recording" if args.robot or given.suffix
+                                             == ".csv" else "no such folder (give the run "
+                                             "folder 'adaptive-cal run --out DIR' wrote)"))
         if args.robot:
             raise UserError(f"--robot goes with a recording; {given} is a run folder, which holds "
                             "its own cell.yaml")
@@ -60,11 +64,19 @@ def command(args) -> int:
 
         if given.is_dir():
             refuse_input_as_output("--out", args.out or given / "report.html", [args.robot],
-                                   [given], also=("explain.json",))  # read by the page
+                                   [given], also=PAGE_READS)  # what the page and run read
             _check_belief(given)
         path = write(args.run_dir, args.out)
     print(f"wrote {path}")
     return 0
+
+
+#: a run folder's files besides RUN_FILES that the page embeds or a resume reads: --out never
+#: replaces one (a page written over convergence.png was embedded as a broken image after)
+PAGE_READS = ("explain.json", "surface.png", "convergence.png", "prior_from.json",
+              "residual_map.png", "residual_vs_position.png", "residual_vs_time.png",
+              "residual_vs_direction.png", "residual_vs_reach.png", "residual_vs_indication.png",
+              "fitted_effect.png")
 
 
 def _check_belief(run_dir: Path) -> None:

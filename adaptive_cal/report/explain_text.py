@@ -187,6 +187,18 @@ def rounds_lines(r: dict) -> list[str]:
     return out
 
 
+def stale(findings: dict, result: dict | None) -> str | None:
+    """Why explain.json is not of the run's recording as it is now (its readings against the
+    run's fused ones: a run resumed after explain), or None."""
+    total = (findings.get("readings") or {}).get("total")
+    fused = (result or {}).get("fused")
+    if total is None or fused is None or total == fused:
+        return None
+    return (f"explain.json was made from {total} readings; the run has {fused} fused now (it "
+            "went on after explain): its findings are of the earlier recording -- run explain "
+            "again for these")
+
+
 def lines(report: dict, units: dict[str, dict[str, str]]) -> list[str]:
     fit = report["fit"]
     out = verdict_lines(report)

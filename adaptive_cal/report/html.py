@@ -32,7 +32,8 @@ from adaptive_cal.gaussian.belief import Belief, predict
 from adaptive_cal.gaussian.spline import Surface
 from adaptive_cal.report import figures as plots
 from adaptive_cal.report.status import missing, quoted, unfinished
-from adaptive_cal.report.sections import (cards, cell_section, escape, explain_section,
+from adaptive_cal.report.explain_page import explain_section
+from adaptive_cal.report.sections import (cards, cell_section, escape,
                                           flatness_section, image, incomplete_banner, run_section,
                                           tilt_section)
 
@@ -189,6 +190,7 @@ def page(result: dict, cell: Cell, rec, surface_b64: str | None, convergence_b64
         incomplete_banner(result, resume),
         cards(result, run_dir),
         tilt_section(result["tilt"], provisional=missing(result) is not None,
+                     prior_from=result.get("prior_from"),
                      spread=result["flatness_mm"].get("range")),
         flatness_section(result),
         "<h2>Touches on the plate</h2>",
@@ -202,7 +204,7 @@ def page(result: dict, cell: Cell, rec, surface_b64: str | None, convergence_b64
         else f"<p class='note'>{escape(conv_note)}.</p>",
         run_section(result),
         cell_section(cell, result),
-        explain_section(run_dir) if run_dir is not None else "",
+        explain_section(run_dir, result) if run_dir is not None else "",
         f"<footer>adaptive-cal {__version__}, report written "
         f"{_dt.datetime.now().strftime('%Y-%m-%d %H:%M')} from {footer}.</footer>",
     ]

@@ -4,7 +4,6 @@ saved data (result.json, explain.json) and returns an HTML string; numbers are f
 never computed."""
 from __future__ import annotations
 
-import base64
 import html
 from pathlib import Path
 
@@ -17,15 +16,10 @@ from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE,
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.numbers import count, fixed
-from adaptive_cal.report.explain_text import readings_lines, rounds_lines, verdict_lines
+from adaptive_cal.report.explain_text import stale
 from adaptive_cal.report.status import missing, next_step
 
 UM = 1000.0
-EXPLAIN_FIGURES = ("residual_map.png", "residual_vs_position.png", "residual_vs_time.png",
-                   "residual_vs_direction.png", "residual_vs_reach.png",
-                   "residual_vs_indication.png", "fitted_effect.png")
-
-
 def rotation(rx_deg: float, ry_deg: float) -> np.ndarray:
     """rotx(rx) @ roty(ry): the rotation the nominal user frame is multiplied by on the right."""
     a, b = np.radians(rx_deg), np.radians(ry_deg)
@@ -54,8 +48,8 @@ def _table(rows, head=None, cls="") -> str:
     return "".join(out) + "</table>"
 
 
-def _um(mm) -> str:
-    return "-" if mm is None else f"{fixed(mm * UM, 1)} um"
+def _um(mm, digits: int = 1) -> str:
+    return "-" if mm is None else f"{fixed(mm * UM, digits)} um"
 
 
 def signed(value: float, digits: int) -> str:
@@ -128,7 +122,8 @@ def run_section(result: dict) -> str:
     rows = [("touches", f"{result['touches']} ({result['fused']} fused)"),
             ("robot time (estimate)", _robot_time(result)),
             ("stopped because", escape(reason_text(result["stopped_because"]))),
-            ("posterior std over the plate", f"RMS {_um(p['mean_std_mm'])}, max {_um(p['max_std_mm'])}"),
+            ("posterior std over the plate", f"RMS {_um(p['mean_std_mm'], 2)}, max "
+                                             f"{_um(p['max_std_mm'], 2)}"),  # the terminal's digits
             (f"reading noise {how}", _um(h.get("noise_std_mm"))),
             (f"form prior {how}", f"amplitude {_um(h.get('form_std_mm'))}, length scale "
                                   f"{h.get('length_scale_mm', float('nan')):.0f} mm")]
@@ -140,8 +135,8 @@ def run_section(result: dict) -> str:
                            if 'rx' in c and 'ry' in c else "")))
     if "truth" in result:
         t = result["truth"]
-        rows.append(("simulated cell: true error", f"RMS {_um(t['rms_error_mm'])}, max "
-                     f"{_um(t['max_error_mm'])}; the 95 % band covers {percent(t['coverage95'])} of the "
+        rows.append(("simulated cell: true error", f"RMS {_um(t['rms_error_mm'], 2)}, max "
+                     f"{_um(t['max_error_mm'], 2)}; the 95 % band covers {percent(t['coverage95'])} of the "
                      "plate"))
     return "<h2>The run</h2>" + _table(rows, cls="kv") + model_section(result)
 
@@ -186,9 +181,11 @@ def _dof_note(tilt: dict) -> str:
             "degrees of freedom, given as the sd with the same 2-sd interval")
 
 
-def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = None) -> str:
+def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = None,
+                 prior_from: dict | None = None) -> str:
     """The correction for the controller; ``spread``: the raw height spread of the plate (max -
-    min, the tilt included), shown here, never under Flatness."""
+    min, the tilt included), shown here, never under Flatness; ``prior_from``: a re-check's
+    earlier run, whose corrected frame is the one this correction goes on top of."""
     rx, ry = tilt["rx_deg"], tilt["ry_deg"]
     R = rotation(rx, ry)
     sx, sy = tilt.get("rx_std_deg"), tilt.get("ry_std_deg")
@@ -205,9 +202,18 @@ def tilt_section(tilt: dict, provisional: bool = False, spread: dict | None = No
     if spread:
         rows.append((SPREAD.replace(" (not flatness)", ", whole plate"), escape(value_text(spread))))
     matrix = "<br>".join("[" + "  ".join(signed(v, 6) for v in row) + "]" for row in R)
-    head = ("<h2>Tilt correction for the controller (provisional)</h2><p><b>Provisional:</b> the "
-            "run did not finish (see the top of the page); apply it only after the run meets its "
-            "bound.</p>" if provisional else "<h2>Tilt correction for the controller</h2>")
+    head = ("<h2>Tilt correction for the controller (provisional)</h2><p><b>Provisional:</b> "
+            "the map is not a result (the top of the page says why and what to do); do not "
+            "correct the frame from it.</p>" if provisional
+            else "<h2>Tilt correction for the controller</h2>")
+    if prior_from:
+        c = prior_from.get("correction_deg") or {}
+        done = (f"rotx({signed(c['rx'], 4)} deg) * roty({signed(c['ry'], 4)} deg)"
+                if {"rx", "ry"} <= c.keys() else "its correction")
+        head += (f"<p><b>A re-check:</b> frame_nominal below is the frame already corrected "
+                 f"after {escape(prior_from.get('run', 'the earlier run'))} ({done} assumed "
+                 "applied, the original frame times that): apply this on top of that frame, not "
+                 "on the original one.</p>")
     return (head + "<p>Rotate the user frame so its z axis is the plate normal:</p>"
             f"<pre class='code'>frame_new = frame_nominal * rotx({signed(rx, 4)} deg) * "
             f"roty({signed(ry, 4)} deg)\n"
@@ -242,8 +248,8 @@ def flatness_section(result: dict) -> str:
     notes += [feature_line(f) for f in result.get("local_features") or ()]
     if result.get("largest_gap"):
         notes.append(gap_line(result["largest_gap"]))
-    head = ("<h2>Flatness (provisional)</h2><p><b>Provisional:</b> the run is not finished "
-            "(above); these figures are of a map that does not meet its bound.</p>"
+    head = ("<h2>Flatness (provisional)</h2><p><b>Provisional:</b> the map is not a result "
+            "(the top of the page says why); these figures are of that map.</p>"
             if missing(result) else "<h2>Flatness</h2>")
     return (head
             + _table(rows, head=("flatness", "figure", "value (95 % interval)", "value is"))
@@ -260,66 +266,6 @@ def flatness_section(result: dict) -> str:
               "<code>adaptive-cal run</code> and <code>adaptive-cal flatness</code>.</p>")
 
 
-def explain_section(run_dir: Path) -> str:
-    path = run_dir / "explain.json"
-    if not path.exists():
-        return ("<h2>Explain</h2><p class='note'>No explain findings in this folder. To compare the "
-                "recording with the cell's simulation: <code>adaptive-cal explain "
-                f"{escape(run_dir / 'recording.csv')} --robot CELL.yaml --json {escape(path)} --out "
-                f"{escape(run_dir)}</code>, then run the report again.</p>")
-    findings = read_json(path)
-    fit = findings.get("fit", {})
-    verdict = findings.get("verdict", "-")
-    head, *more = verdict_lines({**findings, "verdict": verdict})
-    said = escape(head.removeprefix(f"verdict: {verdict}"))
-    parts = ["<h2>Explain: what the simulation left out</h2>",
-             f"<p class='verdict'>verdict: <b>{escape(verdict)}</b>{said}</p>"]
-    # (with verdict none, verdict_lines' next line says why: no left-out effect is supported)
-    more += readings_lines(findings)  # the structure left, suspect readings, the noise judged
-    if more:
-        parts.append("<ul>" + "".join(f"<li>{escape(line.strip())}</li>" for line in more)
-                     + "</ul>")
-    def beside(e: dict) -> str:
-        g = e.get("given_verdict")
-        if e["effect"] == verdict or not g:
-            return "-"
-        return (f"{g['log_bayes_factor']:.1f}: " + ("there as well" if g["left_out"] else
-                f"instead of {verdict}, not beside it"))
-
-    rows = [(escape(e["effect"]), escape(e["summary"]), escape(beside(e)))
-            for e in findings.get("left_out", [])]
-    if rows:
-        parts.append(_table(rows, head=("effect", "fitted (log Bayes factor against none)",
-                                         f"log Bayes factor with {verdict} in the model")))
-    if fit:
-        parts.append(_table([
-            ("RMS residual", f"{_um(fit.get('rms_before_mm'))} &rarr; {_um(fit.get('rms_after_mm'))}"),
-            ("leave-one-out RMS", f"{_um(fit.get('cv_rms_before_mm'))} &rarr; "
-                                  f"{_um(fit.get('cv_rms_after_mm'))}")],
-            head=("fit", "nominal → with the effect"), cls="kv"))
-    by = findings.get("mismatch", {}).get("by", {})
-    if by:
-        parts.append(_table([(escape(k), f"{v['p_value']:.3g}" + (" <b>real</b>" if v.get("real") else "")
-                              if v.get("p_value") is not None else escape(v.get("note", "-")))
-                             for k, v in by.items()],
-                            head=("residual against", "F-test p (small = a real trend)"), cls="kv"))
-    r = findings.get("rounds")
-    if r and "p_value" in r:  # the terminal's words (explain_text.rounds_lines), in um
-        first, *rest = rounds_lines(r)
-        parts.append(f"<p>{escape(first[0].upper() + first[1:])}</p>"
-                     + (f"<p class='note'>{'<br>'.join(escape(x.strip()) for x in rest)}</p>"
-                        if rest else ""))
-    ni = findings.get("not_identifiable", [])
-    if ni:
-        parts.append("<p>Not identifiable from this recording:</p><ul>" + "".join(
-            f"<li><b>{escape(e['effect'])}</b>: {escape(e['why'])}</li>" for e in ni) + "</ul>")
-    for name in EXPLAIN_FIGURES:
-        p = run_dir / name
-        if p.exists():
-            parts.append(image(base64.b64encode(p.read_bytes()).decode("ascii"), name, name))
-    return "".join(parts)
-
-
 def cards(result: dict, run_dir: Path | None) -> str:
     t, ls, p = result["tilt"], result["flatness_mm"]["least_squares"], result["posterior"]
     tilt_label = "tilt correction" + (" (provisional)" if missing(result) else "")
@@ -328,10 +274,12 @@ def cards(result: dict, run_dir: Path | None) -> str:
              (escape(text[0]), f"flatness {PLATE}, least squares"
               + (f" ({escape(text[1])}" if len(text) > 1 else "")
               + (" (provisional)" if missing(result) else "")),
-             (f"{_um(p['mean_std_mm'])}", f"RMS posterior std after {result['touches']} touches")]
+             (f"{_um(p['mean_std_mm'], 2)}", f"RMS posterior std after {result['touches']} touches")]
     ex = run_dir / "explain.json" if run_dir is not None else None
     if ex is not None and ex.exists():
-        cards.append((escape(read_json(ex).get("verdict", "-")),
-                      "explain verdict (left-out physics)"))
+        findings = read_json(ex)
+        old = " -- out of date, of an earlier recording" if stale(findings, result) else ""
+        cards.append((escape(findings.get("verdict", "-")),
+                      f"explain verdict (left-out physics){old}"))
     return "<div class='cards'>" + "".join(
         f"<div class='card'><div class='v'>{v}</div><div class='l'>{l}</div></div>" for v, l in cards) + "</div>"
