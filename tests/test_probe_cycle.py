@@ -192,3 +192,16 @@ def test_frozen_after_follows_the_chance_that_a_live_probe_repeats_itself():
         assert np.mean(longest >= k) < 0.01, (step, noise, k)
     assert frozen_after(1e-3, 0.001, 200) is None  # a readout as coarse as the noise: no check
     assert frozen_after(1e-4, 0.005, 200) == 4
+
+
+def test_a_resumed_cycle_counts_the_repeats_its_recording_ends_with():
+    """A readout frozen before a stop is caught at the first touch after --resume (an outside
+    audit: two more stale readings were fused, unflagged, before the count caught up)."""
+    c = cycle(RecordingMotion(), ScriptedProbe([5.0123, 5.0311]), samples=1, frozen_after=4)
+    c.seed_repeats([5.1, 5.0123, 5.0123, 5.0123])
+    with pytest.raises(TouchRejected) as e:
+        c.touch(10, 10, 1.0)
+    assert e.value.flags == ("rejected", "frozen")
+    assert c.touch(20, 10, 1.0).reading_mm == 5.0311
+    c.seed_repeats([])  # nothing recorded: nothing counted
+    assert c._same[1] == 0

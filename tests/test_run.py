@@ -226,6 +226,39 @@ def test_a_device_failure_mid_run_prints_the_incomplete_summary_then_the_error(t
     assert "stopped: interrupted after 3 touches" in said.out and f"--resume {out}" in said.out
     assert "link lost" in said.err and "link lost" not in said.out
     assert len(read_recording(out / "recording.csv")) == 3
+    assert "link lost" in json.loads((out / "result.json").read_text())["error"]
+
+
+def test_a_probe_left_down_mid_run_is_said_before_the_summary(tmp_path, monkeypatch, capsys):
+    from adaptive_cal.hardware.base import ProbeLeftDown
+
+    real_open = session.open_cell
+
+    class _Stuck:
+        def __init__(self, cycle):
+            self.cycle, self.motion, self.count = cycle, cycle.motion, 0
+
+        def touch(self, x, y, z):
+            self.count += 1
+            if self.count == 4:
+                raise ProbeLeftDown("THE PROBE MAY BE DOWN at x=1.000 y=2.000 mm: jog it clear")
+            return self.cycle.touch(x, y, z)
+
+    monkeypatch.setattr(session, "open_cell",
+                        lambda cell, **kw: setattr(oc := real_open(cell, **kw), "cycle",
+                                                   _Stuck(oc.cycle)) or oc)
+    out = tmp_path / "d"
+    lines = []  # stdout and stderr in the order they were written
+    monkeypatch.setattr(sys, "stdout", type("W", (), {"write": lambda s, t: lines.append(
+        ("out", t)), "flush": lambda s: None, "isatty": lambda s: False})())
+    monkeypatch.setattr(sys, "stderr", type("W", (), {"write": lambda s, t: lines.append(
+        ("err", t)), "flush": lambda s: None, "isatty": lambda s: False})())
+    assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 2
+    said = [(w, t) for w, t in lines if t.strip()]
+    first = next(i for i, (_, t) in enumerate(said) if "PROBE MAY BE DOWN" in t)
+    summary = next(i for i, (_, t) in enumerate(said) if t.startswith("INCOMPLETE"))
+    assert said[first][0] == "err" and first < summary  # the danger first, then the summary
+    assert sum("PROBE MAY BE DOWN" in t for _, t in said) == 1  # said once
 
 
 def test_a_frozen_readout_stops_the_run_with_its_name_and_the_repeats_not_fused(tmp_path,
@@ -536,3 +569,46 @@ def test_a_resume_of_a_finished_run_whose_results_were_lost_takes_no_touch(tmp_p
     assert again["stopped_because"] == "mean_std_bound" and again["touches"] == first["touches"]
     assert again["closure"]["repeat_touches"] == first["closure"]["repeat_touches"]
     assert again["closure"]["passed"] is True
+
+
+def test_a_reading_cut_short_while_judged_is_kept_flagged_and_not_fused(monkeypatch):
+    """A second Ctrl-C landing in the judgement of a reading that was taken: the reading is
+    written (cut;rejected: kept, never fused) before the interrupt goes on (an outside audit: it
+    was lost)."""
+    from adaptive_cal.run import loop as lp
+
+    cell = sim_cell(plan={"candidates": 2000})
+    plan = survey_plan(cell)
+    opened = open_cell(cell)
+    real, calls, rows = lp.sv.judge, [0], []
+
+    def judge(*a, **k):
+        calls[0] += 1
+        if calls[0] == 3:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(lp.sv, "judge", judge)
+    loop = lp.SurveyLoop(plan, sv.start(plan), opened.cycle, record=rows.append)
+    with pytest.raises(KeyboardInterrupt):
+        loop.run()
+    opened.close()
+    assert len(rows) == 3 and set(rows[-1].flags) == {"cut", "rejected"}
+    assert loop.state.fused == 2 and loop.state.touches == 2  # taken, kept, not fused
+    assert cell.probe.usable_mm[0] <= rows[-1].reading_mm <= cell.probe.usable_mm[1]
+
+
+def test_a_second_ctrl_c_while_the_results_are_written_leaves_them_whole(tmp_path, monkeypatch):
+    import signal as sig
+
+    real = session.write_results
+
+    def pressed_twice(*a, **k):  # the user presses Ctrl-C twice more as the results are written
+        os.kill(os.getpid(), sig.SIGINT)
+        os.kill(os.getpid(), sig.SIGINT)
+        return real(*a, **k)
+
+    monkeypatch.setattr(session, "write_results", pressed_twice)
+    r = session.run(sim_cell(), tmp_path / "r", progress=False, max_new_touches=4)
+    assert r["stopped_because"] == "interrupted" and r["touches"] == 4
+    assert (tmp_path / "r" / "result.json").exists() and (tmp_path / "r" / "belief.npz").exists()

@@ -116,6 +116,13 @@ def command(args) -> int:
             raise UserError(f"{said}.\nNothing was recorded, and {out} is left as it was before: "
                             "once the cause is fixed, run the same command again (not --resume)") from e
         if isinstance(e, AdapterError) and getattr(e, "result", None):
+            from adaptive_cal.hardware.base import ProbeLeftDown
+
+            if isinstance(e, ProbeLeftDown):  # the danger first, then what was measured
+                notes = "".join(f"\n  {n}" for n in getattr(e, "__notes__", ()))
+                print(f"adaptive-cal run: error: {e}{notes}", file=sys.stderr, flush=True)
+                _summary(e.result, out, cell)
+                return 130 if e.interrupted else 2
             _summary(e.result, out, cell)  # the touches a device failure left: INCOMPLETE
             sys.stdout.flush()  # before the error on stderr, which names the device
         raise

@@ -141,6 +141,16 @@ class ProbeCycle:
     frozen_after: int | None = None
     _same: list = field(default_factory=lambda: [math.nan, 0], init=False, repr=False)
 
+    def seed_repeats(self, readings) -> None:
+        """Count the repeats at the end of ``readings`` (a resumed recording's, in order) as
+        this cycle's own: a readout frozen before a stop is caught at the first touch after
+        the resume, not after ``frozen_after`` more fused repeats (an outside audit)."""
+        values = [float(v) for v in readings]
+        n = 0
+        while n < len(values) and values[-1 - n] == values[-1]:
+            n += 1
+        self._same[:] = [values[-1], n] if values else [math.nan, 0]
+
     def _check(self, path: list[tuple[float, float, float]]) -> None:
         for x, y, z in path:
             if not all(map(math.isfinite, (x, y, z))) or not self.allowed(x, y, z):
@@ -181,8 +191,10 @@ class ProbeCycle:
                 try:
                     self.motion.move_to(x_mm, y_mm, safe)
                 except BaseException as lift:  # the danger first (a Ctrl-C too), then the cause
-                    raise _left_down(x_mm, y_mm, z_mm, safe, lift, "What stopped the touch: "
-                                     f"{type(err).__name__}: {err}", err=err) from err
+                    why = ("Ctrl-C" if isinstance(err, KeyboardInterrupt)
+                           else f"{type(err).__name__}: {err}")
+                    raise _left_down(x_mm, y_mm, z_mm, safe, lift,
+                                     f"What stopped the touch: {why}", err=err) from err
             raise
         try:
             self.motion.move_to(x_mm, y_mm, safe)  # retract
@@ -257,7 +269,7 @@ def frozen_after(resolution_mm: float, noise_mm: float, touches: int) -> int | N
     N(0, 2 noise^2) round to the same step with probability about p = step / (2 sqrt(pi) noise)
     (the innovations' own spread only lowers it). None where p >= 0.5 or k would exceed 10: a
     readout that coarse repeats itself honestly. A false alarm costs one touch (recorded
-    ``rejected;frozen``): the next one reads another value."""
+    ``frozen;rejected``): the next one reads another value."""
     p = resolution_mm / (2.0 * math.sqrt(math.pi) * noise_mm)
     if not 0 < p < 0.5:
         return None

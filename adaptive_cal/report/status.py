@@ -34,7 +34,7 @@ INSTEAD = {
     "readout_frozen": "check that the probe's readout is live (the gauge's cable and port, "
                       "the PLC's register and handshake: the value must change with the tip), "
                       "then continue with --resume (the first few repeats were fused before they "
-                      "were seen to repeat; those flagged rejected;frozen were not)",
+                      "were seen to repeat; those flagged frozen;rejected were not)",
     "drift": "warm the cell up (run the robot over the plate for as long as the drift took) and "
              "map again in a new folder, or model the drift: adaptive-cal explain on the "
              "recording",

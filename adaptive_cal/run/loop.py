@@ -127,9 +127,6 @@ class SurveyLoop:
         """Ask, touch, record and fuse until the stop predicate fires; returns its reason,
         ``DRIFT`` when the closure touch found a drift, or ``NO_ADMISSIBLE_POINT`` when the
         planner has no point to offer."""
-        c = self.state.closure
-        if self.closed_at is not None and c is not None and c.made and not c.passed:
-            return DRIFT  # resumed after a closure that found a drift: the run ended there
         while True:
             why = self.stop(self.state, sv.status(self.plan, self.state))
             if (why and self._closes(why)) or (not why and self._last_touch()):
@@ -147,8 +144,7 @@ class SurveyLoop:
                 if self.invalid_in_a_row >= MAX_INVALID:
                     return INVALID_READINGS
                 if self.rejected_in_a_row >= MAX_REJECTED:
-                    frozen = step.rejected is not None and "frozen" in step.rejected.flags
-                    return READOUT_FROZEN if frozen else TOUCHES_REJECTED
+                    return READOUT_FROZEN if "frozen" in step.rejected.flags else TOUCHES_REJECTED
                 if (step.invalid is not None or self.state.retake is not None or self.interrupt()
                         or self.stop(self.state, step.status) or self._last_touch()):
                     break  # a batch never runs past the stop rule (the touch budget included)
@@ -304,9 +300,17 @@ class SurveyLoop:
         return step
 
     def _take(self, touch: Touch, extra: tuple[str, ...] = ()) -> Told:
-        """Judge a reading that was taken, record it, then fuse it."""
-        told = sv.judge(self.plan, self.state, touch.x_mm, touch.y_mm, touch.z_mm,
-                        touch.reading_mm)
+        """Judge a reading that was taken, record it, then fuse it. Cut short while judged (a
+        second Ctrl-C), it is recorded ``cut;rejected`` -- kept, not fused -- then re-raised."""
+        try:
+            told = sv.judge(self.plan, self.state, touch.x_mm, touch.y_mm, touch.z_mm,
+                            touch.reading_mm)
+        except InvalidReading:
+            raise  # the caller records it flagged invalid
+        except BaseException:
+            self._record(Row(self.state.touches, touch.t_s, touch.x_mm, touch.y_mm, touch.z_mm,
+                             touch.reading_mm, ("cut", "rejected") + extra))
+            raise
         self._record(Row(self.state.touches, touch.t_s, touch.x_mm, touch.y_mm, touch.z_mm,
                          touch.reading_mm, told.flags + extra))
         self.state = sv.fuse(self.plan, self.state, told)

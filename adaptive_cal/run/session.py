@@ -29,7 +29,7 @@ from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock, write_json
-from adaptive_cal.run.loop import CLOSING, NO_ADMISSIBLE_POINT, Row, Step, SurveyLoop
+from adaptive_cal.run.loop import CLOSING, DRIFT, NO_ADMISSIBLE_POINT, Row, Step, SurveyLoop
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_HOLD, PRIOR_RECORD, PRIOR_SURPRISES,
                                       disagreement, load_prior, saved_prior)
 from adaptive_cal.run.results import write_results
@@ -97,14 +97,16 @@ def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path
 
 @contextmanager
 def _deferred_interrupt():
-    """First Ctrl-C sets a flag (stop after this touch); a second one interrupts at once."""
-    state = {"stop": False}
+    """First Ctrl-C sets a flag (stop after this touch); a second one interrupts at once --
+    except once ``state["shield"]`` is set (the touches done, the results being written: a
+    second press there left a folder without result.json, an outside audit)."""
+    state = {"stop": False, "shield": False}
     if signal.getsignal(signal.SIGINT) is None or not _main_thread():
         yield state
         return
 
     def handler(signum, frame):
-        if state["stop"]:
+        if state["stop"] and not state["shield"]:
             raise KeyboardInterrupt
         state["stop"] = True
 
@@ -184,6 +186,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
                                                "probe_zero_mm": str(cell.probe.zero_mm)}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
+    if resume:  # a readout frozen before the stop is still frozen: its repeats count on
+        opened.cycle.seed_repeats(read_recording(paths.recording).reading_mm)
     truth = opened.simulated.surface_mm if opened.simulated is not None else None
     history = History(sv.status(plan, state), state.fitted_at)
     hooks = [history]
@@ -226,8 +230,10 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         loop = SurveyLoop(plan, state, opened.cycle, stop=stop, record=record, hooks=tuple(hooks),
                           interrupt=lambda: flag["stop"], fused_t_s=fused_t_s)
         loop.closed_at = closed_at
+        c = state.closure  # resumed after a closure that found a drift: the run ended there
+        drifted = closed_at is not None and c is not None and c.made and not c.passed
         try:
-            stopped = loop.run()
+            stopped = DRIFT if drifted else loop.run()
             if stopped == NO_ADMISSIBLE_POINT:
                 stopped, error = "interrupted", NoAdmissiblePoint(no_admissible_point(cell, plan))
         except KeyboardInterrupt:
@@ -235,12 +241,11 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         except AdapterError as e:  # a device stopped the run: report what was measured, then raise
             stopped, error = "interrupted", e
         finally:
+            flag["shield"] = True  # no touch is left to stop: the results are written whole
             writer.close()
             opened.close()
             if bar is not None:
                 _close_bar(bar, stopped)
-        # still under the deferred Ctrl-C: one pressed while the results are written (the
-        # touches done) must not leave a folder without them
         state = loop.state
         result = None
         if error is None or state.touches:
@@ -250,7 +255,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                                    rng=np.random.default_rng(RESULTS_SEED),
                                    history=history.statuses, refits=history.refits, truth=truth,
                                    true_rms_mm=true_rms.rms_mm if true_rms else None,
-                                   extra=None if carried is None else {"prior_from": carried})
+                                   extra={**({} if carried is None else {"prior_from": carried}),
+                                          **({} if error is None else {"error": str(error)})})
     if error is not None:
         error.result = result  # what was measured before the device stopped: the CLI shows it
         raise error
