@@ -39,7 +39,7 @@ def test_a_failed_retract_after_a_good_reading_stops_with_the_warning_first_and_
         loop.run()
     message = str(e.value)
     assert message.startswith("THE PROBE MAY BE DOWN at x=")
-    assert "Jog the probe clear" in message and "was taken and is kept" in message
+    assert "jog the probe clear" in message and "was taken and is kept" in message
     # the reading taken before the retract failed is in the recording and in the state
     assert len(rows) == 1 and rows[0].reading_mm == pytest.approx(e.value.touch.reading_mm)
     assert loop.state.touches == 1 and len(loop.state.heights_mm) == 1

@@ -46,7 +46,8 @@ def _left_down(x_mm, y_mm, z_mm, safe_mm, lift: BaseException, then: str,
     said = "interrupted: Ctrl-C" if isinstance(lift, KeyboardInterrupt) else lift
     out = ProbeLeftDown(
         f"THE PROBE MAY BE DOWN at x={x_mm:.3f} y={y_mm:.3f} mm ({z_is} z={z_mm:.3f} mm): the "
-        f"retract to z={safe_mm:.3f} mm failed ({said}). Jog the probe clear by hand before "
+        f"retract to z={safe_mm:.3f} mm failed ({said}). Hold the robot (pendant hold or servo "
+        f"off: a command in flight may still run), then jog the probe clear by hand before "
         f"anything moves again. {then}", touch)
     out.interrupted = any(isinstance(e, KeyboardInterrupt) for e in (lift, err))
     return out
