@@ -543,6 +543,14 @@ def test_a_bound_that_looks_like_um_typed_as_mm_is_warned_before_anything_moves(
     f.write_text(yaml.safe_dump(data))
     assert main(["run", "--robot", str(f), "--dry-run"]) == 0
     assert "warning" not in capsys.readouterr().err
+    # with the noise span stated (no touch floor) the prior alone meets 4 mm: the dry run says
+    # so -- it said "no allowed point can be promised", which was not why
+    data["plan"]["stop"]["mean_std_mm"] = 4
+    data["probe"].update(noise_range_mm=[0.003, 0.008])
+    data["probe"].pop("noise_std_mm", None)
+    f.write_text(yaml.safe_dump(data))
+    assert main(["run", "--robot", str(f), "--dry-run"]) == 0
+    assert "the prior alone already meets the stopping rule" in capsys.readouterr().out
 
 
 def test_commands_to_copy_quote_a_folder_with_spaces(tmp_path, monkeypatch, capsys):

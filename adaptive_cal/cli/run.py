@@ -256,11 +256,17 @@ def _dry_run(cell) -> int:
 
     plan = survey_plan(cell)
     touches, travel_mm, why, targets = _forecast(plan, cell)
+    from adaptive_cal.report.sections import reason_text, signed
+
+    if not targets and why != "no_admissible_point":  # the prior alone meets the bound
+        print(f"dry run: the prior alone already meets the stopping rule ({reason_text(why)}): "
+              "the plan has no first touch to show. The run still touches until its self-checks "
+              "pass, but the bound asks for nothing -- is it the one meant (mm)?")
+        return 0
     if not targets:  # as the run would say before its first touch
         from adaptive_cal.run.session import no_admissible_point
 
         raise UserError(no_admissible_point(cell, plan))
-    from adaptive_cal.report.sections import reason_text, signed
 
     targets = targets[:20]
     print(f"dry run: the first {len(targets)} touches as planned when every reading lands where "
