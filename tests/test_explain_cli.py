@@ -140,3 +140,29 @@ def test_a_touch_the_run_refused_off_the_workplane_does_not_refuse_the_recording
     bad = _write(tmp_path / "bad.csv", rows, header)
     assert main(["explain", str(bad), "--robot", str(CELL), "--no-figures"]) == 2
     assert "seq 7" in capsys.readouterr().err
+
+
+def test_an_effect_fitted_per_round_is_printed_round_by_round(tmp_path, cheng_round0,
+                                                              cheng_round1, capsys):
+    """Round 1 given a bow along x of its own: form is fitted per round, and the terminal said
+    'internal error: TypeError' (an outside audit) after writing --json."""
+    lines = cheng_round1.read_text().splitlines()
+    head = [i for i, line in enumerate(lines) if line.startswith("seq,")][0]
+    cols = lines[head].split(",")
+    xi, ri = cols.index("x_mm"), cols.index("reading_mm")
+    out = lines[:head + 1]
+    for line in lines[head + 1:]:
+        f = line.split(",")
+        if len(f) == len(cols) and not line.startswith("#"):
+            x = float(f[xi])
+            f[ri] = f"{float(f[ri]) + 0.35 * ((x / 225.0) ** 2 - 1 / 3):.4f}"
+        out.append(",".join(f))
+    bowed = tmp_path / "round1_bowed.csv"
+    bowed.write_text("\n".join(out) + "\n")
+    js = tmp_path / "e.json"
+    assert main(["explain", str(cheng_round0), str(bowed), "--robot", str(CELL),
+                 "--json", str(js)]) == 0
+    said = capsys.readouterr().out
+    form = next(e for e in json.loads(js.read_text())["left_out"] if e["effect"] == "form")
+    assert isinstance(form["params"]["bow_x"], list)  # per round
+    assert "bow in x per round 0: " in said and ", 1: " in said

@@ -29,6 +29,11 @@ def _pm(value: float, std: float | None, sign: str = "", alone: int = 3) -> str:
 def quantity(name: str, value: float, std: float | None, unit: str) -> str:
     """One fitted parameter in the unit an engineer reads: heights in um, positions in mm."""
     label = LABELS.get(name, re.sub(r"_(mm|s|deg|mm_per_s)$", "", name).replace("_", " "))
+    if isinstance(value, (list, tuple)):  # fitted per round: each round's value in turn
+        stds = std if isinstance(std, (list, tuple)) else [std] * len(value)
+        return f"{label} per round " + ", ".join(
+            f"{i}: " + quantity(name, v, s, unit).removeprefix(f"{label} ")
+            for i, (v, s) in enumerate(zip(value, stds)))
     pm = lambda scale, fmt: "" if std is None else f" +- {std * scale:{fmt}}"  # noqa: E731
     if unit == "mm" and name not in LATERAL:
         sign = "" if name == "pv_mm" else "+"
