@@ -112,7 +112,7 @@ def test_terminal_text_reads_in_um_one_line_per_finding(tmp_path, cheng_round0, 
     assert f"{len(touches)} touch(es) at x, y, z (mm): " in text  # the suggested touches printed
     for t in touches:
         assert f"({t['x_mm']:g}, {t['y_mm']:g}, {t['z_mm']:g})" in text
-    assert "docs/explain.md" in lines[-1]
+    assert "docs/explain.md" in lines[-2] and lines[-1].startswith("wrote ")  # then the files
 
 
 def test_the_json_is_written_before_the_terminal_lines(tmp_path, cheng_round0, monkeypatch):

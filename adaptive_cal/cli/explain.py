@@ -85,4 +85,8 @@ def command(args) -> int:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(result.findings, indent=1), encoding="utf-8")
     _print(result.findings)
+    written = ([result.findings["model"]] if args.out and result.findings.get("model") else []) \
+        + list(result.findings.get("figures") or []) + ([args.json] if args.json else [])
+    if written:  # where the terminal's findings went besides
+        print("wrote " + ", ".join(str(w) for w in written))
     return 0
