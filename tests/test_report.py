@@ -344,3 +344,13 @@ def test_a_missing_recording_is_said_missing(tmp_path, capsys):
     assert main(["report", str(tmp_path / "typo.csv"), "--robot",
                  str(ROOT / "configs" / "cheng2025-cell.yaml")]) == 2
     assert "typo.csv: no such recording" in capsys.readouterr().err
+
+
+def test_a_run_a_device_stopped_says_what_stopped_it_on_the_page(run_dir, tmp_path, capsys):
+    d = tmp_path / "run"
+    shutil.copytree(run_dir, d)
+    result = json.loads((d / "result.json").read_text())
+    result.update(stopped_because="interrupted", error="THE PROBE MAY BE DOWN at x=1 <y>")
+    (d / "result.json").write_text(json.dumps(result))
+    html = _page(d, capsys)
+    assert "<b>What stopped the run:</b> THE PROBE MAY BE DOWN at x=1 &lt;y&gt;" in html

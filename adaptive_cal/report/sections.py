@@ -167,9 +167,11 @@ def incomplete_banner(result: dict, resume: str | None) -> str:
     if gap is None:
         return ""
     then = f"{escape(next_step(result, resume))}, then write this report again."
+    said = (f"<br><b>What stopped the run:</b> {escape(result['error'])}"
+            if result.get("error") else "")  # a device's failure, as the terminal said it
     return (f"<p class='incomplete'><b>INCOMPLETE: {escape(gap)}.</b> This map is not a result: "
             "the tilt correction and the flatness below are provisional; do not correct the frame "
-            f"from them. {then}</p>")
+            f"from them. {then}{said}</p>")
 
 
 def _dof_note(tilt: dict) -> str:
