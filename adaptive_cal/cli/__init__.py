@@ -85,6 +85,11 @@ def main(argv: list[str] | None = None) -> int:
     os.environ["JAX_ENABLE_X64"] = "True"
     if "jax" in sys.modules:
         sys.modules["jax"].config.update("jax_enable_x64", True)
+    # a stale matplotlib font cache makes every figure log "findfont: ... not found" by the
+    # dozen on stderr (the fallback font is used): noise around what the command says
+    import logging
+
+    logging.getLogger("matplotlib.font_manager").setLevel(logging.ERROR)
     from adaptive_cal.hardware.base import AdapterError
     from adaptive_cal.cell.schema import ConfigError
     from adaptive_cal.formats.recording import RecordingError
