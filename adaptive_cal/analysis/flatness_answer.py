@@ -26,10 +26,9 @@ Both figures remove the tilt (the least-squares or minimum-zone plane); the raw 
 
 Flatness is a max - min statistic: under noise the figure of the measured heights is biased up,
 and the figure of the mean map (smoother than any sample) down, so either can fall outside its own
-sampled interval. The map's figure is then replaced by the posterior median of the samples; the
-measured heights' is kept (it is the readings' own: a map that does not reproduce them is said,
-``OUTSIDE``); ``value_is`` says which it is. Randomness is passed in: one generator, plate draws first, then
-touched ones, so the same seed gives the same digits wherever the answer is computed.
+sampled interval: the map's is then replaced by the posterior median, the measured heights' is
+kept and said (``OUTSIDE``); ``value_is`` says which. Randomness is passed in: one generator,
+plate draws first, then touched ones: the same seed, the same digits wherever computed.
 """
 from __future__ import annotations
 
@@ -49,15 +48,11 @@ SPREAD = "height spread, max - min with the tilt included (not flatness)"
 MEDIAN = "posterior median"
 MEDIAN_NOTE = ("* posterior median of the samples: the figure itself lay outside its 95 % interval "
                "(flatness is a max - min statistic, biased by noise and by smoothing)")
-MEASURED = "figure of the measured heights"
-#: a figure of the measured heights outside its own interval: kept (it is the readings' own),
-#: marked with OUTSIDE_MARK and said (OUTSIDE_NOTE)
-OUTSIDE = "figure of the measured heights, outside the interval of a repeat"
-OUTSIDE_MARK = "**"  # ASCII, as every line the tool prints
+MEASURED, OUTSIDE_MARK = "figure of the measured heights", "**"  # ASCII, as every line printed
+OUTSIDE = "figure of the measured heights, outside the interval of a repeat"  # kept, marked
 OUTSIDE_NOTE = (f"{OUTSIDE_MARK} the figure of the measured heights lies outside the 95 % interval "
-                "of a repeat measurement: the map does not reproduce these readings (a bump or "
-                "dent narrower than the touch spacing, a misreading, noise unlike the map's); the "
-                "figure is the readings' own, the interval the map's")
+                "of a repeat: the map does not reproduce these readings (a bump or dent narrower "
+                "than the touch spacing, a misreading); the figure is the readings' own")
 
 
 def touched_what(points: int) -> str:
@@ -72,17 +67,16 @@ def within_what(within: dict) -> str:
 
 def entry(value: float, samples: np.ndarray, figure_is: str) -> dict:
     """{"value", "ci95", "value_is"}: the figure when it lies in its 95 % interval, else the
-    posterior median of the samples -- except a figure of the measured heights (``MEASURED``),
-    which is the readings' own and is kept, ``value_is`` OUTSIDE: a level plate with one reading
-    50 um high and one 30 um low has a minimum zone of 68 um; the map took the two for noise and
-    its median said 37.7 um (JSON-ready; non-finite as None)."""
+    posterior median of the samples -- but a figure of the measured heights is kept (OUTSIDE):
+    a level plate with readings +50 and -30 um has a minimum zone of 68 um, the map's median
+    said 37.7 (JSON-ready; non-finite as None)."""
     samples = np.asarray(samples, dtype=np.float64)
     lo, hi = fl._ci95(samples)
-    if lo is not None and not lo <= value <= hi:
-        if figure_is == MEASURED:
-            return {"value": fl.finite_or_none(value), "ci95": [lo, hi], "value_is": OUTSIDE}
+    if lo is not None and not lo <= value <= hi and figure_is != MEASURED:
         return {"value": float(np.median(samples)), "ci95": [lo, hi], "value_is": MEDIAN}
-    return {"value": fl.finite_or_none(value), "ci95": [lo, hi], "value_is": figure_is}
+    outside = lo is not None and not lo <= value <= hi
+    return {"value": fl.finite_or_none(value), "ci95": [lo, hi],
+            "value_is": OUTSIDE if outside else figure_is}
 
 
 def _figures(x, y, z, draws, figure_is: str) -> dict:
