@@ -365,7 +365,15 @@ def test_a_studys_ctrl_c_says_the_finished_plates_are_kept(tmp_path, capsys, mon
                  "--json", str(tmp_path / "s.json")])
     assert code == 130
     err = capsys.readouterr().err
-    assert f"the plates finished are kept in {tmp_path / 's.json.plates.jsonl'}" in err
+    # none had finished: it says so (it said "kept" with nothing kept, an outside audit)
+    assert "no run had finished: nothing kept, the same command again starts over" in err
+    # two runs in the checkpoint: it names them and where they are
+    checkpoint = tmp_path / "s.json.plates.jsonl"
+    checkpoint.write_text('{"study_key": "k"}\n{"plate": 0, "strategy": "a"}\n'
+                          '{"plate": 0, "strategy": "b"}\n')
+    main(["study", str(ROOT / "configs" / "study-smoke.yaml"), "--plates", "1",
+          "--json", str(tmp_path / "s.json")])
+    assert f"2 runs finished, kept in {checkpoint}" in capsys.readouterr().err
 
 
 def test_files_and_folders_given_for_each_other_are_named_as_such(tmp_path, capsys):
