@@ -165,27 +165,32 @@ def test_an_outlier_is_gated_retaken_and_both_rows_kept(tmp_path, monkeypatch):
     assert result["truth"]["max_error_mm"] < 0.05  # the 0.3 mm chip did not enter the map
 
 
-def test_a_device_failure_keeps_every_reading_reports_and_resumes(tmp_path, monkeypatch):
-    from adaptive_cal.hardware.base import AdapterError
-
+def _failing_at(monkeypatch, touch: int, error: Exception):
+    """The sim cell's touch number ``touch`` raises ``error`` (a device that fails mid-run);
+    returns the real ``open_cell`` to put back."""
     real_open = session.open_cell
 
-    class _Dies:
+    class _Fails:
         def __init__(self, cycle):
             self.cycle, self.motion, self.count = cycle, cycle.motion, 0
 
         def touch(self, x, y, z):
             self.count += 1
-            if self.count == 6:
-                raise AdapterError("link lost: jog the probe clear and --resume")
+            if self.count == touch:
+                raise error
             return self.cycle.touch(x, y, z)
 
-    def dying_open(cell, **kw):
-        oc = real_open(cell, **kw)
-        oc.cycle = _Dies(oc.cycle)
-        return oc
+    monkeypatch.setattr(session, "open_cell",
+                        lambda cell, **kw: setattr(oc := real_open(cell, **kw), "cycle",
+                                                   _Fails(oc.cycle)) or oc)
+    return real_open
 
-    monkeypatch.setattr(session, "open_cell", dying_open)
+
+def test_a_device_failure_keeps_every_reading_reports_and_resumes(tmp_path, monkeypatch):
+    from adaptive_cal.hardware.base import AdapterError
+
+    real_open = _failing_at(monkeypatch, 6, AdapterError("link lost: jog the probe clear and "
+                                                         "--resume"))
     out = tmp_path / "d"
     with pytest.raises(AdapterError, match="link lost"):
         session.run(sim_cell(), out, progress=False)
@@ -203,21 +208,7 @@ def test_a_device_failure_mid_run_prints_the_incomplete_summary_then_the_error(t
                                                                               monkeypatch, capsys):
     from adaptive_cal.hardware.base import AdapterError
 
-    real_open = session.open_cell
-
-    class _Dies:
-        def __init__(self, cycle):
-            self.cycle, self.motion, self.count = cycle, cycle.motion, 0
-
-        def touch(self, x, y, z):
-            self.count += 1
-            if self.count == 4:
-                raise AdapterError("link lost: reconnect, then continue with --resume")
-            return self.cycle.touch(x, y, z)
-
-    monkeypatch.setattr(session, "open_cell",
-                        lambda cell, **kw: setattr(oc := real_open(cell, **kw), "cycle",
-                                                   _Dies(oc.cycle)) or oc)
+    _failing_at(monkeypatch, 4, AdapterError("link lost: reconnect, then continue with --resume"))
     out = tmp_path / "d"
     assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 2
     said = capsys.readouterr()
@@ -232,21 +223,8 @@ def test_a_device_failure_mid_run_prints_the_incomplete_summary_then_the_error(t
 def test_a_probe_left_down_mid_run_is_said_before_the_summary(tmp_path, monkeypatch, capsys):
     from adaptive_cal.hardware.base import ProbeLeftDown
 
-    real_open = session.open_cell
-
-    class _Stuck:
-        def __init__(self, cycle):
-            self.cycle, self.motion, self.count = cycle, cycle.motion, 0
-
-        def touch(self, x, y, z):
-            self.count += 1
-            if self.count == 4:
-                raise ProbeLeftDown("THE PROBE MAY BE DOWN at x=1.000 y=2.000 mm: jog it clear")
-            return self.cycle.touch(x, y, z)
-
-    monkeypatch.setattr(session, "open_cell",
-                        lambda cell, **kw: setattr(oc := real_open(cell, **kw), "cycle",
-                                                   _Stuck(oc.cycle)) or oc)
+    _failing_at(monkeypatch, 4, ProbeLeftDown("THE PROBE MAY BE DOWN at x=1.000 y=2.000 mm: "
+                                              "jog it clear"))
     out = tmp_path / "d"
     lines = []  # stdout and stderr in the order they were written
     monkeypatch.setattr(sys, "stdout", type("W", (), {"write": lambda s, t: lines.append(
