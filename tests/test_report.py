@@ -103,6 +103,7 @@ def test_explain_findings_appear_when_present(explained, capsys):
     assert "leave-one-out RMS" in html
     assert "residual_map.png" in html  # explain's own figure, embedded
     assert "No explain findings" not in html
+    assert "Out of date" not in html and "out of date" not in html  # of this very recording
 
 
 def test_report_says_what_is_unexplained_where_and_what_was_set_aside(explained, tmp_path,
