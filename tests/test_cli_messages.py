@@ -368,9 +368,16 @@ def test_a_studys_ctrl_c_says_the_finished_plates_are_kept(tmp_path, capsys, mon
     # none had finished: it says so (it said "kept" with nothing kept, an outside audit)
     assert "no run had finished: nothing kept, the same command again starts over" in err
     # two runs in the checkpoint: it names them and where they are
+    from adaptive_cal.study.checkpoint import study_key
+    from adaptive_cal.study.config import load_study
+    from adaptive_cal.study.overrides import apply_overrides
+
+    study, base = load_study(ROOT / "configs" / "study-smoke.yaml")
+    study = apply_overrides(study, base, plates=1, strategies=None, settings=[],
+                            study_path=str(ROOT / "configs" / "study-smoke.yaml"))
     checkpoint = tmp_path / "s.json.plates.jsonl"
-    checkpoint.write_text('{"study_key": "k"}\n{"plate": 0, "strategy": "a"}\n'
-                          '{"plate": 0, "strategy": "b"}\n')
+    checkpoint.write_text(f'{{"study_key": "{study_key(study, base)}"}}\n'
+                          '{"plate": 0, "strategy": "a"}\n{"plate": 0, "strategy": "b"}\n')
     main(["study", str(ROOT / "configs" / "study-smoke.yaml"), "--plates", "1",
           "--json", str(tmp_path / "s.json")])
     assert f"2 runs finished, kept in {checkpoint}" in capsys.readouterr().err

@@ -58,6 +58,13 @@ def check_cell(cell) -> None:
                              "settings; make the two blocks identical")
 
 
+def um_as_mm(value_mm: float, usable_span_mm: float) -> bool:
+    """A noise or a bound this large -- a tenth of the probe's usable stroke or more, and at
+    least 0.1 mm -- is um typed as mm (4 um is 0.004): the probe's noise is refused at load
+    (``Probe``), a variance bound warned about (``doubts``)."""
+    return value_mm >= max(0.1 * usable_span_mm, 0.1)
+
+
 def doubts(cell) -> list[str]:
     """Settings that are valid but look like a unit slip, as warnings the run prints before
     anything moves: a variance bound of a tenth of the probe's usable stroke or more (and at
@@ -67,7 +74,7 @@ def doubts(cell) -> list[str]:
     span, stop, out = hi - lo, cell.plan.stop, []
     for key in ("mean_std_mm", "max_std_mm"):
         value = getattr(stop, key)
-        if value is not None and value >= max(0.1 * span, 0.1):
+        if value is not None and um_as_mm(value, span):
             out.append(f"plan.stop.{key}: {value:g} mm is {value / span:.0%} of the probe's usable "
                        f"stroke ({span:g} mm): the run stops once the map is known to that -- "
                        f"um given as mm? ({value:g} um is {value / 1000:g})")

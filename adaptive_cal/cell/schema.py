@@ -13,7 +13,7 @@ from pydantic import Field, field_validator, model_validator
 
 from adaptive_cal import effects as effect_library
 from adaptive_cal.cell.block import Block
-from adaptive_cal.cell.consistency import check_cell
+from adaptive_cal.cell.consistency import check_cell, um_as_mm
 from adaptive_cal.cell.plate import (REACH_MM, Interval, Rect, Workplane,  # noqa: F401
                                      _interval)  # (re-exported)
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
@@ -119,7 +119,7 @@ class Probe(Block):
         noise = [("noise_std_mm", self.noise_std_mm)] + (
             [("noise_range_mm", self.noise_range_mm[1])] if self.noise_range_mm else [])
         for key, value in noise:
-            if value >= max(0.1 * span, 0.1):
+            if um_as_mm(value, span):
                 raise ValueError(f"{key}: {value} mm is {value / span:.0%} of the usable stroke "
                                  f"{span:g} mm (usable_mm): a probe that noisy cannot keep a "
                                  "touch inside it -- um given as mm? (5 um is 0.005)")

@@ -29,11 +29,9 @@ def add_arguments(parser) -> None:
 
 
 def _print(report: dict) -> None:
-    from adaptive_cal.report.explain_text import lines
-    from adaptive_cal.effects import EFFECTS
+    from adaptive_cal.report.explain_text import effect_units, lines
 
-    units = {name: {p.name: p.unit for p in e.params} for name, e in EFFECTS.items()}
-    print("\n".join(lines(report, units)))
+    print("\n".join(lines(report, effect_units())))
 
 
 def _refuse_overwrite(args) -> None:

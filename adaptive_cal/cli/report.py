@@ -64,19 +64,20 @@ def command(args) -> int:
 
         if given.is_dir():
             refuse_input_as_output("--out", args.out or given / "report.html", [args.robot],
-                                   [given], also=PAGE_READS)  # what the page and run read
+                                   [given], also=_page_reads())  # the page and run read them
             _check_belief(given)
         path = write(args.run_dir, args.out)
     print(f"wrote {path}")
     return 0
 
 
-#: a run folder's files besides RUN_FILES that the page embeds or a resume reads: --out never
-#: replaces one (a page written over convergence.png was embedded as a broken image after)
-PAGE_READS = ("explain.json", "surface.png", "convergence.png", "prior_from.json",
-              "residual_map.png", "residual_vs_position.png", "residual_vs_time.png",
-              "residual_vs_direction.png", "residual_vs_reach.png", "residual_vs_indication.png",
-              "fitted_effect.png")
+def _page_reads() -> tuple[str, ...]:
+    """A run folder's files besides RUN_FILES that the page embeds or a resume reads: --out
+    never replaces one (a page written over convergence.png was embedded as a broken image)."""
+    from adaptive_cal.report.explain_page import EXPLAIN_FIGURES
+    from adaptive_cal.run.recheck import PRIOR_RECORD
+
+    return ("explain.json", "surface.png", "convergence.png", PRIOR_RECORD, *EXPLAIN_FIGURES)
 
 
 def _check_belief(run_dir: Path) -> None:

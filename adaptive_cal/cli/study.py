@@ -128,13 +128,14 @@ def _command(args) -> str:
     return "OPENBLAS_NUM_THREADS=1 " + " ".join(words)
 
 
-def _kept(checkpoint: Path) -> int:
-    """The plate runs a checkpoint holds (0 where it cannot be read)."""
+def _kept(checkpoint: Path, study, base) -> int:
+    """The plate runs this study's checkpoint holds (0 where it cannot be read)."""
+    from adaptive_cal.study.checkpoint import read_checkpoint, study_key
+
     try:
-        lines = checkpoint.read_text(encoding="utf-8").splitlines()[1:]
-    except (OSError, UnicodeDecodeError):
+        return len(read_checkpoint(checkpoint, study_key(study, base)))
+    except (OSError, ValueError):  # UnicodeDecodeError and JSON errors are ValueErrors
         return 0
-    return sum(1 for line in lines if line.startswith("{"))
 
 
 def _where(args) -> str:
@@ -222,7 +223,7 @@ def command(args) -> int:
                             progress=None if args.quiet else progress)
     except KeyboardInterrupt:
         progress.close()
-        kept = _kept(checkpoint)
+        kept = _kept(checkpoint, study, base)
         progress.say(f"{count(kept, 'run')} finished, kept in {checkpoint}: the same command "
                      "again runs only the rest" if kept else
                      "no run had finished: nothing kept, the same command again starts over")
@@ -242,7 +243,7 @@ def command(args) -> int:
 
         write_summary(study, summary, records, base, out_dir)
     if args.doc:
-        write_doc(Path(args.doc), study, summary, study_file=args.study, json_file=args.json,
+        write_doc(Path(args.doc), study, summary, study_file=args.study,
                   out_dir=args.out or str(out_json.parent), base=base, command=_command(args))
     print(table(summary))
     return 0

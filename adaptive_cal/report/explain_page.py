@@ -8,8 +8,8 @@ import base64
 from pathlib import Path
 
 from adaptive_cal.formats.jsonfile import read_json
-from adaptive_cal.report.explain_text import (left_out_line, readings_lines, rounds_lines,
-                                              stale, verdict_lines)
+from adaptive_cal.report.explain_text import (effect_units, left_out_line, readings_lines,
+                                              rounds_lines, stale, verdict_lines)
 from adaptive_cal.report.sections import _table, _um, escape, image
 from adaptive_cal.report.status import quoted
 
@@ -27,9 +27,7 @@ def explain_section(run_dir: Path, result: dict | None = None) -> str:
                 f"{escape(quoted(run_dir / 'recording.csv'))} --robot CELL.yaml --json "
                 f"{escape(quoted(path))} --out {escape(quoted(run_dir))}</code>, then run the "
                 "report again.</p>")
-    from adaptive_cal.effects import EFFECTS
-
-    units = {name: {p.name: p.unit for p in e.params} for name, e in EFFECTS.items()}
+    units = effect_units()
     findings = read_json(path)
     fit = findings.get("fit", {})
     verdict = findings.get("verdict", "-")

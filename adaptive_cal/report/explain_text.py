@@ -26,6 +26,13 @@ def _pm(value: float, std: float | None, sign: str = "", alone: int = 3) -> str:
     return f"{fixed(value, decimals, sign)} +- {std:.{decimals}f}"
 
 
+def effect_units() -> dict[str, dict[str, str]]:
+    """Each library effect's parameters and their units, for ``lines`` / ``left_out_line``."""
+    from adaptive_cal.effects import EFFECTS
+
+    return {name: {p.name: p.unit for p in e.params} for name, e in EFFECTS.items()}
+
+
 def quantity(name: str, value: float, std: float | None, unit: str) -> str:
     """One fitted parameter in the unit an engineer reads: heights in um, positions in mm."""
     label = LABELS.get(name, re.sub(r"_(mm|s|deg|mm_per_s)$", "", name).replace("_", " "))

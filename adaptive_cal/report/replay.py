@@ -83,9 +83,22 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
     return replace(rec, flags=tuple(flags))
 
 
+def last_closure(flags) -> list[int]:
+    """The rows of a recording's last closure (its repeat, retakes and confirmation: one run
+    of consecutive rows flagged closure; a run its first closure moved off the bound closes
+    again later), by index; [] where none was made."""
+    from adaptive_cal.planning.closure import FLAG
+
+    at = [j for j, f in enumerate(flags or ()) if FLAG in f]
+    k = len(at) - 1
+    while k > 0 and at[k - 1] == at[k] - 1:
+        k -= 1
+    return at[max(k, 0):]
+
+
 def closure_of(plan, rec: Recording):
-    """The (last) closure touch of a recording judged again (``planning.closure``) against the map of
-    the readings before it, as the run judged it -- except that the run also relearns the noise
+    """The (last) closure touch of a recording judged again (``planning.closure``) against the
+    map of the readings before it, as the run judged it -- except that the run also relearns the noise
     without the drift the closure reads; so the figures can differ a little from its
     result.json. None when the recording has no closure touch."""
     from types import SimpleNamespace
@@ -95,13 +108,9 @@ def closure_of(plan, rec: Recording):
     from adaptive_cal.planning import survey as sv
 
     flags = list(rec.flags) if rec.flags else []
-    at = [j for j, f in enumerate(flags) if cl.FLAG in f]
+    at = last_closure(flags)
     if not at:
         return None
-    k = len(at) - 1  # the last closure: a run its first one moved off the bound closes again
-    while k and at[k - 1] == at[k] - 1:
-        k -= 1
-    at = at[k:]
     before = sv.replay(plan, sv.start(plan), rec.select(np.arange(len(rec)) < at[0]))
     i = cl.first_place(before.fused_weights)
     if i is None:

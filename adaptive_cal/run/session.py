@@ -24,7 +24,6 @@ from adaptive_cal.formats.recording import read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, repair_cut_row_said
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
-from adaptive_cal.planning.closure import FLAG as CLOSURE_FLAG
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
@@ -71,28 +70,24 @@ class RunPaths:
         return self.out / "recording.csv"
 
 
-def replay(plan: SurveyPlan, state: sv.SurveyState, path: Path
+def replay(plan: SurveyPlan, state: sv.SurveyState, rec
            ) -> tuple[sv.SurveyState, float, int, np.ndarray, int | None]:
-    """The state after a recording's touches (from a fresh ``state``), the last time (s), the
-    seq the next row takes (the last seq + 1: a recording may start above 0 or have gaps), the
+    """The state after a recording's touches ``rec`` (from a fresh ``state``), the last time
+    (s), the seq the next row takes (the last seq + 1: a recording may start above 0 or have gaps), the
     time (s, NaN where blank) of each fused reading, in order (the loop's closure touch), and
     the touch at which its last closure began (None: none made). The state carries that
     closure's verdict, judged again (``report.replay.closure_of``): a resume neither touches
     the first place again nor loses what the closure found."""
-    rec = read_recording(path)
+    from adaptive_cal.report.replay import closure_of, last_closure
+
     t = rec.t_s[np.isfinite(rec.t_s)]
     next_seq = int(rec.seq[-1]) + 1 if len(rec) else 0
     state = sv.replay(plan, state, rec)
-    at = [j for j, f in enumerate(rec.flags or ()) if CLOSURE_FLAG in f]
-    closed_at = None
+    at = last_closure(rec.flags)
     if at:
-        from adaptive_cal.report.replay import closure_of
-
-        closed_at = at[-1]
-        while closed_at - 1 in at:
-            closed_at -= 1
         state = replace(state, closure=closure_of(plan, rec))
-    return (state, float(t[-1]) if len(t) else 0.0, next_seq, rec.t_s[rec.fused], closed_at)
+    return (state, float(t[-1]) if len(t) else 0.0, next_seq, rec.t_s[rec.fused],
+            at[0] if at else None)
 
 
 @contextmanager
@@ -165,7 +160,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         said = repair_cut_row_said(paths.recording)  # a message line, not a Python warning
         if said is not None:
             say([said])
-        state, start_t, next_seq, fused_t_s, closed_at = replay(plan, state, paths.recording)
+        rec = read_recording(paths.recording)
+        state, start_t, next_seq, fused_t_s, closed_at = replay(plan, state, rec)
         done = plan.stop(sv.status(plan, state))
         saved = _saved_result(paths.out)
         if done and saved is not None and saved.get("touches") == state.touches:
@@ -187,7 +183,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                                                "probe_zero_mm": str(cell.probe.zero_mm)}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
-        opened.cycle.seed_repeats(read_recording(paths.recording).reading_mm)
+        opened.cycle.seed_repeats(rec.reading_mm)
     truth = opened.simulated.surface_mm if opened.simulated is not None else None
     history = History(sv.status(plan, state), state.fitted_at)
     hooks = [history]

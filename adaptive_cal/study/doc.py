@@ -305,14 +305,12 @@ def _plates_are(study: Study) -> str:
             f"random weights) {p.form_pv_mm[0]}-{p.form_pv_mm[1]} mm peak to valley")
 
 
-def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_file: str,
-              out_dir: str, base: dict, plates_arg: str = "",
-              results: Path = REPO / "benchmarks" / "results", command: str | None = None
-              ) -> None:
-    """The page; ``command``: the command line that wrote it, as the page shows it (default:
-    the study file with --json, --out and --doc). The project's own page (SHIPPED_TILTS) also
-    gets its provenance, the issue's targets and the benchmark figures of ``results``; another
-    study's page, its own table and figures only."""
+def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, out_dir: str,
+              base: dict, command: str,
+              results: Path = REPO / "benchmarks" / "results") -> None:
+    """The page; ``command``: the command line that wrote it, as the page shows it. The
+    project's own page (SHIPPED_TILTS) also gets its provenance, the issue's targets and the
+    benchmark figures of ``results``; another study's page, its own table and figures only."""
     path = Path(path)
     p = study.plate
     out_rel = Path(out_dir).name
@@ -321,9 +319,6 @@ def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, json_
     except ValueError:
         pass
     probe = _planner_probe(study, base)
-    if command is None:
-        command = (f"OPENBLAS_NUM_THREADS=1 adaptive-cal study {study_file} --json {json_file} "
-                   f"\\\n    --out {out_dir} --doc {path} {plates_arg}").rstrip()
     own = Path(study_file).resolve() == SHIPPED_TILTS
     history = TILTS_HISTORY if own else ""
     wall = float(summary.get("wall_s") or 0.0)

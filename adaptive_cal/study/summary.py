@@ -70,7 +70,7 @@ def summarise(study: Study, records: list[dict]) -> dict:
         "best_integer_touches": _mean(best) if best and all(b is not None for b in best) else None,
         "adaptive_stop_touches_same_plates": _mean(to_bound(r) for r in lb),
         "adaptive_over_relaxed": _mean(to_bound(r) / r["relaxed_touches"] for r in lb
-                                       if r["relaxed_touches"] and np.isfinite(r["relaxed_touches"])),
+                                       if r["relaxed_touches"]),  # lb: finite ones only
     }
     whole = [r for r in lb if r.get("relaxed_whole_touches") is not None]
     if whole:  # the relaxation rounded up to whole touches: the tightest bound computed
