@@ -355,3 +355,24 @@ def test_a_run_a_device_stopped_says_what_stopped_it_on_the_page(run_dir, tmp_pa
     (d / "result.json").write_text(json.dumps(result))
     html = _page(d, capsys)
     assert "<b>What stopped the run:</b> THE PROBE MAY BE DOWN at x=1 &lt;y&gt;" in html
+
+
+@pytest.mark.parametrize("damage", [("tilt", None), ("posterior", "gone"), ("touches", True)])
+def test_a_result_json_without_what_the_page_needs_is_named_not_an_internal_error(
+        run_dir, tmp_path, capsys, damage):
+    d = tmp_path / "run"
+    shutil.copytree(run_dir, d)
+    key, value = damage
+    result = json.loads((d / "result.json").read_text())
+    if value == "gone":
+        del result[key]
+    else:
+        result[key] = value
+    (d / "result.json").write_text(json.dumps(result))
+    for argv in (["report", str(d)], ["flatness", str(d / "recording.csv")]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"{d / 'result.json'}: " in err and repr(key) in err, err
+        assert "internal error" not in err
+        # where the map can come from instead
+        assert f"adaptive-cal report {d / 'recording.csv'} --robot {d / 'cell.yaml'}" in err

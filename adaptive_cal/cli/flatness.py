@@ -145,13 +145,13 @@ def map_flatness(args) -> dict | None:
 def _unfinished(folder) -> dict:
     """{"incomplete": why} for a run folder whose run did not finish (interrupted, budget spent
     with the bound unmet, ...; ``report.status.missing``), as run and report mark it."""
-    from adaptive_cal.formats.jsonfile import read_json
+    from adaptive_cal.formats.jsonfile import read_result
     from adaptive_cal.report.status import missing, unfinished
 
     path = folder / "result.json"
     if not path.is_file():  # the same words as report's and compensate's for such a folder
         return {"incomplete": f"no result.json: {unfinished(folder, 'result.json')}"}
-    gap = missing(read_json(path))
+    gap = missing(read_result(path))
     return {"incomplete": gap} if gap else {}
 
 

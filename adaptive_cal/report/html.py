@@ -26,7 +26,7 @@ from matplotlib.patches import Rectangle
 from adaptive_cal import __version__
 from adaptive_cal.cell.schema import Cell, load_run_cell
 from adaptive_cal.formats.recording import read_recording
-from adaptive_cal.formats.jsonfile import read_json
+from adaptive_cal.formats.jsonfile import read_result
 from adaptive_cal.formats.npz import read_npz, unresolved_at
 from adaptive_cal.gaussian.belief import Belief, predict
 from adaptive_cal.gaussian.spline import Surface
@@ -147,7 +147,7 @@ def render(run_dir: str | Path) -> str:
     for name in ("result.json", "recording.csv", "cell.yaml"):
         if not (run_dir / name).exists():
             raise FileNotFoundError(f"{run_dir / name}: missing; " + unfinished(run_dir, name))
-    result = read_json(run_dir / "result.json")
+    result = read_result(run_dir / "result.json")
     cell = load_run_cell(run_dir / "cell.yaml")
     rec = read_recording(run_dir / "recording.csv")
     conv = run_dir / "convergence.png"
