@@ -197,12 +197,19 @@ def test_no_closure_when_turned_off_or_the_budget_is_spent(tmp_path):
     assert [r.seq for r in rows if "closure" in r.flags] == [29] and state.closure.passed
 
 
-def test_the_run_says_drift_in_result_json_the_summary_and_its_exit_status(tmp_path, capsys):
+def test_the_run_says_drift_in_result_json_the_summary_and_its_exit_status(tmp_path, capsys,
+                                                                           monkeypatch):
     import json
 
     import yaml
 
     from adaptive_cal.cli import main
+    from adaptive_cal.report import figures
+
+    drawn = []
+    draw = figures.convergence_figure
+    monkeypatch.setattr(figures, "convergence_figure",
+                        lambda *a, **k: drawn.append((a, k)) or draw(*a, **k))
     from adaptive_cal.report.status import missing, next_step
     from tests.helpers import SIM_CELL
 
@@ -220,6 +227,13 @@ def test_the_run_says_drift_in_result_json_the_summary_and_its_exit_status(tmp_p
     assert "drifted" in missing(result) and "warm the cell up" in next_step(result, "x").lower()
     assert printed.startswith("INCOMPLETE: stopped: the cell drifted")
     assert result["closure"]["text"] in printed
+    # the convergence figure ends where the card and result.json do: the closure's drift widened
+    # every band after the last touch (its history ended ~20 um below, said by the jump's note)
+    (touches, mean_std, _), kw = drawn[-1]
+    assert touches[-1] == touches[-2] == result["touches"]
+    assert mean_std[-1] == pytest.approx(result["posterior"]["mean_std_mm"], rel=1e-9)
+    assert mean_std[-1] > 2 * mean_std[-2]
+    assert kw["jump"].startswith("closure: drift ")
     # the results lost (a crash while writing them): a resume ends the run where it ended, on
     # the closure the recording holds, judged again -- no touch more, the drift still said
     rows = (out / "recording.csv").read_text()

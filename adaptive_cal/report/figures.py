@@ -156,7 +156,7 @@ def surface_figure(x_grid_mm, y_grid_mm, mean_mm, std_mm, touches_xy_mm,
 
 def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
                        bound_max_mm=None, true_rms_mm=None, refits=(), floor_touches=0,
-                       incomplete: str | None = None) -> Figure:
+                       incomplete: str | None = None, jump: str | None = None) -> Figure:
     """Posterior std against touches: RMS/mean std and max std over the plate (um, log y).
 
     Bounds (stopping thresholds) are dashed horizontal lines in the colour of their curve;
@@ -165,7 +165,8 @@ def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
     hyper-parameters were refitted (thin grey lines: the std may jump there, when the learned
     form amplitude or noise changes); ``floor_touches``: no bound stops the run before this many
     touches (a shaded band); ``incomplete``: what an unfinished run misses, said in red in the
-    title (as ``surface_figure``).
+    title (as ``surface_figure``); ``jump``: what made the last point's step at the same touch
+    count (a closure touch's drift widening every band), written beside it.
     """
     touches = np.asarray(touches, dtype=np.float64)
     fig = Figure(figsize=(7.0, 4.5), layout="constrained")
@@ -187,6 +188,10 @@ def convergence_figure(touches, mean_std_mm, max_std_mm, bound_mean_mm=None,
     if floor_touches:
         ax.axvspan(0, floor_touches, color="0.92", zorder=0,
                    label=f"touch floor: no bound stops before {floor_touches} touches")
+    if jump and touches.size >= 2:
+        ax.annotate(jump, (touches[-1], float(np.asarray(mean_std_mm)[-1]) * UM_PER_MM),
+                    xytext=(-8, 0), textcoords="offset points", ha="right", va="center",
+                    fontsize=8, color="#b00000")
     ax.set_yscale("log")
     ax.set_xlabel("touches")
     ax.set_ylabel("posterior std (um)")

@@ -153,10 +153,28 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     # the belief and the figures first: result.json, written last, marks the results complete
     # (a kill while drawing leaves the old result.json, so --resume does not take the run as
     # finished)
-    write_figures(cell, plan, state, out, history or [status], true_rms_mm, refits,
-                  incomplete=missing(result), features=features)
+    history, true_rms_mm, jump = closing_point(state, status, history, true_rms_mm)
+    write_figures(cell, plan, state, out, history, true_rms_mm, refits,
+                  incomplete=missing(result), features=features, jump=jump)
     write_json(out / "result.json", result)  # atomic; NaN / inf as null
     return finite_json(result)
+
+
+def closing_point(state: sv.SurveyState, status, history, true_rms_mm):
+    """The convergence history with the run's final status appended where a closure touch found
+    a drift: its d^2 widens every band after the last touch was fused, so the history's last
+    point (the status at that touch) is below the std result.json and the report's card give.
+    (history, true_rms_mm, the note of that jump or None); the map's mean, and so its true error,
+    is the same at the jump."""
+    history = list(history or [status])
+    c = state.closure
+    if c is None or c.drift_var_mm2 <= 0.0 or len(history) < 1:
+        return history, true_rms_mm, None
+    history.append(status)
+    if true_rms_mm is not None and len(true_rms_mm):
+        true_rms_mm = [*true_rms_mm, true_rms_mm[-1]]
+    return history, true_rms_mm, (f"closure: drift {abs(c.difference_mm) * 1e3:.1f} um "
+                                  "added to every band")
 
 
 def model_block(state: sv.SurveyState, status, plan: SurveyPlan | None = None) -> dict:
@@ -189,12 +207,12 @@ def _extrapolated(plan: SurveyPlan) -> dict | None:
 
 def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path, history,
                   true_rms_mm=None, refits=(), incomplete: str | None = None,
-                  features=()) -> None:
+                  features=(), jump: str | None = None) -> None:
     """surface.png (mean and std maps, touches numbered by seq) and convergence.png (std against
     touches; ``true_rms_mm`` per history entry when the truth is known; the refits (touch
     counts) and the touch floor of the stop rule marked). ``incomplete``: what an unfinished run
     misses (``report.status.missing`` of its result, the terminal's INCOMPLETE line), marked
-    in both titles."""
+    in both titles; ``jump``: what widened the bands after the last touch (``closing_point``)."""
     from adaptive_cal.report import figures as plots
 
     wp = cell.workplane
@@ -215,7 +233,7 @@ def write_figures(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
                                    true_rms_mm=true_rms_mm, refits=refits,
                                    floor_touches=touch_floor(cell, plan.model.form_surface.size,
                                                              informed_prior=state.prior is not None),
-                                   incomplete=incomplete)
+                                   incomplete=incomplete, jump=jump)
     _save(fig, out / "convergence.png")
 
 
