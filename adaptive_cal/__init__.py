@@ -85,10 +85,19 @@ def use_float64() -> None:
 
 def start_survey(cell, *, prior=None, hyper=None):
     """A ``Survey`` of the cell's workplane: ``survey_plan(cell)`` read once, the prior belief
-    (or ``prior``, e.g. an earlier run's widened belief, with its ``hyper``-parameters)."""
+    (or ``prior``, e.g. an earlier run's widened belief, with its ``hyper``-parameters).
+    ``cell``: a Cell, a cell file's path or a dict. A setting that looks like a unit slip (a
+    bound of 4 mm meant as 4 um) is warned about, as ``adaptive-cal run`` does."""
+    import warnings
+
     from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.cell.consistency import doubts
+    from adaptive_cal.cell.schema import as_cell
     from adaptive_cal.planning.shell import Survey
 
+    cell = as_cell(cell)
+    for line in doubts(cell):
+        warnings.warn(line, UserWarning, stacklevel=2)
     return Survey(survey_plan(cell, informed_prior=prior is not None), prior=prior, hyper=hyper)
 
 

@@ -132,3 +132,44 @@ def test_survey_grid_ask_from_and_tell_refuse_what_cannot_be_meant_and_grid_band
     _, _, _, std = survey.grid(11)
     _, _, _, bare = sv.grid(survey.plan, survey.state.belief, 11)
     assert np.allclose(std ** 2 - bare ** 2, 1e-4, rtol=1e-9, atol=1e-12)
+
+
+def test_a_survey_in_float32_is_refused_before_the_first_touch():
+    """The first refit (some touches in) needed float64: a notebook that forgot use_float64()
+    was stopped after 8 robot touches, the 8th reading not fused. Now before any ask."""
+    import jax
+
+    cell = adaptive_cal.load_cell(ROOT / "configs" / "sim-cell.yaml")
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with pytest.raises(RuntimeError, match=r"needs float64: call adaptive_cal.use_float64"):
+            adaptive_cal.start_survey(cell)
+    finally:
+        jax.config.update("jax_enable_x64", True)
+
+
+def test_a_path_or_dict_where_a_cell_is_meant_is_read_and_anything_else_named(tmp_path):
+    import yaml
+
+    path = ROOT / "configs" / "sim-cell.yaml"
+    for given in (path, str(path), yaml.safe_load(path.read_text())):
+        assert adaptive_cal.start_survey(given).plan.coefficients > 0
+        adaptive_cal.open_cell(given).close()
+    for call in (adaptive_cal.start_survey, adaptive_cal.open_cell):
+        with pytest.raises(TypeError, match=r"cell = 42: give a Cell"):
+            call(42)
+    out = tmp_path / "run"
+    with pytest.raises(TypeError, match=r"cell = None: give a Cell"):
+        adaptive_cal.run_session(None, out)
+    assert not out.exists()  # refused before the folder (and its lock) was made
+    with pytest.raises(TypeError, match=r"plan = .*give a SurveyPlan"):
+        adaptive_cal.Survey(adaptive_cal.load_cell(path))
+
+
+def test_a_bound_typed_in_mm_meant_as_um_is_warned_about_by_the_api_too():
+    import yaml
+
+    data = yaml.safe_load((ROOT / "configs" / "sim-cell.yaml").read_text())
+    data["plan"]["stop"]["mean_std_mm"] = 4
+    with pytest.warns(UserWarning, match=r"plan.stop.mean_std_mm: 4 mm .* um given as mm"):
+        adaptive_cal.start_survey(data)

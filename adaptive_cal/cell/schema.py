@@ -288,6 +288,21 @@ def load_cell(path: str | Path) -> Cell:
     return parse_cell(resolve_files(load_yaml(path), path), str(path))
 
 
+def as_cell(cell, name: str = "cell") -> Cell:
+    """A Cell as given, read from a cell file's path or validated from a dict (``parse_cell``);
+    else a TypeError naming the argument (for the API: a path where a Cell is meant)."""
+    import os
+
+    if isinstance(cell, Cell):
+        return cell
+    if isinstance(cell, (str, os.PathLike)):
+        return load_cell(cell)
+    if isinstance(cell, dict):
+        return parse_cell(cell)
+    raise TypeError(f"{name} = {cell!r:.60}: give a Cell (adaptive_cal.load_cell), a cell file's "
+                    "path or a dict of its keys")
+
+
 def load_run_cell(path: str | Path) -> Cell:
     """A run folder's cell.yaml, for what reads the run (report, flatness, compensate): a
     simulated plate's height map gone since the run (the folder copied elsewhere, the map moved)

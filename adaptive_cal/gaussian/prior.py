@@ -208,6 +208,13 @@ def fit_hyper(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     return hyper_posterior(model, rows, readings, start, points=False, extra=extra)[0][0]
 
 
+def require_float64(what: str) -> None:
+    """RuntimeError unless JAX runs in float64 (``adaptive_cal.use_float64``): the marginal
+    likelihood's gradients are not reliable in float32."""
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError(f"{what} needs float64: call adaptive_cal.use_float64() first")
+
+
 def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
                     start: Hyper | None = None, *, points: bool = True, weights=None,
                     extra: np.ndarray | None = None) -> list[tuple[Hyper, float]]:
@@ -216,8 +223,7 @@ def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     weights with kappa = 1, corrected by the true posterior density). Conditioning on each and
     mixing carries the hyper-parameter uncertainty into the belief. ``weights`` (n,) in (0, 1]:
     reading i has noise variance sigma_n^2 / w_i (outliers weighted out; default all 1)."""
-    if not jax.config.jax_enable_x64:
-        raise RuntimeError("fit_hyper needs float64: call adaptive_cal.use_float64() first")
+    require_float64("fit_hyper")
     padded = _padded(rows, readings)
     args = padded + _model_args(model, extra) + (_padded_weights(padded[2].shape[0], weights),)
 

@@ -28,6 +28,9 @@ class Survey:
 
     def __init__(self, plan: SurveyPlan, state: sv.SurveyState | None = None, *,
                  prior: bl.Belief | None = None, hyper: Hyper | None = None):
+        if not isinstance(plan, SurveyPlan):
+            raise TypeError(f"plan = {plan!r:.60}: give a SurveyPlan (cell.build.survey_plan(cell)), "
+                            "or use adaptive_cal.start_survey(cell)")
         self.plan = plan
         self.state = state if state is not None else sv.start(plan, prior=prior, hyper=hyper)
         self.history: list[Status] = [self.status()]

@@ -31,7 +31,7 @@ import numpy as np
 
 from adaptive_cal.formats.recording import surface_height_mm
 from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.gaussian.prior import Hyper, learned_belief
+from adaptive_cal.gaussian.prior import Hyper, learned_belief, require_float64
 from adaptive_cal.planning.adequacy import Adequacy, assess
 from adaptive_cal.planning.closure import Closure
 from adaptive_cal.planning.gate import (FLAG_P, Retake, Told, flagged_p, judge as gate_judge,
@@ -97,15 +97,15 @@ class SurveyState:
 def start(plan: SurveyPlan, *, prior: bl.Belief | None = None,
           hyper: Hyper | None = None) -> SurveyState:
     """The state before any touch: the prior belief under ``hyper`` (default: the model's first
-    guess), or ``prior``, a belief from an earlier run (build the plan with
-    ``informed_prior=True`` then: nothing is learned and no touch floor applies)."""
+    guess), or ``prior`` from an earlier run (plan with ``informed_prior=True``: nothing learned)."""
+    if plan.learn:  # before any robot moves, not at the first refit some touches in
+        require_float64("a survey that learns its hyper-parameters")
     hyper = hyper or plan.model.hyper0
     belief = prior if prior is not None else plan.model.belief(hyper)
     if belief.mean.shape[0] != plan.coefficients:
         raise ValueError(f"the earlier belief has {belief.mean.shape[0]} coefficients, this "
                          f"cell's spline has {plan.coefficients}: use the same knots")
     return SurveyState(belief, hyper, rows=np.zeros((0, plan.coefficients)), prior=prior)
-
 
 
 def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,

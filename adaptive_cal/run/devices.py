@@ -112,7 +112,11 @@ def _probe(cell: Cell, links: dict, manual) -> ProbeDevice:
 def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
               manual=None) -> OpenCell:
     """Connect to the cell named by the cell file. ``manual`` replaces the operator console
-    (a ManualCell with injected streams, for notebooks and tests)."""
+    (a ManualCell with injected streams, for notebooks and tests). ``cell``: a Cell, or a cell
+    file's path or dict (``cell.schema.as_cell``)."""
+    from adaptive_cal.cell.schema import as_cell
+
+    cell = as_cell(cell)
     allowed = safety_check(cell)
     p = cell.probe
     if cell.robot.adapter == "sim":

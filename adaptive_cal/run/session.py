@@ -132,7 +132,11 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
     (as ``interrupted``)
     after that many touches: used by tests to simulate an interruption at a chosen point.
     ``before_start()`` runs once the lock is held (the CLI copies the cell file into the folder
-    there, so it never writes into a folder another run holds)."""
+    there, so it never writes into a folder another run holds). ``cell``: a Cell, or a cell
+    file's path or dict (``cell.schema.as_cell``), read before the folder is touched."""
+    from adaptive_cal.cell.schema import as_cell
+
+    cell = as_cell(cell)
     with run_lock(out):
         if before_start is not None:
             before_start()
