@@ -113,10 +113,33 @@ def test_bad_samples_beyond_bound_raise_and_retract():
     assert m.sent[-1] == (50, 50, 15.0)
 
 
-def test_non_finite_samples_never_returned():
+def test_non_finite_samples_never_returned_and_said_nonfinite_not_spread():
     p = ScriptedProbe([np.nan, 5.0, 5.0, np.nan, 5.0, 5.0])
-    with pytest.raises(TouchRejected):
+    with pytest.raises(TouchRejected) as e:
         cycle(RecordingMotion(), p).touch(50, 50, 1.0)
+    # the samples did not disagree: they were not numbers (the recording said "spread")
+    assert e.value.flags == ("rejected", "nonfinite")
+    p = ScriptedProbe([5.0, 5.2, 5.0, np.nan, 5.0, 5.0])  # one attempt of each
+    with pytest.raises(TouchRejected) as e:
+        cycle(RecordingMotion(), p).touch(50, 50, 1.0)
+    assert e.value.flags == ("rejected", "spread", "nonfinite")
+
+
+def test_the_loop_writes_a_rejected_non_finite_reading_as_0_flagged_nonfinite(monkeypatch):
+    from types import SimpleNamespace
+
+    from adaptive_cal.run import loop as lp
+
+    monkeypatch.setattr(lp.sv, "skip", lambda plan, state, x, y: state)  # counting needs a plan
+    rows = []
+    loop = lp.SurveyLoop.__new__(lp.SurveyLoop)  # only what _reject uses
+    loop.cycle, loop.record, loop.plan = SimpleNamespace(clock=lambda: 7.0), rows.append, None
+    loop.state = SimpleNamespace(touches=3)
+    target = SimpleNamespace(x_mm=1.0, y_mm=2.0, z_mm=0.5)
+    loop._reject(target, TouchRejected("x", float("nan"), ("rejected", "nonfinite")))
+    loop._reject(target, TouchRejected("x", float("nan"), ("rejected", "spread")), ("closure",))
+    assert [(r.reading_mm, r.flags) for r in rows] == [
+        (0.0, ("rejected", "nonfinite")), (0.0, ("rejected", "spread", "nonfinite", "closure"))]
 
 
 def test_retract_after_interrupt_and_error_kept_when_retract_fails():

@@ -239,7 +239,10 @@ class ProbeCycle:
             raise TouchRejected(
                 f"probe samples unusable after {self.retries + 1} attempt(s) "
                 f"({'; '.join(problems)}); tolerance {self.samples_tolerance_mm * 1000:.1f} um",
-                float(np.median(values)), ("rejected", "spread"), tuple(kept))
+                float(np.median(values)), ("rejected",) + tuple(  # what the attempts saw
+                    f for f, seen in (("spread", any(p.startswith("spread") for p in problems)),
+                                      ("nonfinite", "non-finite sample" in problems)) if seen),
+                tuple(kept))
         reading = float(np.median(values))
         t_s = float(self.clock())
         lo, hi = self.usable_mm

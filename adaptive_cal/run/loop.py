@@ -22,14 +22,12 @@ so, or when the stop predicate fires: it is asked before each ask and after each
 batch larger than the touch budget left never makes more touches than the budget.
 ``loop.state`` is the latest state even when a device raises.
 
-The closure touch (``plan.closure``, ``planning.closure``): when the predicate stops on a
-variance bound, the probe first touches the run's first place again (its retake if the gate
-asks; a touch more to confirm a one-reading alarm), flagged ``closure``, recorded and fused like
-any reading; the verdict goes to ``state.closure``. A drift ends the loop with ``DRIFT``; else
-it stops as the predicate says (or goes on, if the repeat moved the status off the bound: a
-later stop closes again only ``CLOSURE_GAP`` touches on). Never past the touch budget: where no
-bound stopped the run first, the closure comes with two touches left, the last for a retake.
-"""
+The closure touch (``plan.closure``, ``planning.closure``): when the predicate stops on a bound,
+the first place is touched again (and retaken if gated; confirmed if one reading alarms), flagged
+``closure``, fused like any reading, judged into ``state.closure``. A drift ends the loop with
+``DRIFT``; else it stops as the predicate says (or goes on if the repeat moved the status off the
+bound; a later stop closes again ``CLOSURE_GAP`` touches on). Never past the budget: where no
+bound stopped the run first, the closure comes with two touches left, the last for a retake."""
 from __future__ import annotations
 
 import math
@@ -331,10 +329,12 @@ class SurveyLoop:
         self.state = sv.skip(self.plan, self.state, target.x_mm, target.y_mm)
 
     def _reject(self, target: Target, e: TouchRejected, extra: tuple[str, ...] = ()) -> None:
-        """Record a touch the probe cycle rejected (flagged, never fused) and count it."""
-        reading = e.reading_mm if math.isfinite(e.reading_mm) else 0.0
-        self._record(Row(self.state.touches, self.cycle.clock(), target.x_mm, target.y_mm,
-                         target.z_mm, reading, tuple(e.flags) + extra))
+        """Record a touch the probe cycle rejected (flagged, never fused; a NaN as 0, flagged
+        ``nonfinite`` as ``_invalid`` does) and count it."""
+        ok, t = math.isfinite(e.reading_mm), target
+        self._record(Row(self.state.touches, self.cycle.clock(), t.x_mm, t.y_mm, t.z_mm,
+                         e.reading_mm if ok else 0.0, tuple(dict.fromkeys(
+                             (*e.flags, *(() if ok else ("nonfinite",)), *extra)))))
         self.state = sv.skip(self.plan, self.state, target.x_mm, target.y_mm)
 
     def _record(self, row: Row) -> None:
