@@ -598,3 +598,37 @@ def test_a_second_ctrl_c_while_the_results_are_written_leaves_them_whole(tmp_pat
     r = session.run(sim_cell(), tmp_path / "r", progress=False, max_new_touches=4)
     assert r["stopped_because"] == "interrupted" and r["touches"] == 4
     assert (tmp_path / "r" / "result.json").exists() and (tmp_path / "r" / "belief.npz").exists()
+
+
+@pytest.mark.parametrize("edit", ["bom", "crlf", "reordered"])
+def test_a_resume_appends_to_a_recording_a_spreadsheet_saved_as_the_reader_reads_it(tmp_path,
+                                                                                   edit):
+    """A recording read everywhere (byte-order mark, CRLF line ends, columns in another order:
+    docs/recording.md) was refused by --resume ("its header differs"); now continued, in the
+    file's own column order and line ends, with the same readings."""
+    cell = sim_cell()
+    out = tmp_path / "run"
+    session.run(cell, out, progress=False, max_new_touches=5)
+    path = out / "recording.csv"
+    before = read_recording(path)
+    text = path.read_text(encoding="utf-8")
+    if edit == "bom":
+        path.write_bytes(b"\xef\xbb\xbf" + text.encode("utf-8"))
+    elif edit == "crlf":
+        path.write_bytes(text.replace("\n", "\r\n").encode("utf-8"))
+    else:
+        lines = text.splitlines()
+        k = next(i for i, l in enumerate(lines) if not l.startswith("#"))
+        order = [6, 0, 2, 3, 1, 4, 5] + list(range(7, len(lines[k].split(","))))
+        lines[k:] = [",".join(l.split(",")[i] for i in order) for l in lines[k:]]
+        path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    r = session.run(cell, out, resume=True, progress=False, max_new_touches=3)
+    assert r["touches"] == 8
+    after = read_recording(path)
+    np.testing.assert_array_equal(after.seq, np.arange(8))
+    np.testing.assert_array_equal(after.reading_mm[:5], before.reading_mm)
+    raw = path.read_bytes()
+    if edit == "crlf":
+        assert raw.count(b"\r\n") == raw.count(b"\n")  # no mixed line ends
+    else:
+        assert b"\r" not in raw

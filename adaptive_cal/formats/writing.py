@@ -178,17 +178,22 @@ class RecordingWriter:
                  extra_columns: Iterable[str] = ()):
         self.path = Path(path)
         self.columns = self.COLUMNS + tuple(extra_columns)
+        self.newline = "\n"
         exists = self.path.exists() and self.path.stat().st_size > 0
-        if exists:
-            header = next((l for l in self.path.read_text(encoding="utf-8").splitlines()
+        if exists:  # read as the reader does (a byte-order mark, CRLF line ends accepted)
+            text = self.path.read_bytes().decode("utf-8-sig", "replace")
+            header = next((l for l in text.splitlines()
                            if l.strip() and not l.startswith("#")), "")
             try:
                 names = tuple(split_cells(header, str(self.path)))
             except _OpenQuote:
                 names = ()
-            if names != self.columns:
-                raise RecordingError(f"{self.path}: cannot append, its header {header!r} differs "
-                                     f"from {','.join(self.columns)!r}")
+            if sorted(names) != sorted(self.columns):
+                raise RecordingError(f"{self.path}: cannot append, its columns {header!r} are not "
+                                     f"those this run writes ({','.join(self.columns)!r}): "
+                                     "continue it in a new folder")
+            self.columns = names  # appended in the file's own column order and line ends
+            self.newline = "\r\n" if "\r\n" in text[:text.find("\n") + 1] else "\n"
             repair_cut_row(self.path)  # a row cut by a crash mid-write
             self._file = open(self.path, "a", encoding="utf-8", newline="")
         else:
@@ -216,7 +221,7 @@ class RecordingWriter:
                   "reading_mm": f"{reading_mm:.6f}", "flags": ";".join(sorted(flags))}
         for k, v in extra.items():
             values[k] = "" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.6g}"
-        self._file.write(",".join(values.get(c, "") for c in self.columns) + "\n")
+        self._file.write(",".join(values.get(c, "") for c in self.columns) + self.newline)
         self._sync()
 
     def close(self) -> None:
