@@ -106,3 +106,19 @@ def test_flatness_and_report_refuse_several_rounds_in_one_file_naming_them(tmp_p
         assert p.returncode != 0 and "Traceback" not in p.stderr
         assert "two.csv: column round holds 2 rounds (0, 1)" in p.stderr, p.stderr
     assert not (tmp_path / "r.html").exists()
+
+
+def test_time_that_runs_backwards_within_a_round_is_said_naming_the_lines(tmp_path, capsys):
+    """t_s is the time since the run's start, rows in touch order: a file whose times run
+    backwards (reversed in a spreadsheet) gave a drift of the opposite sign without a word."""
+    rows = [[i, 10.0 * i, 0.0, 0.0, 0.0, 5.0] for i in range(6)]
+    rows[4][1] = 1.0  # line 7 (two header lines): 1 s after 30 s on line 6
+    rec = read_recording(_write(tmp_path / "back.csv", rows))
+    said = [n for n in rec.notes if "time runs backwards" in n]
+    assert len(said) == 1 and said[0].startswith(f"{tmp_path / 'back.csv'}:7: t_s 1 s after 30 s "
+                                                 "on line 6") and "(1 time)" in said[0]
+    assert "time runs backwards" in capsys.readouterr().err
+    # each round has its own clock; blank times are skipped
+    rounds = [[i, "" if i == 2 else 10.0 * (i % 3), 0.0, 0.0, 0.0, 5.0, i // 3] for i in range(6)]
+    rec = read_recording(_write(tmp_path / "rounds.csv", rounds, ",round"))
+    assert not any("backwards" in n for n in rec.notes)

@@ -21,9 +21,8 @@ Flags (``;``-separated in the ``flags`` column) say what the loop did with a rea
 (the second reading at that point; fused if it passes the gate), ``surprise`` (a retake that
 failed the gate too but agreed with the first reading: fused -- the surface really is there),
 ``rejected`` (not fused: disagreed with both, or outside the usable stroke, or too much spread),
-``invalid`` (with ``rejected``: NaN or infinite, off the workplane or inside a keep-out; a
-non-finite value is written as 0 and flagged ``nonfinite``), ``outlier=0.12`` (the reading's
-posterior outlier probability, two decimals; a fused reading carries the weight 1 - p).
+``invalid`` (with ``rejected``: NaN or infinite, off the workplane or inside a keep-out; a NaN is
+written as 0, flagged ``nonfinite``), ``outlier=0.12`` (its outlier probability p; weight 1 - p).
 Flag words are read stripped of white space and lower-cased (a hand edit's `` Rejected``); a
 word this tool does not know is kept and said once per file (``warning:`` on stderr, with its
 line), and changes nothing about what is fused.
@@ -49,6 +48,7 @@ from adaptive_cal.formats.cells import (RecordingError, _number, _OpenQuote,  # 
 from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, parse_flags, read_table,
                                         strict_float, unknown_flag_note)
 from adaptive_cal.formats.text import not_utf8
+from adaptive_cal.formats.times import time_backwards
 
 MAGIC = "# adaptive-cal recording v1"
 REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
@@ -203,6 +203,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
     lineno = 0
     pending: str | None = None  # a row whose quoted field goes on past its line's end
     first = 0  # the line a row starts on (a quoted field may span lines): errors name it
+    row_lines: list[int] = []
     try:
         with open(path, encoding="utf-8-sig", newline=None) as f:
             for lineno, line in enumerate(f, start=1):
@@ -271,6 +272,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
                     raise RecordingError(f"{where}: column seq: {int(seq)} does not "
                                          f"increase (previous {int(prev_seq)})")
                 prev_seq = seq
+                row_lines.append(first)
                 for c in numeric_extra:
                     try:
                         extra[c].append(_number(cells[col[c]], where="", blank_ok=True))
@@ -308,6 +310,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
         extra["round"] = [codes.get(k, math.nan) for k in keys]
         notes.append(f"{path}: column round holds labels: rounds numbered in order of first "
                      "appearance, " + ", ".join(f"{k} = {n}" for k, n in list(codes.items())[:6]))
+    notes += [n for n in [time_backwards(path, arrays["t_s"], extra.get("round"), row_lines)] if n]
     say(notes)
     return Recording(arrays["seq"].astype(np.int64), arrays["t_s"], arrays["x_mm"],
                      arrays["y_mm"], arrays["z_mm"], arrays["reading_mm"], tuple(flags),
