@@ -173,3 +173,45 @@ def test_a_bound_typed_in_mm_meant_as_um_is_warned_about_by_the_api_too():
     data["plan"]["stop"]["mean_std_mm"] = 4
     with pytest.warns(UserWarning, match=r"plan.stop.mean_std_mm: 4 mm .* um given as mm"):
         adaptive_cal.start_survey(data)
+
+
+def test_flatness_functions_name_what_they_cannot_use():
+    """Notebook 02's functions gave scipy's 'A_ub must not contain nan', numpy's 'zero-size
+    array', or a silent level plane from no points."""
+    import numpy as np
+
+    from adaptive_cal.analysis import flatness as fl
+
+    x, y = [0.0, 100.0, 0.0, 100.0], [0.0, 0.0, 100.0, 100.0]
+    cases = [((x, y, [0, np.nan, 0, 0]), r"z_mm\[1\] = nan: every value must be a finite"),
+             (([], [], []), r"0 point\(s\): a plane, and so a flatness, needs at least 3"),
+             ((np.ones((2, 2)), y, x), r"x_mm: one value per point .* shape \(2, 2\)"),
+             ((x, y, "abc"), r"z_mm: 'abc' is not an array of numbers"),
+             ((x, y[:3], x), r"same number of points")]
+    for args, match in cases:
+        for f in (fl.figures, fl.plane_tilt, fl.minimum_zone_mm, fl.least_squares_plane):
+            with pytest.raises(ValueError, match=match):
+                f(*args)
+    for a, b in ((np.nan, 0.0), ("0.01", 0.0), (0.0, np.inf)):
+        with pytest.raises(ValueError, match=r"a slope must be a finite number"):
+            fl.tilt_correction_deg(a, b)
+
+
+def test_the_belief_refuses_to_fuse_what_would_turn_it_to_nan():
+    import numpy as np
+
+    from adaptive_cal.gaussian import belief as bl
+
+    b = bl.Belief(np.zeros(3), np.eye(3))
+    row = np.array([1.0, 0.5, 0.25])
+    for args, match in (((row, np.nan, 1e-6), r"reading = nan"),
+                        ((row, 0.0, -1.0), r"noise_var = -1.0: a variance must be positive"),
+                        ((np.ones(99), 0.0, 1e-6), r"row: 3 finite numbers .* shape \(99,\)")):
+        with pytest.raises(ValueError, match=match):
+            bl.fuse(b, *args)
+    with pytest.raises(ValueError, match=r"must be finite"):
+        bl.condition(b, row[None, :], np.array([np.nan]), 1e-6)
+    with pytest.raises(ValueError, match=r"rows \(1, 99\) and readings"):
+        bl.condition(b, np.ones((1, 99)), np.zeros(1), 1e-6)
+    fused, _ = bl.fuse(b, row, 0.1, 1e-6)  # and a good reading still fuses
+    assert np.all(np.isfinite(fused.mean))

@@ -43,10 +43,25 @@ class MinZone(NamedTuple):
 
 
 def _as_arrays(*arrays) -> tuple[np.ndarray, ...]:
-    out = tuple(np.asarray(v, dtype=np.float64) for v in arrays)
-    if any(v.shape[-1] != out[0].shape[0] for v in out):
+    """x, y, z as float arrays of one point each, checked: ValueError naming the argument for
+    text, a 2-D array, fewer than 3 points (no plane) or a value that is not finite."""
+    out = []
+    for name, v in zip(("x_mm", "y_mm", "z_mm"), arrays):
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: {v!r:.60} is not an array of numbers (mm)") from None
+        if a.ndim != 1:
+            raise ValueError(f"{name}: one value per point (a 1-D array), got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            bad = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise ValueError(f"{name}[{bad}] = {a[bad]}: every value must be a finite number (mm)")
+        out.append(a)
+    if any(v.shape[0] != out[0].shape[0] for v in out):
         raise ValueError(f"x, y, z must have the same number of points, got {[v.shape for v in out]}")
-    return out
+    if out[0].shape[0] < 3:
+        raise ValueError(f"{out[0].shape[0]} point(s): a plane, and so a flatness, needs at least 3")
+    return tuple(out)
 
 
 def _plane_coefficients(x_mm, y_mm, z_mm):
@@ -185,6 +200,9 @@ def tilt_correction_deg(a: float, b: float) -> tuple[float, float]:
     Hence rx = atan(b), ry = -atan(a / sqrt(1 + b^2)): the user-frame correction
     frame_new = frame_nominal * rotx(rx) * roty(ry) (RoboDK order) whose z axis is the plate normal.
     """
+    for name, v in (("a", a), ("b", b)):
+        if isinstance(v, (str, bytes)) or not np.isfinite(v):
+            raise ValueError(f"{name} = {v!r}: a slope must be a finite number (mm/mm)")
     rx = np.arctan(b)
     ry = -np.arctan(a / np.sqrt(1.0 + b * b))
     return float(np.degrees(rx)), float(np.degrees(ry))

@@ -61,6 +61,7 @@ def fuse(belief: Belief, row: np.ndarray, reading: float, noise_var: float) -> t
     for a sub-optimal gain; it costs two K x K products per reading.
     """
     k = belief.mean.shape[0]
+    _check_reading(row, reading, noise_var, k)
     kf = KalmanFilter(dim_x=k, dim_z=1)
     kf.x = belief.mean.reshape(k, 1).astype(float)
     kf.P = np.array(belief.cov, float)
@@ -68,6 +69,20 @@ def fuse(belief: Belief, row: np.ndarray, reading: float, noise_var: float) -> t
     kf.update(np.array([[reading]], float), R=np.array([[noise_var]], float),
               H=np.asarray(row, float).reshape(1, k))
     return Belief(kf.x.ravel(), symmetrise(kf.P)), inn
+
+
+def _check_reading(row, reading, noise_var, k: int) -> None:
+    """ValueError naming what cannot be fused: a row that is not K finite numbers, a reading
+    that is not finite, a noise variance that is not positive and finite (mm^2). A NaN fused
+    turns the whole belief to NaN."""
+    row = np.asarray(row, float)
+    if row.shape != (k,) or not np.all(np.isfinite(row)):
+        raise ValueError(f"row: {k} finite numbers (the belief's coefficients) needed, got "
+                         f"shape {row.shape}" + ("" if row.shape != (k,) else " with a non-finite value"))
+    if not np.isfinite(reading):
+        raise ValueError(f"reading = {reading!r}: not a finite number (mm); nothing fused")
+    if not (np.isfinite(noise_var) and noise_var > 0):
+        raise ValueError(f"noise_var = {noise_var!r}: a variance must be positive and finite (mm^2)")
 
 
 def fuse_step(belief: Belief, row, reading, noise_var, weight=1.0) -> Belief:
@@ -93,6 +108,14 @@ def condition(belief: Belief, rows: np.ndarray, readings: np.ndarray, noise_var)
     if rows.shape[0] == 0:
         return belief
     r = np.broadcast_to(np.asarray(noise_var, float), (rows.shape[0],))
+    y = np.asarray(readings, float)
+    if rows.shape[1] != belief.mean.shape[0] or y.shape != (rows.shape[0],):
+        raise ValueError(f"rows {rows.shape} and readings {y.shape}: need (n, "
+                         f"{belief.mean.shape[0]}) and (n,)")
+    if not (np.all(np.isfinite(rows)) and np.all(np.isfinite(y)) and np.all(r > 0)
+            and np.all(np.isfinite(r))):
+        raise ValueError("rows, readings and noise_var must be finite (noise_var > 0): "
+                         "a NaN conditioned on turns the whole belief to NaN")
     if coefficient_form(rows.shape):
         return _condition_coefficients(belief, rows, np.asarray(readings, float), r)
     hc = rows @ belief.cov  # (n, K)
