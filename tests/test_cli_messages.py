@@ -433,6 +433,8 @@ def test_a_probe_noise_given_in_um_is_refused_at_load_naming_the_key(tmp_path, c
                      str(tmp_path / "o")]) == 2
         err = capsys.readouterr().err
         assert key in err and "of the usable stroke" in err and "um given as mm?" in err
+        hint = {"noise_std_mm": "(5 um is 0.005)", "noise_range_mm": "(2 um is 0.002)"}[key]
+        assert hint in err  # the value's own (it said 5 um for every value)
         assert not (tmp_path / "o").exists()
 
 

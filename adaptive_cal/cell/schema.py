@@ -122,7 +122,7 @@ class Probe(Block):
             if um_as_mm(value, span):
                 raise ValueError(f"{key}: {value} mm is {value / span:.0%} of the usable stroke "
                                  f"{span:g} mm (usable_mm): a probe that noisy cannot keep a "
-                                 "touch inside it -- um given as mm? (5 um is 0.005)")
+                                 f"touch inside it -- um given as mm? ({value:g} um is {value / 1000:g})")
         if self.noise_range_mm is not None:
             n_lo, n_hi = _interval(self.noise_range_mm, "noise_range_mm")
             if n_lo <= 0:
