@@ -99,6 +99,12 @@ def test_explain_takes_paths_as_well_as_recordings_and_cells(tmp_path):
         adaptive_cal.explain([], cell)
     with pytest.raises(ValueError, match="nope.csv: no such file"):
         adaptive_cal.explain(tmp_path / "nope.csv", cell)
+    # a seed that is not one was accepted on one round and numpy's SeedSequence error on two;
+    # a keyword explain does not take named an internal function
+    with pytest.raises(ValueError, match=r"rng = 'x': a numpy Generator or a seed"):
+        adaptive_cal.explain(path, cell, rng="x")
+    with pytest.raises(TypeError, match=r"explain\(\) got an unexpected keyword argument 'seed'"):
+        adaptive_cal.explain(path, cell, seed=3)
 
 
 def test_survey_grid_ask_from_and_tell_refuse_what_cannot_be_meant_and_grid_bands_match_status():

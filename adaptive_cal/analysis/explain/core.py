@@ -266,12 +266,14 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     return Explanation(findings, ctx, cands, winner, before, after)
 
 
-def explain(recordings, cell, **kw) -> Explanation:
+def explain(recordings, cell, *, threshold: float = THRESHOLD,
+            rng: np.random.Generator | int = 0, identifiability: bool = True) -> Explanation:
     """Calibrate the cell's unknowns on the recordings (rounds), then ``explain_design``.
 
     ``recordings``: a Recording or a recording's path, or a list of them (one per round, in
     order); ``cell``: a Cell or the cell file's path. A recording or cell file that cannot be
-    read raises the reader's error (it names the file and the line)."""
+    read raises the reader's error (it names the file and the line). ``threshold``, ``rng``,
+    ``identifiability``: as ``explain_design``."""
     import os
 
     from adaptive_cal.cell.schema import load_cell
@@ -284,7 +286,11 @@ def explain(recordings, cell, **kw) -> Explanation:
         raise ValueError("explain needs at least one recording")
     if not isinstance(cell, Cell):
         cell = load_cell(cell)
-    return explain_design(build_design(recordings, cell), **kw)
+    if not isinstance(rng, np.random.Generator) and (
+            isinstance(rng, bool) or not isinstance(rng, (int, np.integer)) or rng < 0):
+        raise ValueError(f"rng = {rng!r}: a numpy Generator or a seed (an integer >= 0)")
+    return explain_design(build_design(recordings, cell), threshold=threshold, rng=rng,
+                          identifiability=identifiability)
 
 
 def belief_rows(effect: str, params: dict, features: effects.Features,
