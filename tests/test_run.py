@@ -87,6 +87,9 @@ def test_interrupted_run_resumes_without_repeating_or_losing_a_touch(tmp_path):
     lines = (out / "recording.csv").read_text().splitlines()
     assert lines[: len(first)] == first  # nothing rewritten
     rec = read_recording(out / "recording.csv")
+    # what DESIGN.md does not say about the flags column, said in the file for any reader
+    assert f"# flags: {session.FLAGS_META}" in lines[:5] and rec.meta["flags"] == session.FLAGS_META
+    assert "gated, rejected or invalid is not a reading of the plate" in session.FLAGS_META
     np.testing.assert_array_equal(rec.seq, np.arange(len(rec)))
     assert r2["touches"] == len(rec) > 7
     # the closure after a resume: the first place again, timed from the recording's first row

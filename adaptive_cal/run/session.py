@@ -184,7 +184,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     start_touch = state.touches
     seq_offset = next_seq - start_touch  # new rows continue from the last seq + 1
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
-                                               "probe_zero_mm": str(cell.probe.zero_mm)}, ("round",))
+                                               "probe_zero_mm": str(cell.probe.zero_mm),
+                                               "flags": FLAGS_META}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
         opened.cycle.seed_repeats(rec.reading_mm)
@@ -269,6 +270,12 @@ def _saved_result(out: Path) -> dict | None:
     if not (out / "result.json").exists() or not (out / "belief.npz").exists():
         return None
     return read_json(out / "result.json")
+
+
+#: what a reader that knows only DESIGN.md (which gives the flags column no meaning) must know
+FLAGS_META = ("a row flagged gated, rejected or invalid is not a reading of the plate -- leave it "
+              "out; outlier=P: the reading's gross-error probability (weight 1 - P); "
+              "docs/recording.md of adaptive-cal")
 
 
 class History:
