@@ -31,3 +31,18 @@ def test_a_height_map_names_the_line_too(tmp_path):
     path.write_bytes(b"x_mm,y_mm,height_mm\n0,0,0\n0,1,0\xb5\n")
     with pytest.raises(HeightMapError, match=r"map\.csv:3: not UTF-8 text \(byte 0xb5, byte 6 "):
         load_heightmap(path)
+
+
+def test_the_cli_says_utf16_and_not_utf8_instead_of_printing_the_bytes(tmp_path, capsys):
+    """flatness / explain printed "not an adaptive-cal recording (its first line is '\ufffd\ufffd#\\x00 \\x00a...')"
+    for a spreadsheet's UTF-16 export (the API said "not UTF-8"; outside audit)."""
+    from adaptive_cal.cli import main
+
+    text = "# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm\n0,,0,0,0,5\n"
+    (tmp_path / "u16.csv").write_bytes(text.encode("utf-16"))
+    (tmp_path / "l1.csv").write_bytes("x_mm;y_mm;h\u00f6he\n0;0;5\n".encode("latin-1"))
+    for name, said in (("u16.csv", "UTF-16 text (a spreadsheet's 'Unicode text'), not UTF-8"),
+                       ("l1.csv", "l1.csv:1: not UTF-8 text (byte 0xf6")):
+        assert main(["flatness", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert said in err and "\\x00" not in err, err

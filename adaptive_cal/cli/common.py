@@ -90,6 +90,17 @@ def check_recording(path: str) -> None:
     from adaptive_cal.formats.table import table_columns
 
     if line != RECORDING_MAGIC and table_columns(line) is None:
+        head = p.read_bytes()[:4096]
+        if head.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in head:
+            raise UserError(f"{p}: UTF-16 text (a spreadsheet's 'Unicode text'), not UTF-8: save "
+                            "it as 'CSV UTF-8'. " + RECORDING_FORMAT)
+        try:
+            head.decode("utf-8")
+        except UnicodeDecodeError as e:
+            if e.start < len(head) - 4:  # not a character cut at the end of the 4 kB read
+                from adaptive_cal.formats.text import not_utf8
+
+                raise UserError(not_utf8(p) + ". " + RECORDING_FORMAT) from None
         for sep, name in ((";", "semicolons"), ("\t", "tabs")):
             if sep in line and table_columns(line.replace(sep, ",")) is not None:
                 raise UserError(f"{p}: its columns are separated by {name} "
