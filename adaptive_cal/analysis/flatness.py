@@ -11,8 +11,9 @@ from __future__ import annotations
 from typing import Mapping, NamedTuple
 
 import numpy as np
-from scipy.optimize import linprog
-from scipy.spatial import ConvexHull, QhullError
+
+from adaptive_cal.analysis import zone
+from adaptive_cal.analysis.zone import _hull_points, _rotation_onto_z, _vertical_zone_slopes
 
 FIGURES = ("least_squares", "range", "minimum_zone", "range_x_avg", "range_y_avg")
 _GROUP_DECIMALS = 6  # positions equal to 1 nm share a row or column of the grid
@@ -123,44 +124,6 @@ def average_ranges_mm(x_mm, y_mm, z_mm) -> tuple[float, float]:
     return float(_average_range(y_mm, z_mm)), float(_average_range(x_mm, z_mm))
 
 
-def _vertical_zone_slopes(points: np.ndarray) -> tuple[float, float]:
-    """(a, b) of min_{a,b,c_lo,c_hi} c_hi - c_lo s.t. c_lo <= z_i - a x_i - b y_i <= c_hi (LP).
-
-    Slopes are bounded to |a|, |b| <= 1: called in a frame aligned with a near-optimal normal.
-    """
-    x, y, z = points.T
-    ones, zeros = np.ones_like(x), np.zeros_like(x)
-    upper = np.column_stack([-x, -y, zeros, -ones])  # z_i - a x_i - b y_i <= c_hi
-    lower = np.column_stack([x, y, ones, zeros])  # c_lo <= z_i - a x_i - b y_i
-    result = linprog(
-        c=[0.0, 0.0, -1.0, 1.0],
-        A_ub=np.vstack([upper, lower]),
-        b_ub=np.concatenate([-z, z]),
-        bounds=[(-1.0, 1.0), (-1.0, 1.0), (None, None), (None, None)],
-        method="highs",
-    )
-    if result.status != 0:
-        raise RuntimeError(f"minimum-zone LP failed: {result.message}")
-    return float(result.x[0]), float(result.x[1])
-
-
-def _rotation_onto_z(normal: np.ndarray) -> np.ndarray:
-    """R with R n = e_z for a unit n (Rodrigues: R = I + [v]x + [v]x^2 / (1 + n.e_z), v = n x e_z)."""
-    v = np.cross(normal, [0.0, 0.0, 1.0])
-    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + vx + vx @ vx / (1.0 + normal[2])
-
-
-def _hull_points(points: np.ndarray) -> np.ndarray:
-    """The convex-hull vertices (the zone depends on nothing else); all points if degenerate."""
-    if len(points) < 5:
-        return points
-    try:
-        return points[ConvexHull(points).vertices]
-    except QhullError:
-        return points
-
-
 def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
     """ISO 1101 minimum zone: min over unit normals n of max_i n.p_i - min_i n.p_i.
 
@@ -177,7 +140,8 @@ def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
         # a vertical plane through the line holds every point: zero width, no plate zone
         raise ValueError(f"the {len(x_mm)} touched points lie on one line in x, y: a flatness "
                          "zone needs touches that span the plate")
-    points = _hull_points(np.column_stack([x_mm, y_mm, z_mm]) - centre)
+    points = np.column_stack([x_mm, y_mm, z_mm]) - centre
+    points = _hull_points(points) if len(points) <= zone.MANY_POINTS else points
     a, b, _ = _plane_coefficients(*points.T)
     normal = np.array([-a, -b, 1.0]) / np.sqrt(1.0 + a**2 + b**2)
     for _ in range(max_iter):
