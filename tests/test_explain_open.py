@@ -118,3 +118,28 @@ def test_cli_prints_the_unexplained_structure_and_what_is_not_testable(tmp_path,
     assert "arriving moving +y" in text and "not testable: reversal" in text
     assert not list((tmp_path / "o").glob("*-explained.yaml"))  # no library effect to write
     assert (tmp_path / "o" / "residual_vs_direction.png").stat().st_size > 1000
+
+
+def test_one_reading_alone_in_its_direction_is_not_a_direction(tmp_path):
+    """A null on random positions arrives moving +y or -y at every touch but the first, which
+    arrives from nowhere: its own 'direction' group of one reading made a 2-3 sd first reading
+    'unexplained structure ... arriving without moving along y' (outside speed audit, 4,000
+    rows, p 0.007). A direction needs MIN_GROUP readings to be tested as a group."""
+    from adaptive_cal.analysis.explain.locate import MIN_GROUP, direction_columns
+
+    rng = np.random.default_rng(5)
+    n = 600
+    x, y = rng.uniform(-215, 215, n), rng.uniform(-175, 175, n)
+    e = 0.01 * rng.standard_normal(n)
+    e[0] = 0.035  # the first touch 3.5 sd high: an outlier's size, not a direction's
+    lines = ["# adaptive-cal recording v1", "seq,t_s,x_mm,y_mm,z_mm,reading_mm"]
+    lines += [f"{i},{3.0 * i:.1f},{x[i]:.3f},{y[i]:.3f},0,{5 + 0.012 * x[i] - 0.004 * y[i] + e[i]:.5f}"
+              for i in range(n)]
+    (tmp_path / "null.csv").write_text("\n".join(lines) + "\n")
+    f = explain([read_recording(tmp_path / "null.csv")],
+                load_cell(ROOT / "configs" / "cheng2025-cell.yaml")).findings
+    assert f["verdict"] == "none", (f["verdict"], f.get("unexplained"))
+    sign = np.sign(np.diff(np.r_[y[0], y]))  # first touch 0
+    cols = direction_columns(sign)
+    assert cols.shape[1] == 1 and MIN_GROUP == 3  # +y against -y; the first touch in the base
+    assert cols[0, 0] == 0.0 or cols[0, 0] == float(sign[0] < 0)

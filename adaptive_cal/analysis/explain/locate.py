@@ -29,6 +29,22 @@ def _normalised(v: np.ndarray) -> np.ndarray:
     return np.zeros_like(v, float) if hi <= lo else (2.0 * (v - lo) / (hi - lo) - 1.0)
 
 
+MIN_GROUP = 3  # readings an arrival direction needs to be tested as a group of its own
+
+
+def direction_columns(sign: np.ndarray) -> np.ndarray:
+    """Indicator columns of the arrival directions (moving +, moving -, not moving along the
+    axis) against the largest as the base. A direction taken by fewer than ``MIN_GROUP``
+    readings joins the base: the first touch arrives from nowhere, and one reading alone is an
+    outlier's place, not a direction (a null's first touch at 2 sd read as structure "arriving
+    without moving along y", p 0.007). A zero column where fewer than two directions are left."""
+    groups = sorted((g for g in (sign > 0, sign < 0, sign == 0) if g.sum() >= MIN_GROUP),
+                    key=lambda g: -int(g.sum()))
+    if len(groups) < 2:
+        return np.zeros((sign.size, 1))
+    return np.stack(groups[1:], 1).astype(float)
+
+
 def axis_bases(ctx: Context) -> dict[str, np.ndarray | str]:
     """The added basis per axis (n x q), or a string saying why the axis is not testable."""
     d = ctx.design
@@ -43,7 +59,7 @@ def axis_bases(ctx: Context) -> dict[str, np.ndarray | str]:
         rows = d.round_index == r
         tau[rows] = _normalised(f.t_s[rows])
     out["time"] = np.stack([tau, 1.5 * tau ** 2 - 0.5, 2.5 * tau ** 3 - 1.5 * tau], 1)
-    out["direction"] = np.stack([f.direction > 0, f.direction < 0], 1).astype(float)
+    out["direction"] = direction_columns(f.direction)
     if d.geometry.base_xy_mm is None:
         out["reach"] = ("not testable: add robot.base_xy_mm (robot base position in the "
                         "workplane frame, mm) to the cell file")

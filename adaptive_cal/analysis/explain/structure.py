@@ -33,7 +33,7 @@ from scipy import special
 
 from adaptive_cal.analysis.explain.candidates import Candidate, Context
 from adaptive_cal.analysis.explain.evidence import Projector
-from adaptive_cal.analysis.explain.locate import axis_bases, where
+from adaptive_cal.analysis.explain.locate import MIN_GROUP, axis_bases, direction_columns, where
 
 MAX_COLUMNS = 48  # of a one-coordinate basis (memory: n x 48 floats)
 ALPHA = 0.01  # family-wise false-alarm rate of the structure tests on a recording of noise only
@@ -80,7 +80,7 @@ def _bases(ctx: Context) -> dict[str, np.ndarray]:
     out["position along x"] = one_coordinate(f.x_mm, d.geometry.x_range_mm, d.n)
     out["position along y"] = one_coordinate(f.y_mm, d.geometry.y_range_mm, d.n)
     dy = arrival(f.y_mm, d.round_index)
-    out["direction along y"] = np.stack([dy > 0, dy < 0], 1).astype(float)
+    out["direction along y"] = direction_columns(dy)
     return out
 
 
@@ -270,7 +270,7 @@ def _detail(name: str, t: dict, r: np.ndarray, ctx: Context) -> str:
         said = ", ".join(f"{1e3 * r[m].mean():+.1f} um arriving {label}"
                          for label, m in (("moving +y", dy > 0), ("moving -y", dy < 0),
                                           ("without moving along y", dy == 0))
-                         if m.any())  # a raster never arrives moving -y
+                         if m.sum() >= MIN_GROUP)  # a raster never arrives moving -y
         return (f"the residual averages {said} (no library effect acts along y's direction): "
                 f"{what}")
     if name == "serial correlation":
