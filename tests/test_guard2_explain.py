@@ -132,3 +132,14 @@ def test_a_rounded_copy_of_a_round_is_refused_a_genuine_repeat_is_not(tmp_path):
                                              r"from probe.noise_std_mm"):
         explain([a, copy], cell)
     explain([a, b], cell)
+
+
+def test_a_recording_whose_rows_are_all_flagged_says_which_flags(tmp_path):
+    """Every row flagged invalid: the message said 'marks the others gated or rejected'."""
+    lines = ["# adaptive-cal recording v1", "seq,t_s,x_mm,y_mm,z_mm,reading_mm,flags"]
+    lines += [f"{i},,{-200 + 10 * i},0,0,5.0,{'invalid;rejected' if i % 2 else 'gated'}"
+              for i in range(12)]
+    (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match=r"12 rows, 0 of them fused \(the column flags marks "
+                                             r"the others gated/invalid/rejected\)"):
+        explain([read_recording(tmp_path / "r.csv")], sim_cell())

@@ -15,7 +15,7 @@ import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, ConfigError, Simulation
-from adaptive_cal.formats.recording import MAX_ROWS, Recording, RecordingError
+from adaptive_cal.formats.recording import MAX_ROWS, NOT_FUSED, Recording, RecordingError
 
 # what explain says where t_s is blank (``touch_times``, ``time_note``)
 TIME_FILLED = "their times filled between the nearest rows with a time"
@@ -127,8 +127,9 @@ def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
     if len(fused) < MIN_ROWS_PER_ROUND:
         rows = f"{len(rec)} row{'s' * (len(rec) != 1)}"
         held = rows if len(fused) == len(rec) else (
-            f"{rows}, {len(fused)} of them fused (the column flags marks the others gated or "
-            "rejected)")
+            f"{rows}, {len(fused)} of them fused (the column flags marks the others "
+            + "/".join(sorted(set().union(*(f & NOT_FUSED for f in rec.flags)) or {"not fused"}))
+            + ")")
         raise RecordingError(f"{label}: {held}; explain needs at least {MIN_ROWS_PER_ROUND} fused "
                              "rows per recording (tilt, one effect and the noise)")
     off = wp.first_outside(fused.x_mm, fused.y_mm)  # a row the run refused (flagged invalid)
