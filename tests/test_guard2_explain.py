@@ -143,3 +143,15 @@ def test_a_recording_whose_rows_are_all_flagged_says_which_flags(tmp_path):
     with pytest.raises(RecordingError, match=r"12 rows, 0 of them fused \(the column flags marks "
                                              r"the others gated/invalid/rejected\)"):
         explain([read_recording(tmp_path / "r.csv")], sim_cell())
+
+
+def test_a_recording_built_in_memory_with_nan_readings_is_refused_naming_the_row(tmp_path):
+    """The reader refuses NaN in a file; a Recording made in a notebook reached numpy's 'SVD did
+    not converge' (outside speed audit)."""
+    lines = ["# adaptive-cal recording v1", "seq,t_s,x_mm,y_mm,z_mm,reading_mm"]
+    lines += [f"{i},,{-200 + 20 * i},{(-1) ** i * 50},0,5.0" for i in range(20)]
+    (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
+    rec = read_recording(tmp_path / "r.csv")
+    nan = replace(rec, reading_mm=np.where(np.arange(20) >= 3, np.nan, rec.reading_mm))
+    with pytest.raises(RecordingError, match=r"seq 3: reading_mm is not a finite number \(17 "):
+        explain([nan], sim_cell())

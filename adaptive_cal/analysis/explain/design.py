@@ -132,6 +132,11 @@ def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
             + ")")
         raise RecordingError(f"{label}: {held}; explain needs at least {MIN_ROWS_PER_ROUND} fused "
                              "rows per recording (tilt, one effect and the noise)")
+    for name in ("x_mm", "y_mm", "z_mm", "reading_mm"):  # a Recording built in memory
+        bad = np.flatnonzero(~np.isfinite(getattr(fused, name)))
+        if bad.size:
+            raise RecordingError(f"{label}: seq {int(fused.seq[bad[0]])}: {name} is not a finite "
+                                 f"number ({bad.size} fused row(s) like it); flag it rejected")
     off = wp.first_outside(fused.x_mm, fused.y_mm)  # a row the run refused (flagged invalid)
     if off is not None:  # is not used
         c, i, count = off
