@@ -168,8 +168,8 @@ def closing_point(state: sv.SurveyState, status, history, true_rms_mm):
     is the same at the jump."""
     history = list(history or [status])
     c = state.closure
-    if c is None or c.drift_var_mm2 <= 0.0 or len(history) < 1:
-        return history, true_rms_mm, None
+    if c is None or c.drift_var_mm2 <= 0.0 or status.mean_std_mm <= history[-1].mean_std_mm:
+        return history, true_rms_mm, None  # (a resume that ended on it: its history has it)
     history.append(status)
     if true_rms_mm is not None and len(true_rms_mm):
         true_rms_mm = [*true_rms_mm, true_rms_mm[-1]]
