@@ -88,9 +88,14 @@ class Probe(Block):
     adapter: Literal["sim", "manual", "serial", "modbus"] = Field(
         "sim", description="what reads the probe: see docs/adapters/")
     stroke_mm: float = Field(10.0, gt=0, le=1000, description="full probe stroke")
-    usable_mm: Interval = Field((0.5, 9.5), description="indications accepted; others are rejected")
-    zero_mm: float = Field(5.0, ge=0, description="indication with the tip at the commanded "
-                           "height; inside the stroke")
+    rest_mm: float = Field(0.0, ge=-1000, le=0, description="indication with the tip free (the "
+                           "start of the stroke): 0 for a gauge that counts from its rest, -p for "
+                           "one zeroed p mm into its stroke (signed relative indications); the "
+                           "stroke's indications are [rest_mm, rest_mm + stroke_mm]")
+    usable_mm: Interval = Field((0.5, 9.5), description="indications accepted; others are "
+                                "rejected; inside the stroke's indications")
+    zero_mm: float = Field(5.0, description="indication with the tip at the commanded "
+                           "height; inside the stroke's indications")
     resolution_mm: float = Field(1e-4, gt=0, description="readout step; below the stroke")
     noise_std_mm: float = Field(0.005, gt=0, description="first guess of the reading noise "
                                 "(a weak prior: the noise is learned from the readings)")
@@ -105,13 +110,24 @@ class Probe(Block):
     serial: SerialConfig | None = None
     modbus: ModbusConfig | None = None
 
+    @field_validator("usable_mm", "zero_mm")
+    @classmethod
+    def _inside_stroke(cls, v, info):
+        """usable_mm and zero_mm are indications: inside [rest_mm, rest_mm + stroke_mm]."""
+        if "rest_mm" not in info.data or "stroke_mm" not in info.data:
+            return v  # refused already, naming its own key
+        start = info.data["rest_mm"]
+        end = start + info.data["stroke_mm"]
+        lo, hi = _interval(v, info.field_name) if info.field_name == "usable_mm" else (v, v)
+        if lo < start or hi > end:
+            raise ValueError(f"{info.field_name}={[lo, hi] if hi > lo else v} must lie inside the "
+                             f"stroke [{start:g}, {end:g}] mm (rest_mm {start:g} + stroke_mm "
+                             f"{end - start:g})")
+        return v
+
     @model_validator(mode="after")
     def _stroke(self):
         lo, hi = _interval(self.usable_mm, "usable_mm")
-        if lo < 0 or hi > self.stroke_mm:
-            raise ValueError(f"usable_mm={[lo, hi]} must lie inside the stroke [0, {self.stroke_mm}]")
-        if self.zero_mm > self.stroke_mm:
-            raise ValueError(f"zero_mm={self.zero_mm} must lie inside the stroke [0, {self.stroke_mm}] mm")
         for key in ("resolution_mm", "noise_std_mm", "samples_tolerance_mm"):
             if getattr(self, key) >= self.stroke_mm:
                 raise ValueError(f"{key}={getattr(self, key)} must be below the stroke {self.stroke_mm} mm")
