@@ -1,8 +1,9 @@
-"""The ``modbus`` adapter: a PLC or HMI over Modbus TCP or serial (pymodbus >=3.16,<4).
+"""The ``modbus`` adapter: a PLC or HMI over Modbus TCP or serial (pymodbus >=3.16,<4): the link
+and the probe here, the motion in ``motion`` (re-exported here).
 
 Relays cannot carry coordinates, so the PC writes the target into data registers that a robot
 job copies into a position variable (hw/plc-register-map.md). Handshake, per move:
-PC writes target_x/y/z, clears ``done`` and checks that it stays off (a PLC that copies the robot's
+PC writes target_x/y/z and reads them back (another value there refuses the move), clears ``done`` and checks that it stays off (a PLC that copies the robot's
 done output into it is refused before ``start``), sets ``start``; the PLC (on the rising edge)
 has the robot move and sets ``done``; the PC clears ``start``, also when the wait ends any other
 way (fault, timeout, lost link: else a level-triggered PLC or job moves the robot when the fault
@@ -26,6 +27,7 @@ from pymodbus.framer import FramerType
 from adaptive_cal.hardware.base import AdapterError, BadSample, Sample
 from adaptive_cal.hardware.modbus.registers import check_map
 from adaptive_cal.hardware.modbus.config import ModbusConfig
+from adaptive_cal.hardware.modbus.motion import ModbusMotion  # noqa: F401 (its home before)
 
 log = logging.getLogger(__name__)
 DT = ModbusTcpClient.DATATYPE
@@ -158,77 +160,6 @@ class ModbusLink:
         self._dog.join(timeout=1.0)
         with self.lock:
             self.client.close()
-
-
-class ModbusMotion:
-    """Motion through PLC data registers and the start/done handshake."""
-
-    def __init__(self, link: ModbusLink):
-        self.link, self.pose = link, (math.nan, math.nan, math.nan)
-
-    def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
-        k = self.link
-        k.check_fault()
-        for role, v in zip(("target_x", "target_y", "target_z"), (x_mm, y_mm, z_mm)):
-            k.write_mm(role, v)
-        k.write_bit("done", False)
-        self._done_stays_off()  # before start: a 'done' that is not ours would end the wait
-        self.pose = (math.nan,) * 3  # unknown from the moment start is set until done
-        k.write_bit("start", True)
-        try:
-            start = k.clock()
-            while True:
-                k.check_fault()
-                if k.read_bit("done"):
-                    k.write_bit("start", False)
-                    self.pose = (x_mm, y_mm, z_mm)
-                    return
-                if k.clock() - start >= k.cfg.move_timeout_s:
-                    raise AdapterError(
-                        f"{k.where}: no 'done' ({k.map['done'].name}) within "
-                        f"move_timeout_s={k.cfg.move_timeout_s} s; check the robot job")
-                k.sleep(k.cfg.poll_s)
-        except BaseException as err:  # fault, timeout, lost link, Ctrl-C: start must not stay set
-            self._drop_start(err)
-            raise
-
-    def _done_stays_off(self) -> None:
-        """``done`` must read off, and stay off for done_settle_s (several PLC scans), after the
-        PC cleared it: a PLC that copies the robot's output into it (the job keeps OT#(1) on until
-        the next start) would end the next wait before the robot moves. Raise before start."""
-        k = self.link
-        t0 = k.clock()
-        while True:
-            if k.read_bit("done"):
-                a, s = k.map["done"].name, k.map["start"].name
-                raise AdapterError(
-                    f"{k.where}: 'done' ({a}) is set again after the PC cleared it; start ({s}) "
-                    "was not set and nothing moved. The PLC must latch done when the robot "
-                    "finishes and leave clearing it to the PC (hw/plc-register-map.md, "
-                    "handshake); it must not copy the robot's done output into it")
-            if k.clock() - t0 >= k.cfg.done_settle_s:
-                return
-            k.sleep(min(k.cfg.poll_s, k.cfg.done_settle_s))
-
-    def _drop_start(self, err: BaseException) -> None:
-        """Clear ``start`` after a move that did not end in done; a level-triggered PLC or job
-        would otherwise move the robot when the fault is cleared, with no PC involved."""
-        k, s = self.link, self.link.map["start"].name
-        try:
-            k.write_bit("start", False)
-        except Exception as e:
-            msg = (f"{k.where}: START ({s}) MAY STILL BE SET: clearing it failed ({e}). Clear "
-                   f"{s} at the HMI before clearing any fault, or the robot may move by itself "
-                   f"when the fault clears. What stopped the move: {err}")
-            if isinstance(err, AdapterError):
-                raise AdapterError(msg) from err
-            log.error("%s", msg)  # Ctrl-C and the like go on as they are; the danger is logged
-
-    def position(self) -> tuple[float, float, float]:
-        return self.pose
-
-    def close(self) -> None:
-        self.link.close()
 
 
 class ModbusProbe:

@@ -3,6 +3,9 @@ with a scan loop (every ``scan_s``) that runs the handshake of ``hardware.modbus
 EmulatedRobot: rising start (done off) -> move -> done, rising probe_trigger ->
 probe_value/probe_count, watchdog -> fault. A start or trigger that stays set does nothing more;
 a flag the PC writes off and on between two scans still counts as an edge. Runs its asyncio loop in a background thread.
+32-bit values are combined with the cell file's own ``word_order`` (the PC's, through the same
+pymodbus conversion): the emulator always agrees with the PC, so it cannot reveal a word-order
+mismatch -- see the commissioning check in docs/adapters/modbus.md.
 """
 from __future__ import annotations
 

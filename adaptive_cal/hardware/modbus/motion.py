@@ -1,0 +1,107 @@
+"""Motion through PLC data registers (``ModbusMotion``), above a ``ModbusLink`` (``adapter``).
+
+One move: the PC writes target_x/y/z and reads them back (a register that does not hold what
+was written refuses the move: start is never set), clears ``done`` and checks that it stays off,
+sets ``start``, waits for ``done``, clears ``start`` -- also when the wait ends any other way.
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+from adaptive_cal.hardware.base import AdapterError
+
+log = logging.getLogger(__name__)
+TARGETS = ("target_x", "target_y", "target_z")
+
+
+class ModbusMotion:
+    """Motion through PLC data registers and the start/done handshake (hw/plc-register-map.md)."""
+
+    def __init__(self, link):
+        self.link, self.pose = link, (math.nan, math.nan, math.nan)
+
+    def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
+        k = self.link
+        k.check_fault()
+        self._write_target((x_mm, y_mm, z_mm))
+        k.write_bit("done", False)
+        self._done_stays_off()  # before start: a 'done' that is not ours would end the wait
+        self.pose = (math.nan,) * 3  # unknown from the moment start is set until done
+        k.write_bit("start", True)
+        try:
+            start = k.clock()
+            while True:
+                k.check_fault()
+                if k.read_bit("done"):
+                    k.write_bit("start", False)
+                    self.pose = (x_mm, y_mm, z_mm)
+                    return
+                if k.clock() - start >= k.cfg.move_timeout_s:
+                    raise AdapterError(
+                        f"{k.where}: no 'done' ({k.map['done'].name}) within "
+                        f"move_timeout_s={k.cfg.move_timeout_s} s; check the robot job")
+                k.sleep(k.cfg.poll_s)
+        except BaseException as err:  # fault, timeout, lost link, Ctrl-C: start must not stay set
+            self._drop_start(err)
+            raise
+
+    def _write_target(self, xyz: tuple[float, float, float]) -> None:
+        """Write the three target registers, then read them back: each must hold the very words
+        written. A PLC program, HMI or gateway that writes them too (or maps them elsewhere)
+        would have the robot go to a target the PC never checked. Raise before ``start``.
+
+        Equal words do not prove the word order: the PLC stores the words as sent, whatever
+        order it reads them in (docs/adapters/modbus.md, commissioning)."""
+        k = self.link
+        sent = {role: k.to_words(role, v) for role, v in zip(TARGETS, xyz)}  # all fit, or none
+        for role, words in sent.items():
+            k.write_words(role, words)
+        for role, words in sent.items():
+            got = k.read_words(role, len(words))
+            if list(got) != list(words):
+                raise AdapterError(
+                    f"{k.where}: {role} ({k.map[role].name}) reads back "
+                    f"{k.from_words(got):.4f} mm (registers {got}) after the PC wrote "
+                    f"{k.from_words(words):.4f} mm (registers {words}); start "
+                    f"({k.map['start'].name}) was not set and nothing moved. Something else "
+                    "writes the target registers (a ladder rung, an HMI screen, a gateway "
+                    "mapping): check robot.modbus.registers against the PLC program")
+
+    def _done_stays_off(self) -> None:
+        """``done`` must read off, and stay off for done_settle_s (several PLC scans), after the
+        PC cleared it: a PLC that copies the robot's output into it (the job keeps OT#(1) on until
+        the next start) would end the next wait before the robot moves. Raise before start."""
+        k = self.link
+        t0 = k.clock()
+        while True:
+            if k.read_bit("done"):
+                a, s = k.map["done"].name, k.map["start"].name
+                raise AdapterError(
+                    f"{k.where}: 'done' ({a}) is set again after the PC cleared it; start ({s}) "
+                    "was not set and nothing moved. The PLC must latch done when the robot "
+                    "finishes and leave clearing it to the PC (hw/plc-register-map.md, "
+                    "handshake); it must not copy the robot's done output into it")
+            if k.clock() - t0 >= k.cfg.done_settle_s:
+                return
+            k.sleep(min(k.cfg.poll_s, k.cfg.done_settle_s))
+
+    def _drop_start(self, err: BaseException) -> None:
+        """Clear ``start`` after a move that did not end in done; a level-triggered PLC or job
+        would otherwise move the robot when the fault is cleared, with no PC involved."""
+        k, s = self.link, self.link.map["start"].name
+        try:
+            k.write_bit("start", False)
+        except Exception as e:
+            msg = (f"{k.where}: START ({s}) MAY STILL BE SET: clearing it failed ({e}). Clear "
+                   f"{s} at the HMI before clearing any fault, or the robot may move by itself "
+                   f"when the fault clears. What stopped the move: {err}")
+            if isinstance(err, AdapterError):
+                raise AdapterError(msg) from err
+            log.error("%s", msg)  # Ctrl-C and the like go on as they are; the danger is logged
+
+    def position(self) -> tuple[float, float, float]:
+        return self.pose
+
+    def close(self) -> None:
+        self.link.close()

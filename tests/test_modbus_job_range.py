@@ -1,0 +1,102 @@
+"""hw/ACAL_TOUCH.JBI checks the target against a box held in the job before MOVL: a small
+interpreter of the INFORM the job uses runs one move. It reads the job as written here, not as
+a controller would (the job is NOT CHECKED on a controller)."""
+import re
+import struct
+
+import pytest
+
+from adaptive_cal.cell.schema import load_cell
+from tests.conftest import ROOT
+
+JOB = (ROOT / "hw" / "ACAL_TOUCH.JBI").read_text()
+CELL = load_cell(ROOT / "configs" / "cell-modbus-emulated.yaml")
+
+
+def run_one_move(target_counts):
+    """Run the job from its first line with start (IN#(1)) on and fault (IN#(2)) off, the
+    target D001..D003 in 0.1 um counts; stop at the end of the move (WAIT IN#(1)=OFF) or at
+    PAUSE. Returns (how it stopped, the MOVL targets in um, the last done output)."""
+    lines = [s.strip() for s in JOB[JOB.index("//INST"):].splitlines()]
+    lines = lines[lines.index("NOP") + 1:lines.index("END")]
+    labels = {s: i for i, s in enumerate(lines) if s.startswith("*")}
+    d = {f"D{n:03d}": 0 for n in range(100)}
+    inputs, p001, moves, done = {1: True, 2: False}, [0.0] * 3, [], None
+    assigned = False
+    pc = 0
+    while pc < len(lines):
+        s, pc = lines[pc], pc + 1
+        if not s or s.startswith(("'", "*")):
+            continue
+        if s == "WAIT IN#(1)=ON":
+            if not assigned:  # the PC wrote the target, then set start
+                d.update(D001=target_counts[0], D002=target_counts[1], D003=target_counts[2])
+                assigned = True
+            continue
+        if s == "WAIT IN#(1)=OFF":
+            return "done", moves, done
+        if s == "PAUSE":
+            return "paused", moves, done
+        if m := re.fullmatch(r"SET (D\d{3}) (-?\d+)", s):
+            d[m.group(1)] = int(m.group(2))
+        elif m := re.fullmatch(r"DIV (D\d{3}) (\d+)", s):
+            d[m.group(1)] = int(d[m.group(1)] / int(m.group(2)))  # INFORM: towards zero
+        elif m := re.fullmatch(r"SETE P001 \((\d)\) (D\d{3})", s):
+            p001[int(m.group(1)) - 1] = d[m.group(2)]
+        elif s.startswith("MOVL P001"):
+            moves.append(tuple(p001))
+        elif m := re.fullmatch(r"DOUT OT#\(1\) (ON|OFF)", s):
+            done = m.group(1) == "ON"
+        elif m := re.fullmatch(r"JUMP (\*\w+) IF IN#\((\d)\)=ON", s):
+            if inputs[int(m.group(2))]:
+                pc = labels[m.group(1)]
+        elif m := re.fullmatch(r"JUMP (\*\w+) IF (D\d{3})([<>])(D\d{3})", s):
+            a, b = d[m.group(2)], d[m.group(4)]
+            if (a < b) if m.group(3) == "<" else (a > b):
+                pc = labels[m.group(1)]
+        elif m := re.fullmatch(r"JUMP (\*\w+)", s):
+            pc = labels[m.group(1)]
+        else:
+            raise AssertionError(f"the test's interpreter does not know {s!r}")
+    raise AssertionError("ran off the end of the job")
+
+
+def box_counts():
+    ws, scale = CELL.workspace, CELL.robot.modbus.scale
+    return [(round(lo * scale), round(hi * scale)) for lo, hi in (ws.x_mm, ws.y_mm, ws.z_mm)]
+
+
+def test_a_target_inside_the_box_moves():
+    how, moves, done = run_one_move((1_000_000, -1_850_000, 150_000))
+    assert how == "done" and moves == [(100_000, -185_000, 15_000)] and done  # um
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("side", [0, 1])
+def test_a_target_outside_the_box_faults_before_movl(axis, side):
+    target = [0, 0, 150_000]
+    lo, hi = box_counts()[axis]
+    target[axis] = (lo - 1) if side == 0 else (hi + 1)
+    how, moves, done = run_one_move(tuple(target))
+    assert how == "paused" and moves == [] and not done
+    target[axis] = lo if side == 0 else hi  # the edge itself is inside
+    assert run_one_move(tuple(target))[0] == "done"
+
+
+def test_a_swapped_word_order_that_lands_outside_the_box_does_not_move():
+    """z = -0.001 mm written low word first ([0xFFF6, 0xFFFF]) and read high word first is
+    -589825 counts (-59 mm): below the box's z, so the job faults instead of going there.
+    (An x or y that small swaps to a value inside a +-230 mm box: the commissioning check in
+    docs/adapters/modbus.md is what finds those.)"""
+    swapped = struct.unpack(">i", struct.pack(">HH", 0xFFF6, 0xFFFF))[0]
+    assert swapped == -589825
+    how, moves, _ = run_one_move((0, 0, swapped))
+    assert how == "paused" and moves == []
+
+
+def test_the_jobs_box_is_the_emulated_cells_workspace():
+    """The example values in the job are the emulated cell's workspace x scale; a cell of its
+    own sets its own (the job's comments say how)."""
+    sets = dict(re.findall(r"^SET (D02[1-6]) (-?\d+)$", JOB, re.M))
+    got = [(int(sets[f"D02{2 * i + 1}"]), int(sets[f"D02{2 * i + 2}"])) for i in range(3)]
+    assert got == box_counts()
