@@ -13,7 +13,6 @@ from typing import Mapping, NamedTuple
 import numpy as np
 
 from adaptive_cal.analysis import zone
-from adaptive_cal.analysis.zone import _hull_points, _rotation_onto_z, _vertical_zone_slopes
 
 FIGURES = ("least_squares", "range", "minimum_zone", "range_x_avg", "range_y_avg")
 _GROUP_DECIMALS = 6  # positions equal to 1 nm share a row or column of the grid
@@ -141,12 +140,12 @@ def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
         raise ValueError(f"the {len(x_mm)} touched points lie on one line in x, y: a flatness "
                          "zone needs touches that span the plate")
     points = np.column_stack([x_mm, y_mm, z_mm]) - centre
-    points = _hull_points(points) if len(points) <= zone.MANY_POINTS else points
+    points = zone.hull_points(points) if len(points) <= zone.MANY_POINTS else points
     a, b, _ = _plane_coefficients(*points.T)
     normal = np.array([-a, -b, 1.0]) / np.sqrt(1.0 + a**2 + b**2)
     for _ in range(max_iter):
-        rotation = _rotation_onto_z(normal)
-        a_local, b_local = _vertical_zone_slopes(points @ rotation.T)
+        rotation = zone.rotation_onto_z(normal)
+        a_local, b_local = zone.vertical_zone_slopes(points @ rotation.T)
         step = np.array([-a_local, -b_local, 1.0])
         normal = rotation.T @ (step / np.linalg.norm(step))
         if max(abs(a_local), abs(b_local)) < 1e-12:

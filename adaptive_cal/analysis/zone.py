@@ -12,7 +12,7 @@ from scipy.spatial import ConvexHull, QhullError
 MANY_POINTS = 5000
 
 
-def _vertical_zone_slopes(points: np.ndarray) -> tuple[float, float]:
+def vertical_zone_slopes(points: np.ndarray) -> tuple[float, float]:
     """(a, b) of min_{a,b,c_lo,c_hi} c_hi - c_lo s.t. c_lo <= z_i - a x_i - b y_i <= c_hi (LP).
 
     Slopes are bounded to |a|, |b| <= 1: called in a frame aligned with a near-optimal normal.
@@ -55,14 +55,14 @@ def _zone_lp(points: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(float(v) for v in result.x)
 
 
-def _rotation_onto_z(normal: np.ndarray) -> np.ndarray:
+def rotation_onto_z(normal: np.ndarray) -> np.ndarray:
     """R with R n = e_z for a unit n (Rodrigues: R = I + [v]x + [v]x^2 / (1 + n.e_z), v = n x e_z)."""
     v = np.cross(normal, [0.0, 0.0, 1.0])
     vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
     return np.eye(3) + vx + vx @ vx / (1.0 + normal[2])
 
 
-def _hull_points(points: np.ndarray) -> np.ndarray:
+def hull_points(points: np.ndarray) -> np.ndarray:
     """The convex-hull vertices (the zone depends on nothing else); all points if degenerate."""
     if len(points) < 5:
         return points
