@@ -13,42 +13,46 @@ JOB = (ROOT / "hw" / "ACAL_TOUCH.JBI").read_text()
 CELL = load_cell(ROOT / "configs" / "cell-modbus-emulated.yaml")
 
 
-def run_one_move(target_counts):
+def run_one_move(target_counts, here_um=(0.0, 0.0, 50_000.0)):
     """Run the job from its first line with start (IN#(1)) on and fault (IN#(2)) off, the
-    target D001..D003 in 0.1 um counts; stop at the end of the move (WAIT IN#(1)=OFF) or at
-    PAUSE. Returns (how it stopped, the MOVL targets in um, the last done output)."""
+    target D001..D003 in 0.1 um counts (the fieldbus copies it before start) and the robot at
+    ``here_um`` (user frame 1); stop at the end of the move (WAIT IN#(1)=OFF) or at PAUSE.
+    Returns (how it stopped, the MOVL targets in um, the last done output, the D variables)."""
     lines = [s.strip() for s in JOB[JOB.index("//INST"):].splitlines()]
     lines = lines[lines.index("NOP") + 1:lines.index("END")]
     labels = {s: i for i, s in enumerate(lines) if s.startswith("*")}
     d = {f"D{n:03d}": 0 for n in range(100)}
-    inputs, p001, moves, done = {1: True, 2: False}, [0.0] * 3, [], None
-    assigned = False
+    d.update(D001=target_counts[0], D002=target_counts[1], D003=target_counts[2])
+    inputs, p001, moves, done, px = {1: True, 2: False}, [0.0] * 3, [], None, {}
     pc = 0
     while pc < len(lines):
         s, pc = lines[pc], pc + 1
-        if not s or s.startswith(("'", "*")):
-            continue
-        if s == "WAIT IN#(1)=ON":
-            if not assigned:  # the PC wrote the target, then set start
-                d.update(D001=target_counts[0], D002=target_counts[1], D003=target_counts[2])
-                assigned = True
+        if not s or s.startswith(("'", "*")) or s.startswith("TIMER T="):
             continue
         if s == "WAIT IN#(1)=OFF":
-            return "done", moves, done
+            return "done", moves, done, d
         if s == "PAUSE":
-            return "paused", moves, done
+            return "paused", moves, done, d
         if m := re.fullmatch(r"SET (D\d{3}) (-?\d+)", s):
             d[m.group(1)] = int(m.group(2))
-        elif m := re.fullmatch(r"DIV (D\d{3}) (\d+)", s):
-            d[m.group(1)] = int(d[m.group(1)] / int(m.group(2)))  # INFORM: towards zero
+        elif m := re.fullmatch(r"(DIV|MUL) (D\d{3}) (\d+)", s):
+            a, k = d[m.group(2)], int(m.group(3))
+            d[m.group(2)] = int(a / k) if m.group(1) == "DIV" else a * k  # DIV: towards zero
         elif m := re.fullmatch(r"SETE P001 \((\d)\) (D\d{3})", s):
             p001[int(m.group(1)) - 1] = d[m.group(2)]
+        elif m := re.fullmatch(r"GETS PX(\d{3}) \$PX000", s):
+            px[m.group(1)] = "pulses"
+        elif m := re.fullmatch(r"CNVRT PX(\d{3}) PX(\d{3}) UF#\(1\)", s):
+            assert px[m.group(2)] == "pulses"
+            px[m.group(1)] = here_um  # the current position, XYZ in user frame 1 (um)
+        elif m := re.fullmatch(r"GETE (D\d{3}) P(\d{3}) \((\d)\)", s):
+            d[m.group(1)] = round(px[m.group(2)][int(m.group(3)) - 1])
         elif s.startswith("MOVL P001"):
             moves.append(tuple(p001))
         elif m := re.fullmatch(r"DOUT OT#\(1\) (ON|OFF)", s):
             done = m.group(1) == "ON"
-        elif m := re.fullmatch(r"JUMP (\*\w+) IF IN#\((\d)\)=ON", s):
-            if inputs[int(m.group(2))]:
+        elif m := re.fullmatch(r"JUMP (\*\w+) IF IN#\((\d)\)=(ON|OFF)", s):
+            if inputs[int(m.group(2))] == (m.group(3) == "ON"):
                 pc = labels[m.group(1)]
         elif m := re.fullmatch(r"JUMP (\*\w+) IF (D\d{3})([<>])(D\d{3})", s):
             a, b = d[m.group(2)], d[m.group(4)]
@@ -67,7 +71,7 @@ def box_counts():
 
 
 def test_a_target_inside_the_box_moves():
-    how, moves, done = run_one_move((1_000_000, -1_850_000, 150_000))
+    how, moves, done, _ = run_one_move((1_000_000, -1_850_000, 150_000))
     assert how == "done" and moves == [(100_000, -185_000, 15_000)] and done  # um
 
 
@@ -77,7 +81,7 @@ def test_a_target_outside_the_box_faults_before_movl(axis, side):
     target = [0, 0, 150_000]
     lo, hi = box_counts()[axis]
     target[axis] = (lo - 1) if side == 0 else (hi + 1)
-    how, moves, done = run_one_move(tuple(target))
+    how, moves, done, _ = run_one_move(tuple(target))
     assert how == "paused" and moves == [] and not done
     target[axis] = lo if side == 0 else hi  # the edge itself is inside
     assert run_one_move(tuple(target))[0] == "done"
@@ -90,7 +94,7 @@ def test_a_swapped_word_order_that_lands_outside_the_box_does_not_move():
     docs/adapters/modbus.md is what finds those.)"""
     swapped = struct.unpack(">i", struct.pack(">HH", 0xFFF6, 0xFFFF))[0]
     assert swapped == -589825
-    how, moves, _ = run_one_move((0, 0, swapped))
+    how, moves, _, _ = run_one_move((0, 0, swapped))
     assert how == "paused" and moves == []
 
 
@@ -100,3 +104,12 @@ def test_the_jobs_box_is_the_emulated_cells_workspace():
     sets = dict(re.findall(r"^SET (D02[1-6]) (-?\d+)$", JOB, re.M))
     got = [(int(sets[f"D02{2 * i + 1}"]), int(sets[f"D02{2 * i + 2}"])) for i in range(3)]
     assert got == box_counts()
+
+
+def test_while_it_waits_the_job_writes_where_the_tip_is_in_the_targets_unit():
+    """D011..D013 (the PLC's actual_x/y/z) hold the current position in 0.1 um counts, the
+    unit the PC decodes with robot.modbus.scale."""
+    *_, d = run_one_move((0, 0, 150_000), here_um=(120_000.0, -80_000.0, 2_000.0))
+    assert (d["D011"], d["D012"], d["D013"]) == (1_200_000, -800_000, 20_000)
+    assert [c / CELL.robot.modbus.scale for c in (d["D011"], d["D012"], d["D013"])] == [
+        120.0, -80.0, 2.0]

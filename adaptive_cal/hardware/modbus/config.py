@@ -24,9 +24,25 @@ class ModbusRegisters(Strict):
     probe_value: str = Field("D110", description="last probe sample")
     probe_count: str = Field("D112", description="16-bit counter, +1 per sample (staleness)")
     watchdog: str = Field("D120", description="PC increments it at least every watchdog_s")
+    actual_x: str | None = Field(None, description="PLC writes: where the tip is now (the job "
+                                 "writes its current position, as the targets: mm x scale, "
+                                 "workplane frame); the first move then lifts straight up first. "
+                                 "All three or none")
+    actual_y: str | None = None
+    actual_z: str | None = None
+
+    @model_validator(mode="after")
+    def _all_three_or_none(self):
+        given = [r for r in ("actual_x", "actual_y", "actual_z") if getattr(self, r) is not None]
+        if given and len(given) < 3:
+            missing = sorted({"actual_x", "actual_y", "actual_z"} - set(given))
+            raise ValueError(f"registers.{given[0]}={getattr(self, given[0])!r} needs "
+                             f"{' and '.join('registers.' + m for m in missing)} too: the "
+                             "position is read whole or not at all")
+        return self
 
     def roles(self) -> dict[str, str]:
-        return self.model_dump()
+        return self.model_dump(exclude_none=True)
 
 
 class ModbusConfig(Strict):
@@ -57,6 +73,12 @@ class ModbusConfig(Strict):
     move_timeout_s: float = Field(60.0, gt=0)
     probe_timeout_s: float = Field(2.0, gt=0)
     poll_s: float = Field(0.02, gt=0)
+    parked_at_safe_height: bool = Field(
+        False, description="where registers.actual_x/y/z are not mapped the PC cannot know where "
+        "the robot stands, and the first move goes straight to the safe height above the first "
+        "target: true states that every run starts with the robot parked at or above "
+        "robot.safe_height_mm, clear of the plate and fixtures; false (the default) refuses "
+        "that first move before anything is written")
     done_settle_s: float = Field(
         0.05, gt=0, le=5, description="after the PC clears done, it must stay off this long "
         "(several PLC scans) before start is set; a PLC that copies the robot's done output "

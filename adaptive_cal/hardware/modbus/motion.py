@@ -3,6 +3,11 @@
 One move: the PC writes target_x/y/z and reads them back (a register that does not hold what
 was written refuses the move: start is never set), clears ``done`` and checks that it stays off,
 sets ``start``, waits for ``done``, clears ``start`` -- also when the wait ends any other way.
+
+Where the robot stands before the first move: read from ``actual_x/y/z`` where the register map
+has them (the probe cycle then lifts straight up at the current x, y before it travels);
+without them the first move is refused unless the cell file states that the robot starts
+parked at or above the safe height (``parked_at_safe_height``).
 """
 from __future__ import annotations
 
@@ -13,6 +18,7 @@ from adaptive_cal.hardware.base import AdapterError
 
 log = logging.getLogger(__name__)
 TARGETS = ("target_x", "target_y", "target_z")
+ACTUALS = ("actual_x", "actual_y", "actual_z")
 
 
 class ModbusMotion:
@@ -20,14 +26,18 @@ class ModbusMotion:
 
     def __init__(self, link):
         self.link, self.pose = link, (math.nan, math.nan, math.nan)
+        self.started = False  # no move started yet on this connection
 
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
         k = self.link
         k.check_fault()
+        if not self.started:
+            self._first_move_allowed((x_mm, y_mm, z_mm))
         self._write_target((x_mm, y_mm, z_mm))
         k.write_bit("done", False)
         self._done_stays_off()  # before start: a 'done' that is not ours would end the wait
         self.pose = (math.nan,) * 3  # unknown from the moment start is set until done
+        self.started = True
         k.write_bit("start", True)
         try:
             start = k.clock()
@@ -100,8 +110,38 @@ class ModbusMotion:
                 raise AdapterError(msg) from err
             log.error("%s", msg)  # Ctrl-C and the like go on as they are; the danger is logged
 
+    def _first_move_allowed(self, target: tuple[float, float, float]) -> None:
+        """The first move starts from where the robot stands: known (read), or stated parked at
+        the safe height in the cell file; else raise before anything is written."""
+        k, here = self.link, self.position()
+        if all(map(math.isfinite, here)) or k.cfg.parked_at_safe_height:
+            return
+        x, y, z = target
+        said = ("robot.modbus.registers maps no actual_x/actual_y/actual_z" if "actual_x" not
+                in k.map else f"actual_x/y/z read {here}, not a position")
+        raise AdapterError(
+            f"{k.where}: the robot's position is unknown ({said}), so the first move would go "
+            f"straight to x={x:.3f} y={y:.3f} z={z:.3f} mm from wherever the robot stands, "
+            "perhaps across the plate; start was not set and nothing moved. Map the PLC "
+            "registers the job writes its position into (robot.modbus.registers.actual_x/y/z, "
+            "hw/plc-register-map.md), or park the robot at or above robot.safe_height_mm, "
+            "clear of the plate and fixtures, and state that every run starts there with "
+            "robot.modbus.parked_at_safe_height: true (and the same in probe.modbus)")
+
     def position(self) -> tuple[float, float, float]:
-        return self.pose
+        """Where the tip is (mm, workplane frame): the last target reached; before the first
+        move (or after a move that did not end in done) the PLC's actual_x/y/z where mapped,
+        else NaN."""
+        if all(map(math.isfinite, self.pose)) or "actual_x" not in self.link.map:
+            return self.pose
+        k = self.link
+        words = [k.read_words(role, k.words) for role in ACTUALS]
+        here = tuple(k.from_words(w) for w in words)
+        if k.words == 2:  # commissioning aid: what the other word order would have read
+            log.info("%s: the robot is at %s mm (actual_x/y/z); with the other word order it "
+                     "would read %s", k.where, tuple(round(v, 4) for v in here),
+                     tuple(round(k.from_words(w[::-1]), 4) for w in words))
+        return here
 
     def close(self) -> None:
         self.link.close()

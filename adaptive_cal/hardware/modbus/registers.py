@@ -17,6 +17,13 @@ TABLES = ("coil", "di", "hr", "ir")  # coils, discrete inputs, holding and input
 BIT_TABLES = ("coil", "di")
 FLAG_ROLES = ("start", "done", "fault", "probe_trigger")  # bits; the others are words
 WRITTEN_FLAGS = ("start", "probe_trigger")  # bits the PC writes
+VALUE_ROLES = ("target_x", "target_y", "target_z", "probe_value", "actual_x", "actual_y",
+               "actual_z")  # numbers in mm (``value_words`` registers each); the others 1 word
+
+
+def width(role: str, value_words: int) -> int:
+    """Registers ``role`` spans: ``value_words`` for a number in mm, else 1."""
+    return value_words if role in VALUE_ROLES else 1
 
 
 class Address(NamedTuple):
@@ -88,7 +95,7 @@ def check_map(roles: dict[str, str], value_words: int) -> dict[str, Address]:
         if role not in FLAG_ROLES and a.table == "ir" and role in ("target_x", "target_y",
                                                                     "target_z", "watchdog"):
             raise ValueError(f"registers.{role}={name!r} is an input register (read-only)")
-        words = value_words if role.startswith("target") or role == "probe_value" else 1
+        words = width(role, value_words)
         for other, table, lo, hi in spans:
             if table == a.table and a.address < hi and lo < a.address + words:
                 raise ValueError(f"registers.{role}={name!r} overlaps registers.{other}="

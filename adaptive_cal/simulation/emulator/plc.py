@@ -1,7 +1,8 @@
 """An emulated PLC: a real pymodbus ``ModbusTcpServer`` whose register map is the cell file's,
 with a scan loop (every ``scan_s``) that runs the handshake of ``hardware.modbus.adapter`` against an
 EmulatedRobot: rising start (done off) -> move -> done, rising probe_trigger ->
-probe_value/probe_count, watchdog -> fault. A start or trigger that stays set does nothing more;
+probe_value/probe_count, watchdog -> fault; with actual_x/y/z in the map, the robot's reached
+position every scan. A start or trigger that stays set does nothing more;
 a flag the PC writes off and on between two scans still counts as an edge. Runs its asyncio loop in a background thread.
 32-bit values are combined with the cell file's own ``word_order`` (the PC's, through the same
 pymodbus conversion): the emulator always agrees with the PC, so it cannot reveal a word-order
@@ -18,7 +19,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from adaptive_cal.hardware.modbus.registers import check_map
+from adaptive_cal.hardware.modbus.registers import check_map, width
 from adaptive_cal.hardware.modbus.config import ModbusConfig
 from adaptive_cal.simulation.emulator.robot import EmulatedRobot
 
@@ -59,7 +60,7 @@ class PlcServer:
     def _device(self) -> SimDevice:
         tables: dict[str, list[int]] = {t: [] for t in ("coil", "di", "hr", "ir")}
         for role, a in self.map.items():
-            n = self.words if role.startswith("target") or role == "probe_value" else 1
+            n = width(role, self.words)
             tables[a.table] += range(a.address, a.address + n)
 
         def block(table, bits):
@@ -136,6 +137,9 @@ class PlcServer:
     # -- the PLC program (one scan) --------------------------------------------------------
     def scan(self) -> None:
         now = self.robot.clock()
+        if "actual_x" in self.map:  # what the job writes while it waits: where the tip is
+            for role, mm in zip(("actual_x", "actual_y", "actual_z"), self.robot.pose()):
+                self.write_mm(role, mm)
         wd = self.words_of("watchdog", 1)[0]
         if wd != self._wd_value:
             if self.watchdog_fault and self._wd_value is not None:
