@@ -13,6 +13,7 @@ from adaptive_cal.cell.files import ConfigError
 from adaptive_cal.cell.schema import Cell, Workspace
 from adaptive_cal.gaussian.prior import Hyper, PriorModel
 from adaptive_cal.gaussian.spline import Surface, default_knots, embedding, refined
+from adaptive_cal.hardware.base import frozen_after
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.scoring import candidate_grid
 from adaptive_cal.planning.stopping import (AtLeast, GapBelow, MaxStdBelow, MeanStdBelow, StopRule,
@@ -191,7 +192,17 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
         speed_mm_per_s=cell.robot.speed_mm_per_s, touch_time_s=cell.robot.touch_time_s,
         start_xy_mm=(0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)),
         min_spacing_mm=min_spacing(cell, model.surface), max_gap_mm=plan.stop.max_gap_mm,
-        closure=plan.closure and not informed_prior)  # a re-check: a few touches, a warm cell
+        closure=plan.closure and not informed_prior,  # a re-check: a few touches, a warm cell
+        frozen_after=readout_frozen_after(cell))
+
+
+def readout_frozen_after(cell: Cell) -> int | None:
+    """Touches in a row with one reading that mark the cell's probe readout frozen
+    (``hardware.base.frozen_after``): its readout step against the least noise the cell states
+    (``probe.noise_range_mm``'s low end, else ``probe.noise_std_mm``), over the touch budget."""
+    p = cell.probe
+    noise = p.noise_range_mm[0] if p.noise_range_mm else p.noise_std_mm
+    return frozen_after(p.resolution_mm, noise, cell.plan.stop.max_touches)
 
 
 def min_spacing(cell: Cell, surface) -> float:

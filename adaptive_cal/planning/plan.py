@@ -47,7 +47,10 @@ class SurveyPlan:
     ``planning.ask.kept_apart``); ``closure``: when a variance bound stops the run, touch the
     first place again to see a drift (``planning.closure``, ``run.loop``); ``max_gap_mm``: a
     bound stops the run only once no allowed point is farther than this from a touch, and the
-    planner touches the largest gap while only that holds the stop back (``planning.gap``)."""
+    planner touches the largest gap while only that holds the stop back (``planning.gap``);
+    ``frozen_after``: touches in a row with the very same reading that mark the readout frozen
+    (``hardware.base.frozen_after`` of the probe's readout step and stated noise; None: no
+    check), for the library's ``Survey.tell`` -- the run's probe cycle makes its own check."""
 
     model: PriorModel
     candidates: Candidates
@@ -83,6 +86,7 @@ class SurveyPlan:
     min_spacing_mm: float = 0.0
     max_gap_mm: float | None = None  # a bound stops only once no gap is wider (``planning.gap``)
     closure: bool = False
+    frozen_after: int | None = None
 
     @property
     def coefficients(self) -> int:

@@ -11,6 +11,7 @@ appends the status to ``survey.history``; ``survey.state`` can be kept, compared
 from __future__ import annotations
 
 import numbers
+import warnings
 
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
@@ -20,6 +21,10 @@ from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.robust import check_touch
 from adaptive_cal.planning.stopping import Status
+
+#: frozen readouts in a row that end a survey, as the run's loop ends (``run.loop.MAX_REJECTED``)
+FROZEN_STOP = 3
+READOUT_FROZEN = "readout_frozen"
 
 
 class Survey:
@@ -34,6 +39,8 @@ class Survey:
         self.plan = plan
         self.state = state if state is not None else sv.start(plan, prior=prior, hyper=hyper)
         self.history: list[Status] = [self.status()]
+        self._same = (float("nan"), 0)  # the last reading told and how often in a row
+        self._frozen = 0  # touches in a row rejected as a frozen readout
 
     def ask(self, n: int | None = None, *, from_xy=None) -> list[Target]:
         """The next touch(es) (``planning.ask.ask``): ``n`` of them (None: the plan's batch)."""
@@ -45,8 +52,32 @@ class Survey:
         return ask(self.plan, self.state, n, from_xy=from_xy)
 
     def tell(self, x_mm: float, y_mm: float, z_mm: float, reading_mm: float) -> Told:
-        """Judge and fuse one reading that was taken; returns the flags for the recording."""
-        self.state, told = sv.tell(self.plan, self.state, x_mm, y_mm, z_mm, reading_mm)
+        """Judge and fuse one reading that was taken; returns the flags for the recording.
+
+        A reading that is the very same value for ``plan.frozen_after`` touches in a row -- all
+        but impossible for a live probe given the cell's readout step and stated noise -- is a
+        frozen readout (a stale serial value, a register not updated, a value typed again): it
+        is not fused, the touch is counted, the flags say ``rejected``, ``frozen`` and a
+        warning says why, as the run's probe cycle does; ``FROZEN_STOP`` of them in a row make
+        ``stop_reason()`` ``readout_frozen``. Else the learned noise would collapse onto the
+        repeats and the bands with it."""
+        number = isinstance(reading_mm, numbers.Real) and not isinstance(reading_mm, bool)
+        reading = float(reading_mm) if number else float("nan")  # else sv.tell says why
+        same = self._same[1] + 1 if reading == self._same[0] else 1
+        if self.plan.frozen_after is not None and same >= self.plan.frozen_after:
+            check_touch(self.plan, x_mm, y_mm, 0.0, 0.0, position_only=True)
+            warnings.warn(f"reading {reading:.4f} mm, the very same value for {same} touches in a "
+                          "row, which the cell's readout step and stated noise make all but "
+                          "impossible: is the readout frozen? The touch was not fused",
+                          UserWarning, stacklevel=2)
+            self.state = sv.skip(self.plan, self.state, x_mm, y_mm)
+            told = Told(False, ("rejected", "frozen"), float("nan"), x_mm=float(x_mm),
+                        y_mm=float(y_mm), z_mm=float(z_mm))
+            self._frozen += 1
+        else:
+            self.state, told = sv.tell(self.plan, self.state, x_mm, y_mm, z_mm, reading_mm)
+            self._frozen = 0
+        self._same = (reading, same)
         self.history.append(self.status())
         return told
 
@@ -63,7 +94,10 @@ class Survey:
         return sv.status(self.plan, self.state)
 
     def stop_reason(self) -> str | None:
-        """Why the survey's stopping rule stops now, or None."""
+        """Why the survey's stopping rule stops now, or None; ``readout_frozen`` after
+        ``FROZEN_STOP`` touches in a row rejected as a frozen readout (``tell``)."""
+        if self._frozen >= FROZEN_STOP:
+            return READOUT_FROZEN
         return sv.stop_reason(self.plan, self.state)
 
     def grid(self, n: int = 61):

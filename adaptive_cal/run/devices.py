@@ -6,10 +6,9 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from adaptive_cal.cell.build import workspace
+from adaptive_cal.cell.build import readout_frozen_after, workspace
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.hardware.base import (AdapterError, Motion, ProbeCycle, ProbeDevice,
-                                         frozen_after)
+from adaptive_cal.hardware.base import AdapterError, Motion, ProbeCycle, ProbeDevice
 
 
 @dataclass
@@ -155,9 +154,7 @@ def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
                 dev.close()
 
     # a device can freeze (the simulated probe cannot: a noise-free one repeats honestly)
-    noise = p.noise_range_mm[0] if p.noise_range_mm else p.noise_std_mm
     cycle = ProbeCycle(motion, probe, allowed, cell.robot.safe_height_mm, p.usable_mm,
                        p.samples, p.samples_tolerance_mm, p.retries, p.settle_s, clock=clock,
-                       frozen_after=frozen_after(p.resolution_mm, noise,
-                                                 cell.plan.stop.max_touches))
+                       frozen_after=readout_frozen_after(cell))
     return OpenCell(cycle, clock, close, None)
