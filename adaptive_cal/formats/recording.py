@@ -1,5 +1,4 @@
-"""Recording format v1: the validating reader (the writer and the repair of a cut last row:
-``formats.writing``).
+"""Recording format v1: the validating reader (writer, repair of a cut last row: ``formats.writing``).
 
 UTF-8 CSV. Lines starting with ``#`` are metadata; the first is ``# adaptive-cal recording v1``.
 Then one header line and one row per probe touch, in touch order::
@@ -14,7 +13,7 @@ Another tool's CSV is read as CSV (RFC 4180, ``split_cells``): a field may be qu
 holding a line break), ``""`` is an empty field. A number is ASCII as a CSV writer writes it
 (``5_1.0`` or Arabic-Indic digits, which Python's ``float`` takes, are refused). A column this
 tool does not know may be named twice (it is ignored); a ``# probe_zero_mm`` that is not a number
-is said and ignored.
+is said and ignored. A header split by ``;`` or tabs (a spreadsheet's export) is refused, saying so.
 
 Flags (``;``-separated in the ``flags`` column) say what the loop did with a reading:
 ``gated`` (failed the Mahalanobis gate: not fused, the point is taken again once), ``retake``
@@ -47,7 +46,7 @@ from adaptive_cal.formats.cells import (RecordingError, _number, _OpenQuote,  # 
                                         split_cells)  # (re-exported: writing, callers)
 from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, parse_flags, read_table,
                                         strict_float, unknown_flag_note)
-from adaptive_cal.formats.text import not_utf8
+from adaptive_cal.formats.text import not_utf8, separated_hint
 from adaptive_cal.formats.times import time_backwards
 
 MAGIC = "# adaptive-cal recording v1"
@@ -147,9 +146,8 @@ class Recording:
         mask = np.asarray(mask, bool)
         flags = tuple(f for f, m in zip(self.flags, mask) if m) if self.flags else ()
         return Recording(self.seq[mask], self.t_s[mask], self.x_mm[mask], self.y_mm[mask],
-                         self.z_mm[mask], self.reading_mm[mask], flags,
-                         {k: v[mask] for k, v in self.extra.items()}, self.meta, self.path,
-                         self.notes)
+                         self.z_mm[mask], self.reading_mm[mask], flags, {k: v[mask] for k, v
+                         in self.extra.items()}, self.meta, self.path, self.notes)
 
 
 #: Limits of a readable recording: positions within 10 m, indications within 1 m, MAX_ROWS
@@ -226,8 +224,9 @@ def read_recording(path: str | os.PathLike) -> Recording:
                         if not all(c in names for c in REQUIRED):
                             # a plain table of x, y, reading (formats.table)?
                             if (table := read_table(path, line)) is None:
-                                raise RecordingError(f"{path}:1: first line must be {MAGIC!r}"
-                                                     " (or a table's x_mm,y_mm,reading_mm)")
+                                raise RecordingError(f"{path}:1: first line must be {MAGIC!r} (or "
+                                                     f"a table's x_mm,y_mm,reading_mm)"
+                                                     + separated_hint(line))
                             say(table["notes"])
                             return Recording(**table)
                         headless = True  # a recording's header first: its '#' lines removed
@@ -323,7 +322,8 @@ def _header(cells: list[str], where: str) -> list[str]:
     (which would be read?). Another name given twice is allowed: unknown columns are ignored."""
     missing = [c for c in REQUIRED if c not in cells]
     if missing:
-        raise RecordingError(f"{where}: header lacks column(s) {', '.join(missing)}")
+        hint = separated_hint(",".join(cells))  # a spreadsheet's ';' or tabs: one cell
+        raise RecordingError(f"{where}: header lacks column(s) {', '.join(missing)}{hint}")
     twice = sorted({c for c in cells if cells.count(c) > 1 and c in REQUIRED + OPTIONAL})
     if twice:
         raise RecordingError(f"{where}: header names column(s) {', '.join(twice)} more than once")

@@ -1,4 +1,5 @@
-"""Where a file stops being UTF-8 text, for the readers' errors (standard library only)."""
+"""What is wrong with a file's text, for the readers' errors: where it stops being UTF-8, a
+header separated by something other than commas (standard library only)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -17,3 +18,14 @@ def not_utf8(path, data: bytes | None = None) -> str:
         return (f"{path}:{line}: not UTF-8 text (byte 0x{data[e.start]:02x}, byte {column} of the "
                 f"line: {e.reason})")
     return f"{path}: not UTF-8 text"
+
+
+def separated_hint(line: str) -> str:
+    """": it looks separated by ';': save it comma separated (DESIGN.md recording format)" where
+    a header line is split by ';' (a European spreadsheet's export) or by tabs rather than by
+    commas -- more of those than commas; "" otherwise. For the readers' header errors."""
+    for sep, name in ((";", "';'"), ("\t", "tabs")):
+        if line.count(sep) >= 2 and line.count(sep) > line.count(","):
+            return (f": it looks separated by {name}: save it comma separated (DESIGN.md "
+                    "recording format)")
+    return ""
