@@ -134,3 +134,19 @@ def test_the_position_is_read_whole_or_not_at_all():
     with pytest.raises(ValueError, match=r"registers.actual_y='D101' overlaps registers.target_x"):
         ModbusConfig(host="127.0.0.1", port=502, registers={
             "actual_x": "D130", "actual_y": "D101", "actual_z": "D134"})
+
+
+def test_a_cell_that_cannot_make_a_safe_first_move_is_refused_at_load(tmp_path):
+    # said when the cell file is read (run, --dry-run, emulate), before a run folder is made:
+    # the adapter's own refusal comes only at the first move, after the run has begun
+    from adaptive_cal.cell.files import ConfigError
+
+    text = (ROOT / "configs" / "cell-modbus-emulated.yaml").read_text()
+    bare = "\n".join(line for line in text.splitlines()
+                     if not line.strip().startswith("actual_"))
+    path = tmp_path / "cell.yaml"
+    path.write_text(bare)
+    with pytest.raises(ConfigError, match=r"robot.*parked_at_safe_height: true"):
+        load_cell(path)
+    path.write_text(bare.replace("    registers:", "    parked_at_safe_height: true\n    registers:", 1))
+    assert load_cell(path).robot.modbus.parked_at_safe_height

@@ -79,6 +79,16 @@ class Robot(Block):
         if self.adapter in ("hses", "modbus", "robodk") and getattr(self, self.adapter) is None:
             raise ValueError(f"adapter '{self.adapter}' needs a robot.{self.adapter} block "
                              "(host, port, ...)")
+        m = self.modbus if self.adapter == "modbus" else None
+        if m is not None and m.registers.actual_x is None and not m.parked_at_safe_height:
+            # said at load, before a run folder is made or anything moves (the adapter refuses
+            # that first move too: hardware.modbus.motion)
+            raise ValueError("robot.modbus: the PC cannot know where the robot stands (no "
+                             "registers.actual_x/actual_y/actual_z mapped), so the first move "
+                             "would go straight to the safe height above the first target from "
+                             "wherever it is; map those registers (hw/plc-register-map.md) or "
+                             "state robot.modbus.parked_at_safe_height: true (every run starts "
+                             "parked at or above robot.safe_height_mm, clear of the plate)")
         return self
 
 
