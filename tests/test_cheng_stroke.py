@@ -55,3 +55,23 @@ def test_rest_mm_shifts_the_stroke_and_usable_or_zero_outside_it_is_refused_nami
         _probe(rest_mm=0.5)
     with pytest.raises(ConfigError, match=r"probe\.usable_mm.*\[0, 10\]"):  # the default: from 0
         parse_cell({**load_yaml(CELL), "probe": {"usable_mm": [-0.5, 9.5]}})
+
+
+def test_a_gauge_zeroed_mid_stroke_reads_below_zero_in_the_simulator_and_the_manual_prompt():
+    # the simulated probe clipped its indication to [0, stroke] and the manual prompt refused a
+    # typed reading below 0, whatever rest_mm said: the reference cell's gauge reads -0.5 .. 9.5
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.run.devices import open_cell
+    from adaptive_cal.simulation.cell import SimulatedCell
+
+    cell = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
+    sim = SimulatedCell.from_cell(cell)
+    sim.move_to(0.0, 0.0, 0.3)  # 0.3 mm above the level plate's nominal height, zero_mm 0
+    readings = [sim.read().reading_mm for _ in range(20)]
+    assert -0.45 < np.mean(readings) < -0.15  # the noise is 10 um: -0.3 within 15 sd
+    sim.move_to(0.0, 0.0, 2.0)  # beyond the tip's free end: the gauge hangs at its rest
+    assert sim.read().reading_mm == pytest.approx(-0.5)
+    manual = cell.model_copy(update={
+        "robot": cell.robot.model_copy(update={"adapter": "manual"}),
+        "probe": cell.probe.model_copy(update={"adapter": "manual"})})
+    assert open_cell(manual).cycle.probe.range_mm == (-0.5, 9.5)

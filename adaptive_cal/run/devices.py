@@ -131,7 +131,7 @@ def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
 
         m = cell.robot.manual
         manual = ManualCell(prompt=m.prompt if m else "", attempts=m.attempts if m else 3,
-                            range_mm=(0.0, p.stroke_mm))
+                            range_mm=(p.rest_mm, p.rest_mm + p.stroke_mm))
     opened: list = []
     try:
         links = _modbus_links(cell, opened)

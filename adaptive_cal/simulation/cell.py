@@ -36,6 +36,7 @@ class SimulatedCell:
     t_s: float = 0.0
     touches: int = 0
     pose: tuple[float, float, float] = (0.0, 0.0, 50.0)
+    rest_mm: float = 0.0  # the indication with the tip free: the stroke reads rest .. rest + stroke
     _last_x: float | None = None
     _last_dir: float = 0.0
     _reached: tuple[float, float, float] = field(default=(0.0, 0.0, 50.0))
@@ -47,7 +48,7 @@ class SimulatedCell:
         return cls(cell.geometry, cell.simulation or Simulation(), cell.probe.zero_mm,
                    cell.probe.stroke_mm, cell.probe.resolution_mm, cell.robot.speed_mm_per_s,
                    cell.robot.touch_time_s, t_s=start_t_s, touches=start_touch, pose=start,
-                   _reached=start)
+                   rest_mm=cell.probe.rest_mm, _reached=start)
 
     # -- truth -------------------------------------------------------------------------
     def surface_mm(self, x_mm, y_mm) -> np.ndarray:
@@ -99,7 +100,8 @@ class SimulatedCell:
         value = ideal + float(effects.total_change(others, f, self.geometry)[0])
         value += reading_noise_mm(self.sim, rng)
         value += gross_error_mm(self.sim, rng)
-        value = float(np.clip(value, 0.0, self.stroke_mm))  # the probe bottoms out
+        # the probe bottoms out (and hangs free): its indications span rest .. rest + stroke
+        value = float(np.clip(value, self.rest_mm, self.rest_mm + self.stroke_mm))
         value = round(value / self.resolution_mm) * self.resolution_mm
         return Sample(value, self.t_s, f"{value:.6f}".encode())
 
