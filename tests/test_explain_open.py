@@ -112,6 +112,11 @@ def test_the_reference_rounds_stay_form_and_report_the_structure_left(cheng_roun
 def test_cli_prints_the_unexplained_structure_and_what_is_not_testable(tmp_path, capsys):
     from adaptive_cal.cli import main
     cell, rec = gen.write(tmp_path, gen.recording("backlash_y", np.random.default_rng(1), 10.0))
+    # the generator's readings are signed about a zero at the stroke's start: the command sets
+    # aside those outside probe.usable_mm (as flatness --robot does), so give a gauge zeroed
+    # mid-stroke that holds them all
+    cell.write_text(cell.read_text().replace("  zero_mm: 0.0\n", "  zero_mm: 0.0\n  stroke_mm: 100\n"
+                                             "  rest_mm: -50\n  usable_mm: [-50, 50]\n"))
     assert main(["explain", str(rec), "--robot", str(cell), "--out", str(tmp_path / "o")]) == 0
     text = capsys.readouterr().out
     assert "verdict: unexplained" in text and "unexplained structure along direction" in text

@@ -3,7 +3,10 @@
     adaptive-cal explain ROUND0.csv [ROUND1.csv ...] --robot CELL.yaml [--json OUT.json] [--out DIR]
 
 Several recordings are rounds of the same cell: the tilt is calibrated per round, the plate's
-form and the cell's effects may be shared (decided by evidence). See docs/explain.md.
+form and the cell's effects may be shared (decided by evidence). A reading outside the probe's
+usable stroke (``probe.usable_mm``) is set aside first, as ``flatness --robot`` and ``report``
+set it aside (``report.replay.for_replay``, the one rule; ``run`` rejects it), and the findings
+list it (``readings.not_used``). See docs/explain.md.
 """
 from __future__ import annotations
 
@@ -55,6 +58,26 @@ def _refuse_overwrite(args) -> None:
                 refuse_input_as_output("--out", out / name, inputs)
 
 
+def within_stroke(recordings: list, cell, cell_file: str) -> tuple[list, list[dict]]:
+    """The recordings with their readings outside ``probe.usable_mm`` flagged not fused, as
+    ``flatness --robot`` and ``report`` judge a replayed reading (``for_replay``: said on
+    stderr), and one entry {seq, reading_mm, why[, recording]} for each reading set aside."""
+    from adaptive_cal.report.replay import for_replay
+
+    lo, hi = cell.probe.usable_mm
+    why = (f"outside the probe's usable stroke {lo:g} .. {hi:g} mm (probe.usable_mm of "
+           f"{cell_file}): run rejects such a reading (rejected;stroke_end), flatness --robot "
+           "and report leave it out")
+    judged, aside = [], []
+    for rec in recordings:
+        out = for_replay(rec, cell, cell_file)
+        judged.append(out)
+        aside += [{"seq": int(rec.seq[i]), "reading_mm": float(rec.reading_mm[i]), "why": why,
+                   **({"recording": rec.path} if len(recordings) > 1 else {})}
+                  for i in (rec.fused & ~out.fused).nonzero()[0]]
+    return judged, aside
+
+
 def command(args) -> int:
     if not args.robot:
         raise UserError("explain needs --robot CELL.yaml (the cell file with its simulation block)")
@@ -70,8 +93,11 @@ def command(args) -> int:
     from adaptive_cal.formats.recording import read_recording
 
     cell = load_cell(args.robot)
-    recordings = [read_recording(p) for p in args.recordings]
+    recordings, aside = within_stroke([read_recording(p) for p in args.recordings], cell,
+                                      args.robot)
     result = explain(recordings, cell, rng=np.random.default_rng(args.seed))
+    if aside:
+        result.findings["readings"]["not_used"] = aside
     if args.out:
         path = write_cell(result, load_yaml(args.robot), args.robot, args.out)
         result.findings["model"] = str(path) if path else None

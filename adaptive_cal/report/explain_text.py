@@ -101,10 +101,21 @@ def touches_lines(touches: list[dict]) -> list[str]:
 
 
 def readings_lines(report: dict, shown: int = 5) -> list[str]:
-    """The suspect readings set aside (the first ``shown``), a heavy-tailed noise judgement and
+    """The readings not used (outside the probe's usable stroke) and the suspect readings set
+    aside (the first ``shown`` of each), a heavy-tailed noise judgement and
     the scaling of the evidence for readings correlated from one touch to the next."""
     sus, readings = report.get("suspect_readings") or [], report.get("readings") or {}
     out = []
+    aside = readings.get("not_used") or []
+    if aside:
+        by_file: dict = {}
+        for r in aside[:shown]:
+            by_file.setdefault(r.get("recording"), []).append(str(r["seq"]))
+        seqs = "; ".join(("" if k is None else f"{k}: ") + "seq " + ", ".join(v)
+                         for k, v in by_file.items())
+        more = f" and {len(aside) - shown} more (readings.not_used in --json)" \
+            if len(aside) > shown else ""
+        out.append(f"readings not used: {len(aside)} ({seqs}{more}): {aside[0]['why']}")
     if sus:
         out.append(f"suspect readings, set aside (not physics): {len(sus)} of "
                    f"{readings.get('total', '?')}")

@@ -1,0 +1,64 @@
+"""explain uses the readings the run would: a reading outside the probe's usable stroke
+(``probe.usable_mm``) is set aside by the rule ``run``, ``flatness --robot`` and ``report``
+share (``report.replay.for_replay``), and the findings say which and why (``readings.not_used``).
+The library's ``explain`` takes the rows as flagged, as ``survey.replay`` does: the commands
+judge a replayed reading."""
+import json
+
+import yaml
+
+from adaptive_cal.analysis.explain import explain
+from adaptive_cal.cell.schema import load_yaml
+from adaptive_cal.cli import main
+from conftest import ROOT
+
+CELL = ROOT / "configs" / "cheng2025-cell.yaml"
+
+
+def _counting_from_zero(tmp_path):
+    """The reference cell with a gauge that counts from its rest (stroke 0 .. 10 mm): round 0's
+    published readings below 0 (seq 0, 19, 20) are outside its usable stroke."""
+    data = load_yaml(CELL)
+    data["probe"] = {**{k: v for k, v in data["probe"].items() if k != "rest_mm"},
+                     "usable_mm": [0.0, 10.0]}
+    path = tmp_path / "from-zero.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_explain_sets_aside_the_readings_outside_the_usable_stroke_and_says_which(
+        tmp_path, cheng_round0, cheng_round1, capsys):
+    cell = _counting_from_zero(tmp_path)
+    out = tmp_path / "e.json"
+    assert main(["explain", str(cheng_round0), str(cheng_round1), "--robot", str(cell),
+                 "--json", str(out)]) == 0
+    said = capsys.readouterr()
+    f = json.loads(out.read_text())
+    aside = f["readings"]["not_used"]
+    assert [(r["seq"], r["recording"]) for r in aside] == [(s, str(cheng_round0)) for s in (0, 19, 20)]
+    assert [r["reading_mm"] for r in aside] == [-0.208, -0.405, -0.315]
+    assert all("probe.usable_mm" in r["why"] and "0 .. 10 mm" in r["why"] for r in aside)
+    assert f["readings"]["used"] + f["readings"]["suspect"] == 77
+    assert f["verdict"] == "form"
+    assert f"readings not used: 3 ({cheng_round0}: seq 0, 19, 20): outside" in said.out
+    assert "(seq 0: -0.208 mm)" in said.err  # said as flatness --robot says it
+
+
+def test_explain_and_flatness_robot_use_the_same_touches(tmp_path, cheng_round0, capsys):
+    cell = _counting_from_zero(tmp_path)
+    out = tmp_path / "e.json"
+    assert main(["explain", str(cheng_round0), "--robot", str(cell), "--json", str(out)]) == 0
+    said = capsys.readouterr()
+    assert "readings not used: 3 (seq 0, 19, 20): outside the probe's usable stroke 0 .. 10 mm" in said.out
+    assert str(cell) in said.out
+    readings = json.loads(out.read_text())["readings"]
+    assert readings["used"] + readings["suspect"] == 37
+    assert main(["flatness", str(cheng_round0), "--robot", str(cell)]) == 0
+    assert f"{cheng_round0}: 37 touches" in capsys.readouterr().out
+
+
+def test_nothing_is_said_where_every_reading_is_inside(cheng_round0, capsys):
+    f = explain([cheng_round0], CELL).findings
+    assert "not_used" not in f["readings"] and f["readings"]["used"] == 40
+    assert main(["explain", str(cheng_round0), "--robot", str(CELL)]) == 0
+    assert "not used" not in capsys.readouterr().out
