@@ -140,6 +140,11 @@ def readings_lines(report: dict, shown: int = 5) -> list[str]:
 NONE = "no left-out effect is supported by the data"  # the report's words for verdict none
 
 
+# what verdict none's probability is: none's own posterior, from a prior of 1/2
+NONE_MEANS = (" that no library effect is present; none's prior is 1/2, so 0.5 means the data "
+              "could not tell, not that an effect is likely")
+
+
 def none_line(report: dict) -> str:
     """Why the verdict is none: the best candidate's log Bayes factor against none and the one a
     verdict needs, and where the rest of the probability is (none's prior is 1/2)."""
@@ -170,7 +175,8 @@ def verdict_lines(report: dict) -> list[str]:
     kind = ("probability, bounded from the structure test's p-value" if report["verdict"] ==
             "unexplained" else "probability")
     p = report.get("verdict_probability")
-    said = [f"{kind} {p:.2f}"] if p is not None else []
+    said = [f"{kind} {p:.2f}" + (NONE_MEANS if report["verdict"] == "none" else "")] \
+        if p is not None else []
     said += [f"cannot be told apart from {', '.join(amb)} on this design"] if amb else []
     out = [f"verdict: {report['verdict']}" + (f" ({'; '.join(said)})" if said else "")]
     if report["verdict"] == "none":
