@@ -121,6 +121,8 @@ def test_cli_prints_the_unexplained_structure_and_what_is_not_testable(tmp_path,
     text = capsys.readouterr().out
     assert "verdict: unexplained" in text and "unexplained structure along direction" in text
     assert "arriving moving +y" in text and "not testable: reversal" in text
+    # and what to do next, for the axis found: touches that arrive both ways along y
+    assert "\n  next: check the robot's backlash along y: touch a few points twice" in text
     assert not list((tmp_path / "o").glob("*-explained.yaml"))  # no library effect to write
     assert (tmp_path / "o" / "residual_vs_direction.png").stat().st_size > 1000
 

@@ -143,6 +143,30 @@ NONE = "no left-out effect is supported by the data"  # the report's words for v
 # what verdict none's probability is: none's own posterior, from a prior of 1/2
 NONE_MEANS = (" that no library effect is present; none's prior is 1/2, so 0.5 means the data "
               "could not tell, not that an effect is likely")
+# what to do after an ``unexplained`` verdict, by the structure test that found it (its ``test``,
+# else its ``axis``): what to check on the cell, and which touches would test it
+NEXT_STEP = {
+    "time": "check for warm-up or drift: touch one point again at the start, middle and end of "
+            "a run (a reading that changes with time at one place is the cell, not the plate)",
+    "serial correlation": "look for a disturbance that lasts over several touches (vibration, "
+                          "air draught, a gauge that settles): a longer probe.settle_s, "
+                          "probe.samples above 1, and a few touches in a row at one point",
+    "direction": "check the robot's backlash: touch a few points twice, arriving once moving +x "
+                 "and once moving -x (a difference at one place is the robot, not the plate)",
+    "direction along y": "check the robot's backlash along y: touch a few points twice, arriving "
+                         "once moving +y and once moving -y",
+    "position": "the plate has shape finer than the library's form (a ripple, a step, a row or "
+                "column offset): add touches between those near the places listed, or look at "
+                "the plate there",
+    "reach": "check the arm (its sag, a joint's zero): the residual follows the reach from "
+             "robot.base_xy_mm; touch the plate's near and far edges again in one run",
+    "indication": "check the gauge (its scale, a sticking plunger): touch a few points again "
+                  "from a second approach height (z_mm + 2 mm), so one surface is read at two "
+                  "indications",
+    "noise": "the readings scatter beyond the probe's stated noise: touch one point ten times "
+             "to measure the repeatability, then correct probe.noise_std_mm / noise_range_mm "
+             "or check the probe's mounting",
+}
 
 
 def none_line(report: dict) -> str:
@@ -188,6 +212,9 @@ def verdict_lines(report: dict) -> list[str]:
         out.append(f"  unexplained structure along {u['axis']}: {u['detail']}{near}")
         out.extend(f"    near x {w['x_mm']:g}, y {w['y_mm']:g} mm: residual "
                    f"{1e3 * w['residual_mm']:+.1f} um" for w in u["where"])
+        step = NEXT_STEP.get(u.get("test")) or NEXT_STEP.get(u["axis"])
+        if step:
+            out.append(f"  next: {step}")
     return out
 
 
