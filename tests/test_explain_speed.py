@@ -253,7 +253,7 @@ def test_all_readings_rejected_gets_a_clear_message(tmp_path, cell_file, capsys)
     rec = _write(tmp_path / "rejected.csv", 40, flags="rejected")
     code, err = _cli(["explain", "--robot", str(cell_file), str(rec)], capsys)
     assert code == 2
-    assert "rejected.csv: 40 rows, 0 of them fused" in err and "gated or rejected" in err, err
+    assert "rejected.csv: 40 rows, 0 of them fused" in err and "marks the others rejected" in err, err
     assert "ZeroDivision" not in err and "internal error" not in err
 
 
