@@ -113,3 +113,14 @@ def test_while_it_waits_the_job_writes_where_the_tip_is_in_the_targets_unit():
     assert (d["D011"], d["D012"], d["D013"]) == (1_200_000, -800_000, 20_000)
     assert [c / CELL.robot.modbus.scale for c in (d["D011"], d["D012"], d["D013"])] == [
         120.0, -80.0, 2.0]
+
+
+def test_the_job_keeps_the_controllers_length_limits():
+    """A job comment and ///COMM hold up to 32 characters (NX100 job data format): the job's
+    comments said their prose in lines up to 75 long; the long form is hw/README.md now."""
+    long = [s for s in JOB.splitlines()
+            if (s.startswith("'") and len(s) - 1 > 32)
+            or (s.startswith("///COMM ") and len(s) - len("///COMM ") > 32)]
+    assert not long, long
+    name = re.search(r"^//NAME (\S+)$", JOB, re.M).group(1)
+    assert len(name) <= 32
