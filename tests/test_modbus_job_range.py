@@ -100,7 +100,7 @@ def test_a_swapped_word_order_that_lands_outside_the_box_does_not_move():
 
 def test_the_jobs_box_is_the_emulated_cells_workspace():
     """The example values in the job are the emulated cell's workspace x scale; a cell of its
-    own sets its own (the job's comments say how)."""
+    own sets its own (hw/README.md says how)."""
     sets = dict(re.findall(r"^SET (D02[1-6]) (-?\d+)$", JOB, re.M))
     got = [(int(sets[f"D02{2 * i + 1}"]), int(sets[f"D02{2 * i + 2}"])) for i in range(3)]
     assert got == box_counts()
