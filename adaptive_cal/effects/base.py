@@ -183,10 +183,14 @@ class Effect:
         return np.stack(cols, axis=-1)
 
     def summary(self, params: Mapping, stds: Mapping) -> str:
-        """One line: ``name: main = value +- sd`` (per-round values comma separated)."""
+        """One line: ``name: main = value +- sd``; per round ``name: main per round 0: value
+        +- sd, 1: value +- sd`` (each round's value beside its own sd)."""
         main = self.main if self.main in params else next(k for k in self.linear if k in params)
-        fmt = lambda v: ", ".join(f"{x:.4g}" for x in np.atleast_1d(v))  # noqa: E731
-        return f"{self.name}: {main} = {fmt(params[main])} +- {fmt(stds[main])}"
+        values, sds = np.atleast_1d(params[main]), np.atleast_1d(stds[main])
+        if values.size == 1:
+            return f"{self.name}: {main} = {values[0]:.4g} +- {sds[0]:.4g}"
+        return f"{self.name}: {main} per round " + ", ".join(
+            f"{r}: {v:.4g} +- {e:.4g}" for r, (v, e) in enumerate(zip(values, sds)))
 
     def __add__(self, other: "Effect | EffectSet") -> "EffectSet":
         return EffectSet((self,)) + other
