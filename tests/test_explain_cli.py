@@ -166,3 +166,33 @@ def test_an_effect_fitted_per_round_is_printed_round_by_round(tmp_path, cheng_ro
     form = next(e for e in json.loads(js.read_text())["left_out"] if e["effect"] == "form")
     assert isinstance(form["params"]["bow_x"], list)  # per round
     assert "bow in x per round 0: " in said and ", 1: " in said
+
+
+def test_an_earlier_explains_files_are_not_left_beside_new_findings(tmp_path, cheng_round0,
+                                                                     capsys):
+    """explain --out into a folder of an earlier explain left its figures and explained cell
+    file there: a fitted_effect.png of a form beside a verdict none. They are removed once the
+    new findings are written, and said."""
+    out = tmp_path / "out"
+    assert main(["explain", str(cheng_round0), "--robot", str(CELL), "--out", str(out)]) == 0
+    first = {p.name for p in out.iterdir()}
+    assert {"cheng2025-cell-explained.yaml", "fitted_effect.png", "residual_map.png"} <= first
+    capsys.readouterr()
+    # a level plate read with the probe's noise alone at the same touches: nothing to name
+    rng = np.random.default_rng(5)
+    text = cheng_round0.read_text().splitlines()
+    head = [line for line in text if line.startswith("#")] + ["seq,t_s,x_mm,y_mm,z_mm,reading_mm"]
+    rows = [line.split(",") for line in text if line and line[0].isdigit()]
+    null = tmp_path / "null.csv"
+    null.write_text("\n".join(head + [",".join(r[:5] + [f"{2.0 + 0.01 * rng.normal():.4f}"])
+                                      for r in rows]) + "\n")
+    (out / "notes.txt").write_text("mine")  # not explain's: stays
+    assert main(["explain", str(null), "--robot", str(CELL), "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "verdict: none" in said
+    left = {p.name for p in out.iterdir()}
+    assert "cheng2025-cell-explained.yaml" not in left and "fitted_effect.png" not in left
+    assert "residual_map.png" in left and "notes.txt" in left
+    removed = next(line for line in said.splitlines() if line.startswith("removed "))
+    assert "cheng2025-cell-explained.yaml" in removed and "fitted_effect.png" in removed
+    assert "notes.txt" not in removed and removed.endswith("do not go with these findings")

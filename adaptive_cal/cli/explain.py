@@ -98,6 +98,7 @@ def command(args) -> int:
     result = explain(recordings, cell, rng=np.random.default_rng(args.seed))
     if aside:
         result.findings["readings"]["not_used"] = aside
+    stale: list[Path] = []
     if args.out:
         path = write_cell(result, load_yaml(args.robot), args.robot, args.out)
         result.findings["model"] = str(path) if path else None
@@ -105,6 +106,7 @@ def command(args) -> int:
             from adaptive_cal.report.explain_figures import figures  # matplotlib: only here
 
             result.findings["figures"] = [str(p) for p in figures(result, args.out)]
+        stale = _remove_stale(Path(args.out), result.findings, args.robot)
     if args.json:  # written before the terminal's lines: a reader that leaves (`| head`) loses none
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(result.findings, indent=1), encoding="utf-8")
@@ -113,4 +115,23 @@ def command(args) -> int:
         + list(result.findings.get("figures") or []) + ([args.json] if args.json else [])
     if written:  # where the terminal's findings went besides
         print("wrote " + ", ".join(str(w) for w in written))
+    if stale:
+        print("removed " + ", ".join(str(p) for p in stale) + ": an earlier explain's, which "
+              "do not go with these findings")
     return 0
+
+
+def _remove_stale(out: Path, findings: dict, cell_file: str) -> list[Path]:
+    """explain's own files in ``out`` (its figures, the explained cell file) that this explain did
+    not write: an earlier explain's, left beside the new findings they do not describe (a
+    residual_vs_time.png of an earlier drift beside a verdict none). Removed once the new ones
+    are written; the list is said."""
+    from adaptive_cal.report.explain_page import EXPLAIN_FIGURES
+
+    own = [out / name for name in EXPLAIN_FIGURES] + [out / f"{Path(cell_file).stem}-explained.yaml"]
+    kept = {Path(p).resolve() for p in [findings.get("model"), *(findings.get("figures") or [])]
+            if p}
+    stale = [p for p in own if p.is_file() and p.resolve() not in kept]
+    for p in stale:
+        p.unlink()
+    return stale
