@@ -62,3 +62,32 @@ def test_nothing_is_said_where_every_reading_is_inside(cheng_round0, capsys):
     assert "not_used" not in f["readings"] and f["readings"]["used"] == 40
     assert main(["explain", str(cheng_round0), "--robot", str(CELL)]) == 0
     assert "not used" not in capsys.readouterr().out
+
+
+def test_a_cell_whose_stroke_holds_few_of_the_readings_does_not_empty_the_recording(
+        tmp_path, cheng_round0, capsys):
+    """A cell written for a gauge that reads around its zero (zero_mm 0, the default usable
+    0.5 .. 9.5 mm) set aside most of round 0 -- explain then refused the recording ('40 rows,
+    0 of them fused'). Where more than a fifth of the readings lie outside the stroke the cell
+    does not describe the gauge: the readings are used, the mismatch said, by explain and
+    flatness --robot alike."""
+    data = load_yaml(CELL)
+    data["probe"] = {k: v for k, v in data["probe"].items() if k not in ("rest_mm", "usable_mm")}
+    cell = tmp_path / "sloppy.yaml"
+    cell.write_text(yaml.safe_dump(data))
+    # round 0 as a gauge zeroed 2 mm further in reads it: -2.4 .. 4.0 mm, half below 0.5 mm
+    lines = cheng_round0.read_text().splitlines()
+    shifted = [line if not line[:1].isdigit() else ",".join(
+        line.split(",")[:5] + [f"{float(line.split(',')[5]) - 2.0:.4f}"]) for line in lines]
+    cheng_round0 = tmp_path / "round0-zeroed-mid.csv"
+    cheng_round0.write_text("\n".join(shifted) + "\n")
+    out = tmp_path / "e.json"
+    assert main(["explain", str(cheng_round0), "--robot", str(cell), "--json", str(out)]) == 0
+    said = capsys.readouterr()
+    assert "lie outside the probe's usable stroke [0.5, 9.5] mm" in said.err
+    assert "the cell's probe block does not describe this recording's gauge" in said.err
+    f = json.loads(out.read_text())
+    assert "not_used" not in f["readings"] and f["verdict"] == "form"
+    assert f["readings"]["used"] + f["readings"]["suspect"] == 40
+    assert main(["flatness", str(cheng_round0), "--robot", str(cell)]) == 0
+    assert f"{cheng_round0}: 40 touches" in capsys.readouterr().out

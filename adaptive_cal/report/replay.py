@@ -22,6 +22,10 @@ from adaptive_cal.formats.recording import Recording, RecordingError, say
 
 STROKE_END = frozenset({"rejected", "stroke_end"})
 HEIGHT_COLUMNS = ("height_mm", "height", "z_mm", "z")  # a table's heights are no indications
+#: a cell whose usable stroke leaves out more than this share of a recording's readings does not
+#: describe that recording's gauge (signed relative readings, a zero set elsewhere): its readings
+#: are used, and the mismatch said, rather than nearly all of them set aside
+STROKE_MISMATCH_SHARE = 0.2
 
 
 def line_of(path: str | None, index: int) -> int | None:
@@ -48,8 +52,10 @@ def line_of(path: str | None, index: int) -> int | None:
 
 def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
     """``rec`` with the readings outside ``probe.usable_mm`` flagged ``rejected;stroke_end``
-    (said on stderr); RecordingError naming the line and the value for a touch to be fused
-    outside the workplane."""
+    (said on stderr) -- unless they are more than ``STROKE_MISMATCH_SHARE`` of its readings:
+    then the cell does not describe the recording's gauge, and they are used (said);
+    RecordingError naming the line and the value for a touch to be fused outside the
+    workplane."""
     where = rec.path or "the recording"
     used = rec.fused
     off = cell.workplane.first_outside(rec.x_mm[used], rec.y_mm[used])
@@ -74,6 +80,13 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
     shown = ", ".join(f"line {line_of(rec.path, int(i)) or '?'} (seq {int(rec.seq[i])}: "
                       f"{rec.reading_mm[i]:g} mm)" for i in idx[:5])
     more = f" and {idx.size - 5} more" if idx.size > 5 else ""
+    if idx.size > STROKE_MISMATCH_SHARE * np.count_nonzero(used):
+        say([f"{where}: {idx.size} of its {np.count_nonzero(used)} readings lie outside the "
+             f"probe's usable stroke {[lo, hi]} mm of {cell_file} ({shown}{more}): the cell's "
+             "probe block does not describe this recording's gauge (signed readings? a zero set "
+             "elsewhere?), so they are used, not set aside as a run's stroke-end touches; give "
+             "the cell probe.rest_mm and probe.usable_mm that hold them (docs/config.md)"])
+        return rec
     say([f"{where}: {idx.size} reading{'s' * (idx.size != 1)} outside the probe's usable stroke "
          f"{[lo, hi]} mm (probe.usable_mm of {cell_file}) not used, as the run does not use "
          f"them (rejected;stroke_end): {shown}{more}"])
