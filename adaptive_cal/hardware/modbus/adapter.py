@@ -2,15 +2,16 @@
 and the probe here, the motion in ``motion`` (re-exported here).
 
 Relays cannot carry coordinates, so the PC writes the target into data registers that a robot
-job copies into a position variable (hw/plc-register-map.md). Handshake, per move:
-PC writes target_x/y/z and reads them back (another value there refuses the move), clears ``done`` and checks that it stays off (a PLC that copies the robot's
-done output into it is refused before ``start``), sets ``start``; the PLC (on the rising edge)
-has the robot move and sets ``done``; the PC clears ``start``, also when the wait ends any other
-way (fault, timeout, lost link: else a level-triggered PLC or job moves the robot when the fault
-is cleared). ``fault`` set by the PLC stops the run. A probe sample: PC writes ``probe_trigger``
-off then on (a rising edge); the PLC stores the value and increments ``probe_count``; a counter that does
-not move means a stale value, which is rejected. A background thread increments ``watchdog``
-every watchdog_s / 4 so the PLC can stop the cell when the PC or the link dies.
+job copies into a position variable (hw/plc-register-map.md). Handshake, per move: PC writes
+target_x/y/z and reads them back (another value there refuses the move), clears ``done`` and
+checks that it stays off (a PLC that copies the robot's done output into it is refused before
+``start``), sets ``start``; the PLC (on the rising edge) has the robot move and sets ``done``;
+the PC clears ``start``, also when the wait ends any other way (fault, timeout, lost link: else
+a level-triggered PLC or job moves the robot when the fault is cleared). ``fault`` set by the
+PLC stops the run. A probe sample: PC writes ``probe_trigger`` off then on (a rising edge); the
+PLC stores the value and increments ``probe_count``; a counter that does not move means a stale
+value, which is rejected. A background thread increments ``watchdog`` every watchdog_s / 4 so
+the PLC can stop the cell when the PC or the link dies.
 """
 from __future__ import annotations
 

@@ -2,8 +2,9 @@
 with a scan loop (every ``scan_s``) that runs the handshake of ``hardware.modbus.adapter`` against an
 EmulatedRobot: rising start (done off) -> move -> done, rising probe_trigger ->
 probe_value/probe_count, watchdog -> fault; with actual_x/y/z in the map, the robot's reached
-position every scan. A start or trigger that stays set does nothing more;
-a flag the PC writes off and on between two scans still counts as an edge. Runs its asyncio loop in a background thread.
+position every scan. A start or trigger that stays set does nothing more; a flag the PC writes
+off and on between two scans still counts as an edge. Runs its asyncio loop in a background
+thread.
 32-bit values are combined with the cell file's own ``word_order`` (the PC's, through the same
 pymodbus conversion): the emulator always agrees with the PC, so it cannot reveal a word-order
 mismatch -- see the commissioning check in docs/adapters/modbus.md.
