@@ -83,12 +83,10 @@ class Robot(Block):
         if m is not None and m.registers.actual_x is None and not m.parked_at_safe_height:
             # said at load, before a run folder is made or anything moves (the adapter refuses
             # that first move too: hardware.modbus.motion)
-            raise ValueError("robot.modbus: the PC cannot know where the robot stands (no "
-                             "registers.actual_x/actual_y/actual_z mapped), so the first move "
-                             "would go straight to the safe height above the first target from "
-                             "wherever it is; map those registers (hw/plc-register-map.md) or "
-                             "state robot.modbus.parked_at_safe_height: true (every run starts "
-                             "parked at or above robot.safe_height_mm, clear of the plate)")
+            raise ValueError("robot.modbus: the robot's position cannot be read (no registers."
+                             "actual_x/y/z), so the first move would go straight to the safe "
+                             "height from wherever it stands; map them (hw/plc-register-map.md) "
+                             "or state robot.modbus.parked_at_safe_height: true")
         return self
 
 
