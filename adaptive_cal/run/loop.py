@@ -45,6 +45,7 @@ from adaptive_cal.planning.ask import Target, ask, target as target_at
 from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.robust import InvalidReading
+from adaptive_cal.planning.shell import READOUT_FROZEN  # the stop for repeats (frozen_after)
 from adaptive_cal.planning.stopping import Status, touches_left
 
 #: the reason a loop ends when no allowed point can be promised inside the probe stroke
@@ -56,8 +57,6 @@ MAX_INVALID = 3
 #: they teach the planner nothing, so it would ask the same touch again and again
 TOUCHES_REJECTED = "touches_rejected"
 MAX_REJECTED = 3
-#: ... when those were rejected for one reading repeated (``ProbeCycle.frozen_after``)
-READOUT_FROZEN = "readout_frozen"
 #: the reason a loop ends when its closure touch found the cell drifting
 DRIFT = cl.DRIFT
 #: the stop reasons that close with a closure touch (a variance bound met)
