@@ -122,6 +122,10 @@ def test_cli_writes_summary_table_and_plots(tmp_path, capsys):
     assert err[2].startswith("study smoke: 2/2 runs done, ") and len(err) == 3
     assert std.out.startswith("bound: ") and "runs done" not in std.out
     summary = json.loads(out.read_text())
+    from adaptive_cal import __version__
+
+    assert summary["software"] == f"adaptive-cal {__version__}"  # which code made the figures
+    assert summary["written_utc"].endswith("Z")
     for name in ("paper", "grid"):
         s = summary["strategies"][name]
         for key in ("touches_mean", "touches_p90", "robot_time_s_mean", "true_rms_mm_mean",

@@ -14,6 +14,7 @@ import importlib
 import os
 import sys
 
+from adaptive_cal import __version__
 from adaptive_cal.cli.common import DefaultsShown, UserError
 
 # name -> (module, one-line help)
@@ -35,6 +36,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         prog="adaptive-cal",
         description="Plans and runs probe measurements on robot cells (mm, s, deg throughout).")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"adaptive-cal {__version__}",
+                        help="the version (result.json and recordings carry it too)")
     sub = parser.add_subparsers(dest="subcommand", metavar="COMMAND")
     for name, (module, help_) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_,

@@ -235,7 +235,11 @@ def command(args) -> int:
     summary = summarise(study, records)
     summary["wall_s"] = round(time.monotonic() - progress.t0, 1)
     out_json.parent.mkdir(parents=True, exist_ok=True)
+    from adaptive_cal.formats.writing import provenance
     from adaptive_cal.run.folder import write_json
+
+    made = provenance()  # which code made these figures, and when
+    summary.update(software=made["software"], written_utc=made["utc"])
 
     write_json(out_json, summary)  # atomic; an infinite figure (no bound in the budget) as null
     if out_dir:

@@ -164,6 +164,18 @@ def render_recording(result: dict, cell: Cell, rec, belief_data, recording: Path
                 source=(Path(recording), Path(cell_file)))
 
 
+def _made(meta: dict) -> str:
+    """The sentence "Recorded with adaptive-cal V, started YYYY-MM-DD HH:MM:SS UTC." from a
+    recording's metadata (``run`` writes both); empty where it has neither (another tool's)."""
+    software, started = meta.get("software"), meta.get("started_utc")
+    if not software and not started:
+        return ""
+    said = ", ".join(s for s in (f"with {escape(software)}" if software else "",
+                                 f"started {escape(started.replace('T', ' ').rstrip('Z'))} UTC"
+                                 if started else "") if s)
+    return f" Recorded {said}."
+
+
 def page(result: dict, cell: Cell, rec, surface_b64: str | None, convergence_b64: str | None,
          run_dir: Path | None = None, source: tuple[Path, Path] | None = None) -> str:
     """The page from its pieces: a run folder's (``run_dir``) or a replayed recording's
@@ -183,6 +195,7 @@ def page(result: dict, cell: Cell, rec, surface_b64: str | None, convergence_b64
         resume = None
     conv_note = ("no convergence history in a recording: the page of the run folder has it"
                  if source else "Posterior std against touches (um, log scale); dashed: the bound.")
+    origin += _made(rec.meta)
     body = [
         f"<h1>{escape(title)}</h1>",
         f"<p class='note'>{origin} Lengths in mm (um where marked), angles in deg, heights in the "

@@ -16,6 +16,7 @@ from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.npz import read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
+from adaptive_cal.formats.writing import provenance
 from adaptive_cal.formats.numbers import count
 from adaptive_cal.planning.gate import flagged_p
 from adaptive_cal.gaussian import belief as bl
@@ -156,6 +157,8 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     history, true_rms_mm, jump = closing_point(state, status, history, true_rms_mm)
     write_figures(cell, plan, state, out, history, true_rms_mm, refits,
                   incomplete=missing(result), features=features, jump=jump)
+    made = provenance()  # which code wrote these figures, and when
+    result = {**result, "software": made["software"], "written_utc": made["utc"]}
     write_json(out / "result.json", result)  # atomic; NaN / inf as null
     return finite_json(result)
 

@@ -21,7 +21,7 @@ from adaptive_cal.cell.build import survey_plan, touch_floor
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import read_recording, say
-from adaptive_cal.formats.writing import RecordingWriter, repair_cut_row_said
+from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
 from adaptive_cal.hardware.base import AdapterError
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
@@ -183,8 +183,11 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             raise NoAdmissiblePoint(no_admissible_point(cell, plan))
     start_touch = state.touches
     seq_offset = next_seq - start_touch  # new rows continue from the last seq + 1
+    made = provenance()  # written only where the recording starts (a resume appends rows)
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
                                                "probe_zero_mm": str(cell.probe.zero_mm),
+                                               "software": made["software"],
+                                               "started_utc": made["utc"],
                                                "flags": FLAGS_META}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
