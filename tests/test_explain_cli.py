@@ -22,6 +22,9 @@ def test_cli_on_the_reference_rounds(tmp_path, cheng_round0, cheng_round1, capsy
     rep = json.loads((tmp_path / "r.json").read_text())
     assert KEYS <= set(rep)
     assert rep["verdict"] == "form"
+    from adaptive_cal import __version__
+
+    assert rep["software"] == f"adaptive-cal {__version__}" and rep["written_utc"].endswith("Z")
     e = rep["left_out"][0]
     assert {"effect", "params", "params_std", "log_bayes_factor", "summary"} <= set(e)
     for x in rep["not_identifiable"]:

@@ -109,7 +109,12 @@ def command(args) -> int:
         stale = _remove_stale(Path(args.out), result.findings, args.robot)
     if args.json:  # written before the terminal's lines: a reader that leaves (`| head`) loses none
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result.findings, indent=1), encoding="utf-8")
+        from adaptive_cal.formats.writing import provenance
+
+        made = provenance()  # which code made these findings, and when
+        Path(args.json).write_text(json.dumps({**result.findings, "software": made["software"],
+                                               "written_utc": made["utc"]}, indent=1),
+                                   encoding="utf-8")
     _print(result.findings)
     written = ([result.findings["model"]] if args.out and result.findings.get("model") else []) \
         + list(result.findings.get("figures") or []) + ([args.json] if args.json else [])
