@@ -456,3 +456,65 @@ def test_compensate_step_without_grid_is_refused(tmp_path, capsys):
     assert main(["compensate", str(prog), "--map", str(tmp_path), "--out", str(tmp_path / "o"),
                  "--step-mm", "7"]) == 2
     assert "--step-mm sets the --grid file's spacing" in capsys.readouterr().err
+
+
+def test_a_ctrl_c_python_wrapped_in_another_error_is_an_interruption(tmp_path, capsys,
+                                                                    monkeypatch):
+    """A Ctrl-C while matplotlib was imported (0.5 s into `report`) came out as "internal error:
+    RuntimeError: Error calling __set_name__ ... please report it": Python wraps a
+    KeyboardInterrupt raised in a class body's __set_name__. It is an interruption (exit 130);
+    a bug with no Ctrl-C behind it is still an internal error."""
+    from adaptive_cal.cli import main
+    from adaptive_cal.cli import report
+
+    def wrapped(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise RuntimeError("Error calling __set_name__ on '_axis_method_wrapper'") from e
+
+    monkeypatch.setattr(report, "command", wrapped)
+    assert main(["report", str(tmp_path)]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "adaptive-cal report: interrupted" and "internal error" not in err
+
+    def bug(args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(report, "command", bug)
+    assert main(["report", str(tmp_path)]) == 1
+    assert "internal error: RuntimeError: a bug" in capsys.readouterr().err
+
+
+def test_a_ctrl_c_lost_in_a_gc_callback_still_stops_the_command(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C that landed in XLA's garbage-collector callback was printed as "Exception
+    ignored ... KeyboardInterrupt" and lost: `report` went on and wrote its page, exit 0. It is
+    delivered again to the main thread and stops the command (exit 130)."""
+    import gc
+    import signal
+    import time
+
+    from adaptive_cal.cli import main
+    from adaptive_cal.cli import report
+
+    def swallowed(args):
+        def callback(phase, info):
+            raise KeyboardInterrupt  # as a Ctrl-C landing here is: Python cannot raise it
+        gc.callbacks.append(callback)
+        try:
+            gc.collect()
+        finally:
+            gc.callbacks.remove(callback)
+        for _ in range(200):  # the rest of the command
+            time.sleep(0.005)
+        return 0
+
+    monkeypatch.setattr(report, "command", swallowed)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # xdist's workers ignore it
+    try:
+        assert main(["report", str(tmp_path)]) == 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    err = capsys.readouterr().err
+    # stopped while it ran (or, were the delivery lost too, at its end): exit 130 either way
+    assert "adaptive-cal report: interrupted" in err and "Exception ignored" not in err

@@ -97,8 +97,10 @@ def main(argv: list[str] | None = None) -> int:
     from adaptive_cal.cell.schema import ConfigError
     from adaptive_cal.formats.recording import RecordingError
 
+    kept = _KeptCtrlC()
     try:
-        return int(importlib.import_module(args._module).command(args) or 0)
+        with kept:
+            return int(importlib.import_module(args._module).command(args) or 0)
     except (UserError, ConfigError, RecordingError, AdapterError, FileNotFoundError,
             FileExistsError, PermissionError, NotADirectoryError, IsADirectoryError,
             ValueError) as e:
@@ -108,14 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"adaptive-cal {args.subcommand}: error: {_said(e)}{notes}", file=sys.stderr)
         return 130 if getattr(e, "interrupted", False) else 2
     except KeyboardInterrupt:
-        out = getattr(args, "out", None) or getattr(args, "resume", None)
-        from adaptive_cal.report.status import quoted
-
-        kept = (f"; the touches taken are kept in {out}/recording.csv: adaptive-cal run --resume "
-                f"{quoted(out)} continues it" if args.subcommand == "run" and out
-                and os.path.isfile(os.path.join(out, "recording.csv")) else "")
-        print(f"adaptive-cal {args.subcommand}: interrupted{kept}", file=sys.stderr)
-        return 130
+        return _interrupted(args)
     except BrokenPipeError:  # the reader of stdout left (`| head`): not an error of ours
         try:  # nothing more reaches the closed pipe, not even Python's flush at exit
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -128,11 +123,77 @@ def main(argv: list[str] | None = None) -> int:
         print(f"adaptive-cal {args.subcommand}: error: {_said(e)}", file=sys.stderr)
         return 2
     except Exception as e:  # a bug, not bad input: still no traceback unless --debug
+        if _by_ctrl_c(e):  # a Ctrl-C that landed inside an import or a descriptor's set-up
+            return _interrupted(args)
         if args.debug:
             raise
         print(f"adaptive-cal {args.subcommand}: internal error: {type(e).__name__}: {e} "
               "(run again with --debug for the traceback, and please report it)", file=sys.stderr)
         return 1
+
+
+class _KeptCtrlC:
+    """While a command runs, ``sys.unraisablehook``: a Ctrl-C that lands in a garbage-collector
+    callback (XLA's) cannot be raised there -- Python printed "Exception ignored ...
+    KeyboardInterrupt" and went on, and `report` wrote its page with exit status 0 as if no one
+    had pressed it. Such a Ctrl-C is delivered again to the main thread once it has left the
+    callback (a timer thread's ``interrupt_main``), where it stops the command as any Ctrl-C
+    does; a command that ends normally after one was lost ends as interrupted. Other
+    unraisable errors go to the hook that was there."""
+
+    TRIES = 5  # deliveries again, should one land in a callback too
+
+    def __enter__(self):
+        self.previous, sys.unraisablehook = sys.unraisablehook, self
+        self.lost, self.timer, self.tries = 0, None, 0
+        return self
+
+    def __exit__(self, kind, value, tb) -> None:
+        sys.unraisablehook = self.previous
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer.join()
+        if self.lost and kind is None:
+            raise KeyboardInterrupt  # the command ran on past a Ctrl-C: it was interrupted
+
+    def __call__(self, unraisable) -> None:
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            self.previous(unraisable)
+            return
+        self.lost += 1
+        if self.tries < self.TRIES and (self.timer is None or not self.timer.is_alive()):
+            import _thread  # raised here it would be lost again: from outside, a moment on
+            import threading
+
+            self.tries += 1
+            self.timer = threading.Timer(0.05, _thread.interrupt_main)
+            self.timer.daemon = True
+            self.timer.start()
+
+
+def _interrupted(args) -> int:
+    """Ctrl-C: say so (for run, where the touches are kept and how to go on); exit 130."""
+    out = getattr(args, "out", None) or getattr(args, "resume", None)
+    from adaptive_cal.report.status import quoted
+
+    kept = (f"; the touches taken are kept in {out}/recording.csv: adaptive-cal run --resume "
+            f"{quoted(out)} continues it" if args.subcommand == "run" and out
+            and os.path.isfile(os.path.join(out, "recording.csv")) else "")
+    print(f"adaptive-cal {args.subcommand}: interrupted{kept}", file=sys.stderr)
+    return 130
+
+
+def _by_ctrl_c(e: BaseException) -> bool:
+    """Whether ``e`` was raised while a KeyboardInterrupt was handled, or from one: Python wraps
+    a Ctrl-C that lands in a class body's __set_name__ (matplotlib's import) in a RuntimeError,
+    which is no bug of ours to report."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 def _said(e: BaseException) -> str:

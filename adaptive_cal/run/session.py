@@ -186,9 +186,9 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     made = provenance()  # written only where the recording starts (a resume appends rows)
     writer = RecordingWriter(paths.recording, {"cell": cell.name, "adapter": cell.robot.adapter,
                                                "probe_zero_mm": str(cell.probe.zero_mm),
+                                               "flags": FLAGS_META,
                                                "software": made["software"],
-                                               "started_utc": made["utc"],
-                                               "flags": FLAGS_META}, ("round",))
+                                               "started_utc": made["utc"]}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
         opened.cycle.seed_repeats(rec.reading_mm)
