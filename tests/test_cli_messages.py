@@ -518,3 +518,17 @@ def test_a_ctrl_c_lost_in_a_gc_callback_still_stops_the_command(tmp_path, capsys
     err = capsys.readouterr().err
     # stopped while it ran (or, were the delivery lost too, at its end): exit 130 either way
     assert "adaptive-cal report: interrupted" in err and "Exception ignored" not in err
+
+
+def test_a_ctrl_c_before_the_command_starts_is_an_interruption_not_a_traceback(monkeypatch,
+                                                                               capsys):
+    """A Ctrl-C in the first quarter second (the parser, the imports before the command) ended
+    in a traceback of the import it interrupted."""
+    import adaptive_cal.cli as cli
+
+    def slow_imports(only=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", slow_imports)
+    assert cli.main(["flatness", "x.csv"]) == 130
+    assert capsys.readouterr().err.strip() == "adaptive-cal: interrupted"

@@ -71,6 +71,19 @@ def _chosen(argv: list[str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # before the command started (the parser, the imports)
+        print("adaptive-cal: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if _by_ctrl_c(e):  # the same, wrapped by Python in a class body's __set_name__
+            print("adaptive-cal: interrupted", file=sys.stderr)
+            return 130
+        raise
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if "--debug" in argv[1:]:  # `adaptive-cal run ... --debug` as well as `adaptive-cal --debug run`
         argv = ["--debug"] + [a for a in argv if a != "--debug"]
