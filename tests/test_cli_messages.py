@@ -532,3 +532,29 @@ def test_a_ctrl_c_before_the_command_starts_is_an_interruption_not_a_traceback(m
     monkeypatch.setattr(cli, "build_parser", slow_imports)
     assert cli.main(["flatness", "x.csv"]) == 130
     assert capsys.readouterr().err.strip() == "adaptive-cal: interrupted"
+
+
+def test_a_ctrl_c_during_the_jax_import_arrives_after_it(tmp_path, monkeypatch):
+    """A Ctrl-C inside jaxlib's native import aborted the process (status -6, a C++ terminate):
+    the commands that load JAX import it with SIGINT held back, so it arrives once the import is
+    done, as a KeyboardInterrupt the command line turns into 'interrupted'."""
+    import signal
+    import sys
+    import threading
+
+    from adaptive_cal.cli import _import_ctrl_c_held
+
+    (tmp_path / "slow_native.py").write_text(
+        "import signal, threading\n"
+        "signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)  # a Ctrl-C, mid-import\n"
+        "done = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # xdist's workers ignore it
+    try:
+        assert threading.current_thread() is threading.main_thread()
+        with pytest.raises(KeyboardInterrupt):
+            _import_ctrl_c_held("slow_native")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        module = sys.modules.pop("slow_native", None)
+    assert module is not None and module.done  # the import ran to its end first

@@ -110,6 +110,8 @@ def _main(argv: list[str] | None) -> int:
     from adaptive_cal.cell.schema import ConfigError
     from adaptive_cal.formats.recording import RecordingError
 
+    if args.subcommand in JAX_COMMANDS and "jax" not in sys.modules:
+        _import_ctrl_c_held("jax")
     kept = _KeptCtrlC()
     try:
         with kept:
@@ -143,6 +145,28 @@ def _main(argv: list[str] | None) -> int:
         print(f"adaptive-cal {args.subcommand}: internal error: {type(e).__name__}: {e} "
               "(run again with --debug for the traceback, and please report it)", file=sys.stderr)
         return 1
+
+
+#: the commands that load JAX (explain and emulate do not: they start faster without it)
+JAX_COMMANDS = ("run", "flatness", "report", "study", "compensate")
+
+
+def _import_ctrl_c_held(name: str) -> None:
+    """Import ``name`` with SIGINT held back by the OS: a Ctrl-C inside jaxlib's native import
+    aborted the process ("terminate called after throwing an instance of
+    'nanobind::python_error'", status -6). Held, it arrives once the import is done, as an
+    ordinary KeyboardInterrupt (at most the import's second later)."""
+    import signal
+
+    try:
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    except (AttributeError, OSError, ValueError):  # no POSIX signal masks here
+        importlib.import_module(name)
+        return
+    try:
+        importlib.import_module(name)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 class _KeptCtrlC:
