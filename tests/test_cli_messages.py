@@ -558,3 +558,25 @@ def test_a_ctrl_c_during_the_jax_import_arrives_after_it(tmp_path, monkeypatch):
         signal.signal(signal.SIGINT, previous)
         module = sys.modules.pop("slow_native", None)
     assert module is not None and module.done  # the import ran to its end first
+
+
+def test_an_interrupted_command_line_ends_without_the_teardown(monkeypatch, capsys):
+    """XLA's threads, stopped mid-work by a Ctrl-C, crashed the interpreter's teardown after a
+    run said 'interrupted' (status -11, 2 of 40 Ctrl-Cs on a loaded machine): the process's own
+    command line leaves at once with 130, its output flushed; a caller's main([...]) returns."""
+    import sys
+
+    import adaptive_cal.cli as cli
+    from adaptive_cal.cli import report
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    left = []
+    monkeypatch.setattr(report, "command", interrupted)
+    monkeypatch.setattr(cli.os, "_exit", lambda code: left.append(code))
+    assert cli.main(["report", "x"]) == 130 and left == []  # called with a list: returns
+    monkeypatch.setattr(sys, "argv", ["adaptive-cal", "report", "x"])
+    cli.main()
+    assert left == [130]
+    assert capsys.readouterr().err.count("adaptive-cal report: interrupted") == 2
