@@ -6,6 +6,12 @@ imports every command module, so those import only the standard library at their
 heavy engine loads inside ``command(args)``, and ``--help`` stays fast (tests/test_cli_help.py,
 benchmarks/bench_cli_help.py). ``main`` is the one place that sets process-wide switches (BLAS
 threads, JAX x64), and only once a command runs.
+
+Ctrl-C ends every command with "interrupted" and status 130 wherever it lands: before the command
+starts, inside jaxlib's native import (held back until it is done), in a garbage-collector
+callback (delivered again), wrapped by Python in another error; an interrupted command line
+then leaves without the interpreter's teardown (``_leave_now``). ``run`` finishes its touch
+first and ``emulate`` ends on it with 0, as they say.
 """
 from __future__ import annotations
 
