@@ -230,6 +230,11 @@ def test_engraving_follows_the_true_plate_within_tolerance_where_the_map_is_conf
     assert "points added by splitting" in capsys.readouterr().out
     # the header in the file's unit (mm) with the terminal's (um) beside it
     assert "tolerance 0.01 mm = 10 um)" in out.read_text().splitlines()[0]
+    from adaptive_cal import __version__
+
+    # which version bent the path, and when (a machined part traced to the code)
+    assert re.match(rf"\(adaptive-cal {re.escape(__version__)} compensate, "
+                    r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ: map ", out.read_text())
     hmap = load_map(run_dir)
     a, b, c = hmap.plane_abc if frame == "corrected" else (0, 0, 0)
     true = lambda x, y: truth(x, y) - (a * x + b * y + c)

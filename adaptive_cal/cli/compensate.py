@@ -194,9 +194,13 @@ def _program(hmap, args) -> int:
                 "extrapolated")
         marks = {item: "adaptive-cal: " + "; ".join(n) for item, n in notes.items()}
     where = str(args.map).replace("(", "[").replace(")", "]")
+    from adaptive_cal.formats.writing import provenance
+
+    made = provenance()  # which code bent the path, and when: a machined part can be traced
     text = write_toolpath(path, result.pieces, marks, header_comment=(
-        f"adaptive-cal compensate: map {where}, frame {args.frame}, tolerance {T:g} mm "
-        f"= {T * 1e3:.4g} um"))  # the file's unit and the terminal's; no nested parentheses
+        f"{made['software']} compensate, {made['utc']}: map {where}, frame {args.frame}, "
+        f"tolerance {T:g} mm = {T * 1e3:.4g} um"))  # the file's unit and the terminal's; no
+    # nested parentheses
     Path(args.out).write_text(text, encoding="utf-8", newline="")
     print(f"{name}: {result.cuts} cutting moves, {result.rapids} rapids; frame {args.frame}, "
           f"tolerance {T * 1e3:.4g} um")
