@@ -87,13 +87,12 @@ def _guarded(argv: list[str] | None) -> int:
     try:
         return _main(argv)
     except KeyboardInterrupt:  # before the command started (the parser, the imports)
-        print("adaptive-cal: interrupted", file=sys.stderr)
-        return 130
+        pass
     except Exception as e:
-        if _by_ctrl_c(e):  # the same, wrapped by Python in a class body's __set_name__
-            print("adaptive-cal: interrupted", file=sys.stderr)
-            return 130
-        raise
+        if not _by_ctrl_c(e):  # else the same, wrapped by Python in a class body's __set_name__
+            raise
+    print("adaptive-cal: interrupted", file=sys.stderr)
+    return 130
 
 
 def _leave_now(code: int) -> None:

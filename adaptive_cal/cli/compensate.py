@@ -199,7 +199,7 @@ def _program(hmap, args) -> int:
     made = provenance()  # which code bent the path, and when: a machined part can be traced
     # the tolerance in the file's unit and the terminal's; no nested parentheses
     text = write_toolpath(path, result.pieces, marks, header_comment=(
-        f"{made['software']} compensate, {made['utc']}: map {where}, frame {args.frame}, "
+        f"{made['software']} compensate, {made['written_utc']}: map {where}, frame {args.frame}, "
         f"tolerance {T:g} mm = {T * 1e3:.4g} um"))
     Path(args.out).write_text(text, encoding="utf-8", newline="")
     print(f"{name}: {result.cuts} cutting moves, {result.rapids} rapids; frame {args.frame}, "

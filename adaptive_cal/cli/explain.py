@@ -111,10 +111,8 @@ def command(args) -> int:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         from adaptive_cal.formats.writing import provenance
 
-        made = provenance()  # which code made these findings, and when
-        Path(args.json).write_text(json.dumps({**result.findings, "software": made["software"],
-                                               "written_utc": made["utc"]}, indent=1),
-                                   encoding="utf-8")
+        Path(args.json).write_text(json.dumps({**result.findings, **provenance()}, indent=1),
+                                   encoding="utf-8")  # and which code made them, and when
     _print(result.findings)
     written = ([result.findings["model"]] if args.out and result.findings.get("model") else []) \
         + list(result.findings.get("figures") or []) + ([args.json] if args.json else [])

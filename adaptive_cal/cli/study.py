@@ -238,8 +238,7 @@ def command(args) -> int:
     from adaptive_cal.formats.writing import provenance
     from adaptive_cal.run.folder import write_json
 
-    made = provenance()  # which code made these figures, and when
-    summary.update(software=made["software"], written_utc=made["utc"])
+    summary.update(provenance())  # which code made these figures, and when
 
     write_json(out_json, summary)  # atomic; an infinite figure (no bound in the budget) as null
     if out_dir:

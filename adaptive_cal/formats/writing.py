@@ -22,15 +22,17 @@ _WRITTEN_DECIMALS = {"t_s": 3, "x_mm": 4, "y_mm": 4, "z_mm": 4, "reading_mm": 6}
 
 
 def provenance() -> dict[str, str]:
-    """Which software wrote a file and when: {"software": "adaptive-cal VERSION", "utc":
-    ISO 8601 to the second}. A recording's metadata and result.json carry it, so a measurement
-    can be traced to the code that made it (a figure changes with the version)."""
+    """Which software wrote a file and when: {"software": "adaptive-cal VERSION",
+    "written_utc": ISO 8601 to the second}, the keys result.json and the other JSON outputs
+    carry (a recording's metadata says ``started_utc``), so a measurement can be traced to the
+    code that made it (a figure changes with the version)."""
     import datetime
 
     from adaptive_cal import __version__
 
     now = datetime.datetime.now(datetime.timezone.utc)
-    return {"software": f"adaptive-cal {__version__}", "utc": now.strftime("%Y-%m-%dT%H:%M:%SZ")}
+    return {"software": f"adaptive-cal {__version__}",
+            "written_utc": now.strftime("%Y-%m-%dT%H:%M:%SZ")}
 
 
 def cut_file(path: str | os.PathLike) -> Path:

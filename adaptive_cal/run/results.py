@@ -157,8 +157,7 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     history, true_rms_mm, jump = closing_point(state, status, history, true_rms_mm)
     write_figures(cell, plan, state, out, history, true_rms_mm, refits,
                   incomplete=missing(result), features=features, jump=jump)
-    made = provenance()  # which code wrote these figures, and when
-    result = {**result, "software": made["software"], "written_utc": made["utc"]}
+    result = {**result, **provenance()}  # which code wrote these figures, and when
     write_json(out / "result.json", result)  # atomic; NaN / inf as null
     return finite_json(result)
 

@@ -188,7 +188,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                                                "probe_zero_mm": str(cell.probe.zero_mm),
                                                "flags": FLAGS_META,
                                                "software": made["software"],
-                                               "started_utc": made["utc"]}, ("round",))
+                                               "started_utc": made["written_utc"]}, ("round",))
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
         opened.cycle.seed_repeats(rec.reading_mm)
