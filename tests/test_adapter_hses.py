@@ -351,3 +351,63 @@ def test_a_move_sent_while_an_earlier_one_still_runs_waits_for_it(controller):
     assert controller.robot.pose() == pytest.approx((0.0, 0.0, 15.0))
     m.close()
     other.close()
+
+
+# -- where the probe stands before the first move, and servo power coming up --------------
+class _Gauge:
+    def read(self):
+        from adaptive_cal.hardware.base import Sample
+        return Sample(5.0, 0.0)
+
+    def close(self):
+        pass
+
+
+def test_without_check_position_the_first_touch_lifts_from_where_the_robot_stands(controller):
+    """An outside audit (2026-11-29): with check_position false position() answered NaN, so a
+    run's first touch (every start, every --resume) went sideways at the safe height with no
+    lift first while the tip could still be down. The position is read whenever it can be
+    converted, with or without the check."""
+    from adaptive_cal.hardware.base import ProbeCycle
+    m = connect(controller)
+    m.move_to(100.0, 50.0, 2.0)  # a run stopped with the tip down
+    m.close()
+    m = connect(controller, check_position=False)
+    assert m.position() == pytest.approx((100.0, 50.0, 2.0), abs=1e-3)
+    sent = []
+    move = m.move_to
+    m.move_to = lambda *p: (sent.append(p), move(*p))
+    ProbeCycle(m, _Gauge(), lambda x, y, z: True, safe_height_mm=15.0,
+               usable_mm=(0.5, 9.5)).touch(-100.0, -50.0, 2.0)
+    assert sent[0] == pytest.approx((100.0, 50.0, 15.0), abs=1e-3)  # straight up first
+    assert sent[1] == (-100.0, -50.0, 15.0)
+    m.close()
+
+
+def test_a_position_that_cannot_be_converted_needs_the_robot_parked():
+    from adaptive_cal.hardware.hses.config import HsesConfig
+    with pytest.raises(ValueError, match="parked_at_safe_height: true"):
+        HsesConfig(host="127.0.0.1", port=10040, check_position=False)
+    assert not HsesConfig(host="127.0.0.1", port=10040, check_position=False,
+                          parked_at_safe_height=True).can_locate
+    assert HsesConfig(host="127.0.0.1", port=10040, check_position=False, frame="base").can_locate
+
+
+def test_a_move_waits_for_servo_power_to_come_up(controller):
+    """An outside audit: the servo bit came on 0.8 s after 0x83, the first move was refused
+    with 0x2070 'servo is off: switch servo power on' -- which the adapter had just done."""
+    controller.faults.servo_delay_s = 0.3
+    t0 = time.monotonic()
+    m = connect(controller)
+    assert time.monotonic() - t0 >= 0.25
+    m.move_to(10.0, 20.0, 5.0)
+    assert controller.robot.pose() == pytest.approx((10.0, 20.0, 5.0))
+    m.close()
+
+
+def test_servo_power_that_never_comes_up_stops_with_what_to_check(controller):
+    controller.faults.servo_never = True
+    with pytest.raises(AdapterError, match="servo power did not come on within .*0.2 s.*"
+                                           "emergency stops"):
+        connect(controller, servo_timeout_s=0.2)
+    assert not [r for r in controller.requests if r.command == P.CMD_MOVE]

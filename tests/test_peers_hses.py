@@ -137,7 +137,7 @@ def test_other_data_types_are_refused():
 def test_config_needs_a_finite_user_frame_for_the_check(kw, words):
     with pytest.raises(ValueError, match=words):
         HsesConfig(host="127.0.0.1", port=10040, **kw)
-    HsesConfig(host="127.0.0.1", port=10040, check_position=False)
+    HsesConfig(host="127.0.0.1", port=10040, check_position=False, parked_at_safe_height=True)
     HsesConfig(host="127.0.0.1", port=10040, frame="base")
 
 

@@ -49,7 +49,7 @@ class HsesMotion:
             raise AdapterError(f"{self.where}: command remote is off; set the pendant to REMOTE "
                                "and enable command remote")
         self.form = cfg.form if cfg.form != "current" else self._current_form()
-        self.servo(True)
+        self.servo_on()
 
     # -- transport --------------------------------------------------------------------
     def request(self, command: int, instance: int, attribute: int, service: int,
@@ -105,6 +105,20 @@ class HsesMotion:
 
     def servo(self, on: bool) -> None:
         self.call(P.CMD_SERVO, P.SERVO_POWER, 1, P.SET_ONE, struct.pack("<I", 1 if on else 2))
+
+    def servo_on(self) -> None:
+        """Switch servo power on and wait until status data 2 shows it (a controller takes a
+        moment; a move before that is refused with 0x2070)."""
+        self.servo(True)
+        deadline = self.clock() + self.cfg.servo_timeout_s
+        while not self.status()[1] & P.SERVO:
+            if self.clock() > deadline:
+                raise AdapterError(
+                    f"{self.where}: servo power did not come on within robot.hses."
+                    f"servo_timeout_s = {self.cfg.servo_timeout_s:g} s of switching it on "
+                    "(0x83 instance 2 was accepted): check the emergency stops, the door and "
+                    "the safety fence, then continue with --resume; nothing moved")
+            self.sleep(self.cfg.poll_s)
 
     def alarm(self) -> tuple[int, str]:
         """The latest alarm (0x70, instance 1): (code, name); code 0 when none stands."""
@@ -173,7 +187,10 @@ class HsesMotion:
 
     # -- Motion -----------------------------------------------------------------------
     def position(self) -> tuple[float, float, float]:
-        if self.pose is not None or not self.cfg.check_position:
+        """Where the tip is (mm, workplane frame): the last target reached; before the first
+        move or after a stop, the position the controller reports, converted (with or without
+        check_position), NaN only where no conversion is known (parked_at_safe_height)."""
+        if self.pose is not None or not self.cfg.can_locate:
             return self.pose or (math.nan, math.nan, math.nan)
         ox, oy, oz = self.cfg.offset_mm
         x, y, z = self.from_base(self.robot_position())
@@ -253,7 +270,7 @@ class HsesMotion:
         if not d2 & P.SERVO:
             if not e.alarm:
                 raise self.stopped_by(d1, d2, "after an error was cancelled") or e
-            self.servo(True)
+            self.servo_on()
 
     def _travel_s(self, target, before) -> float | None:
         """Straight-line time from where the move starts to ``target`` at the commanded speed,
@@ -263,7 +280,7 @@ class HsesMotion:
             ox, oy, oz = c.offset_mm
             start = (before[0] + ox, before[1] + oy, before[2] + oz)
             d = math.dist(start, target)
-        elif c.frame == "base" or c.user_frame_in_base is not None:
+        elif c.can_locate:
             d = math.dist(self.robot_position(), self.to_base(target))
         else:
             return None
@@ -275,7 +292,7 @@ class HsesMotion:
         the straight-line travel time at the commanded speed (plus a margin) have passed."""
         c = self.cfg
         check = c.check_position or confirm
-        if check and c.frame == "user" and c.user_frame_in_base is None:
+        if check and not c.can_locate:
             raise AdapterError(
                 f"{self.where}: the answer to the move was lost and the robot was already moving "
                 "when it was re-sent; where it stopped cannot be checked without "

@@ -62,13 +62,24 @@ class HsesConfig(Strict):
     user_frame_in_base: UserFrameInBase | None = Field(
         None, description="the user frame's origin_mm and rotation_deg in the base frame, as the "
         "pendant shows them; needed by check_position with frame user, because the position "
-        "read (0x75) answers in the base frame only")
+        "read (0x75) answers in the base frame only; also where the robot stands before the "
+        "first move is read through it (without it: parked_at_safe_height)")
     check_position: bool = Field(True, description="compare the position the controller reports "
                                  "(base frame) with the target converted to the base frame; "
                                  "false: a move is done once the running bit came and went, or "
                                  "the straight-line travel time at speed_mm_per_s (+0.5 s) passed")
+    parked_at_safe_height: bool = Field(
+        False, description="with frame user, no user_frame_in_base and check_position false the "
+        "PC cannot turn the position the controller reports (base frame) into the workplane's, "
+        "so the first move of a run goes straight to the safe height from wherever the robot "
+        "stands: true states that every run starts with the robot parked at or above "
+        "robot.safe_height_mm, clear of the plate and fixtures; false (the default) refuses that "
+        "cell file at load")
     position_tolerance_mm: float = Field(0.1, gt=0)
     move_timeout_s: float = Field(60.0, gt=0)
+    servo_timeout_s: float = Field(5.0, gt=0, le=600, description="after switching servo power "
+                                   "on (at connect, after an alarm reset), wait this long for "
+                                   "status data 2 to show it before the run stops")
     poll_s: float = Field(0.02, gt=0)
     reset_alarms: bool = Field(False, description="once per move, reset a controller alarm "
                                "(0x82 instance 1) or cancel an error (instance 2) and retry; a "
@@ -86,4 +97,18 @@ class HsesConfig(Strict):
                              "(origin_mm, rotation_deg of user frame "
                              f"{self.user_frame} from the pendant): the controller reports "
                              "positions in the base frame only; or set check_position: false")
+        if not self.can_locate and not self.parked_at_safe_height:
+            raise ValueError("the robot's position cannot be turned into the workplane's (frame "
+                             "user without user_frame_in_base), so the first move of a run would "
+                             "go straight to the safe height from wherever the robot stands, "
+                             "perhaps with the probe down; give user_frame_in_base (origin_mm, "
+                             f"rotation_deg of user frame {self.user_frame} from the pendant), "
+                             "or park the robot at or above robot.safe_height_mm before every "
+                             "run and state parked_at_safe_height: true")
         return self
+
+    @property
+    def can_locate(self) -> bool:
+        """Whether the position the controller reports (base frame) can be turned into the
+        frame of the moves: frame base, or the user frame's place in the base frame given."""
+        return self.frame == "base" or self.user_frame_in_base is not None

@@ -16,6 +16,7 @@ import logging
 import socket
 import struct
 import threading
+import time
 from dataclasses import dataclass
 
 from adaptive_cal.hardware.hses import protocol as P
@@ -37,6 +38,8 @@ class HsesFaults:
     hold_bits: int = 0         # status data 2 hold bits set from outside: 0x02 pendant, 0x04 external
     remote: bool = True        # command remote on
     report_error_mm: float = 0.0  # reported x differs (another frame, or stopped short)
+    servo_delay_s: float = 0.0  # servo power shows (and moves are taken) this long after 0x83
+    servo_never: bool = False   # servo power never comes on (an e-stop the PC cannot see)
 
 
 class HsesServer:
@@ -49,6 +52,7 @@ class HsesServer:
         self.user_frame, self.plate_frame = (tuple(user_frame[0]), tuple(user_frame[1])), plate_frame
         self.faults = HsesFaults()
         self.servo = self.hold = self.hlock = self.error = False
+        self._servo_at = 0.0  # monotonic time from which a switched-on servo power shows
         self.tool = 0  # the tool of the last move: the position answer is of it
         self.form = 0  # the arm's configuration bits the position answer gives (word 1)
         self.requests: list[P.Request] = []
@@ -122,6 +126,11 @@ class HsesServer:
         p = tuple(v + o for v, o in zip(workplane_xyz, self.offset))
         return user_to_base(p, *self.user_frame) if self.plate_frame == "user" else p
 
+    def servo_shows(self) -> bool:
+        """Servo power is on and has come up (``faults.servo_delay_s`` after it was switched)."""
+        return (self.servo and not self.faults.servo_never
+                and time.monotonic() >= self._servo_at)
+
     def to_workplane(self, base_xyz) -> tuple:
         p = base_to_user(base_xyz, *self.user_frame) if self.plate_frame == "user" else base_xyz
         return tuple(v - o for v, o in zip(p, self.offset))
@@ -136,6 +145,7 @@ class HsesServer:
             if on and (self.robot.alarm or self.error):
                 return self._error(req, 0x2060)
             self.servo = on
+            self._servo_at = time.monotonic() + (self.faults.servo_delay_s if on else 0.0)
         elif req.instance == P.HOLD:
             self.hold = on
             if on:
@@ -161,7 +171,7 @@ class HsesServer:
         if req.command == P.CMD_STATUS:
             d1 = P.PLAY | (P.REMOTE if self.faults.remote else 0)
             d1 |= P.RUNNING if r.moving() else 0
-            d2 = (P.SERVO if self.servo else 0) | (P.ALARM if r.alarm else 0)
+            d2 = (P.SERVO if self.servo_shows() else 0) | (P.ALARM if r.alarm else 0)
             d2 |= (P.ERROR if self.error else 0) | (self.faults.hold_bits & 0x06)
             d2 |= 0x08 if self.hold else 0  # hold by command
             return ok(struct.pack("<II", d1, d2))
@@ -194,7 +204,7 @@ class HsesServer:
                 return self._error(req, 0x2040)  # external hold
             if self.hold:
                 return self._error(req, 0x2050)  # command hold (0x83 instance 1)
-            if not self.servo:
+            if not self.servo_shows():
                 return self._error(req, 0x2070)
             if r.moving():
                 return self._error(req, 0x2010)
