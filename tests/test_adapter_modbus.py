@@ -163,6 +163,7 @@ def test_emulated_plc_acts_on_a_rising_start_not_on_a_start_held_set(plc):
     assert server.robot.moves == 1 and not server.bit("done")
     server.faults.fault_on_move = 1  # a held start across a fault and its reset: no move either
     raw.write_coil(start, False, device_id=1)
+    time.sleep(0.03)  # a scan (5 ms) sees it off: the next on is an edge
     raw.write_coil(start, True, device_id=1)
     time.sleep(0.05)
     assert server.bit("fault") and server.robot.moves == 1

@@ -137,3 +137,57 @@ def test_adapter_runs_a_survey_handshake_against_a_modbus_tk_plc():
     finally:
         link.close()
         plc.close()
+
+
+class EdgeTkPlc(TkPlc):
+    """A modbus-tk PLC that scans every ``scan_s`` and acts on edges as an LDP contact does:
+    start and probe_trigger count when this scan sees them on and the scan before saw them off
+    (its Modbus requests are served between scans, by modbus-tk's own thread). ``miss`` triggers
+    are left set unanswered (a PLC that missed them)."""
+
+    def __init__(self, scan_s, miss=0, **kw):
+        self.scan_s, self.miss = scan_s, miss
+        super().__init__(**kw)
+
+    def scan(self):
+        s, target, was = self.slave, None, (0, 0)
+        while not self.stop.wait(self.scan_s):
+            start, done, fault, trig = s.get_values("m", 0x0800 + 10, 4)
+            if start and not was[0] and not done:
+                target = (self.mm(100), self.mm(102), self.mm(104))
+                self.moves.append(target)
+                s.set_values("m", 0x0800 + 11, [1])
+            if trig and not was[1] and target:
+                if self.miss:
+                    self.miss -= 1
+                else:
+                    a, b, c = self.plane
+                    v = round((a * target[0] + b * target[1] + c) * self.scale)
+                    s.set_values("m", 0x0800 + 13, [0])
+                    count = s.get_values("d", 0x1000 + 112, 1)[0]
+                    s.set_values("d", 0x1000 + 110, struct.unpack("<HH", struct.pack("<i", v)))
+                    s.set_values("d", 0x1000 + 112, [(count + 1) & 0xFFFF])
+            was = (start, trig)
+
+
+@pytest.mark.parametrize("scan_s", [0.002, 0.02])
+def test_samples_reach_an_edge_detecting_plc_that_scans_slower_than_the_pc_writes(scan_s):
+    """An outside audit (2026-11-29): the trigger's off and on went back to back (about 1 ms
+    apart), so a PLC scanning every 10 ms or slower never saw an edge again once a trigger had
+    been left set, and every later sample was stale. The PC now holds the trigger off for
+    scan_s (here 0.04 s, longer than the PLC's scan) before it sets it."""
+    plc = EdgeTkPlc(scan_s, miss=1)
+    link = ModbusLink(config(port=plc.port, scan_s=0.04, probe_timeout_s=0.5))
+    try:
+        motion, probe = ModbusMotion(link), ModbusProbe(link)
+        motion.move_to(100.0, -50.0, 0.0)
+        with pytest.raises(Exception, match="stale"):
+            probe.read()  # the missed one: the trigger stays set
+        want = plc.plane[0] * 100 - plc.plane[1] * 50 + plc.plane[2]
+        for _ in range(4):  # samples back to back, as a touch takes them
+            assert probe.read().reading_mm == pytest.approx(want, abs=1e-4)
+        motion.move_to(100.0, -50.0, 15.0)
+        assert len(plc.moves) == 2
+    finally:
+        link.close()
+        plc.close()

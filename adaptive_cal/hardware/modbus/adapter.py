@@ -8,9 +8,10 @@ checks that it stays off (a PLC that copies the robot's done output into it is r
 ``start``), sets ``start``; the PLC (on the rising edge) has the robot move and sets ``done``;
 the PC clears ``start``, also when the wait ends any other way (fault, timeout, lost link: else
 a level-triggered PLC or job moves the robot when the fault is cleared). ``fault`` set by the
-PLC stops the run. A probe sample: PC writes ``probe_trigger`` off then on (a rising edge); the
-PLC stores the value and increments ``probe_count``; a counter that does not move means a stale
-value, which is rejected. A background thread increments ``watchdog`` every watchdog_s / 4 so
+PLC stops the run. A probe sample: PC sets ``probe_trigger`` (a rising edge; one found still
+set is written off and held off for ``scan_s`` first, so that a scan sees it off); the PLC
+stores the value, increments ``probe_count`` and clears the trigger; a counter that does not
+move means a stale value, which is rejected. A background thread increments ``watchdog`` every watchdog_s / 4 so
 the PLC can stop the cell when the PC or the link dies.
 """
 from __future__ import annotations
@@ -168,19 +169,31 @@ class ModbusProbe:
 
     def __init__(self, link: ModbusLink):
         self.link = link
+        self.off_since: float | None = None  # since when the trigger is known to be off
 
     def read(self) -> Sample:
         k = self.link
         k.check_fault()
         before = k.read_words("probe_count", 1)[0]
-        k.write_bit("probe_trigger", False)  # a rising edge, even where a trigger was left set
+        # a rising edge is what one scan sees against the one before: the trigger must have been
+        # off for a whole scan when it is set -- written off where it was left set (a PLC that
+        # missed it), and after the PLC cleared it (with the count), a scan must see it off
+        if k.read_bit("probe_trigger"):
+            k.write_bit("probe_trigger", False)
+            self.off_since = k.clock()
+        elif self.off_since is None:  # off, since when unknown: count from now
+            self.off_since = k.clock()
+        if (wait := self.off_since + k.cfg.scan_s - k.clock()) > 0:
+            k.sleep(wait)
         k.write_bit("probe_trigger", True)
+        self.off_since = None
         start = k.clock()
         while k.read_words("probe_count", 1)[0] == before:
             if k.clock() - start > k.cfg.probe_timeout_s:
                 raise BadSample(f"{k.where}: probe_count ({k.map['probe_count'].name}) did not "
                                 f"advance within {k.cfg.probe_timeout_s} s: the value is stale")
             k.sleep(k.cfg.poll_s)
+        self.off_since = k.clock()  # the PLC clears the trigger in the scan that counts
         value, words = k.read_mm("probe_value")
         raw = struct.pack(f">{len(words)}H", *words)
         if not math.isfinite(value):

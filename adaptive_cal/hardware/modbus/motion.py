@@ -34,7 +34,8 @@ class ModbusMotion:
         if not self.started:
             self._first_move_allowed((x_mm, y_mm, z_mm))
         self._write_target((x_mm, y_mm, z_mm))
-        k.write_bit("done", False)
+        k.write_bit("start", False)  # one left set (a clear that failed) would give no edge:
+        k.write_bit("done", False)   # it is off for the settle below, a scan or more
         self._done_stays_off()  # before start: a 'done' that is not ours would end the wait
         self.pose = (math.nan,) * 3  # unknown from the moment start is set until done
         self.started = True
@@ -92,9 +93,10 @@ class ModbusMotion:
                     "was not set and nothing moved. The PLC must latch done when the robot "
                     "finishes and leave clearing it to the PC (hw/plc-register-map.md, "
                     "handshake); it must not copy the robot's done output into it")
-            if k.clock() - t0 >= k.cfg.done_settle_s:
+            settle = max(k.cfg.done_settle_s, k.cfg.scan_s)  # start is off for a scan too
+            if k.clock() - t0 >= settle:
                 return
-            k.sleep(min(k.cfg.poll_s, k.cfg.done_settle_s))
+            k.sleep(min(k.cfg.poll_s, settle))
 
     def _drop_start(self, err: BaseException) -> None:
         """Clear ``start`` after a move that did not end in done; a level-triggered PLC or job

@@ -2,9 +2,10 @@
 with a scan loop (every ``scan_s``) that runs the handshake of ``hardware.modbus.adapter`` against an
 EmulatedRobot: rising start (done off) -> move -> done, rising probe_trigger ->
 probe_value/probe_count, watchdog -> fault; with actual_x/y/z in the map, the robot's reached
-position every scan. A start or trigger that stays set does nothing more; a flag the PC writes
-off and on between two scans still counts as an edge. Runs its asyncio loop in a background
-thread.
+position every scan. A start or trigger that stays set does nothing more. An edge is what a
+scan sees, as an LDP contact does: a flag the PC writes off and on again between two scans is
+no edge (before 2026-11-29 the emulator counted it one, which no PLC can, and so hid an adapter
+that held the off for one round trip only). Runs its asyncio loop in a background thread.
 32-bit values are combined with the cell file's own ``word_order`` (the PC's, through the same
 pymodbus conversion): the emulator always agrees with the PC, so it cannot reveal a word-order
 mismatch -- see the commissioning check in docs/adapters/modbus.md.
@@ -54,7 +55,7 @@ class PlcServer:
         self._thread = threading.Thread(target=self._run, daemon=True, name="plc-emulator")
         self._wd_value, self._wd_time = None, 0.0
         # start and probe_trigger act on a rising edge (hw/plc-register-map.md): a flag acts
-        # once it was seen off (by a scan, or written off by the PC) and then on
+        # once a scan saw it off and a later scan sees it on
         self._low_seen = {"start": False, "probe_trigger": False}
 
     # -- memory layout ---------------------------------------------------------------------
@@ -76,13 +77,6 @@ class PlcServer:
                          action=self._action)
 
     async def _action(self, fc, start, address, count, registers, values):
-        if values:  # a write: note the PC clearing an edge-triggered flag between two scans
-            for role in self._low_seen:
-                a = self.map[role]
-                if fc in ((6, 16) if a.word_flag else (5, 15)) and a.table in ("coil", "hr") \
-                        and address <= a.address < address + len(values) \
-                        and not values[a.address - address]:
-                    self._low_seen[role] = True
         if self.faults.close_connections > 0:
             self.faults.close_connections -= 1
             for conn in list(self.server.active_connections.values()):
