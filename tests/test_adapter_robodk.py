@@ -80,9 +80,16 @@ def test_unknown_item_names_the_item_and_sends_no_move(fake, key, name, said):
     assert "S_Link_ptr" not in fake.names() and not fake.moves()
 
 
-def test_an_empty_frame_name_is_refused_before_connecting(fake):
-    with pytest.raises(AdapterError, match="frame_name is empty"):
-        connect(fake, frame_name="")
+def test_an_empty_frame_name_is_refused_when_the_cell_file_is_read(fake):
+    """Refused at load since 2026-11-29 (before, only when the adapter connected: an outside
+    audit found docs/config.md showing a default of '' for a key the adapter page calls
+    required)."""
+    from pydantic import ValidationError
+    for empty in ("", "  "):
+        with pytest.raises(ValidationError, match="frame_name is empty"):
+            connect(fake, frame_name=empty)
+    with pytest.raises(ValidationError, match="frame_name"):
+        RobodkConfig(host="127.0.0.1", port=fake.port)
     assert fake.log == []
 
 

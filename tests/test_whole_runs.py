@@ -3,6 +3,7 @@ Modbus cells and the manual cell with typed readings -- a few touches each, reco
 A planner change once broke the Modbus and manual runs at their first touch while every
 adapter's own tests passed: those adapters know no position before their first move (NaN), and
 the time-aware choice priced every candidate at NaN."""
+import json
 import subprocess
 import sys
 
@@ -66,3 +67,22 @@ def test_the_manual_cell_is_mapped_from_typed_readings(tmp_path):
     assert p.returncode in (0, 1), p.stderr
     assert "error" not in p.stderr
     assert len(_fused_rows(out)) >= TOUCHES - 1
+
+
+def test_q_typed_at_the_manual_cell_stops_as_an_interruption_not_a_device_error(tmp_path):
+    """An outside docs audit (2026-11-29): `q` ended the run with 'error: manual adapter:
+    stopped by the operator', exit status 2 and result.json's `error` set -- the status README
+    gives a failed device. It now ends as Ctrl-C does: INCOMPLETE, `interrupted`, 130."""
+    d = _short(yaml.safe_load((ROOT / "configs" / "cell-manual.yaml").read_text()))
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(yaml.safe_dump(d))
+    out = tmp_path / "run"
+    p = subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot", str(cell),
+                        "--out", str(out), "--yes", "--no-progress"],
+                       input="5.011\n5.014\nabc\nq\n", capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 130, p.stderr
+    assert "error" not in p.stderr and "INCOMPLETE" in p.stdout
+    result = json.loads((out / "result.json").read_text())
+    assert result["stopped_because"] == "interrupted" and "error" not in result
+    assert len(_fused_rows(out)) == 2

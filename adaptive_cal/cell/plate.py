@@ -26,8 +26,8 @@ def _interval(v: Interval, what: str) -> Interval:
 class Rect(Block):
     """An axis-aligned rectangle in the workplane (mm)."""
 
-    x_mm: Interval
-    y_mm: Interval
+    x_mm: Interval = Field(description="[low, high] in x")
+    y_mm: Interval = Field(description="[low, high] in y")
 
     @field_validator("x_mm", "y_mm")
     @classmethod
@@ -53,8 +53,8 @@ def _left_free(inner: "Rect", keep_outs) -> bool:
 class Workplane(Block):
     """The plate to map: its extent, an edge margin no touch goes inside, and keep-outs."""
 
-    x_mm: Interval
-    y_mm: Interval
+    x_mm: Interval = Field(description="[low, high]: the plate's extent in x, workplane frame")
+    y_mm: Interval = Field(description="[low, high]: the plate's extent in y")
     edge_margin_mm: float = Field(5.0, ge=0, description="no touch closer than this to the plate edge")
     keep_outs: list[Rect] = Field([], description="rectangles never touched (clamps, holes); "
                                 "each must overlap the workplane")

@@ -31,9 +31,10 @@ MAX_KNOTS = 64  # control points per axis (K = knots_x * knots_y coefficients, C
 class Workspace(Block):
     """The box the probe tip may be sent to (workplane frame, mm). Nothing outside is sent."""
 
-    x_mm: Interval
-    y_mm: Interval
-    z_mm: Interval
+    x_mm: Interval = Field(description="[low, high] the tip may be sent to in x")
+    y_mm: Interval = Field(description="[low, high] in y")
+    z_mm: Interval = Field(description="[low, high] in z (the safe height and every approach "
+                           "inside)")
 
     @field_validator("x_mm", "y_mm", "z_mm")
     @classmethod

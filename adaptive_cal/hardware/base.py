@@ -25,6 +25,11 @@ class AdapterError(RuntimeError):
     """A device problem that stops the run; the message says what to do."""
 
 
+class OperatorStop(AdapterError):
+    """The operator asked to stop (the manual adapter's ``q``): the run ends as interrupted,
+    as after Ctrl-C (exit status 130, no ``error``), and ``--resume`` continues it."""
+
+
 class UnsafeTarget(AdapterError):
     """A target outside the workplane, a keep-out or the workspace box; it was not sent."""
 

@@ -22,7 +22,7 @@ from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
-from adaptive_cal.hardware.base import AdapterError
+from adaptive_cal.hardware.base import AdapterError, OperatorStop
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
@@ -240,7 +240,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             stopped = DRIFT if drifted else loop.run()
             if stopped == NO_ADMISSIBLE_POINT:
                 stopped, error = "interrupted", NoAdmissiblePoint(no_admissible_point(cell, plan))
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, OperatorStop):  # Ctrl-C, the manual adapter's q
             stopped = "interrupted"
         except AdapterError as e:  # a device stopped the run: report what was measured, then raise
             stopped, error = "interrupted", e

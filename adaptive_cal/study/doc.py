@@ -182,7 +182,8 @@ def benchmarks_section(results: Path) -> str:
         a = c["strategies"].get("adaptive", {})
         lines += [f"* **Coverage** (`adaptive-cal study configs/study-tilts.yaml --plates "
                   f"{a.get('plates')} --strategies adaptive --set bound.true_rms_mm=1 --set "
-                  f"lower_bound.plates=0 --workers 2 --json {cov}`; the true-error bound is "
+                  f"lower_bound.plates=0 --workers 2 --json benchmarks/results/{cov.name}`; the "
+                  "true-error bound is "
                   "lifted so each run ends at its own stop): the adaptive planner's 95 % band "
                   f"holds {a.get('coverage95_mean', 0):.3f} of the plate at its stop (true RMS "
                   f"{a.get('true_rms_mm_mean', 0) * 1e3:.2f} um against a posterior RMS std of "

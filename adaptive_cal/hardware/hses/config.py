@@ -12,8 +12,10 @@ class UserFrameInBase(Strict):
     """The user frame as the pendant shows it: origin in the base frame and Rx Ry Rz, composed
     R = Rz Ry Rx (verify on the controller: docs/adapters/hses.md)."""
 
-    origin_mm: tuple[float, float, float]
-    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    origin_mm: tuple[float, float, float] = Field(description="the user frame's origin in the "
+                                                  "base frame, as the pendant shows it")
+    rotation_deg: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="its Rx Ry Rz, composed R = Rz Ry Rx")
 
     @field_validator("origin_mm")
     @classmethod
@@ -34,15 +36,19 @@ class HsesConfig(Strict):
     """Yaskawa High Speed Ethernet Server (UDP). Host and port are required (10040 on a real
     controller; the emulator uses the one given here)."""
 
-    host: str
-    port: int = Field(ge=1, le=65535)
+    host: str = Field(description="the controller's IP address")
+    port: int = Field(ge=1, le=65535, description="HSES UDP port: 10040 on a controller")
     timeout_s: float = Field(0.5, gt=0, description="wait for one answer")
     retries: int = Field(3, ge=0, description="re-sends after an unanswered request")
-    frame: Literal["user", "base"] = "user"
+    frame: Literal["user", "base"] = Field(
+        "user", description="coordinate system of the moves: 'user' (user_frame, taught on the "
+        "plate) or 'base' (the robot base)")
     user_frame: int = Field(1, ge=1, le=63, description="user frame taught on the plate")
     tool: int = Field(0, ge=0, le=63, description="tool number sent with every move; the "
                       "position answer must be of it")
-    speed_mm_per_s: float = Field(50.0, gt=0, le=1000)
+    speed_mm_per_s: float = Field(50.0, gt=0, le=1000, description="the linear speed sent with "
+                                  "every move (V, in 0.1 mm/s); robot.speed_mm_per_s only "
+                                  "estimates robot time")
     orientation_deg: tuple[float, float, float] = Field(
         (180.0, 0.0, 0.0), description="Rx Ry Rz of the tool held during every move")
     form: int | Literal["current"] = Field(
@@ -75,12 +81,14 @@ class HsesConfig(Strict):
         "stands: true states that every run starts with the robot parked at or above "
         "robot.safe_height_mm, clear of the plate and fixtures; false (the default) refuses that "
         "cell file at load")
-    position_tolerance_mm: float = Field(0.1, gt=0)
-    move_timeout_s: float = Field(60.0, gt=0)
+    position_tolerance_mm: float = Field(0.1, gt=0, description="with check_position: how far "
+                                         "the reported position may lie from the target")
+    move_timeout_s: float = Field(60.0, gt=0, description="the longest a move (or a busy "
+                                  "controller) may take before the run stops")
     servo_timeout_s: float = Field(5.0, gt=0, le=600, description="after switching servo power "
                                    "on (at connect, after an alarm reset), wait this long for "
                                    "status data 2 to show it before the run stops")
-    poll_s: float = Field(0.02, gt=0)
+    poll_s: float = Field(0.02, gt=0, description="status polling period during a move")
     reset_alarms: bool = Field(False, description="once per move, reset a controller alarm "
                                "(0x82 instance 1) or cancel an error (instance 2) and retry; a "
                                "hold or servo power off is never reset: it stops the run")

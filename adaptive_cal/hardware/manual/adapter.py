@@ -11,7 +11,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, TextIO
 
-from adaptive_cal.hardware.base import AdapterError, BadSample, Sample
+from adaptive_cal.hardware.base import AdapterError, BadSample, OperatorStop, Sample
 
 
 @dataclass
@@ -59,7 +59,7 @@ class ManualCell:
             line = self._ask("reading in mm (q to stop): ").strip()
             answers.append(line)
             if line.lower() in ("q", "quit", "stop"):
-                raise AdapterError("manual adapter: stopped by the operator; continue the run "
+                raise OperatorStop("manual adapter: stopped by the operator; continue the run "
                                    "later with --resume")
             try:
                 value = float(line.replace(",", "."))

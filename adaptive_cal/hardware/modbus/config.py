@@ -18,9 +18,10 @@ class ModbusRegisters(Strict):
     done: str = Field("M11", description="PLC sets: target reached")
     fault: str = Field("M12", description="PLC sets: stop (e-stop, door, watchdog)")
     probe_trigger: str = Field("M13", description="PC sets: take one probe sample")
-    target_x: str = "D100"
-    target_y: str = "D102"
-    target_z: str = "D104"
+    target_x: str = Field("D100", description="PC writes: target x (mm x scale, workplane "
+                          "frame)")
+    target_y: str = Field("D102", description="PC writes: target y")
+    target_z: str = Field("D104", description="PC writes: target z")
     probe_value: str = Field("D110", description="last probe sample")
     probe_count: str = Field("D112", description="16-bit counter, +1 per sample (staleness)")
     watchdog: str = Field("D120", description="PC increments it at least every watchdog_s")
@@ -28,8 +29,8 @@ class ModbusRegisters(Strict):
                                  "writes its current position, as the targets: mm x scale, "
                                  "workplane frame); the first move then lifts straight up first. "
                                  "All three or none")
-    actual_y: str | None = None
-    actual_z: str | None = None
+    actual_y: str | None = Field(None, description="PLC writes: where the tip is now, y")
+    actual_z: str | None = Field(None, description="PLC writes: where the tip is now, z")
 
     @model_validator(mode="after")
     def _all_three_or_none(self):
@@ -48,31 +49,38 @@ class ModbusRegisters(Strict):
 class ModbusConfig(Strict):
     """A PLC or HMI over Modbus TCP, or RTU/ASCII on a serial line (pyserial URL allowed)."""
 
-    transport: Literal["tcp", "rtu", "ascii"] = "tcp"
-    host: str | None = None
-    port: int | None = Field(None, ge=1, le=65535)
-    serial_port: str | None = None
-    baudrate: int = 9600
+    transport: Literal["tcp", "rtu", "ascii"] = Field(
+        "tcp", description="Modbus TCP, or RTU / ASCII framing on a serial line")
+    host: str | None = Field(None, description="tcp: the PLC's (or gateway's) IP address")
+    port: int | None = Field(None, ge=1, le=65535, description="tcp: its port (502 on most PLCs)")
+    serial_port: str | None = Field(None, description="rtu / ascii: the serial device "
+                                    "(/dev/ttyUSB0, COM3) or a pyserial URL")
+    baudrate: int = Field(9600, description="rtu / ascii: line speed")
     parity: Literal["N", "E", "O"] = Field("E", description="serial parity (Modbus: even by "
                                            "default)")
     bytesize: Literal[7, 8] | None = Field(
         None, description="serial data bits; left out: 8 for rtu (Modbus RTU is 8 data bits, "
         "Modbus over Serial Line V1.02 s.2.5.1), 7 for ascii (Delta DVP's 9600 7E1); rtu with 7 "
         "is refused")
-    stopbits: Literal[1, 2] = 1
-    device_id: int = Field(1, ge=0, le=247)
-    timeout_s: float = Field(1.0, gt=0)
-    retries: int = Field(1, ge=0)
+    stopbits: Literal[1, 2] = Field(1, description="rtu / ascii: stop bits")
+    device_id: int = Field(1, ge=0, le=247, description="the PLC's station number (unit id; "
+                           "behind a gateway, the unit it forwards to)")
+    timeout_s: float = Field(1.0, gt=0, description="wait for one answer")
+    retries: int = Field(1, ge=0, description="re-sends after an unanswered request (pymodbus)")
     word_order: Literal["big", "little"] = Field(
         "little", description="order of the two words of a 32-bit value (Delta: little, verify)")
-    number: Literal["int32", "float32", "int16"] = "int32"
+    number: Literal["int32", "float32", "int16"] = Field(
+        "int32", description="how a length is held in the registers (x scale)")
     scale: float = Field(10000.0, description="register counts per mm (10000: 0.1 um, as "
                          "hw/plc-register-map.md and hw/ACAL_TOUCH.JBI expect)")
-    registers: ModbusRegisters = ModbusRegisters()
+    registers: ModbusRegisters = Field(ModbusRegisters(), description="where the handshake "
+                                       "lives in the PLC (hw/plc-register-map.md)")
     watchdog_s: float = Field(1.0, gt=0, description="the PLC faults when the watchdog is older")
-    move_timeout_s: float = Field(60.0, gt=0)
-    probe_timeout_s: float = Field(2.0, gt=0)
-    poll_s: float = Field(0.02, gt=0)
+    move_timeout_s: float = Field(60.0, gt=0, description="the longest from start to done "
+                                  "before the run stops")
+    probe_timeout_s: float = Field(2.0, gt=0, description="the longest from the trigger to a "
+                                   "new probe_count before the sample is rejected as stale")
+    poll_s: float = Field(0.02, gt=0, description="polling period for done and probe_count")
     parked_at_safe_height: bool = Field(
         False, description="where registers.actual_x/y/z are not mapped the PC cannot know where "
         "the robot stands, and the first move goes straight to the safe height above the first "

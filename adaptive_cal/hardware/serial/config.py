@@ -17,18 +17,23 @@ class SerialConfig(Strict):
     """A digital indicator on a serial port (a device path or a pyserial URL like
     ``socket://127.0.0.1:5020``). Preset values fill what is not given."""
 
-    port: str
-    preset: Literal["mitutoyo", "sylvac", "keyence", "custom"] = "mitutoyo"
-    baudrate: int | None = None
-    bytesize: Literal[7, 8] | None = None
-    parity: Literal["N", "E", "O"] | None = None
-    stopbits: Literal[1, 2] | None = None
+    port: str = Field(description="the serial device (/dev/ttyUSB0, COM3) or a pyserial URL")
+    preset: Literal["mitutoyo", "sylvac", "keyence", "custom"] = Field(
+        "mitutoyo", description="the gauge's protocol: its request, answer pattern and line "
+        "settings (docs/adapters/serial.md); custom: give pattern (and request, scale)")
+    baudrate: int | None = Field(None, description="line speed; left out: the preset's")
+    bytesize: Literal[7, 8] | None = Field(None, description="data bits; left out: the preset's")
+    parity: Literal["N", "E", "O"] | None = Field(None, description="parity; left out: the "
+                                                  "preset's")
+    stopbits: Literal[1, 2] | None = Field(None, description="stop bits; left out: the "
+                                           "preset's")
     request: str | None = Field(None, description="bytes sent per sample; \\r \\n escapes")
     pattern: str | None = Field(None, description="regex; group 'value' or group 1 is the number")
     scale: float = Field(1.0, description="mm per unit of the parsed number")
-    timeout_s: float = Field(1.0, gt=0)
-    dtr: bool | None = None
-    rts: bool | None = None
+    timeout_s: float = Field(1.0, gt=0, description="wait for one answer")
+    dtr: bool | None = Field(None, description="DTR line state (a Sylvac cable is powered from "
+                             "DTR / RTS); left out: the preset's")
+    rts: bool | None = Field(None, description="RTS line state; left out: the preset's")
     range_mm: tuple[float, float] | None = Field(None, description="values outside are rejected")
 
     @field_validator("range_mm")
