@@ -110,3 +110,53 @@ def test_a_streaming_gauge_read_mid_line_gives_whole_values_only():
         os.close(master)
         os.close(slave)
     assert got == [-1.2345] * 40
+
+
+def test_a_late_answer_to_a_timed_out_request_is_not_the_next_sample():
+    """An outside audit (2026-11-29): request 1 timed out, its answer came 50 ms later, just
+    after the next read cleared the buffer, and request 2 returned request 1's value with its
+    own time. A timed-out read now drops what comes until the line has been quiet."""
+    from adaptive_cal.simulation.emulator.gauge import PtyGauge
+    values = iter([0.111, 0.222, 0.333, 0.444])
+    cfg = SerialConfig(port="/dev/null", timeout_s=0.2, preset="sylvac")
+    g = PtyGauge(cfg, lambda: next(values)).start()
+    probe = SerialProbe(cfg.model_copy(update={"port": g.path}))
+    try:
+        g.faults.late, g.faults.late_s = 1, 0.25  # 50 ms after the read gave up
+        with pytest.raises(BadSample, match="did not answer"):
+            probe.read()
+        assert probe.read().reading_mm == pytest.approx(0.222)
+        assert probe.read().reading_mm == pytest.approx(0.333)
+    finally:
+        probe.close()
+        g.close()
+
+
+@pytest.mark.parametrize("line, decimals, ok", [
+    (b"01A+0000.123\r", 3, True), (b"01A+0000.1\r", 3, False),   # digits lost
+    (b"01A+00.04850\r", 3, False),                                # a gauge switched to inches
+    (b"01A+00.04850\r", None, True)])
+def test_decimals_catch_an_inch_gauge_and_lost_digits(line, decimals, ok):
+    from adaptive_cal.hardware.serial.adapter import PRESETS
+    if ok:
+        assert parse(line, PRESETS["mitutoyo"].pattern, 1.0, decimals) == float(line[3:-1])
+    else:
+        with pytest.raises(BadSample, match="digits after the point"):
+            parse(line, PRESETS["mitutoyo"].pattern, 1.0, decimals)
+
+
+def test_a_mitutoyo_line_without_its_decimal_point_is_no_reading():
+    from adaptive_cal.hardware.serial.adapter import PRESETS
+    with pytest.raises(BadSample, match="does not match"):
+        parse(b"01A+00000123\r", PRESETS["mitutoyo"].pattern, 1.0)
+
+
+@pytest.mark.parametrize("line", [b"M0,+EE.EEE\r\n", b"M0,+99.999\r\n", b"M0,-99.999,+001.000\r\n",
+                                  b"M0,+FFFFFFF\r\n", b"M0,-FFFFFFF\r\n"])
+def test_keyence_out_of_range_readouts_say_so(line):
+    """DL-RS1A manual, readout data: +EE.EEE an amplifier error, +-99.999 at or beyond the
+    display range -- no reading, and not 'check the baud rate'."""
+    from adaptive_cal.hardware.serial.adapter import PRESETS
+    with pytest.raises(BadSample, match="out-of-range or error readout"):
+        parse(line, PRESETS["keyence"].pattern, 1.0)
+    assert parse(b"M0,+012.3456\r\n", PRESETS["keyence"].pattern, 1.0) == 12.3456

@@ -39,7 +39,8 @@ class Preset:
 
 
 PRESETS = {
-    "mitutoyo": Preset(9600, 8, "N", 1, b"1\r", r"^\d{2}A([-+]\s*\d+(?:\.\d+)?)\s*$"),
+    # Mitutoyo's output always carries the decimal point: 01A+00000123 is no reading
+    "mitutoyo": Preset(9600, 8, "N", 1, b"1\r", r"^\d{2}A([-+]\s*\d+\.\d+)\s*$"),
     "sylvac": Preset(4800, 7, "E", 2, b"?\r", r"^([-+]?\s*\d+(?:\.\d+)?)\s*[<=>]?\s*$",
                      True, False),
     "keyence": Preset(9600, 8, "N", 1, b"M0\r\n", r"^M0,([-+]?\d+(?:\.\d+)?)(?:,.*)?$"),
@@ -47,6 +48,10 @@ PRESETS = {
 }
 ERROR = re.compile(rb"^(ERR\s*\d*|E\d+)", re.I)
 KEYENCE_ERROR = re.compile(rb"^ER,(\w+),(\d+)")  # ER,<command>,<error code>
+# the DL-RS1A manual: readouts that are no value -- letters in place of the digits (+EE.EEE: the
+# amplifier's error; a run of F on some amplifiers: over range) or the display range's end
+# (+-99.999: the value is there or beyond)
+KEYENCE_NO_VALUE = re.compile(rb"^M\d,\s*([-+]?(?:[EF]+\.?[EF]*|0*99\.9+))\s*(?:,|$)")
 
 
 def unescape(text: str) -> bytes:
@@ -54,13 +59,19 @@ def unescape(text: str) -> bytes:
     return codecs.decode(text, "unicode_escape").encode("latin-1")
 
 
-def parse(line: bytes, pattern: str, scale: float) -> float:
-    """One answer line -> value in mm; BadSample (with the raw bytes) when it does not parse."""
+def parse(line: bytes, pattern: str, scale: float, decimals: int | None = None) -> float:
+    """One answer line -> value in mm; BadSample (with the raw bytes) when it does not parse,
+    or, with ``decimals``, when its number has another count of digits after the point."""
     text = line.decode("ascii", "replace").strip()
     if m := KEYENCE_ERROR.match(line.strip()):
         cmd, code = (g.decode("ascii", "replace") for g in m.groups())
         raise BadSample(f"gauge reported error code {code} to command {cmd} ({text!r}); see "
                         "the gauge manual's error table", line)
+    if m := KEYENCE_NO_VALUE.match(line.strip()):
+        raise BadSample(f"gauge answer {text!r}: {m.group(1).decode()} is no reading but the "
+                        "amplifier's out-of-range or error readout (DL-RS1A manual: +EE.EEE an "
+                        "amplifier error, +-99.999 at or beyond the display range); check the "
+                        "sensor head's position and the amplifier", line)
     if ERROR.match(line.strip()):
         raise BadSample(f"gauge reported an error {text!r} (out of range or not zeroed?)", line)
     m = re.search(pattern, text)
@@ -68,6 +79,12 @@ def parse(line: bytes, pattern: str, scale: float) -> float:
         raise BadSample(f"gauge answer {text!r} does not match the expected format {pattern!r}; "
                         "check the preset, baud rate and parity", line)
     group = m.group("value") if "value" in m.re.groupindex else m.group(1)
+    if decimals is not None:
+        got = len(group.split(".", 1)[1]) if "." in group else 0
+        if got != decimals:
+            raise BadSample(f"gauge answer {text!r} has {got} digits after the point, "
+                            f"probe.serial.decimals is {decimals}: a gauge switched to inches, or "
+                            "digits lost on the line", line)
     try:
         value = float(group.replace(" ", "")) * scale
     except ValueError:
@@ -119,15 +136,28 @@ class SerialProbe:
                                "reconnect the gauge and continue with --resume") from e
         t = self.clock()
         if not line or not line.endswith((b"\r", b"\n")):
+            if self.request:
+                self._drain()
             raise BadSample(f"gauge on {self.cfg.port} did not answer within "
                             f"{self.cfg.timeout_s} s (got {line!r}); check power (DTR/RTS), "
                             "baud rate and the request string", line)
-        value = parse(line, self.pattern, self.scale)
+        value = parse(line, self.pattern, self.scale, self.cfg.decimals)
         rng = self.cfg.range_mm
         if rng and not rng[0] <= value <= rng[1]:
             raise BadSample(f"gauge value {value} mm is outside probe.serial.range_mm "
                             f"{list(rng)}", line)
         return Sample(value, t, line)
+
+    def _drain(self) -> None:
+        """After a request that timed out: its answer may still come, and the next request
+        would take it for its own (reset_input_buffer drops only what has arrived). Drop what
+        arrives until the line has been quiet for timeout_s (at most 3 x timeout_s)."""
+        end = time.monotonic() + 3 * self.cfg.timeout_s
+        try:
+            while time.monotonic() < end and self.port.read(max(1, self.port.in_waiting)):
+                pass
+        except (serial.SerialException, OSError):
+            pass  # the next read says the link is lost
 
     def close(self) -> None:
         self.port.close()

@@ -35,6 +35,11 @@ class SerialConfig(Strict):
                              "DTR / RTS); left out: the preset's")
     rts: bool | None = Field(None, description="RTS line state; left out: the preset's")
     range_mm: tuple[float, float] | None = Field(None, description="values outside are rejected")
+    decimals: int | None = Field(None, ge=0, le=9, description="the digits after the decimal "
+                                 "point the gauge sends (3 for a 0.001 mm Mitutoyo); an answer "
+                                 "with another count is rejected: a gauge switched to inches "
+                                 "(5 decimals, a value 25.4 x too small) or a line with digits "
+                                 "lost; left out: not checked")
 
     @field_validator("range_mm")
     @classmethod

@@ -32,6 +32,8 @@ class GaugeFaults:
     garbage: int = 0         # the next N requests get garbage
     error: int = 0           # the next N requests get ERR3 (Keyence: ER,M0,02)
     echo: bool = False       # the request is echoed before each answer
+    late: int = 0            # the next N requests are answered late_s after the request
+    late_s: float = 0.0
 
 
 class GaugeResponder:
@@ -78,7 +80,10 @@ class GaugeResponder:
             while self.request in buf:
                 buf = buf.split(self.request, 1)[1]
                 out = self.reply()
-                if out:
+                if out and self.faults.late > 0:  # the answer of now, sent later
+                    self.faults.late -= 1
+                    threading.Timer(self.faults.late_s, send, (out,)).start()
+                elif out:
                     send(out)
 
 
