@@ -277,3 +277,50 @@ def test_a_refusal_names_its_exception_code_and_what_to_check():
         text = _refusal(ExceptionResponse(3, code), 7)
         assert text.startswith(f"exception {code} ({name}") and "robot.modbus.device_id" in text
         assert "register map" not in text
+
+
+def test_two_devices_on_one_serial_line_share_one_port(monkeypatch):
+    """An outside audit (2026-11-29): robot and probe on one RS-485 line with device ids 1 and 2
+    opened the port twice -- two clients, two locks, two watchdogs whose frames could
+    interleave on a line that takes one master. They now share the first link's client."""
+    from adaptive_cal.hardware.modbus import adapter
+    from adaptive_cal.run.devices import _modbus_links
+
+    made = []
+
+    class Link:
+        def __init__(self, cfg, line=None):
+            self.cfg, self.line = cfg, line
+            made.append(self)
+
+    monkeypatch.setattr(adapter, "ModbusLink", Link)
+    line = {"transport": "rtu", "serial_port": "/dev/ttyUSB0", "host": None, "port": None}
+    robot = CELL.robot.modbus.model_copy(update={**line, "device_id": 1})
+    probe = CELL.robot.modbus.model_copy(update={**line, "device_id": 2})
+    cell = CELL.model_copy(update={
+        "robot": CELL.robot.model_copy(update={"modbus": robot}),
+        "probe": CELL.probe.model_copy(update={"adapter": "modbus", "modbus": probe})})
+    links = _modbus_links(cell, [])
+    assert made[0].line is None and made[1].line is made[0]
+    assert links["robot"] is made[0] and links["probe"] is made[1]
+    other = probe.model_copy(update={"baudrate": 19200})
+    cell = cell.model_copy(update={"probe": cell.probe.model_copy(update={"modbus": other})})
+    with pytest.raises(AdapterError, match="different line settings \\(baudrate\\)"):
+        _modbus_links(cell, [])
+
+
+def test_a_link_on_another_links_line_uses_its_client_and_leaves_it_open(plc):
+    server, link = plc
+    second = ModbusLink(link.cfg, line=link)
+    assert second.client is link.client and second.lock is link.lock
+    second.close()
+    assert link.client.connected
+    ModbusMotion(link).move_to(0.0, 0.0, 0.2)  # the owner still talks over it
+    assert ModbusProbe(link).read().reading_mm > 0
+
+
+def test_device_id_0_on_a_serial_line_is_refused():
+    from adaptive_cal.hardware.modbus.config import ModbusConfig
+    with pytest.raises(ValueError, match="broadcast address"):
+        ModbusConfig(transport="rtu", serial_port="/dev/ttyUSB0", device_id=0)
+    ModbusConfig(transport="tcp", host="127.0.0.1", port=502, device_id=0)  # unit id 0 on TCP

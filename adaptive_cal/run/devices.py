@@ -38,11 +38,16 @@ def safety_check(cell: Cell) -> Callable[[float, float, float], bool]:
     return allowed
 
 
+LINE_KEYS = ("transport", "baudrate", "parity", "bytesize", "stopbits", "timeout_s", "retries")
+
+
 def _modbus_links(cell: Cell, opened: list) -> dict:
-    """One ModbusLink per endpoint; robot and probe share it when they name the same PLC."""
+    """One ModbusLink per endpoint; robot and probe share it when they name the same PLC. Two
+    devices on one serial line (other device ids) share its port and client: Modbus over
+    Serial Line allows one master per line, and two clients would interleave their frames."""
     from adaptive_cal.hardware.modbus.adapter import ModbusLink
 
-    links, by_end = {}, {}
+    links, by_end, by_line = {}, {}, {}
     for role, block in (("robot", cell.robot), ("probe", cell.probe)):
         if block.adapter != "modbus":
             continue
@@ -54,9 +59,19 @@ def _modbus_links(cell: Cell, opened: list) -> dict:
                                    "with different settings; make the two blocks identical")
             links[role] = by_end[end][1]
             continue
-        link = ModbusLink(cfg)
+        line = by_line.get(cfg.serial_port) if cfg.transport != "tcp" else None
+        if line is not None:
+            differ = [k for k in LINE_KEYS if getattr(line.cfg, k) != getattr(cfg, k)]
+            if differ:
+                raise AdapterError(
+                    f"robot.modbus and probe.modbus share the serial line {cfg.serial_port} "
+                    f"with different line settings ({', '.join(differ)}); one line has one "
+                    "set: make them equal")
+        link = ModbusLink(cfg, line=line)
         opened.append(link)
         by_end[end] = (cfg, link)
+        if cfg.transport != "tcp":
+            by_line.setdefault(cfg.serial_port, link)
         links[role] = link
     return links
 

@@ -36,13 +36,20 @@ DT = ModbusTcpClient.DATATYPE
 
 
 class ModbusLink:
-    """One connection to a PLC, shared by motion and probe; thread-safe; one reconnect per op."""
+    """One connection to a PLC, shared by motion and probe; thread-safe; one reconnect per op.
+    ``line``: another device's link on the same serial line, whose client and lock this one
+    uses (Modbus over Serial Line allows one master per line: one port, one client)."""
 
-    def __init__(self, cfg: ModbusConfig, *, clock=time.monotonic, sleep=time.sleep):
+    def __init__(self, cfg: ModbusConfig, *, clock=time.monotonic, sleep=time.sleep,
+                 line: "ModbusLink | None" = None):
         self.cfg, self.clock, self.sleep = cfg, clock, sleep
         self.map = check_map(cfg.registers.roles(), 1 if cfg.number == "int16" else 2)
         self.words = 1 if cfg.number == "int16" else 2
-        if cfg.transport == "tcp":
+        self.owns_client = line is None
+        if line is not None:
+            self.where = f"{line.where} device {cfg.device_id}"
+            self.client = line.client
+        elif cfg.transport == "tcp":
             self.where = f"modbus {cfg.host}:{cfg.port}"
             self.client = ModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.timeout_s,
                                           retries=cfg.retries, reconnect_delay=0)
@@ -53,8 +60,8 @@ class ModbusLink:
                 else FramerType.RTU, baudrate=cfg.baudrate, bytesize=cfg.bytesize,
                 parity=cfg.parity, stopbits=cfg.stopbits, timeout=cfg.timeout_s,
                 retries=cfg.retries, reconnect_delay=0)
-        self.lock = threading.RLock()
-        if not self.client.connect():
+        self.lock = threading.RLock() if line is None else line.lock
+        if line is None and not self.client.connect():
             raise AdapterError(f"{self.where}: cannot connect; check the PLC address, port and "
                                "cable (robot.modbus/probe.modbus host, port)")
         self._wd = 0
@@ -77,7 +84,9 @@ class ModbusLink:
                         if self.client.connect():
                             continue
                     raise AdapterError(f"{self.where}: link lost during {what} ({e}); check the "
-                                       "PLC and cable, then continue with --resume") from e
+                                       f"PLC, the cable and device_id {self.cfg.device_id} (the "
+                                       "PLC's station number: a device that is not there does "
+                                       "not answer), then continue with --resume") from e
                 if resp.isError():
                     raise AdapterError(f"{self.where}: the PLC refused {what}: "
                                        f"{_refusal(resp, self.cfg.device_id)}")
@@ -160,8 +169,9 @@ class ModbusLink:
     def close(self) -> None:
         self._stop.set()
         self._dog.join(timeout=1.0)
-        with self.lock:
-            self.client.close()
+        if self.owns_client:  # a link on another's line leaves the port to it
+            with self.lock:
+                self.client.close()
 
 
 class ModbusProbe:

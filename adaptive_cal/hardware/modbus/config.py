@@ -125,6 +125,11 @@ class ModbusConfig(Strict):
             check_host(self.host)
         elif self.serial_port is None:
             raise ValueError(f"transport '{self.transport}' needs serial_port")
+        elif self.device_id == 0:
+            raise ValueError(f"device_id 0 with transport '{self.transport}': 0 is the broadcast "
+                             "address on a serial line (Modbus over Serial Line V1.02 s.2.2): no "
+                             "device answers, and every write reaches every device; give the "
+                             "PLC's station number, 1-247")
         if self.transport == "rtu" and self.bytesize == 7:
             raise ValueError("bytesize 7 with transport 'rtu': Modbus RTU frames are 8 data bits "
                              "(Modbus over Serial Line V1.02 s.2.5.1); use bytesize 8, or "
