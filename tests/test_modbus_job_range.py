@@ -13,10 +13,12 @@ JOB = (ROOT / "hw" / "ACAL_TOUCH.JBI").read_text()
 CELL = load_cell(ROOT / "configs" / "cell-modbus-emulated.yaml")
 
 
-def run_one_move(target_counts, here_um=(0.0, 0.0, 50_000.0)):
+def run_one_move(target_counts, here_um=(0.0, 0.0, 50_000.0), each_line=None):
     """Run the job from its first line with start (IN#(1)) on and fault (IN#(2)) off, the
     target D001..D003 in 0.1 um counts (the fieldbus copies it before start) and the robot at
     ``here_um`` (user frame 1); stop at the end of the move (WAIT IN#(1)=OFF) or at PAUSE.
+    ``each_line(d, line)`` runs after every line, as the fieldbus mapping or the PLC may read
+    or write the D variables between any two lines.
     Returns (how it stopped, the MOVL targets in um, the last done output, the D variables)."""
     lines = [s.strip() for s in JOB[JOB.index("//INST"):].splitlines()]
     lines = lines[lines.index("NOP") + 1:lines.index("END")]
@@ -27,6 +29,8 @@ def run_one_move(target_counts, here_um=(0.0, 0.0, 50_000.0)):
     pc = 0
     while pc < len(lines):
         s, pc = lines[pc], pc + 1
+        if each_line is not None:
+            each_line(d, lines[pc - 2] if pc > 1 else "")  # after the line before this one
         if not s or s.startswith(("'", "*")) or s.startswith("TIMER T="):
             continue
         if s == "WAIT IN#(1)=OFF":
@@ -35,6 +39,8 @@ def run_one_move(target_counts, here_um=(0.0, 0.0, 50_000.0)):
             return "paused", moves, done, d
         if m := re.fullmatch(r"SET (D\d{3}) (-?\d+)", s):
             d[m.group(1)] = int(m.group(2))
+        elif m := re.fullmatch(r"SET (D\d{3}) (D\d{3})", s):
+            d[m.group(1)] = d[m.group(2)]
         elif m := re.fullmatch(r"(DIV|MUL) (D\d{3}) (\d+)", s):
             a, k = d[m.group(2)], int(m.group(3))
             d[m.group(2)] = int(a / k) if m.group(1) == "DIV" else a * k  # DIV: towards zero
@@ -124,3 +130,42 @@ def test_the_job_keeps_the_controllers_length_limits():
     assert not long, long
     name = re.search(r"^//NAME (\S+)$", JOB, re.M).group(1)
     assert len(name) <= 32
+
+
+def test_a_fieldbus_copy_between_any_two_lines_changes_neither_the_move_nor_its_check():
+    """An outside audit (2026-11-29): the job checked D001..D003, then divided them in place
+    and set P001 from them. A fieldbus mapping that copies D100.. to D001.. again between the
+    DIV and the SETE sent the robot 10 x too far with the check passed; a start on registers
+    already divided moved it to a tenth of the target. The job now copies the target once
+    into D041..D043 and never changes D001..D003."""
+    target = (1_000_000, -1_850_000, 150_000)
+
+    def fieldbus(d, _line):  # the mapping writes D001..D003 from the PLC at any moment
+        d.update(D001=target[0], D002=target[1], D003=target[2])
+
+    how, moves, done, d = run_one_move(target, each_line=fieldbus)
+    assert how == "done" and moves == [(100_000, -185_000, 15_000)] and done
+    assert (d["D001"], d["D002"], d["D003"]) == target  # the input registers as written
+    # a second start on the same registers moves to the same place
+    assert run_one_move((d["D001"], d["D002"], d["D003"]))[1] == moves
+
+
+def test_the_pc_never_reads_a_half_made_tip_position():
+    """D011..D013 went through GETE (um) and MUL 10 (counts) in place: a read between the two
+    decoded a tenth of where the tip is (12, -8, 0.2 mm for 120, -80, 2 mm). Each now changes
+    once, from nothing to the position in counts."""
+    seen = set()
+    run_one_move((0, 0, 150_000), here_um=(120_000.0, -80_000.0, 2_000.0),
+                 each_line=lambda d, _: seen.add((d["D011"], d["D012"], d["D013"])))
+    assert seen <= {(0, 0, 0), (1_200_000, 0, 0), (1_200_000, -800_000, 0),
+                    (1_200_000, -800_000, 20_000)}, seen
+
+
+def test_done_stays_off_for_a_plc_scan_before_the_move():
+    """A zero-length move (the retract ends where the next target starts) took OT#(1) off and
+    on again within a few ms: a PLC latching done on its rising edge, scanning slower, missed
+    it. The job holds done off for a TIMER first."""
+    lines = [s.strip() for s in JOB[JOB.index("//INST"):].splitlines()]
+    off = lines.index("DOUT OT#(1) OFF")
+    nxt = next(s for s in lines[off + 1:] if s and not s.startswith("'"))
+    assert re.fullmatch(r"TIMER T=0\.\d+", nxt) and float(nxt.split("=")[1]) >= 0.05
