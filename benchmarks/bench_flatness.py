@@ -14,7 +14,7 @@ least-squares plane by numpy's lstsq, the minimum zone as a linear programme (sc
 Printed per family: how often each 95 % interval holds the true figure, and how often the
 truth lay above it (the map missed structure) or below -- for the whole plate and, where the
 workplane has an edge margin, within reach of the touches (result.json
-``flatness_within_reach_mm``, the truth on the same grid points inside the same box) -- how
+``flatness_within_reach_mm``, the truth on a grid spanning the same box) -- how
 often the tilt correction's rx, ry +- 2 sd hold those of the true map's least-squares plane,
 and how many local features the runs named (a gated reading its retake confirmed); the records also keep each run's largest gap
 between touches and its unresolved RMS. The noisy family (``--families noisy``) reads as its
@@ -63,16 +63,15 @@ def _interpolator(map_path: Path) -> RegularGridInterpolator:
 
 def true_figures(map_path: Path, x_mm, y_mm, box_mm=None) -> dict:
     """Least-squares and minimum-zone flatness (mm) of the true map on the evaluation grid (with
-    ``box_mm`` ((x0, x1), (y0, y1)): on its points inside that box only), each measured normal
-    to its plane as the run measures it (``plane_figures``), and the tilt correction of the
-    least-squares plane."""
+    ``box_mm`` ((x0, x1), (y0, y1)): on a grid of as many nodes spanning that box, its edges
+    included -- until 2026-11-29 the whole plate's nodes inside the box, which stop short of its
+    edges, as the product did), each measured normal to its plane as the run measures it
+    (``plane_figures``), and the tilt correction of the least-squares plane."""
+    if box_mm is not None:
+        x_mm, y_mm = box_mm
     gx, gy = np.meshgrid(np.linspace(*x_mm, EVAL_NODES), np.linspace(*y_mm, EVAL_NODES),
                          indexing="ij")
     x, y = gx.ravel(), gy.ravel()
-    if box_mm is not None:
-        (x0, x1), (y0, y1) = box_mm
-        keep = (x >= x0 - 1e-9) & (x <= x1 + 1e-9) & (y >= y0 - 1e-9) & (y <= y1 + 1e-9)
-        x, y = x[keep], y[keep]
     f = plane_figures(x, y, _interpolator(map_path)(np.c_[x, y]))
     a, b = f["a"], f["b"]
     # the tilt correction of that plane (README: frame_new = frame_nominal rotx(rx) roty(ry)

@@ -43,32 +43,46 @@ def answered():
     return plan, belief, flatness_answer(plan, belief, 0.002)
 
 
-def test_within_reach_is_the_map_inside_the_reachable_box(answered):
+def _reach(plan):
+    """A 41 x 41 grid spanning the reachable box, built here with numpy (edges included)."""
+    gx, gy = np.meshgrid(np.linspace(-215, 215, 41), np.linspace(-175, 175, 41), indexing="ij")
+    xy = np.c_[gx.ravel(), gy.ravel()]
+    return xy, plan.model.surface.basis(*xy.T)
+
+
+def test_within_reach_is_the_map_over_the_reachable_box_to_its_edges(answered):
+    """An outside audit (2026-11-29): the figure was taken at the whole plate's grid nodes
+    inside the box, which stop at y +-166.5 of +-175 mm: on a plate bowed across y it read
+    8 % flatter than the box it names, the interval missing the truth."""
     plan, belief, out = answered
     within = out["flatness_within_reach_mm"]
     assert within["box_mm"] == [[-215.0, 215.0], [-175.0, 175.0]]
-    x, y = plan.eval_xy.T
-    inside = (np.abs(x) <= 215) & (np.abs(y) <= 175)
-    assert within["eval_points"] == inside.sum() < len(x)
-    mean = plan.eval_rows @ belief.mean
-    ls, mz = _brute(x[inside], y[inside], mean[inside])
+    xy, rows = _reach(plan)
+    x, y = xy.T
+    assert within["eval_points"] == len(x) == len(plan.eval_xy)
+    mean = rows @ belief.mean
+    ls, mz = _brute(x, y, mean)
     # lstsq against the product's normal equations on heights below 0.4 mm: round-off ~1e-15;
     # the LP's own feasibility tolerance (HiGHS, 1e-7 relative on ~0.3 mm) bounds the other
     assert within["least_squares"]["value"] == pytest.approx(ls, abs=1e-12)
     assert within["minimum_zone"]["value"] == pytest.approx(mz, abs=1e-8)
     # the bow is steepest at the y edges the margin cuts off: within reach is flatter
-    assert mz < _brute(x, y, mean)[1] and mz < out["flatness_mm"]["minimum_zone"]["value"]
+    ex, ey = plan.eval_xy.T
+    assert mz < out["flatness_mm"]["minimum_zone"]["value"]
+    # and the box's edges count: the old nodes inside it alone read flatter still
+    inside = (np.abs(ex) <= 215) & (np.abs(ey) <= 175)
+    assert _brute(ex[inside], ey[inside], (plan.eval_rows @ belief.mean)[inside])[1] < mz
     assert "range" not in within and "extrapolation" in within["means"]
 
 
-def test_its_interval_is_over_the_same_draws_restricted(answered):
-    """The whole plate is drawn first from default_rng(SEED): the same draws, on the inside
-    points alone, give the within-reach interval (least squares: numpy on each draw here)."""
+def test_its_interval_is_over_the_same_coefficient_draws(answered):
+    """The whole plate is drawn first from default_rng(SEED): the same coefficient draws, on
+    the reach grid, give the within-reach interval (least squares: numpy on each draw here)."""
     plan, belief, out = answered
-    x, y = plan.eval_xy.T
-    inside = (np.abs(x) <= 215) & (np.abs(y) <= 175)
-    draws = bl.sample(belief, np.random.default_rng(0), SAMPLES) @ plan.eval_rows.T
-    ls = [_brute(x[inside], y[inside], d[inside])[0] for d in draws]
+    xy, rows = _reach(plan)
+    x, y = xy.T
+    draws = bl.sample(belief, np.random.default_rng(0), SAMPLES) @ rows.T
+    ls = [_brute(x, y, d)[0] for d in draws]
     lo, hi = out["flatness_within_reach_mm"]["least_squares"]["ci95"]
     assert (lo, hi) == pytest.approx(tuple(np.percentile(ls, [2.5, 97.5])), abs=1e-12)
 

@@ -131,8 +131,10 @@ def test_a_cut_quoted_row_is_kept_only_when_whole(tmp_path):
     path.write_bytes(whole[:-1])
     assert repair_cut_row(path) is None and path.read_bytes() == whole
     path.write_bytes(whole[:-5])  # ... ,"9.990000","rejec
-    with pytest.raises(RecordingError, match=r"r\.csv:23: a quoted field opened"):
-        read_recording(path)
+    cut = path.read_bytes()
+    # a reader leaves it out as the repair would (until 2026-11-29 it refused the file), and
+    # leaves the file as it is
+    assert len(read_recording(path)) == 19 and path.read_bytes() == cut
     repair_cut_row(path)
     assert len(read_recording(path)) == 19
     assert (tmp_path / "r.cut.txt").exists()

@@ -16,7 +16,8 @@ report, with the same words and numbers in all three:
   docs/flatness.md). A feature between the touches is in no interval: ``largest_gap`` says
   where the widest untouched disc is;
 - within reach of the touches (where the workplane has an edge margin no touch enters): the
-  whole plate's figures and draws on its evaluation points inside the reachable box. Beyond
+  same figures and coefficient draws on a grid spanning the reachable box (``analysis.reach``).
+  Beyond
   it the map is an extrapolation no reading tested: on plates whose edges roll off, the whole
   plate's minimum-zone interval held the truth on 12 of 20, within reach on 18
   (docs/flatness.md).
@@ -37,6 +38,8 @@ from scipy.stats import norm
 from scipy.stats import t as student_t
 
 from adaptive_cal.analysis import flatness as fl
+from adaptive_cal.analysis.reach import (GAP_MEANS, gap_line, largest_gap,  # noqa: F401
+                                        on_grid, reach_grid)  # (largest_gap: its home before)
 from adaptive_cal.gaussian import belief as bl
 
 SAMPLES = 200  # posterior samples behind every interval (run, flatness and report alike)
@@ -128,16 +131,17 @@ def _root(xy, length_mm: float) -> np.ndarray:
 
 def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator,
                  samples: int = SAMPLES, unresolved_mm2=None,
-                 length_mm: float | None = None, features=(), inside=None) -> tuple[dict, dict]:
+                 length_mm: float | None = None, features=(), reach=None) -> tuple[dict, dict]:
     """(tilt, flatness of the whole plate): the tilt of the mean map's least-squares plane with
     the std of its angles over the sampled surfaces, and the figures with intervals.
     ``unresolved_mm2``: s_u^2 at the evaluation points (None: the spline's variance alone),
     drawn with correlation length ``length_mm`` (``unresolved_draws``) after the spline's.
     ``features``: (row, departure_mm, sd_mm, x_mm, y_mm) of local features a retake confirmed
     (``analysis.local_features``): points added to the figures at the map plus the departure,
-    drawn with its sd; the tilt stays the grid's. ``inside``: a mask of the evaluation points
-    touches could reach; where some are not, the figures of those alone (the same draws, the
-    features added) are the entry ``within_reach`` (``flatness_answer``)."""
+    drawn with its sd; the tilt stays the grid's. ``reach``: (xy, rows, s_u^2 or None) of a grid
+    spanning the part touches could reach: the figures there (the same coefficient draws, the
+    features added; its s_u^2 field drawn from a generator spawned from ``rng``, so the whole
+    plate's and the touched points' digits do not move) are the entry ``within_reach``."""
     x, y = eval_xy[:, 0], eval_xy[:, 1]
     mean, _ = bl.predict(belief, eval_rows)
     coef = bl.sample(belief, rng, samples)
@@ -147,18 +151,23 @@ def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator
     tilt = fl.plane_tilt(x, y, mean)
     angles = np.array([fl.tilt_correction_deg(*fl.least_squares_plane(x, y, d)[:2]) for d in draws])
     tilt["rx_std_deg"], tilt["ry_std_deg"] = (float(v) for v in angles.std(axis=0))
-    reach = None if inside is None or np.all(inside) or not np.any(inside) else \
-        np.asarray(inside, bool)
-    for row, dep, sd, fx, fy in features:  # a confirmed feature lies on a touch: within reach
-        x, y = np.append(x, fx), np.append(y, fy)
-        mean = np.append(mean, float(row @ belief.mean) + dep)
-        extra = coef @ row + dep + sd * rng.standard_normal(samples)
-        draws = np.c_[draws, extra]
-        reach = None if reach is None else np.append(reach, True)
+    added = []  # a confirmed feature lies on a touch: within reach too
+    for row, dep, sd, fx, fy in features:
+        added.append((fx, fy, float(row @ belief.mean) + dep,
+                      coef @ row + dep + sd * rng.standard_normal(samples)))
+    if added:
+        fx, fy, fm, fd = (np.array(v) for v in zip(*added))
+        x, y, mean, draws = np.r_[x, fx], np.r_[y, fy], np.r_[mean, fm], np.c_[draws, fd.T]
     figures = _figures(x, y, mean, draws, "figure of the mean map")
     if reach is not None:
-        figures["within_reach"] = _figures(x[reach], y[reach], mean[reach], draws[:, reach],
-                                           "figure of the mean map")
+        rxy, rrows, ru = reach
+        rdraws = coef @ rrows.T
+        if ru is not None:
+            rdraws = rdraws + unresolved_draws(rxy, ru, length_mm, rng.spawn(1)[0], samples)
+        rx, ry, rmean = rxy[:, 0], rxy[:, 1], bl.predict(belief, rrows)[0]
+        if added:
+            rx, ry, rmean, rdraws = np.r_[rx, fx], np.r_[ry, fy], np.r_[rmean, fm], np.c_[rdraws, fd.T]
+        figures["within_reach"] = _figures(rx, ry, rmean, rdraws, "figure of the mean map")
     return tilt, figures
 
 
@@ -236,9 +245,13 @@ def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=No
     extra = [(surface.basis(np.array([f["x_mm"]]), np.array([f["y_mm"]]))[0], f["departure_mm"],
               f["sd_mm"], f["x_mm"], f["y_mm"]) for f in features]
     box = getattr(plan, "bounds_mm", None)
-    inside = None if box is None else _in_box(plan.eval_xy, box)
+    reach = None
+    if box is not None and not np.all(_in_box(plan.eval_xy, box)):
+        rxy = reach_grid(plan.eval_xy, box)
+        ru = None if unresolved_mm2 is None else on_grid(plan.eval_xy, unresolved_mm2, rxy)
+        reach = (rxy, surface.basis(rxy[:, 0], rxy[:, 1]), ru)
     tilt, plate = plate_answer(plan.eval_xy, plan.eval_rows, belief, rng, samples, unresolved_mm2,
-                               correlation_length_mm(surface), extra, inside)
+                               correlation_length_mm(surface), extra, reach)
     rows = None
     if touched_xyz is not None:
         x, y, z = touched_xyz
@@ -254,7 +267,7 @@ def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=No
     if within is not None:
         within.pop("range")
         out["flatness_within_reach_mm"] = {
-            "box_mm": [list(map(float, b)) for b in box], "eval_points": int(inside.sum()),
+            "box_mm": [list(map(float, b)) for b in box], "eval_points": len(reach[0]),
             **within, "means": WITHIN_MEANS}
     if rows is not None:
         out["touched_flatness_mm"] = touched_answer(x, y, z, rows, belief, noise_std_mm, rng,
@@ -262,8 +275,8 @@ def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=No
     return out
 
 
-WITHIN_MEANS = ("the same figures of the map at the evaluation points inside box_mm, the part of "
-                "the workplane touches could reach (the plate less its edge margin): beyond it "
+WITHIN_MEANS = ("the same figures of the map on a grid of eval_points spanning box_mm, the part "
+                "of the workplane touches could reach (the plate less its edge margin): beyond it "
                 "the map is an extrapolation no reading tested, and an edge that rolls off there "
                 "is in no interval (the whole plate's figures include that margin)")
 
@@ -272,33 +285,6 @@ def _in_box(xy, box) -> np.ndarray:
     (x0, x1), (y0, y1) = box
     x, y = np.asarray(xy, float)[:, 0], np.asarray(xy, float)[:, 1]
     return (x >= x0 - 1e-9) & (x <= x1 + 1e-9) & (y >= y0 - 1e-9) & (y <= y1 + 1e-9)
-
-
-GAP_MEANS = ("the largest disc inside the reachable, allowed part of the plate with no fused "
-             "touch (centre x_mm, y_mm; radius_mm): a dent or bump narrower than it can lie "
-             "there unseen, and no interval here includes one")
-
-
-def largest_gap(plan, touched_xy) -> dict | None:
-    """{"radius_mm", "x_mm", "y_mm", "means"}: the point a touch may go to (the plan's
-    candidates: inside the edge margin, outside keep-outs) farthest from every touch in
-    ``touched_xy`` (N, 2), and that distance (the fill distance of the touches); None without
-    touches. A feature narrower than this can sit between the touches: the checks see only
-    what lands on a touch, so neither the bands nor the flatness intervals carry it."""
-    from adaptive_cal.planning.gap import largest_gap as gap
-
-    cand = np.asarray(plan.candidates.xy_mm, dtype=np.float64)
-    radius, i = gap(cand, touched_xy)
-    if i < 0:
-        return None
-    return {"radius_mm": radius, "x_mm": float(cand[i, 0]), "y_mm": float(cand[i, 1]),
-            "means": GAP_MEANS}
-
-
-def gap_line(gap: dict) -> str:
-    return (f"largest gap between touches: {gap['radius_mm']:.0f} mm radius around "
-            f"({gap['x_mm']:.0f}, {gap['y_mm']:.0f}) mm; a dent or bump narrower than that can lie "
-            "there unseen, and the flatness intervals do not include one")
 
 
 # -- the words, shared by the terminal (run, flatness) and the report ---------------------------

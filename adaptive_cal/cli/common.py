@@ -69,9 +69,31 @@ def _first_line(path: Path) -> str:
     not "not a recording"."""
     try:
         with path.open(encoding="utf-8", errors="replace") as f:
-            return f.readline().lstrip("\ufeff").strip()
+            from adaptive_cal.formats.spread import unspread  # a spreadsheet's save: as written
+
+            return unspread(f.readline().rstrip("\r\n")).strip()
     except OSError as e:
         raise UserError(f"{path}: cannot be read ({e.strerror or e})") from None
+
+
+BINARY = ((b"\x1f\x8b", "a gzip-compressed file (decompress it first)"),
+          (b"PK\x03\x04", "a zip archive (an .xlsx workbook is one: save the sheet as "
+                          "'CSV UTF-8')"),
+          (b"\xd0\xcf\x11\xe0", "an Office binary file (.xls: save the sheet as 'CSV UTF-8')"),
+          (b"\x89PNG", "a PNG image"), (b"%PDF", "a PDF document"), (b"\xff\xd8\xff", "a JPEG image"))
+
+
+def binary_kind(head: bytes) -> str | None:
+    """What a file's first bytes say it is when it is no text at all (a compressed file, a
+    workbook, an image: until 2026-11-29 all were called UTF-16 text); None for text, UTF-16
+    included (a NUL beside most ASCII bytes)."""
+    for magic, kind in BINARY:
+        if head.startswith(magic):
+            return kind
+    if b"\x00" in head and not head.startswith((b"\xff\xfe", b"\xfe\xff")):
+        if max(head[0::2].count(0), head[1::2].count(0)) < 0.3 * len(head) / 2:
+            return "a binary file (NUL bytes among the others, not UTF-16 text)"
+    return None
 
 
 def check_recording(path: str) -> None:
@@ -91,6 +113,8 @@ def check_recording(path: str) -> None:
 
     if line != RECORDING_MAGIC and table_columns(line) is None:
         head = p.read_bytes()[:4096]
+        if (kind := binary_kind(head)) is not None:
+            raise UserError(f"{p}: not CSV text but {kind}. " + RECORDING_FORMAT)
         if head.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in head:
             raise UserError(f"{p}: UTF-16 text (a spreadsheet's 'Unicode text'), not UTF-8: save "
                             "it as 'CSV UTF-8'. " + RECORDING_FORMAT)

@@ -6,6 +6,12 @@ import csv
 import math
 
 from adaptive_cal.formats.table import strict_float
+from adaptive_cal.formats.text import separated_hint
+
+MAGIC = "# adaptive-cal recording v1"
+REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
+#: the optional columns DESIGN.md names: each, like a required one, may be named only once
+OPTIONAL = ("temp_c",) + tuple(f"j{i}_deg" for i in range(1, 7)) + ("round", "flags")
 
 
 class RecordingError(ValueError):
@@ -45,3 +51,16 @@ def split_cells(line: str, where: str) -> list[str]:
             raise _OpenQuote from None
         raise RecordingError(f"{where}: not a CSV row ({e}): {line[:80]!r}") from None
     return [c.strip() for c in cells]
+
+
+def _header(cells: list[str], where: str) -> list[str]:
+    """The header's column names: every required one, none of those DESIGN.md names twice
+    (which would be read?). Another name given twice is allowed: unknown columns are ignored."""
+    missing = [c for c in REQUIRED if c not in cells]
+    if missing:
+        hint = separated_hint(",".join(cells))  # a spreadsheet's ';' or tabs: one cell
+        raise RecordingError(f"{where}: header lacks column(s) {', '.join(missing)}{hint}")
+    twice = sorted({c for c in cells if cells.count(c) > 1 and c in REQUIRED + OPTIONAL})
+    if twice:
+        raise RecordingError(f"{where}: header names column(s) {', '.join(twice)} more than once")
+    return cells

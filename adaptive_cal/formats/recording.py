@@ -42,17 +42,16 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from adaptive_cal.formats.cells import (RecordingError, _number, _OpenQuote,  # noqa: F401
-                                        split_cells)  # (re-exported: writing, callers)
+from adaptive_cal.formats.cells import (MAGIC, OPTIONAL, REQUIRED, RecordingError,  # noqa: F401
+                                        _header, _number, _OpenQuote,  # (re-exported: writing,
+                                        split_cells)  # callers)
 from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, parse_flags, read_table,
                                         strict_float, unknown_flag_note)
+from adaptive_cal.formats.cut import cut_last_row
+from adaptive_cal.formats.spread import unspread
 from adaptive_cal.formats.text import not_utf8, separated_hint
 from adaptive_cal.formats.times import time_backwards
 
-MAGIC = "# adaptive-cal recording v1"
-REQUIRED = ("seq", "t_s", "x_mm", "y_mm", "z_mm", "reading_mm")
-#: the optional columns DESIGN.md names: each, like a required one, may be named only once
-OPTIONAL = ("temp_c",) + tuple(f"j{i}_deg" for i in range(1, 7)) + ("round", "flags")
 _SAID: set[str] = set()
 
 
@@ -202,6 +201,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
     pending: str | None = None  # a row whose quoted field goes on past its line's end
     first = 0  # the line a row starts on (a quoted field may span lines): errors name it
     row_lines: list[int] = []
+    cut_at, cut_row, cut_said = cut_last_row(path)
     try:
         with open(path, encoding="utf-8-sig", newline=None) as f:
             for lineno, line in enumerate(f, start=1):
@@ -213,7 +213,11 @@ def read_recording(path: str | os.PathLike) -> Recording:
                         continue
                     pending = None
                 else:
-                    first = lineno
+                    first, line = lineno, unspread(line)  # a spreadsheet's save: as written
+                    if lineno == cut_at:  # a last row a crash cut: as --resume would mend it
+                        notes.append(cut_said)
+                        if (line := cut_row) is None:
+                            continue
                     if lineno == 1 and line.strip() == MAGIC:
                         continue
                     if lineno == 1:
@@ -315,19 +319,6 @@ def read_recording(path: str | os.PathLike) -> Recording:
                      arrays["y_mm"], arrays["z_mm"], arrays["reading_mm"], tuple(flags),
                      {c: np.asarray(v, float) for c, v in extra.items()}, meta, str(path),
                      tuple(notes))
-
-
-def _header(cells: list[str], where: str) -> list[str]:
-    """The header's column names: every required one, none of those DESIGN.md names twice
-    (which would be read?). Another name given twice is allowed: unknown columns are ignored."""
-    missing = [c for c in REQUIRED if c not in cells]
-    if missing:
-        hint = separated_hint(",".join(cells))  # a spreadsheet's ';' or tabs: one cell
-        raise RecordingError(f"{where}: header lacks column(s) {', '.join(missing)}{hint}")
-    twice = sorted({c for c in cells if cells.count(c) > 1 and c in REQUIRED + OPTIONAL})
-    if twice:
-        raise RecordingError(f"{where}: header names column(s) {', '.join(twice)} more than once")
-    return cells
 
 
 def _metadata(line: str, meta: dict[str, str], notes: list[str], where: str) -> None:

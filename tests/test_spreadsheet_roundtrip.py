@@ -1,0 +1,86 @@
+"""A recording as other programs hand it back (an outside audit, 2026-11-29): saved again by a
+spreadsheet (every row as wide as the widest, text cells quoted, a second BOM), cut by a crash
+in its last row's last number, or not text at all. Each is read as the plain file, or refused
+saying what it is."""
+import gzip
+import io
+import zipfile
+
+import numpy as np
+import pytest
+
+from adaptive_cal.cli import main
+from adaptive_cal.formats.recording import read_recording
+from adaptive_cal.formats.spread import unspread
+
+META = ["# adaptive-cal recording v1", "# cell: audit", "# probe_zero_mm: 5.0"]
+HEADER = "seq,t_s,x_mm,y_mm,z_mm,reading_mm"
+
+
+def _rows(n=12):
+    rng = np.random.default_rng(3)
+    out = []
+    for k in range(n):
+        x, y = rng.uniform(-200, 200), rng.uniform(-160, 160)
+        out.append(f"{k},{3.2 * k:.3f},{x:.4f},{y:.4f},0.0000,{5 + 0.01 * x - 0.004 * y:.6f}")
+    return out
+
+
+def _write(path, lines, end="\n", bom=""):
+    path.write_bytes((bom + end.join(lines) + end).encode("utf-8"))
+    return path
+
+
+def _same(a, b):
+    assert np.array_equal(a.seq, b.seq) and np.allclose(a.reading_mm, b.reading_mm)
+    assert a.meta.get("probe_zero_mm") == b.meta.get("probe_zero_mm") == "5.0"
+
+
+def test_an_excel_save_reads_as_the_plain_file(tmp_path):
+    plain = read_recording(_write(tmp_path / "plain.csv", META + [HEADER] + _rows()))
+    wide = [m + ",,,,," for m in META] + [HEADER] + _rows()[:6] + [",,,,,"] + _rows()[6:]
+    _same(plain, read_recording(_write(tmp_path / "excel.csv", wide, "\r\n", "\ufeff")))
+
+
+def test_quoted_text_cells_and_a_second_bom_read_as_the_plain_file(tmp_path):
+    plain = read_recording(_write(tmp_path / "plain.csv", META + [HEADER] + _rows()))
+    quoted = [f'"{m}"' for m in META] + ['"' + '","'.join(HEADER.split(",")) + '"'] + _rows()
+    _same(plain, read_recording(_write(tmp_path / "lo.csv", quoted)))
+    _same(plain, read_recording(_write(tmp_path / "bom2.csv", META + [HEADER] + _rows(),
+                                       bom="\ufeff\ufeff")))
+
+
+@pytest.mark.parametrize("line, want", [
+    ("# adaptive-cal recording v1,,,,,,,", "# adaptive-cal recording v1"),
+    ('"# flags: ok","gated",,', "# flags: ok,gated"), (",,,,,", ""), (" ; ;", ""),
+    ("\ufeff\ufeff# cell: a", "# cell: a"), ('0,"1.0",2', '0,"1.0",2')])
+def test_unspread(line, want):
+    assert unspread(line) == want
+
+
+def test_a_last_number_cut_by_a_crash_is_left_out_and_said(tmp_path, capsys):
+    rows = _rows()
+    cut = rows[-1][:rows[-1].rindex(".") + 3]  # 6 decimals cut to 2, and no line end
+    p = tmp_path / "cut.csv"
+    p.write_text("\n".join(META + [HEADER] + rows[:-1] + [cut]))
+    rec = read_recording(p)
+    assert len(rec.seq) == len(rows) - 1
+    assert "fewer decimals than the row before's" in capsys.readouterr().err
+    p.write_text("\n".join(META + [HEADER] + rows))  # whole, only its line end missing
+    assert len(read_recording(p).seq) == len(rows)
+
+
+@pytest.mark.parametrize("kind, data", [
+    ("gzip-compressed", gzip.compress(b"# adaptive-cal recording v1\n")),
+    ("zip archive", None), ("PNG image", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")])
+def test_a_file_that_is_no_text_is_named_for_what_it_is(tmp_path, capsys, kind, data):
+    if data is None:
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w") as z:
+            z.writestr("xl/workbook.xml", "<workbook/>")
+        data = buf.getvalue()
+    p = tmp_path / "rec.csv"
+    p.write_bytes(data)
+    assert main(["flatness", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert f"not CSV text but a {kind}" in err and "UTF-16" not in err
