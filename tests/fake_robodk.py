@@ -15,6 +15,8 @@ RDK_API    Robolink() handshake                    int n + n doubles -> line, in
 G_Item2    Robolink.Item(name, type)               line, int -> item ptr (u64), int type, status
 G_Name     Item.Name()                             item -> line, status
 S_Link_ptr Item.setPoseFrame(frame item)           item frame, item robot -> status
+S_Tool_ptr Item.setPoseTool(tool item)             item tool, item robot -> status
+ConnectedState Item.ConnectedState()               item -> int state, line message, status
 S_RunMode  Robolink.setRunMode(mode)               int -> status
 Connect2   Item.Connect() (robot driver)           item, line ip, int blocking -> int, status
 S_Speed4   Item.setSpeed(...)                      item, int 4 + 4 doubles -> status
@@ -28,7 +30,9 @@ Anything else (``CMD_START`` included: the 6.x client never sends it) is an erro
 in ``errors`` and the connection is closed, so a test that forgets to assert on ``errors`` still
 fails on the client side.
 
-State: items by name (one robot, one or more frames), each frame's pose in the station (world),
+State: items by name (one robot, its tools, one or more frames), each frame's pose in the
+station (world), the robot's active tool (MoveXb and G_Hlocal answer for it: a pose is of the
+tool's centre point, the flange's without one set),
 the robot's tool pose in the station, the robot's active frame, the run mode, whether the robot
 driver is connected, the speed. A pose target is taken relative to the robot's active frame
 (world = frame @ target) and ``G_Hlocal`` on the robot answers inv(frame) @ world, as RoboDK does.
@@ -50,7 +54,7 @@ import numpy as np
 
 ROBODK_VERSION = "6.0.2"  # the client whose protocol this fake speaks (pinned by the tests)
 
-ITEM_TYPE_ROBOT, ITEM_TYPE_FRAME = 2, 3
+ITEM_TYPE_ROBOT, ITEM_TYPE_FRAME, ITEM_TYPE_TOOL = 2, 3, 4
 RUNMODE_SIMULATE, RUNMODE_RUN_ROBOT = 1, 6
 MOVE_TYPE_LINEAR = 2
 
@@ -142,7 +146,8 @@ class FakeRoboDK:
                  frames: dict[str, np.ndarray] | None = None,
                  start_xyz: tuple[float, float, float] = (0.0, 0.0, 50.0),
                  start_frame: str | None = None, build: int = 27000,
-                 driver_connects: bool = True, move_s: float = 0.0):
+                 driver_connects: bool = True, move_s: float = 0.0,
+                 tools: dict[str, float] | None = None):
         frames = {"Workplane": _xyz(600.0, -100.0, 250.0)} if frames is None else frames
         self.items: dict[int, FakeItem] = {}
         ptr = 0x5000
@@ -151,6 +156,12 @@ class FakeRoboDK:
         for name, pose in frames.items():
             ptr += 0x10
             self.items[ptr] = FakeItem(ptr, name, ITEM_TYPE_FRAME, np.array(pose, float))
+        # tools by name: the tip's length along the flange's z (mm); none active at first
+        for name, length in ({"Probe": 120.0} if tools is None else tools).items():
+            ptr += 0x10
+            self.items[ptr] = FakeItem(ptr, name, ITEM_TYPE_TOOL, _xyz(0.0, 0.0, length))
+        self.active_tool: FakeItem | None = None
+        self.driver_state = (0, "Ready")  # ConnectedState's answer once connected
         first = start_frame or next(iter(frames))
         frame = self.by_name(first, ITEM_TYPE_FRAME)
         # the station's own active frame for the robot before any client sets one: the base
@@ -278,7 +289,8 @@ class FakeRoboDK:
     def _item(self, ptr: int, kind: int | None = None) -> FakeItem:
         it = self.items.get(ptr)
         if it is None or (kind is not None and it.type != kind):
-            raise _Unknown(f"item {ptr:#x} is not a {'robot' if kind == 2 else 'frame'}")
+            what = {ITEM_TYPE_ROBOT: "robot", ITEM_TYPE_FRAME: "frame"}.get(kind, "tool")
+            raise _Unknown(f"item {ptr:#x} is not a {what}")
         return it
 
     def _local(self, it: FakeItem) -> np.ndarray:
@@ -289,7 +301,10 @@ class FakeRoboDK:
 
     @staticmethod
     def _status(code: int = 0, msg: str = "") -> bytes:
-        return struct.pack(">i", code) + ((msg + "\n").encode() if code >= 2 else b"")
+        """A status and, where robolink's _check_status reads one, its message line: after 2,
+        3, 10-99 and negatives other than -1 (not after 1, 4-9, -1 or 100 and more)."""
+        line = code in (2, 3) or 10 <= code < 100 or code < -1
+        return struct.pack(">i", code) + ((msg + "\n").encode() if line else b"")
 
     def _cmd_RDK_API(self, c: _Conn, name, n):
         flags = c.array()
@@ -317,6 +332,18 @@ class FakeRoboDK:
         self._record(name, frame=frame.ptr, robot=robot.ptr)
         self.active_frame = frame
         return self._status()
+
+    def _cmd_S_Tool_ptr(self, c: _Conn, name, n):
+        tool, robot = self._item(c.item(), ITEM_TYPE_TOOL), self._item(c.item(), ITEM_TYPE_ROBOT)
+        self._record(name, tool=tool.ptr, robot=robot.ptr)
+        self.active_tool = tool
+        return self._status()
+
+    def _cmd_ConnectedState(self, c: _Conn, name, n):
+        robot = self._item(c.item(), ITEM_TYPE_ROBOT)
+        state, msg = self.driver_state if self.connected else (-2, "Disconnected")
+        self._record(name, robot=robot.ptr, state=state)
+        return struct.pack(">i", state) + (msg + "\n").encode() + self._status()
 
     def _cmd_S_RunMode(self, c: _Conn, name, n):
         mode = c.int()
@@ -363,7 +390,8 @@ class FakeRoboDK:
         frame = self.active_frame
         self._record(name, movetype=movetype, pose16=tuple(values), robot=robot.ptr,
                      frame=frame.ptr if frame else 0, frame_name=frame.name if frame else "",
-                     connected=self.connected)
+                     connected=self.connected,
+                     tool_name=self.active_tool.name if self.active_tool else "")
         xyz = tuple(pose[:3, 3])
         if self.unreachable(xyz):
             return self._status(10, f"Target not reachable: {xyz}")

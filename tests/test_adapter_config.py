@@ -137,7 +137,7 @@ def test_modbus_default_scale_is_the_jobs_0_1_um_counts():
 
     cfg = ModbusConfig(host="192.168.1.5", port=502)
     job = (ROOT / "hw" / "ACAL_TOUCH.JBI").read_text()
-    div = int(re.search(r"^DIV D001 (\d+)$", job, re.M).group(1))
+    div = int(re.search(r"^DIV D041 (\d+)$", job, re.M).group(1))  # the target copied to D041
     assert "0.1 UM" in job.upper() and div == 10
     for mm in (2.0, 100.0, -185.0):
         counts = round(mm * cfg.scale)

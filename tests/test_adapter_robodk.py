@@ -4,6 +4,7 @@ server it fails fast with a clear message and never tries to launch the app. Wha
 cannot tell about a real RoboDK is listed in docs/adapters/robodk.md."""
 import math
 import socket
+import struct
 import threading
 import time
 from importlib.metadata import version
@@ -25,7 +26,7 @@ from adaptive_cal.hardware.robodk.config import RobodkConfig
 from tests.fake_robodk import ROBODK_VERSION, FakeRoboDK, _xyz
 from tests.helpers import sim_cell
 
-ROBOT, FRAME = "Yaskawa MH5LF", "Workplane"
+ROBOT, FRAME, TOOL = "Yaskawa MH5LF", "Workplane", "Probe"
 FRAME_POSE = _xyz(600.0, -100.0, 250.0)
 
 
@@ -38,7 +39,7 @@ def fake():
 
 
 def connect(server, *, timeout_s=2.0, move_timeout_s=2.0, **kw):
-    kw = {"robot_name": ROBOT, "frame_name": FRAME, **kw}
+    kw = {"robot_name": ROBOT, "frame_name": FRAME, "tool_name": TOOL, **kw}
     cfg = RobodkConfig(host="127.0.0.1", port=server.port, **kw)
     return RobodkMotion(cfg, timeout_s=timeout_s, move_timeout_s=move_timeout_s)
 
@@ -51,18 +52,20 @@ def test_the_fake_speaks_the_pinned_client():
 def test_no_robodk_is_a_clean_error(host):
     t = time.monotonic()
     with pytest.raises(AdapterError, match="RoboDK is not answering|cannot connect"):
-        RobodkMotion(RobodkConfig(host=host, port=9, frame_name=FRAME))
+        RobodkMotion(RobodkConfig(host=host, port=9, frame_name=FRAME, robot_name=ROBOT, tool_name=TOOL))
     assert time.monotonic() - t < 5.0
 
 
 def test_connects_and_selects_robot_and_frame_by_name(fake):
     m = connect(fake, speed_mm_per_s=35.0)
-    assert fake.names() == ["RDK_API", "G_Item2", "G_Name", "G_Item2", "G_Name", "S_Link_ptr",
-                            "S_RunMode", "S_Speed4", "G_Hlocal"]
+    assert fake.names() == ["RDK_API", "G_Item2", "G_Name", "G_Item2", "G_Name", "G_Item2",
+                            "G_Name", "S_Link_ptr", "S_Tool_ptr", "S_RunMode", "S_Speed4",
+                            "G_Hlocal"]
     items = [c.args for c in fake.log if c.name == "G_Item2"]
     assert items == [{"query": ROBOT, "type": 2, "found": fake.robot.ptr},
-                     {"query": FRAME, "type": 3, "found": fake.by_name(FRAME, 3).ptr}]
-    assert fake.active_frame.name == FRAME
+                     {"query": FRAME, "type": 3, "found": fake.by_name(FRAME, 3).ptr},
+                     {"query": TOOL, "type": 4, "found": fake.by_name(TOOL, 4).ptr}]
+    assert fake.active_frame.name == FRAME and fake.active_tool.name == TOOL
     assert fake.speed == [35.0, -1.0, -1.0, -1.0]
     assert m.position() == pytest.approx((0.0, 0.0, 50.0))  # the fake's start, in the frame
     m.close()
@@ -73,6 +76,8 @@ def test_connects_and_selects_robot_and_frame_by_name(fake):
     ("frame_name", "Plate", "no reference frame named 'Plate'.*frame_name"),
     # RoboDK answers the closest match; the adapter insists on the exact name
     ("frame_name", "Work", "no reference frame named exactly 'Work'.*closest is 'Workplane'"),
+    ("tool_name", "Gripper", "no tool named 'Gripper'.*tool_name"),
+    ("tool_name", "Pro", "no tool named exactly 'Pro'.*closest is 'Probe'"),
 ])
 def test_unknown_item_names_the_item_and_sends_no_move(fake, key, name, said):
     with pytest.raises(AdapterError, match=said):
@@ -218,7 +223,7 @@ def test_a_server_that_accepts_and_says_nothing_times_out():
     try:
         t = time.monotonic()
         with pytest.raises(AdapterError, match="cannot connect.*TimeoutError"):
-            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME),
+            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME, robot_name=ROBOT, tool_name=TOOL),
                          timeout_s=0.3)
         assert time.monotonic() - t < 2.0
     finally:
@@ -243,7 +248,7 @@ def test_a_server_that_hangs_up_during_the_handshake_does_not_hang_the_client():
     try:
         t = time.monotonic()
         with pytest.raises(AdapterError, match="cannot connect.*closed the connection"):
-            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME),
+            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME, robot_name=ROBOT, tool_name=TOOL),
                          timeout_s=1.0)
         assert time.monotonic() - t < 2.0
     finally:
@@ -318,7 +323,8 @@ def test_probe_cycle_over_robodk_never_sends_a_refused_target(fake):
 
 def test_open_cell_drives_robodk_from_the_cell_file(fake):
     cell = sim_cell(robot={"adapter": "robodk", "robodk": {
-                        "port": fake.port, "robot_name": ROBOT, "frame_name": FRAME}},
+                        "port": fake.port, "robot_name": ROBOT, "frame_name": FRAME,
+                        "tool_name": TOOL}},
                     probe={"adapter": "manual", "settle_s": 0.0})
     opened = open_cell(cell, manual=ManualCell(ask=lambda text: "5.012"))
     try:
@@ -328,3 +334,53 @@ def test_open_cell_drives_robodk_from_the_cell_file(fake):
     assert touch.reading_mm == pytest.approx(5.012)
     assert [c.args["pose16"][12:15] for c in fake.moves()] == [
         (10.0, -20.0, 15.0), (10.0, -20.0, 0.0), (10.0, -20.0, 15.0)]  # from z = 50: no lift
+
+
+# -- an outside audit against the robodk client's source (2026-11-29) -------------------------
+def test_the_probe_tool_is_active_before_any_move(fake):
+    """Targets and Pose() are of the active tool (robolink Item.Pose): the adapter set none, so
+    with the flange active every touch would land a tool length lower than checked."""
+    m = connect(fake)
+    m.move_to(10.0, 20.0, 15.0)
+    names = fake.names()
+    assert names.index("S_Tool_ptr") < names.index("MoveXb")
+    assert all(c.args["tool_name"] == TOOL for c in fake.moves())
+    m.close()
+
+
+@pytest.mark.parametrize("key", ["robot_name", "tool_name", "frame_name"])
+def test_every_name_is_required_when_the_cell_file_is_read(key):
+    from pydantic import ValidationError
+    kw = {"robot_name": ROBOT, "frame_name": FRAME, "tool_name": TOOL, key: " "}
+    with pytest.raises(ValidationError, match=f"{key} is empty"):
+        RobodkConfig(**kw)
+
+
+def test_speed_has_the_hses_limit():
+    from pydantic import ValidationError
+    with pytest.raises(ValidationError, match="less than or equal to 1000"):
+        RobodkConfig(robot_name=ROBOT, frame_name=FRAME, tool_name=TOOL, speed_mm_per_s=1e6)
+
+
+def test_a_driver_that_dropped_between_moves_stops_the_run_before_the_next(fake):
+    m = connect(fake, run_on_robot=True)
+    m.move_to(10.0, 20.0, 15.0)
+    sent = len(fake.moves())
+    fake.driver_state = (-2, "Disconnected")
+    with pytest.raises(AdapterError, match="robot driver is not ready .*Disconnected.*not sent"):
+        m.move_to(10.0, 20.0, 0.0)
+    assert len(fake.moves()) == sent
+    m.close()
+
+
+def test_a_status_the_client_cannot_place_is_a_lost_link(fake):
+    """Status 4242 (>= 100: 'Problems running function', no message read) may leave the stream
+    out of step: the link is dropped, not reused."""
+    m = connect(fake)
+    orig = fake._cmd_MoveXb
+    fake._cmd_MoveXb = lambda c, name, n: (orig(c, name, n), struct.pack(">i", 4242))[1]
+    with pytest.raises(AdapterError, match="Problems running function.*--resume"):
+        m.move_to(10.0, 20.0, 15.0)
+    with pytest.raises(AdapterError, match="lost earlier.*nothing was sent"):
+        m.move_to(10.0, 20.0, 0.0)
+    m.close()

@@ -62,6 +62,9 @@ class _LinkSocket(socket.socket):
 
 # what a broken link looks like from inside the client: the stream is no longer in step
 _LINK_ERRORS = (OSError, struct.error, UnicodeDecodeError)
+# statuses after which the client reads no message line, and the stream may be out of step:
+# -1 and 100 or more (robolink's _check_status); the rest come with their message or none
+_DESYNC = ("Communication problems", "Problems running function")
 
 
 class RobodkMotion:
@@ -84,9 +87,6 @@ class RobodkMotion:
         self._at: tuple[float, float, float] | None = None
         self._sock: _LinkSocket | None = None
         self.rdk = None
-        if not cfg.frame_name:
-            raise AdapterError(f"{self.where}: robot.robodk.frame_name is empty; name the RoboDK "
-                               "reference frame taught on the workplane (targets are sent in it)")
 
         def com() -> _LinkSocket:
             self._sock = _LinkSocket(self.timeout_s, self.timeout_s)
@@ -111,7 +111,9 @@ class RobodkMotion:
                                     "robot_name")
             self.frame = self._item(cfg.frame_name, robolink.ITEM_TYPE_FRAME, "reference frame",
                                     "frame_name")
+            self.tool = self._item(cfg.tool_name, robolink.ITEM_TYPE_TOOL, "tool", "tool_name")
             self.robot.setPoseFrame(self.frame)
+            self.robot.setPoseTool(self.tool)  # targets and Pose() are of the active tool
             self.rdk.setRunMode(robolink.RUNMODE_RUN_ROBOT if cfg.run_on_robot
                                 else robolink.RUNMODE_SIMULATE)
             if cfg.run_on_robot and self.robot.Connect() != 1:
@@ -187,6 +189,8 @@ class RobodkMotion:
             wait = float(self.move_timeout_s)
         else:
             wait = 30.0 + 3.0 * math.dist(self._at, (x_mm, y_mm, z_mm)) / self.cfg.speed_mm_per_s
+        if self.cfg.run_on_robot:
+            self._driver_ready(what)
         self._sock.wait_s = max(wait, self.timeout_s)
         try:
             self.robot.MoveL(self._pose(x_mm, y_mm, z_mm))
@@ -200,12 +204,32 @@ class RobodkMotion:
         except _LINK_ERRORS as e:
             raise self._lose(what, e) from e
         except Exception as e:  # RoboDK refused it (an error status): the link is still in step
+            if str(e) in _DESYNC:  # -1 or >= 100: what follows in the stream is not known
+                raise self._lose(what, e) from e
             self._at = None
             raise AdapterError(f"{self.where}: {what} failed: {e}") from e
         finally:
             if self._sock is not None:
                 self._sock.wait_s = self.timeout_s
         self._at = (float(x_mm), float(y_mm), float(z_mm))
+
+    def _driver_ready(self, what: str) -> None:
+        """With run_on_robot: the robot driver must still be connected and ready before a move
+        (a driver that dropped between moves would leave RoboDK simulating the rest)."""
+        try:
+            state, msg = self.robot.ConnectedState()
+        except _LINK_ERRORS as e:
+            raise self._lose("asking the robot driver's state", e) from e
+        except Exception as e:
+            if str(e) in _DESYNC:
+                raise self._lose("asking the robot driver's state", e) from e
+            raise AdapterError(f"{self.where}: asking the robot driver's state failed: {e}; "
+                               f"{what} was not sent") from e
+        if state != self.rl.ROBOTCOM_READY:
+            raise AdapterError(f"{self.where}: the robot driver is not ready (state {state}: "
+                               f"{msg!r}); {what} was not sent. Reconnect the robot in RoboDK "
+                               "(right-click the robot > Connect to robot), then continue with "
+                               "--resume")
 
     def _read_position(self) -> tuple[float, float, float]:
         p = self.robot.Pose().Pos()  # the active tool in the active (workplane) frame
@@ -218,6 +242,8 @@ class RobodkMotion:
         except _LINK_ERRORS as e:
             raise self._lose("reading the pose", e) from e
         except Exception as e:
+            if str(e) in _DESYNC:
+                raise self._lose("reading the pose", e) from e
             raise AdapterError(f"{self.where}: reading the pose failed: {e}") from e
 
     def close(self) -> None:
