@@ -84,3 +84,38 @@ def test_a_file_that_is_no_text_is_named_for_what_it_is(tmp_path, capsys, kind, 
     assert main(["flatness", str(p)]) == 2
     err = capsys.readouterr().err
     assert f"not CSV text but a {kind}" in err and "UTF-16" not in err
+
+
+def test_a_copy_saved_again_is_not_a_second_round(tmp_path, capsys):
+    a = _write(tmp_path / "a.csv", META + [HEADER] + _rows())
+    b = _write(tmp_path / "b.csv", META + [HEADER] + _rows(), "\r\n", "\ufeff")
+    assert main(["flatness", str(a), "--compare", str(b)]) == 2
+    assert "the same recording as" in capsys.readouterr().err
+
+
+def test_an_upper_case_header_is_refused_saying_why(tmp_path, capsys):
+    p = _write(tmp_path / "u.csv", META + [HEADER.upper()] + _rows())
+    assert main(["flatness", str(p)]) == 2
+    assert "column names are lower case" in capsys.readouterr().err
+
+
+def test_a_long_quoted_note_is_an_ignored_column_like_an_unquoted_one(tmp_path):
+    note = "x" * 200_000
+    rows = [r + f',"{note}"' for r in _rows()]
+    rec = read_recording(_write(tmp_path / "n.csv", META + [HEADER + ",note"] + rows))
+    assert len(rec) == 12
+
+
+def test_a_height_map_with_a_height_beyond_a_metre_is_refused_by_line():
+    from adaptive_cal.formats.heightmap import HeightMapError, parse_heightmap
+    rows = ["x_mm,y_mm,height_mm"] + [f"{x},{y},{5000.0 if (x, y) == (10, 0) else 0.01}"
+                                      for x in (0, 10, 20) for y in (0, 10)]
+    with pytest.raises(HeightMapError, match="line 4: height_mm '5000.0' is beyond"):
+        parse_heightmap("\n".join(rows))
+
+
+@pytest.mark.parametrize("first", ["-100,-100,-0.5", "x,y,z"])
+def test_a_point_table_without_its_header_says_what_is_missing(first):
+    from adaptive_cal.formats.toolpath import ToolpathError, read_toolpath
+    with pytest.raises(ToolpathError, match="needs the header line x_mm,y_mm,z_mm"):
+        read_toolpath(first + "\n1,2,3\n")

@@ -5,6 +5,10 @@ from __future__ import annotations
 import csv
 import math
 
+# a quoted field may be as long as a file this tool reads (64 MiB), not csv's 128 KiB (an
+# unknown column holding a long note is ignored, quoted or not)
+csv.field_size_limit(max(csv.field_size_limit(), 64 * 2**20))
+
 from adaptive_cal.formats.table import strict_float
 from adaptive_cal.formats.text import separated_hint
 
@@ -59,6 +63,8 @@ def _header(cells: list[str], where: str) -> list[str]:
     missing = [c for c in REQUIRED if c not in cells]
     if missing:
         hint = separated_hint(",".join(cells))  # a spreadsheet's ';' or tabs: one cell
+        if not hint and all(c in [n.lower() for n in cells] for c in missing):
+            hint = f" (column names are lower case, as DESIGN.md has them: {', '.join(missing)})"
         raise RecordingError(f"{where}: header lacks column(s) {', '.join(missing)}{hint}")
     twice = sorted({c for c in cells if cells.count(c) > 1 and c in REQUIRED + OPTIONAL})
     if twice:

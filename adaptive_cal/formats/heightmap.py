@@ -26,6 +26,8 @@ from adaptive_cal.formats.text import not_utf8
 
 HEADER = "x_mm,y_mm,height_mm"
 MAX_NODES = 4_000_000  # 2000 x 2000 nodes: far finer than any plate needs
+# a recording's limits (formats.recording): positions +-10 m, a height (a reading) +-1 m
+LIMIT_MM = {"x_mm": 10_000.0, "y_mm": 10_000.0, "height_mm": 1_000.0}
 _REL = 1e-6  # grid positions equal to this share of the node spacing are the same node
 #: a node may lie this share of the grid's spacing from its place on the regular grid (``_axis``)
 ROUND_OFF = 1 / 20
@@ -189,7 +191,8 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
         raise HeightMapError(f"{source}, line 1: expected the header {HEADER!r}, got "
                              f"{first[:80]!r}{hint}")
     a = _fast_numbers(text)
-    if a is not None:
+    if a is not None and (np.abs(a) <= [LIMIT_MM["x_mm"], LIMIT_MM["y_mm"],
+                                        LIMIT_MM["height_mm"]]).all():  # else: said by line
         fast = _grid(a, source)
         if fast is not None:
             return fast
@@ -208,6 +211,9 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
             if value is None or not math.isfinite(value):
                 raise HeightMapError(f"{source}, line {n}: {name} must be a finite number, "
                                      f"got {cell[:40]!r}")
+            if abs(value) > LIMIT_MM[name]:  # as a recording's: a typo or a unit error
+                raise HeightMapError(f"{source}, line {n}: {name} {cell.strip()!r} is beyond "
+                                     f"+-{LIMIT_MM[name]:g} mm (a typo or a unit error?)")
             row.append(value)
         numbers.append(row)
         rows.append(n)

@@ -133,7 +133,9 @@ def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
         pos = m.end()
     gap = code[pos:].strip()
     if gap and gap != "%":
-        raise ToolpathError(f"{where}: cannot read {gap[:30]!r}")
+        hint = ("; a point table (CSV) needs the header line x_mm,y_mm,z_mm first"
+                if "," in line and re.fullmatch(r"[\s\w.,+-]*", line) else "")
+        raise ToolpathError(f"{where}: cannot read {gap[:30]!r}{hint}")
     return out
 
 
