@@ -166,7 +166,8 @@ def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator
             rdraws = rdraws + unresolved_draws(rxy, ru, length_mm, rng.spawn(1)[0], samples)
         rx, ry, rmean = rxy[:, 0], rxy[:, 1], bl.predict(belief, rrows)[0]
         if added:
-            rx, ry, rmean, rdraws = np.r_[rx, fx], np.r_[ry, fy], np.r_[rmean, fm], np.c_[rdraws, fd.T]
+            rx, ry, rmean = np.r_[rx, fx], np.r_[ry, fy], np.r_[rmean, fm]
+            rdraws = np.c_[rdraws, fd.T]
         figures["within_reach"] = _figures(rx, ry, rmean, rdraws, "figure of the mean map")
     return tilt, figures
 
@@ -267,7 +268,8 @@ def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=No
     if within is not None:
         within.pop("range")
         out["flatness_within_reach_mm"] = {
-            "box_mm": [list(map(float, b)) for b in box], "eval_points": len(reach[0]),
+            "box_mm": [list(map(float, b)) for b in box],
+            "eval_points": len(reach[0]),
             **within, "means": WITHIN_MEANS}
     if rows is not None:
         out["touched_flatness_mm"] = touched_answer(x, y, z, rows, belief, noise_std_mm, rng,

@@ -80,7 +80,8 @@ BINARY = ((b"\x1f\x8b", "a gzip-compressed file (decompress it first)"),
           (b"PK\x03\x04", "a zip archive (an .xlsx workbook is one: save the sheet as "
                           "'CSV UTF-8')"),
           (b"\xd0\xcf\x11\xe0", "an Office binary file (.xls: save the sheet as 'CSV UTF-8')"),
-          (b"\x89PNG", "a PNG image"), (b"%PDF", "a PDF document"), (b"\xff\xd8\xff", "a JPEG image"))
+          (b"\x89PNG", "a PNG image"), (b"%PDF", "a PDF document"),
+          (b"\xff\xd8\xff", "a JPEG image"))
 
 
 def binary_kind(head: bytes) -> str | None:

@@ -8,11 +8,12 @@ checks that it stays off (a PLC that copies the robot's done output into it is r
 ``start``), sets ``start``; the PLC (on the rising edge) has the robot move and sets ``done``;
 the PC clears ``start``, also when the wait ends any other way (fault, timeout, lost link: else
 a level-triggered PLC or job moves the robot when the fault is cleared). ``fault`` set by the
-PLC stops the run. A probe sample: PC sets ``probe_trigger`` (a rising edge; one found still
-set is written off and held off for ``scan_s`` first, so that a scan sees it off); the PLC
-stores the value, increments ``probe_count`` and clears the trigger; a counter that does not
-move means a stale value, which is rejected. A background thread increments ``watchdog`` every watchdog_s / 4 so
-the PLC can stop the cell when the PC or the link dies.
+PLC stops the run. A probe sample: PC sets ``probe_trigger`` (a rising edge) once it has been
+off for ``scan_s`` -- since the PLC cleared it, or since the PC wrote off one found still set --
+so that a scan sees it off; the PLC stores the value, increments ``probe_count`` and clears the
+trigger; a counter that does not move means a stale value, which is rejected. A background
+thread increments ``watchdog`` every watchdog_s / 4 so the PLC can stop the cell when the PC or
+the link dies.
 """
 from __future__ import annotations
 

@@ -89,9 +89,9 @@ class ModbusConfig(Strict):
         "that first move before anything is written")
     scan_s: float = Field(
         0.05, gt=0, le=5, description="the PLC's longest program scan (with an HMI or gateway in "
-        "between, its update period): a rising-edge flag (start, probe_trigger) that the PC finds "
-        "set is written off and held off this long before it is set again, so that a scan sees "
-        "it off (an edge is what one scan sees against the one before)")
+        "between, its update period): the PC sets a rising-edge flag (start, probe_trigger) only "
+        "after it has been off this long -- since the PLC cleared it or the PC wrote it off -- so "
+        "that a scan sees it off (an edge is what one scan sees against the one before)")
     done_settle_s: float = Field(
         0.05, gt=0, le=5, description="after the PC clears done, it must stay off this long "
         "(several PLC scans) before start is set; a PLC that copies the robot's done output "
