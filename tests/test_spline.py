@@ -82,13 +82,24 @@ def test_surface_plane_exact_and_gram_is_2d_integral():
     coef = 0.014 * gx - 0.002 * gy + 0.3
     x, y = RNG.uniform(-200, 200, 500), RNG.uniform(-150, 150, 500)
     np.testing.assert_allclose(surf.basis(x, y) @ coef, 0.014 * x - 0.002 * y + 0.3, atol=1e-12)
-    # trace(Q C) with C = v v^T is the integral of S(x, y)^2 over the rectangle
-    v = RNG.normal(size=surf.size)
-    xs, ys = np.linspace(-200, 200, 801), np.linspace(-150, 150, 601)
+    # trace(Q C) with C = v v^T is the integral of S(x, y)^2 over the rectangle. S is a cubic
+    # in each variable on every knot cell, S^2 of degree 6: 4-point Gauss-Legendre per knot
+    # interval and axis (exact to degree 7) integrates it exactly, so the tolerance is round-off.
+    # (It was the trapezoid rule on an 801 x 601 grid with rtol 1e-5 and v drawn from the module's
+    # shared generator: its O(h^2) error reached 2.5e-5 for some v, depending on which tests ran
+    # before in the same worker -- a test that failed once in a while under pytest -n.)
+    v = np.random.default_rng(7).normal(size=surf.size)
+    g, w = np.polynomial.legendre.leggauss(4)
+
+    def nodes(knots):
+        a, b = knots[:-1, None], knots[1:, None]
+        return ((a + b) / 2 + (b - a) / 2 * g).ravel(), ((b - a) / 2 * w).ravel()
+
+    (xs, wx), (ys, wy) = nodes(np.linspace(-200, 200, 6)), nodes(np.linspace(-150, 150, 5))
     xx, yy = np.meshgrid(xs, ys, indexing="ij")
     f = (surf.basis(xx.ravel(), yy.ravel()) @ v).reshape(xx.shape) ** 2
-    integral = trapezoid(trapezoid(f, ys, axis=1), xs)
-    np.testing.assert_allclose(v @ surf.gram() @ v, integral, rtol=1e-5)
+    integral = wx @ f @ wy
+    np.testing.assert_allclose(v @ surf.gram() @ v, integral, rtol=1e-10)
 
 
 def test_jax_basis_equals_numpy_and_jit():
