@@ -103,12 +103,16 @@ class TkPlc:
                 self.moves.append(target)
                 s.set_values("m", 0x0800 + 11, [1])
             if trig and target:
-                a, b, c = self.plane
-                v = round((a * target[0] + b * target[1] + c) * self.scale)
-                s.set_values("m", 0x0800 + 13, [0])
-                count = s.get_values("d", 0x1000 + 112, 1)[0]
-                s.set_values("d", 0x1000 + 110, struct.unpack("<HH", struct.pack("<i", v)))
-                s.set_values("d", 0x1000 + 112, [(count + 1) & 0xFFFF])
+                self.sample(target)
+
+    def sample(self, target):
+        """The plate at ``target`` into D110, the count D112 + 1, the trigger M13 cleared."""
+        s, (a, b, c) = self.slave, self.plane
+        v = round((a * target[0] + b * target[1] + c) * self.scale)
+        s.set_values("m", 0x0800 + 13, [0])
+        count = s.get_values("d", 0x1000 + 112, 1)[0]
+        s.set_values("d", 0x1000 + 110, struct.unpack("<HH", struct.pack("<i", v)))
+        s.set_values("d", 0x1000 + 112, [(count + 1) & 0xFFFF])
 
     def close(self):
         self.stop.set()
@@ -161,12 +165,7 @@ class EdgeTkPlc(TkPlc):
                 if self.miss:
                     self.miss -= 1
                 else:
-                    a, b, c = self.plane
-                    v = round((a * target[0] + b * target[1] + c) * self.scale)
-                    s.set_values("m", 0x0800 + 13, [0])
-                    count = s.get_values("d", 0x1000 + 112, 1)[0]
-                    s.set_values("d", 0x1000 + 110, struct.unpack("<HH", struct.pack("<i", v)))
-                    s.set_values("d", 0x1000 + 112, [(count + 1) & 0xFFFF])
+                    self.sample(target)
             was = (start, trig)
 
 

@@ -52,18 +52,24 @@ def test_an_emulated_cell_is_mapped_through_its_adapters(name, tmp_path):
     assert (out / "result.json").exists()
 
 
-def test_the_manual_cell_is_mapped_from_typed_readings(tmp_path):
+def _run_manual(tmp_path, typed: str):
+    """`adaptive-cal run` on the (shortened) manual cell with ``typed`` as the operator's input:
+    (the finished process, the run folder)."""
     d = _short(yaml.safe_load((ROOT / "configs" / "cell-manual.yaml").read_text()))
     cell = tmp_path / "cell.yaml"
     cell.write_text(yaml.safe_dump(d))
     out = tmp_path / "run"
     p = subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot", str(cell),
-                        "--out", str(out), "--yes", "--no-progress"],
-                       # readings a live gauge gives (the same one typed every time is a
-                       # frozen readout: rejected after a few, see test_probe_cycle)
-                       input="".join(f"{5.01 + 0.003 * (k % 5):.3f}\n" for k in
-                                     range(2 * TOUCHES + 4)), capture_output=True, text=True,
-                       timeout=300)
+                        "--out", str(out), "--yes", "--no-progress"], input=typed,
+                       capture_output=True, text=True, timeout=300)
+    return p, out
+
+
+def test_the_manual_cell_is_mapped_from_typed_readings(tmp_path):
+    # readings a live gauge gives (the same one typed every time is a frozen readout: rejected
+    # after a few, see test_probe_cycle)
+    p, out = _run_manual(tmp_path, "".join(f"{5.01 + 0.003 * (k % 5):.3f}\n"
+                                           for k in range(2 * TOUCHES + 4)))
     assert p.returncode in (0, 1), p.stderr
     assert "error" not in p.stderr
     assert len(_fused_rows(out)) >= TOUCHES - 1
@@ -73,14 +79,7 @@ def test_q_typed_at_the_manual_cell_stops_as_an_interruption_not_a_device_error(
     """An outside docs audit (2026-11-29): `q` ended the run with 'error: manual adapter:
     stopped by the operator', exit status 2 and result.json's `error` set -- the status README
     gives a failed device. It now ends as Ctrl-C does: INCOMPLETE, `interrupted`, 130."""
-    d = _short(yaml.safe_load((ROOT / "configs" / "cell-manual.yaml").read_text()))
-    cell = tmp_path / "cell.yaml"
-    cell.write_text(yaml.safe_dump(d))
-    out = tmp_path / "run"
-    p = subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot", str(cell),
-                        "--out", str(out), "--yes", "--no-progress"],
-                       input="5.011\n5.014\nabc\nq\n", capture_output=True, text=True,
-                       timeout=300)
+    p, out = _run_manual(tmp_path, "5.011\n5.014\nabc\nq\n")
     assert p.returncode == 130, p.stderr
     assert "error" not in p.stderr and "INCOMPLETE" in p.stdout
     result = json.loads((out / "result.json").read_text())
