@@ -213,3 +213,16 @@ def test_other_candidates_are_judged_beside_the_verdict(cheng_round0, cheng_roun
     p = hidden["given_verdict"]["params"]
     assert np.hypot(p["x_mm"] - 60.0, p["y_mm"] + 50.0) < 30.0
     assert 0.1 < p["height_mm"] < 0.3
+
+
+def test_calibration_gives_the_correction_as_result_json_does(cheng_round0, cheng_round1):
+    """An outside audit (2026-11-29): explain's only angles were the slope angles (about_y_deg
+    = atan(a)), the opposite sign of result.json's ry_deg for the same plate. rx_deg, ry_deg
+    now carry the correction itself, by the function result.json uses."""
+    from adaptive_cal.analysis.flatness import tilt_correction_deg
+    cell = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
+    cal = explain([read_recording(cheng_round0), read_recording(cheng_round1)], cell) \
+        .findings["calibration"][0]
+    assert (cal["rx_deg"], cal["ry_deg"]) == tilt_correction_deg(cal["a"], cal["b"])
+    assert cal["ry_deg"] * cal["about_y_deg"] < 0 and cal["rx_deg"] == pytest.approx(
+        cal["about_x_deg"], rel=1e-12)

@@ -83,3 +83,25 @@ def test_simulated_effects_reach_the_recording(tmp_path):
     rec = read_recording(tmp_path / "d" / "recording.csv")
     heights = rec.reading_mm - 5.0 + rec.z_mm
     np.testing.assert_allclose(heights, 1e-4 * rec.t_s, atol=2e-4)
+
+
+def test_a_resumed_run_arrives_in_the_direction_its_recording_says():
+    """An outside audit (2026-11-29): after --resume the simulator's first touch had no
+    direction of arrival (reversal 0) where the recording's row order -- and so explain --
+    gives it one. The last row's x and direction now carry over."""
+    from adaptive_cal.simulation.cell import SimulatedCell
+    from helpers import sim_cell
+
+    cell = sim_cell(simulation={"effects": {"reversal": {"span_mm": 0.02}}, "noise_std_mm": 0.0,
+                                "repeatability_mm": 0.0, "xy_repeatability_mm": 0.0})
+
+    def reading(arrival):
+        sim = SimulatedCell.from_cell(cell, start_touch=5, start_arrival=arrival)
+        sim.move_to(50.0, 0.0, 15.0)
+        sim.move_to(50.0, 0.0, 0.0)
+        return sim.read().reading_mm
+
+    fresh = reading(None)  # no move along x before: direction 0, as Recording.direction has it
+    assert reading((100.0, 1.0)) - fresh == pytest.approx(-0.01, abs=1e-12)  # 100 -> 50: -x
+    assert reading((0.0, -1.0)) - fresh == pytest.approx(+0.01, abs=1e-12)   # 0 -> 50: +x
+    assert reading((50.0, -1.0)) - fresh == pytest.approx(-0.01, abs=1e-12)  # in place: kept

@@ -124,7 +124,7 @@ def _probe(cell: Cell, links: dict, manual) -> ProbeDevice:
 
 
 def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
-              manual=None) -> OpenCell:
+              manual=None, start_arrival: tuple[float, float] | None = None) -> OpenCell:
     """Connect to the cell named by the cell file. ``manual`` replaces the operator console
     (a ManualCell with injected streams, for notebooks and tests). ``cell``: a Cell, or a cell
     file's path or dict (``cell.schema.as_cell``)."""
@@ -136,7 +136,8 @@ def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
     if cell.robot.adapter == "sim":
         from adaptive_cal.simulation.cell import SimulatedCell
 
-        sim = SimulatedCell.from_cell(cell, start_t_s=start_t_s, start_touch=start_touch)
+        sim = SimulatedCell.from_cell(cell, start_t_s=start_t_s, start_touch=start_touch,
+                                      start_arrival=start_arrival)
         cycle = ProbeCycle(sim, sim, allowed, cell.robot.safe_height_mm, p.usable_mm, p.samples,
                            p.samples_tolerance_mm, p.retries, 0.0, clock=lambda: sim.t_s,
                            sleep=lambda s: None)

@@ -189,7 +189,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                                                "flags": FLAGS_META,
                                                "software": made["software"],
                                                "started_utc": made["written_utc"]}, ("round",))
-    opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch)
+    arrival = (float(rec.x_mm[-1]), float(rec.direction[-1])) if resume and len(rec) else None
+    opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch, start_arrival=arrival)
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
         opened.cycle.seed_repeats(rec.reading_mm)
     truth = opened.simulated.surface_mm if opened.simulated is not None else None

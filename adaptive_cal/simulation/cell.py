@@ -42,13 +42,19 @@ class SimulatedCell:
     _reached: tuple[float, float, float] = field(default=(0.0, 0.0, 50.0))
 
     @classmethod
-    def from_cell(cls, cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0) -> "SimulatedCell":
+    def from_cell(cls, cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
+                  start_arrival: tuple[float, float] | None = None) -> "SimulatedCell":
+        """``start_arrival``: (x mm, direction) of the recording's last row, for a resumed run:
+        the next touch's direction of arrival follows from it, as the recording's row order says
+        (DESIGN.md; until 2026-11-29 a resumed run's first touch had none)."""
         wp = cell.workplane
         start = (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm), cell.robot.safe_height_mm)
         return cls(cell.geometry, cell.simulation or Simulation(), cell.probe.zero_mm,
                    cell.probe.stroke_mm, cell.probe.resolution_mm, cell.robot.speed_mm_per_s,
                    cell.robot.touch_time_s, t_s=start_t_s, touches=start_touch, pose=start,
-                   rest_mm=cell.probe.rest_mm, _reached=start)
+                   rest_mm=cell.probe.rest_mm, _reached=start,
+                   _last_x=None if start_arrival is None else start_arrival[0],
+                   _last_dir=0.0 if start_arrival is None else start_arrival[1])
 
     # -- truth -------------------------------------------------------------------------
     def surface_mm(self, x_mm, y_mm) -> np.ndarray:

@@ -64,14 +64,19 @@ class Explanation:
 def _calibration(ctx: Context, sigma: float) -> list[dict]:
     coef, *_ = np.linalg.lstsq(ctx.nuisance, ctx.design.target, rcond=None)
     cov = sigma ** 2 * np.linalg.pinv(ctx.nuisance.T @ ctx.nuisance)
+    from adaptive_cal.analysis.flatness import tilt_correction_deg
+
     out = []
     for r in range(ctx.design.rounds):
         a, b, c = coef[3 * r:3 * r + 3]
         sa, sb, sc = np.sqrt(np.diag(cov)[3 * r:3 * r + 3])
+        rx, ry = tilt_correction_deg(float(a), float(b))  # result.json's correction, its signs
         out.append({"a": float(a), "b": float(b), "c": float(c), "a_std": float(sa),
                     "b_std": float(sb), "c_std": float(sc),
+                    # the slope angles atan(a), atan(b): not the correction (kept as they were)
                     "about_y_deg": float(np.degrees(np.arctan(a))),
-                    "about_x_deg": float(np.degrees(np.arctan(b)))})
+                    "about_x_deg": float(np.degrees(np.arctan(b))),
+                    "rx_deg": rx, "ry_deg": ry})
     return out
 
 
