@@ -119,3 +119,30 @@ def test_a_point_table_without_its_header_says_what_is_missing(first):
     from adaptive_cal.formats.toolpath import ToolpathError, read_toolpath
     with pytest.raises(ToolpathError, match="needs the header line x_mm,y_mm,z_mm"):
         read_toolpath(first + "\n1,2,3\n")
+
+
+def test_flatness_picks_one_round_of_a_file_with_several(tmp_path, capsys):
+    """An outside audit (2026-11-29): a valid recording whose optional round column holds two
+    rounds (as the reference cell's data are) was refused by flatness, which explain reads."""
+    rows = [r + ",0" for r in _rows()] + [
+        f"{12 + k},{r.split(',', 2)[1]},{r.split(',', 3)[2]},{r.split(',', 4)[3]},0.0000,"
+        f"{float(r.rsplit(',', 1)[1]) + 0.01:.6f},1" for k, r in enumerate(_rows())]
+    p = _write(tmp_path / "two.csv", META + [HEADER + ",round"] + rows)
+    one = _write(tmp_path / "one.csv", META + [HEADER] + _rows())
+    assert main(["flatness", str(p)]) == 2 and "flatness --round R" in capsys.readouterr().err
+    assert main(["flatness", str(p), "--round", "3"]) == 2
+    assert "no such round; its round column holds 0, 1" in capsys.readouterr().err
+    assert main(["flatness", str(p), "--round", "0", "--json"]) == 0
+    import json
+    picked = json.loads(capsys.readouterr().out)
+    assert main(["flatness", str(one), "--json"]) == 0
+    alone = json.loads(capsys.readouterr().out)
+    assert picked["flatness_mm"] == alone["flatness_mm"] and "(round 0)" in picked["recording"]
+    # two rounds of one file compare as two rounds; the same round twice is refused
+    assert main(["flatness", str(p), "--round", "0", "--compare", str(p),
+                 "--compare-round", "1", "--json"]) == 0
+    change = json.loads(capsys.readouterr().out)["change"]["least_squares"]["measured_mm"]
+    assert abs(change) < 1e-9  # round 1 is round 0 raised by 10 um everywhere: no change
+    assert main(["flatness", str(p), "--round", "0", "--compare", str(p),
+                 "--compare-round", "0"]) == 2
+    assert main(["flatness", str(p), "--compare-round", "1"]) == 2

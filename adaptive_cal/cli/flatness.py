@@ -22,6 +22,12 @@ def add_arguments(p) -> None:
                    "with: replay it to a map and give the whole plate's flatness too")
     p.add_argument("--compare", metavar="OTHER.csv", help="a later round: probability that its "
                    "flatness (of the touched points) is larger, and the interval of the difference")
+    p.add_argument("--round", type=float, default=None, metavar="R", help="of a recording whose "
+                   "round column holds several rounds, the one numbered R (a text label counts "
+                   "in order of first appearance from 0, as the reader says)")
+    p.add_argument("--compare-round", type=float, default=None, metavar="R", help="the round of "
+                   "--compare's file (to compare two rounds of one file: give it as --compare "
+                   "too)")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.add_argument("--samples", type=at_least(2, 100_000, " (each sample is a whole minimum-zone "
                                               "fit: 100,000 take minutes)"),
@@ -53,18 +59,23 @@ def command(args) -> int:
                                                              Path(args.robot))
         if said:
             print(said, file=sys.stderr)
+    if args.compare_round is not None and not args.compare:
+        raise UserError("--compare-round needs --compare OTHER.csv (the same file for two "
+                        "rounds of one recording)")
+    first = _picked(args.recording, args.round, "--round")
     if args.compare:
         check_recording(args.compare)
-        _not_itself(args.recording, args.compare)
+        second = _picked(args.compare, args.compare_round, "--compare-round")
+        _not_itself(args.recording, args.compare, first, second)
         rng = np.random.default_rng(args.seed)
-        out, _, sampled = recording_flatness(args.recording, rng, bare_samples)
-        other, _, sampled_b = recording_flatness(args.compare, rng, bare_samples)
+        out, _, sampled = recording_flatness(first, rng, bare_samples)
+        other, _, sampled_b = recording_flatness(second, rng, bare_samples)
         change = compare(sampled, sampled_b)
         for k, c in change.items():  # the table's "change": the figures as measured
             c["measured_mm"] = other["flatness_mm"][k]["value"] - out["flatness_mm"][k]["value"]
         out = {"first": out, "second": other, "change": change}
     else:
-        out = map_flatness(args) or recording_flatness(args.recording, np.random.default_rng(
+        out = map_flatness(args, first) or recording_flatness(first, np.random.default_rng(
             args.seed), bare_samples)[0]
     if args.json:
         json.dump(out, sys.stdout, indent=2, allow_nan=False)
@@ -74,9 +85,10 @@ def command(args) -> int:
     return 0
 
 
-def map_flatness(args) -> dict | None:
+def map_flatness(args, picked=None) -> dict | None:
     """Both answers (touched points and whole plate) from the run folder's saved belief, or from
-    the recording replayed with --robot; None for a bare recording without a cell."""
+    the recording replayed with --robot; None for a bare recording without a cell. ``picked``:
+    the recording's rows of --round (a Recording), else read from its path."""
     from pathlib import Path
 
     import numpy as np
@@ -100,7 +112,10 @@ def map_flatness(args) -> dict | None:
 
     cell = load_cell(args.robot) if args.robot else load_run_cell(folder / "cell.yaml")
     plan = survey_plan(cell)
-    rec = read_recording(rec_path).one_round("flatness")
+    from adaptive_cal.formats.recording import Recording
+
+    rec = picked if isinstance(picked, Recording) else read_recording(rec_path)
+    rec = rec.one_round("flatness")
     if args.robot:
         from adaptive_cal.report.replay import for_replay
 
@@ -136,7 +151,8 @@ def map_flatness(args) -> dict | None:
     out["weighted_out"] = ([{"seq": int(q), "outlier_probability": round(1.0 - float(w), 4)}
                             for q, w in zip(seq, weights if len(weights) == len(seq) else [])
                             if w <= 0.5] if weights is not None else [])
-    return {"recording": str(rec_path), "map": source, "touches": len(xyz[2]),
+    return {"recording": picked.path if isinstance(picked, Recording) else str(rec_path),
+            "map": source, "touches": len(xyz[2]),
             "noise_std_mm": noise_mm, **out, "local_features": features,
             "largest_gap": largest_gap(plan, np.c_[xyz[0], xyz[1]]),
             **({} if args.robot else _unfinished(folder))}
@@ -155,15 +171,40 @@ def _unfinished(folder) -> dict:
     return {"incomplete": gap} if gap else {}
 
 
-def _not_itself(first: str, second: str) -> None:
+def _picked(path: str, round_: float | None, option: str):
+    """``path``, or with ``round_`` the Recording of that round's rows (UserError naming
+    ``option`` where the file has no such round)."""
+    if round_ is None:
+        return path
+    import numpy as np
+
+    from adaptive_cal.formats.recording import read_recording
+
+    rec = read_recording(path)
+    rounds = rec.rounds
+    if round_ not in rounds:
+        has = (f"its round column holds {', '.join(f'{r:g}' for r in rounds)}" if rounds
+               else "it has no round column (one round)")
+        raise UserError(f"{option} {round_:g}: {path} has no such round; {has}")
+    from dataclasses import replace
+
+    return replace(rec.select(np.asarray(rec.extra["round"]) == round_),
+                   path=f"{path} (round {round_:g})")
+
+
+def _not_itself(first: str, second: str, a=None, b=None) -> None:
     """--compare of a recording with itself (or a copy) reads zero change "within the noise":
-    no second round was measured. Refused."""
+    no second round was measured. Refused. ``a``, ``b``: the rows --round and --compare-round
+    picked (Recordings), where given: then the rows decide, not the files."""
     import filecmp
     import os
 
-    if os.path.realpath(first) == os.path.realpath(second) or filecmp.cmp(first, second,
-                                                                          shallow=False) \
-            or _same_rows(first, second):  # a copy saved again (CRLF, a BOM): the same rows
+    if not isinstance(a, str) or not isinstance(b, str):
+        same = _same_rows(a, b)  # two rounds of one file are two rounds
+    else:
+        same = (os.path.realpath(first) == os.path.realpath(second)
+                or filecmp.cmp(first, second, shallow=False) or _same_rows(first, second))
+    if same:  # a copy saved again (CRLF, a BOM): the same rows
         raise UserError(f"--compare {second}: the same recording as {first} (or a copy of it); "
                         "compare two rounds measured apart")
 
@@ -177,7 +218,7 @@ def _same_rows(first: str, second: str) -> bool:
     from adaptive_cal.formats.recording import read_recording
 
     try:
-        a, b = read_recording(first), read_recording(second)
+        a, b = (r if not isinstance(r, str) else read_recording(r) for r in (first, second))
     except Exception:  # the comparison itself says what is wrong with either
         return False
     return len(a) == len(b) and all(np.array_equal(getattr(a, k), getattr(b, k)) for k in

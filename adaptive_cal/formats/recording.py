@@ -137,8 +137,9 @@ class Recording:
         shown = ", ".join(f"{v:g}" for v in rounds[:6]) + (", ..." if len(rounds) > 6 else "")
         raise RecordingError(
             f"{self.path or 'the recording'}: column round holds {len(rounds)} rounds ({shown}); "
-            f"{what} is of one round's surface: give each round as its own file (flatness FIRST.csv "
-            "--compare LATER.csv compares two; explain takes every round of one file as it is)")
+            f"{what} is of one round's surface: pick one (flatness --round R; --compare-round R "
+            "for the second of two) or give each round as its own file (explain takes every "
+            "round of one file as it is)")
 
     def select(self, mask: np.ndarray) -> "Recording":
         """Rows where ``mask`` holds (metadata kept)."""
