@@ -199,6 +199,7 @@ def _not_itself(first: str, second: str, a=None, b=None) -> None:
     import filecmp
     import os
 
+    a, b = first if a is None else a, second if b is None else b
     if not isinstance(a, str) or not isinstance(b, str):
         same = _same_rows(a, b)  # two rounds of one file are two rounds
     else:
