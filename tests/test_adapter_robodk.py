@@ -52,7 +52,8 @@ def test_the_fake_speaks_the_pinned_client():
 def test_no_robodk_is_a_clean_error(host):
     t = time.monotonic()
     with pytest.raises(AdapterError, match="RoboDK is not answering|cannot connect"):
-        RobodkMotion(RobodkConfig(host=host, port=9, frame_name=FRAME, robot_name=ROBOT, tool_name=TOOL))
+        RobodkMotion(RobodkConfig(host=host, port=9, frame_name=FRAME, robot_name=ROBOT,
+                                  tool_name=TOOL))
     assert time.monotonic() - t < 5.0
 
 
@@ -223,7 +224,8 @@ def test_a_server_that_accepts_and_says_nothing_times_out():
     try:
         t = time.monotonic()
         with pytest.raises(AdapterError, match="cannot connect.*TimeoutError"):
-            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME, robot_name=ROBOT, tool_name=TOOL),
+            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME,
+                                      robot_name=ROBOT, tool_name=TOOL),
                          timeout_s=0.3)
         assert time.monotonic() - t < 2.0
     finally:
@@ -248,7 +250,8 @@ def test_a_server_that_hangs_up_during_the_handshake_does_not_hang_the_client():
     try:
         t = time.monotonic()
         with pytest.raises(AdapterError, match="cannot connect.*closed the connection"):
-            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME, robot_name=ROBOT, tool_name=TOOL),
+            RobodkMotion(RobodkConfig(port=srv.getsockname()[1], frame_name=FRAME,
+                                      robot_name=ROBOT, tool_name=TOOL),
                          timeout_s=1.0)
         assert time.monotonic() - t < 2.0
     finally:

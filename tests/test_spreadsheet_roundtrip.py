@@ -68,6 +68,11 @@ def test_a_last_number_cut_by_a_crash_is_left_out_and_said(tmp_path, capsys):
     assert "fewer decimals than the row before's" in capsys.readouterr().err
     p.write_text("\n".join(META + [HEADER] + rows))  # whole, only its line end missing
     assert len(read_recording(p).seq) == len(rows)
+    # a writer that trims zeros (5.1 after 5.123) and ends without a line end: nothing says cut
+    trimmed = [r.rsplit(",", 1)[0] + "," + repr(float(r.rsplit(",", 1)[1])) for r in rows]
+    trimmed[-1] = trimmed[-1].rsplit(",", 1)[0] + ",5.1"
+    p.write_text("\n".join(META + [HEADER] + trimmed))
+    assert len(read_recording(p).seq) == len(rows)
 
 
 @pytest.mark.parametrize("kind, data", [

@@ -43,18 +43,21 @@ def cut_last_row(path) -> tuple[int | None, str | None, str]:
 
 
 def _shorter_than_before(header: str, before: str, tail: str) -> tuple[str | None, str | None]:
-    """A whole last row whose last number has fewer decimals than the row before's: (the row
-    to read instead -- None where that field is required, else the row with it blank -- what
-    was done); (tail, None) where nothing says it was cut."""
+    """A whole last row whose last number has fewer decimals than every row before it, where
+    those all have the same count (a writer of fixed decimals; one that trims zeros, 5.1 after
+    5.123, says nothing of a cut): (the row to read instead -- None where that field is
+    required, else the row with it blank -- what was done); (tail, None) where nothing says it
+    was cut."""
     rows = [l for l in before.splitlines() if l.strip() and not l.startswith("#")][1:]
-    if not rows or '"' in tail + rows[-1]:
+    if len(rows) < 2 or '"' in tail or any('"' in r for r in rows[-20:]):
         return tail, None
     text, prev = tail.rsplit(",", 1)[-1].strip(), rows[-1].rsplit(",", 1)[-1].strip()
     try:
         float(text), float(prev)
     except ValueError:
         return tail, None
-    if len(text.partition(".")[2]) >= len(prev.partition(".")[2]):
+    counts = {len(r.rsplit(",", 1)[-1].strip().partition(".")[2]) for r in rows[-20:]}
+    if len(counts) > 1 or len(text.partition(".")[2]) >= len(prev.partition(".")[2]):
         return tail, None
     name = header.rsplit(",", 1)[-1].strip()
     said = f"its {name} {text!r} has fewer decimals than the row before's ({prev!r}): it may be cut"
