@@ -49,8 +49,8 @@ PRESETS = {
 ERROR = re.compile(rb"^(ERR\s*\d*|E\d+)", re.I)
 KEYENCE_ERROR = re.compile(rb"^ER,(\w+),(\d+)")  # ER,<command>,<error code>
 # the DL-RS1A manual: readouts that are no value -- letters in place of the digits (+EE.EEE: the
-# amplifier's error; a run of F on some amplifiers: over range) or the display range's end
-# (+-99.999: the value is there or beyond)
+# amplifier's error) or the display range's end (+-99.999: the value is there or beyond); a run
+# of F (an outside audit's over-range readout, not in the manual pages found) is refused too
 KEYENCE_NO_VALUE = re.compile(rb"^M\d,\s*([-+]?(?:[EF]+\.?[EF]*|0*99\.9+))\s*(?:,|$)")
 
 
