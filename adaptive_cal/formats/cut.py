@@ -4,8 +4,6 @@ write takes instead (``cut_last_row``: ``flatness``, ``explain``, ``report``). I
 the reader, which calls it."""
 from __future__ import annotations
 
-from pathlib import Path
-
 from adaptive_cal.formats.cells import (MAGIC, REQUIRED, RecordingError, _number, _OpenQuote,
                                         split_cells)
 from adaptive_cal.formats.table import KNOWN_FLAGS, NOT_FUSED
@@ -20,11 +18,16 @@ def cut_last_row(path) -> tuple[int | None, str | None, str]:
     is not changed. Until 2026-11-29 the readers used such a row as it was (an outside audit: a
     reading cut from 2.077597 to 2.07 mm moved the noise and the flatness, with no word)."""
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as f:  # the last byte first: a whole file is not read twice
+            if f.seek(0, 2) == 0:
+                return None, None, ""
+            f.seek(-1, 2)
+            if f.read(1) in (b"\n", b"\r"):
+                return None, None, ""
+            f.seek(0)
+            data = f.read()
     except OSError:
         return None, None, ""  # the reader says what is wrong
-    if not data or data.endswith((b"\n", b"\r")):
-        return None, None, ""
     start = data.rfind(b"\n") + 1
     before = data[:start].decode("utf-8", "replace").lstrip("\ufeff")
     header = _header_line(before)
