@@ -66,7 +66,8 @@ def command(args) -> int:
     if args.compare:
         check_recording(args.compare)
         second = _picked(args.compare, args.compare_round, "--compare-round")
-        _not_itself(args.recording, args.compare, first, second)
+        _not_itself(args.recording, args.compare, first, second,
+                    files=args.round is None and args.compare_round is None)
         rng = np.random.default_rng(args.seed)
         out, _, sampled = recording_flatness(first, rng, bare_samples)
         other, _, sampled_b = recording_flatness(second, rng, bare_samples)
@@ -88,7 +89,7 @@ def command(args) -> int:
 def map_flatness(args, picked=None) -> dict | None:
     """Both answers (touched points and whole plate) from the run folder's saved belief, or from
     the recording replayed with --robot; None for a bare recording without a cell. ``picked``:
-    the recording's rows of --round (a Recording), else read from its path."""
+    the recording as read (the rows of --round), else read from its path."""
     from pathlib import Path
 
     import numpy as np
@@ -112,9 +113,7 @@ def map_flatness(args, picked=None) -> dict | None:
 
     cell = load_cell(args.robot) if args.robot else load_run_cell(folder / "cell.yaml")
     plan = survey_plan(cell)
-    from adaptive_cal.formats.recording import Recording
-
-    rec = picked if isinstance(picked, Recording) else read_recording(rec_path)
+    rec = picked if picked is not None else read_recording(rec_path)
     rec = rec.one_round("flatness")
     if args.robot:
         from adaptive_cal.report.replay import for_replay
@@ -151,7 +150,7 @@ def map_flatness(args, picked=None) -> dict | None:
     out["weighted_out"] = ([{"seq": int(q), "outlier_probability": round(1.0 - float(w), 4)}
                             for q, w in zip(seq, weights if len(weights) == len(seq) else [])
                             if w <= 0.5] if weights is not None else [])
-    return {"recording": picked.path if isinstance(picked, Recording) else str(rec_path),
+    return {"recording": str(rec_path) if args.round is None else picked.path,
             "map": source, "touches": len(xyz[2]),
             "noise_std_mm": noise_mm, **out, "local_features": features,
             "largest_gap": largest_gap(plan, np.c_[xyz[0], xyz[1]]),
@@ -172,56 +171,47 @@ def _unfinished(folder) -> dict:
 
 
 def _picked(path: str, round_: float | None, option: str):
-    """``path``, or with ``round_`` the Recording of that round's rows (UserError naming
-    ``option`` where the file has no such round)."""
-    if round_ is None:
-        return path
+    """The recording at ``path``, read once; with ``round_`` that round's rows (UserError
+    naming ``option`` where the file has no such round)."""
+    from dataclasses import replace
+
     import numpy as np
 
     from adaptive_cal.formats.recording import read_recording
 
     rec = read_recording(path)
+    if round_ is None:
+        return replace(rec, path=path)  # named as given on the command line
     rounds = rec.rounds
     if round_ not in rounds:
         has = (f"its round column holds {', '.join(f'{r:g}' for r in rounds)}" if rounds
                else "it has no round column (one round)")
         raise UserError(f"{option} {round_:g}: {path} has no such round; {has}")
-    from dataclasses import replace
-
     return replace(rec.select(np.asarray(rec.extra["round"]) == round_),
                    path=f"{path} (round {round_:g})")
 
 
-def _not_itself(first: str, second: str, a=None, b=None) -> None:
+def _not_itself(first: str, second: str, a, b, files: bool) -> None:
     """--compare of a recording with itself (or a copy) reads zero change "within the noise":
-    no second round was measured. Refused. ``a``, ``b``: the rows --round and --compare-round
-    picked (Recordings), where given: then the rows decide, not the files."""
+    no second round was measured. Refused. ``a``, ``b``: the two as read; ``files``: no round
+    was picked, so one file given twice is refused too (two rounds of one file are two
+    rounds: then the rows decide)."""
     import filecmp
     import os
 
-    a, b = first if a is None else a, second if b is None else b
-    if not isinstance(a, str) or not isinstance(b, str):
-        same = _same_rows(a, b)  # two rounds of one file are two rounds
-    else:
-        same = (os.path.realpath(first) == os.path.realpath(second)
-                or filecmp.cmp(first, second, shallow=False) or _same_rows(first, second))
-    if same:  # a copy saved again (CRLF, a BOM): the same rows
+    same_file = files and (os.path.realpath(first) == os.path.realpath(second)
+                           or filecmp.cmp(first, second, shallow=False))
+    if same_file or _same_rows(a, b):  # a copy saved again (CRLF, a BOM): the same rows
         raise UserError(f"--compare {second}: the same recording as {first} (or a copy of it); "
                         "compare two rounds measured apart")
 
 
-def _same_rows(first: str, second: str) -> bool:
+def _same_rows(a, b) -> bool:
     """Whether two recordings hold the same touches (positions and readings): a copy another
     program saved again differs in its bytes, not its rows (an outside audit compared such a
     copy as two rounds, 'change +0.0, P(worse) 0.50')."""
     import numpy as np
 
-    from adaptive_cal.formats.recording import read_recording
-
-    try:
-        a, b = (r if not isinstance(r, str) else read_recording(r) for r in (first, second))
-    except Exception:  # the comparison itself says what is wrong with either
-        return False
     return len(a) == len(b) and all(np.array_equal(getattr(a, k), getattr(b, k)) for k in
                                     ("x_mm", "y_mm", "z_mm", "reading_mm"))
 
