@@ -67,6 +67,12 @@ _LINK_ERRORS = (OSError, struct.error, UnicodeDecodeError)
 _DESYNC = ("Communication problems", "Problems running function")
 
 
+def _broken(e: Exception) -> bool:
+    """Whether ``e`` leaves the link out of step: a socket error, or a status the client
+    cannot place; any other error status comes whole, and the link stays usable."""
+    return isinstance(e, _LINK_ERRORS) or str(e) in _DESYNC
+
+
 class RobodkMotion:
     """Motion protocol over the RoboDK API.
 
@@ -201,10 +207,8 @@ class RobodkMotion:
             self._at = None
             raise AdapterError(f"{self.where}: {what} was stopped: {e}; check the robot, then "
                                "continue with --resume") from e
-        except _LINK_ERRORS as e:
-            raise self._lose(what, e) from e
         except Exception as e:  # RoboDK refused it (an error status): the link is still in step
-            if str(e) in _DESYNC:  # -1 or >= 100: what follows in the stream is not known
+            if _broken(e):  # a socket error, -1 or >= 100: what follows is not known
                 raise self._lose(what, e) from e
             self._at = None
             raise AdapterError(f"{self.where}: {what} failed: {e}") from e
@@ -218,10 +222,8 @@ class RobodkMotion:
         (a driver that dropped between moves would leave RoboDK simulating the rest)."""
         try:
             state, msg = self.robot.ConnectedState()
-        except _LINK_ERRORS as e:
-            raise self._lose("asking the robot driver's state", e) from e
         except Exception as e:
-            if str(e) in _DESYNC:
+            if _broken(e):
                 raise self._lose("asking the robot driver's state", e) from e
             raise AdapterError(f"{self.where}: asking the robot driver's state failed: {e}; "
                                f"{what} was not sent") from e
@@ -239,10 +241,8 @@ class RobodkMotion:
         self._alive()
         try:
             return self._read_position()
-        except _LINK_ERRORS as e:
-            raise self._lose("reading the pose", e) from e
         except Exception as e:
-            if str(e) in _DESYNC:
+            if _broken(e):
                 raise self._lose("reading the pose", e) from e
             raise AdapterError(f"{self.where}: reading the pose failed: {e}") from e
 
