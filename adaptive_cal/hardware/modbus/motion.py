@@ -84,6 +84,7 @@ class ModbusMotion:
         PC cleared it: a PLC that copies the robot's output into it (the job keeps OT#(1) on until
         the next start) would end the next wait before the robot moves. Raise before start."""
         k = self.link
+        settle = max(k.cfg.done_settle_s, k.cfg.scan_s)  # start, cleared with done: off a scan too
         t0 = k.clock()
         while True:
             if k.read_bit("done"):
@@ -93,7 +94,6 @@ class ModbusMotion:
                     "was not set and nothing moved. The PLC must latch done when the robot "
                     "finishes and leave clearing it to the PC (hw/plc-register-map.md, "
                     "handshake); it must not copy the robot's done output into it")
-            settle = max(k.cfg.done_settle_s, k.cfg.scan_s)  # start is off for a scan too
             if k.clock() - t0 >= settle:
                 return
             k.sleep(min(k.cfg.poll_s, settle))
