@@ -48,8 +48,10 @@ def test_a_prior_far_off_the_stroke_leaves_no_admissible_target():
     cell = _no_box(plan={"candidates": 400}, model={"offset_std_mm": 50.0})
     plan = survey_plan(cell)
     state = sv.start(plan)
-    for x, y in ((-200, -160), (200, -160), (-200, 160), (200, 160), (0, 0)):
-        state, _ = sv.tell(plan, state, x, y, 30.0, 5.0)  # height = 5 - 5 + 30 = 30 mm
-    assert ask(plan, state, 1) == []
     free = replace(plan, z_range_mm=None)  # what the planner did before: z = 30 mm sent
+    for x, y in ((-200, -160), (200, -160), (-200, 160), (200, 160), (0, 0)):
+        # height = 5 - 5 + 30 = 30 mm, read at a z the box refuses (tell would: no touch of
+        # this cell is made there), so told to the plan without the box
+        state, _ = sv.tell(free, state, x, y, 30.0, 5.0)
+    assert ask(plan, state, 1) == []
     assert ask(free, state, 1)[0].z_mm > 25.0

@@ -193,7 +193,7 @@ def survey_plan(cell: Cell, *, informed_prior: bool = False, model: PriorModel |
         start_xy_mm=(0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)),
         min_spacing_mm=min_spacing(cell, model.surface), max_gap_mm=plan.stop.max_gap_mm,
         closure=plan.closure and not informed_prior,  # a re-check: a few touches, a warm cell
-        frozen_after=readout_frozen_after(cell))
+        frozen_after=readout_frozen_after(cell), kept_out=wp.kept_out)
 
 
 def readout_frozen_after(cell: Cell) -> int | None:

@@ -119,4 +119,9 @@ class Workplane(Block):
         m = self.edge_margin_mm
         inside = (self.x_mm[0] + m <= x <= self.x_mm[1] - m
                   and self.y_mm[0] + m <= y <= self.y_mm[1] - m)
-        return inside and not any(k.contains(x, y) for k in self.keep_outs)
+        return inside and not self.kept_out(x, y)
+
+    def kept_out(self, x: float, y: float) -> bool:
+        """True if (x, y) lies inside a keep-out (the edge margin aside: a clamp at the edge
+        lies in it)."""
+        return any(k.contains(x, y) for k in self.keep_outs)

@@ -87,6 +87,8 @@ class SurveyPlan:
     max_gap_mm: float | None = None  # a bound stops only once no gap is wider (``planning.gap``)
     closure: bool = False
     frozen_after: int | None = None
+    # (x, y) inside a keep-out, the edge margin aside; None: judged by ``allows`` alone
+    kept_out: Callable[[float, float], bool] | None = None
 
     @property
     def coefficients(self) -> int:

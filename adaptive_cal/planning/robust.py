@@ -35,6 +35,9 @@ from adaptive_cal.planning.gate import GATE_P, Predictive, Retake, outlier_proba
 from adaptive_cal.planning.plan import SurveyPlan
 
 
+Z_SLACK_MM = 1e-6  # round-off on a z written and read back
+
+
 class InvalidReading(ValueError):
     """A reading that cannot be fused: not finite, off the workplane or inside a keep-out."""
 
@@ -42,9 +45,12 @@ class InvalidReading(ValueError):
 def check_touch(plan: SurveyPlan, x_mm: float, y_mm: float, z_mm: float,
                 reading_mm: float, *, position_only: bool = False) -> None:
     """Raise ``InvalidReading`` unless the touch is finite, its reading inside the probe's usable
-    stroke (``usable_mm``: a probe cycle rejects any other), on the workplane (``plate_mm``) and
-    outside every keep-out. A point in the edge margin is on the plate and is accepted.
-    ``position_only``: the position alone (a touch the probe cycle rejected, ``skip``)."""
+    stroke (``usable_mm``: a probe cycle rejects any other), on the workplane (``plate_mm``),
+    outside every keep-out (one lying in the edge margin, a clamp at the edge, included) and its
+    approach height inside the workspace box's z range (``z_range_mm``: a touch no robot of this
+    cell can have made, a z in um, and a retake of it would be sent there). A point in the edge
+    margin is on the plate and is accepted. ``position_only``: the position alone (a touch the
+    probe cycle rejected, ``skip``; z is not checked against the box)."""
     told = () if position_only else (("reading_mm", reading_mm),)
     for name, value in told + (("x_mm", x_mm), ("y_mm", y_mm), ("z_mm", z_mm)):
         try:  # a float, numpy or JAX scalar; not a string (float("5") would take it)
@@ -64,12 +70,21 @@ def check_touch(plan: SurveyPlan, x_mm: float, y_mm: float, z_mm: float,
     if not (x0 <= x_mm <= x1 and y0 <= y_mm <= y1):
         raise InvalidReading(f"touch at x_mm = {x_mm:g}, y_mm = {y_mm:g} is outside the "
                              f"workplane x_mm [{x0:g}, {x1:g}], y_mm [{y0:g}, {y1:g}]: not fused")
-    if not plan.allows(x_mm, y_mm):
-        (bx0, bx1), (by0, by1) = plan.bounds_mm  # inside the edge margin
-        inner = (min(max(x_mm, bx0), bx1), min(max(y_mm, by0), by1))
-        if not plan.allows(*inner):
-            raise InvalidReading(f"touch at x_mm = {x_mm:g}, y_mm = {y_mm:g} is inside a "
-                                 "keep-out: not fused")
+    if plan.kept_out is not None:
+        kept = plan.kept_out(float(x_mm), float(y_mm))
+    else:  # judged by ``allows``, the edge margin taken off
+        (bx0, bx1), (by0, by1) = plan.bounds_mm
+        kept = not plan.allows(min(max(x_mm, bx0), bx1), min(max(y_mm, by0), by1))
+    if kept:
+        raise InvalidReading(f"touch at x_mm = {x_mm:g}, y_mm = {y_mm:g} is inside a "
+                             "keep-out: not fused")
+    box = plan.z_range_mm
+    if not position_only and box is not None and not (
+            box[0] - Z_SLACK_MM <= z_mm <= box[1] + Z_SLACK_MM):
+        z0, z1 = box
+        raise InvalidReading(f"z_mm = {z_mm:g} is outside the workspace box's z range "
+                             f"[{z0:g}, {z1:g}] mm (workspace.z_mm): no touch of this cell is "
+                             "made there (a z in um?): not fused")
 
 
 def _hyper_points(model, centre: Hyper) -> list[tuple[Hyper, float]]:

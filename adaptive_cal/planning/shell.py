@@ -13,6 +13,8 @@ from __future__ import annotations
 import numbers
 import warnings
 
+import numpy as np
+
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
@@ -61,11 +63,14 @@ class Survey:
         warning says why, as the run's probe cycle does; ``FROZEN_STOP`` of them in a row make
         ``stop_reason()`` ``readout_frozen``. Else the learned noise would collapse onto the
         repeats and the bands with it."""
-        number = isinstance(reading_mm, numbers.Real) and not isinstance(reading_mm, bool)
-        reading = float(reading_mm) if number else float("nan")  # else sv.tell says why
+        try:  # a float, numpy or JAX scalar (0-d); else sv.tell says why
+            number = np.ndim(reading_mm) == 0 and not isinstance(reading_mm, (str, bytes, bool))
+            reading = float(reading_mm) if number else float("nan")
+        except (TypeError, ValueError):
+            reading = float("nan")
         same = self._same[1] + 1 if reading == self._same[0] else 1
         if self.plan.frozen_after is not None and same >= self.plan.frozen_after:
-            check_touch(self.plan, x_mm, y_mm, 0.0, 0.0, position_only=True)
+            check_touch(self.plan, x_mm, y_mm, z_mm, reading, position_only=True)
             warnings.warn(f"reading {reading:.4f} mm, the very same value for {same} touches in a "
                           "row, which the cell's readout step and stated noise make all but "
                           "impossible: is the readout frozen? The touch was not fused",
