@@ -74,8 +74,10 @@ def prior_model(cell: Cell) -> PriorModel:
     log_std = PriorModel.hyper_log_std
     if noise_log_std is not None:
         log_std = log_std[:2] + (noise_log_std,)
+    span_mm = cell.probe.noise_range_mm
     return PriorModel(surface, float(np.tan(np.radians(m.tilt_std_deg))), m.offset_std_mm,
-                      (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)), hyper0, log_std)
+                      (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)), hyper0, log_std,
+                      noise_span_mm=tuple(map(float, span_mm)) if span_mm else None)
 
 
 def grown_model(model: PriorModel, cap: int = GROW_CAP

@@ -110,7 +110,8 @@ class Probe(Block):
                                 "(a weak prior: the noise is learned from the readings)")
     noise_range_mm: Interval | None = Field(
         None, description="[low, high] the reading noise is known to lie in (datasheet, a gauge "
-        "study): a log-normal prior with 95 % inside, centred at sqrt(low * high); it replaces "
+        "study): the prior is flat from the span's middle sqrt(low * high) up to high, with "
+        "log-normal shoulders (95 % of the old log-normal inside the span); it replaces "
         "noise_std_mm and keeps the learned noise from collapsing on few readings")
     samples: int = Field(1, ge=1, le=1000, description="samples per touch (median taken)")
     samples_tolerance_mm: float = Field(0.005, gt=0, description="largest spread of the samples")

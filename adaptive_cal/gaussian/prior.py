@@ -51,6 +51,10 @@ class PriorModel:
     centre_mm: tuple[float, float]
     hyper0: Hyper  # configured values: start of the fit and centre of the hyper-prior
     hyper_log_std: tuple[float, float, float] = (1.0, 0.7, 1.0)
+    # the probe's stated noise span (lo, hi) mm: the noise prior is flat in log noise from its
+    # middle to hi, with Gaussian shoulders of ``hyper_log_std[2]`` beyond (``_prior_box``);
+    # None: log-normal about hyper0
+    noise_span_mm: tuple[float, float] | None = None
     embed: np.ndarray | None = None  # E (K x K_coarse): the form lives on coarser knots
     coarse: Surface | None = None  # the coarse spline E maps from
 
@@ -153,18 +157,21 @@ def log_marginal(model: PriorModel, hyper: Hyper, rows: np.ndarray, readings: np
                               model.belief(hyper).cov, hyper.noise_std_mm**2))
 
 
-def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, mu, sd, embed,
-                  extra, weights=1.0):
+def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, lo, hi, sd,
+                  embed, extra, weights=1.0):
     """-(log N(y; 0, H C0(theta) H^T + sigma_n^2 W^-1) + log hyper-prior); padded rows masked.
     C0 = C_tilt + E C_form E^T + extra (E = I and extra = 0 unless the model grew).
-    ``weights`` w_i in (0, 1]: a reading judged an outlier with probability p has w = 1 - p."""
+    ``weights`` w_i in (0, 1]: a reading judged an outlier with probability p has w = 1 - p.
+    The hyper-prior in log theta is flat on [lo, hi] with Gaussian shoulders of ``sd`` beyond
+    (lo = hi: the log-normal about it)."""
     sf, ls, sn = jnp.exp(log_theta)
     cov = tilt_cov + embed @ _form_cov(knots_x, knots_y, sf, ls, jnp) @ embed.T + extra \
         + JITTER_MM2 * jnp.eye(tilt_cov.shape[0])
     # the coefficients' form for many (padded) readings: ``belief.coefficient_form``
     form = log_evidence_coefficients if coefficient_form(rows.shape) else log_evidence
     loglik = form(rows, readings, cov, sn**2 / weights, mask, jnp)
-    logprior = -0.5 * jnp.sum(((log_theta - mu) / sd) ** 2)
+    beyond = jnp.maximum(lo - log_theta, 0.0) + jnp.maximum(log_theta - hi, 0.0)
+    logprior = -0.5 * jnp.sum((beyond / sd) ** 2)
     return -(loglik + logprior)
 
 
@@ -176,9 +183,26 @@ def _model_args(model: PriorModel, extra=None) -> tuple:
     s = model.form_surface
     k = model.surface.size
     return (jnp.asarray(model.tilt_cov()), jnp.asarray(s.sx.knots[: s.sx.size]),
-            jnp.asarray(s.sy.knots[: s.sy.size]), jnp.log(jnp.asarray(model.hyper0)),
+            jnp.asarray(s.sy.knots[: s.sy.size])) + _prior_box(model) + (
             jnp.asarray(model.hyper_log_std), jnp.asarray(model._embed()),
             jnp.asarray(extra if extra is not None else np.zeros((k, k))))
+
+
+def _prior_box(model: PriorModel) -> tuple:
+    """(lo, hi) in log theta where the hyper-prior is flat: the configured values (a point:
+    log-normal about them); for the noise of a probe that states a span [a, b], from its
+    middle sqrt(a b) up to b. A log-normal about the middle pulled a noise at the span's top
+    halfway back (8 um of a 3-8 um span learned as 5.6-7.8 um at 25-36 touches: bands 1.2 x
+    too narrow, coverage 0.87). Flat over the whole span let the noise fall to its bottom on
+    a dozen readings where the form took part of it (3 um plates learned 2.6 um, stops at
+    11-13 touches with 1.5-3 x the claimed error): a noise read too low makes the bands lie,
+    one read too high costs touches, so below the middle the prior stays as it was."""
+    lo = np.log(np.asarray(model.hyper0, float))
+    hi = lo.copy()
+    if model.noise_span_mm is not None:
+        a, b = model.noise_span_mm
+        lo[2], hi[2] = np.log(np.sqrt(a * b)), np.log(b)
+    return jnp.asarray(lo), jnp.asarray(hi)
 
 
 def _padded(rows, readings):
