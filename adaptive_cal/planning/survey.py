@@ -56,9 +56,7 @@ class SurveyState:
     a second touch, or None; ``fitted_at``: fused readings at the last refit; ``prior``: a
     belief carried over from an earlier run (``--prior-from``), or None; ``weights``: each fused
     reading's share w = 1 - p of the noise precision (p its flagged outlier probability: its
-    noise variance is r / w in every fusion and refit); ``closure``: the verdict of the touch
-    that revisited the first place when a bound stopped the loop (``planning.closure``), or
-    None."""
+    noise variance is r / w in every fusion and refit)."""
 
     belief: bl.Belief
     hyper: Hyper
@@ -207,19 +205,14 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
          and not state.hyper_points else None)  # a map of few readings, not yet learned
     if w is not None:  # the map the gate judged by rested on a reading now judged wrong
         state = replace(state, weights=w)
-    if learns(plan, state) and n >= plan.hyper_after and n - state.fitted_at >= plan.hyper_every:
+    learning = learns(plan, state) and n >= plan.hyper_after
+    if learning and n - state.fitted_at >= plan.hyper_every:
         return refit(plan, state)
-    if w is not None:
-        state = batch_posterior(plan, state)
-    else:
-        belief, _ = bl.fuse(state.belief, h, told.height_mm, state.noise_var / told.weight)
-        state = replace(state, belief=belief)
-    if learns(plan, state) and n >= plan.hyper_after and plan.stop(status(plan, state)):
-        # the checks (and the noise) of the last refit have not seen the readings since: a
-        # stop rests on checks of every fused reading (a bump a retake confirmed between two
-        # refits read 1.1 um RMS std against the 11 um of the next refit)
-        return refit(plan, state)
-    return state
+    state = batch_posterior(plan, state) if w is not None else replace(state, belief=bl.fuse(
+        state.belief, h, told.height_mm, state.noise_var / told.weight)[0])
+    # a stop rests on checks of every fused reading, not on the last refit's (a bump a retake
+    # confirmed between two refits read 1.1 um RMS std there, 11 um refitted)
+    return refit(plan, state) if learning and plan.stop(status(plan, state)) else state
 
 
 def batch_posterior(plan: SurveyPlan, state: SurveyState) -> SurveyState:
@@ -300,12 +293,10 @@ def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     probability p under its leave-one-out predictive (the belief from every other reading, its
     genuine noise the learned one; ``gate.outlier_probability``), and its weight lowered to
     1 - p where p reaches ``FLAG_P`` (never raised: a weight is the least trust any judgement
-    gave it). None when no weight falls. Before the noise is learned the gate judges a reading
-    against the hyper-prior's wide mixture, so a gross error among the first touches was fused
-    in full (a 128 um error at the third touch of a heavy-tailed plate then held 28 um of
-    "unresolved structure" for the rest of the run, and the run never met its bound). The
-    decision is a function of the readings: a replay makes it again; result.json's model
-    lists the readings it lowered (``run.results``)."""
+    gave it). None when no weight falls. Before the noise is learned the gate judges against
+    the hyper-prior's wide mixture, so a gross error among the first touches was fused in full
+    (and held 28 um of "unresolved structure" for the rest of a run). A replay makes the same
+    decisions; result.json's model lists the readings it lowered (``run.results``)."""
     if state.fused < 3 or not learns(plan, state):
         return None
     w = state.fused_weights
