@@ -215,7 +215,9 @@ def test_study_plates_are_the_maps_in_turn_with_noise_drawn_as_before(tmp_path):
         assert p.surface_file.endswith(f"p{i % 2}.csv") and p.effects == {}
         assert (p.noise_std_mm, p.seed) == (q.noise_std_mm, q.seed)
         cell = plate_cell(study, base, p)
-        assert np.isclose(truth(cell)(0.0, 0.0), bilinear(0.0, 0.0) + 0.01 * (i % 2))
+        # the base cell's effects (sim-cell.yaml's tilt and form) add on top (DESIGN.md)
+        effects = SimulatedCell.from_cell(sim_cell()).surface_mm(0.0, 0.0)
+        assert np.isclose(truth(cell)(0.0, 0.0), bilinear(0.0, 0.0) + 0.01 * (i % 2) + effects)
 
 
 def test_study_glob_matching_nothing_or_a_bad_map_is_refused(tmp_path):

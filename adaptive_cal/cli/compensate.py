@@ -135,13 +135,23 @@ def grid_axes(plate_mm, step_mm: float):
     return [np.linspace(lo, hi, n) for (lo, hi), n in zip(plate_mm, counts)]
 
 
+def grid_text(v):
+    """Grid positions as text: rounded to 1e-10 mm, no trailing zeros (a 5 mm step prints 5, not
+    5.0000000000000001). Fixed decimals lose a workplane edge such as 30.00004 (4 decimals: 30,
+    inside the plate), and the written map then does not cover its own workplane."""
+    import numpy as np
+
+    return np.array([np.format_float_positional(x, unique=True, trim="-")
+                     for x in np.round(np.asarray(v, float), 10) + 0.0])  # + 0.0: no "-0"
+
+
 def _grid(hmap, args) -> int:
     import numpy as np
 
     xs, ys = grid_axes(hmap.plate_mm, args.step_mm)
+    xt, yt = grid_text(xs), grid_text(ys)
     height = hmap.height(args.frame)
     columns = "x_mm,y_mm,height_mm" + ("" if args.heights_only else ",std_mm")
-    fmt = "%.4f,%.4f,%.6f" + ("" if args.heights_only else ",%.6f")
     rows = max(1, GRID_CHUNK // len(ys))  # x nodes per chunk (x outer, y inner)
     lo, hi, worst = np.inf, -np.inf, 0.0
     from pathlib import Path
@@ -149,11 +159,13 @@ def _grid(hmap, args) -> int:
     with Path(args.grid).open("w", encoding="utf-8", newline="\n") as f:
         f.write(columns + "\n")
         for k in range(0, len(xs), rows):
-            xx, yy = (v.ravel() for v in np.meshgrid(xs[k:k + rows], ys, indexing="ij"))
-            h, s = height(xx, yy)
+            i, j = (v.ravel() for v in np.meshgrid(np.arange(k, min(k + rows, len(xs))),
+                                                   np.arange(len(ys)), indexing="ij"))
+            h, s = height(xs[i], ys[j])
             lo, hi, worst = min(lo, h.min()), max(hi, h.max()), max(worst, s.max())
-            table = np.column_stack([xx, yy, h] + ([] if args.heights_only else [s]))
-            np.savetxt(f, table, fmt=fmt)
+            cells = [xt[i], yt[j], np.char.mod("%.6f", h)]
+            cells += [] if args.heights_only else [np.char.mod("%.6f", s)]
+            f.write("".join(",".join(r) + "\n" for r in zip(*cells)))
     print(f"wrote {args.grid}: {len(xs) * len(ys)} nodes, frame {args.frame}, height "
           f"{lo:+.4f} .. {hi:+.4f} mm, std at most {worst * 1e3:.1f} um"
           + (" (heights only: the height-map format)" if args.heights_only else ""))

@@ -56,19 +56,37 @@ class HeightMap:
         return ((1 - tx) * (1 - ty) * z[i, j] + tx * (1 - ty) * z[i + 1, j]
                 + (1 - tx) * ty * z[i, j + 1] + tx * ty * z[i + 1, j + 1])
 
+    def _short(self, x_mm, y_mm) -> list[tuple[str, int, float, float]]:
+        """The workplane edges the grid falls short of: (axis, 0 low / 1 high, grid's end,
+        workplane's edge); an end within _REL of the grid's span of the edge covers it."""
+        out = []
+        for name, nodes, edges in (("x_mm", self.x_mm, x_mm), ("y_mm", self.y_mm, y_mm)):
+            tol = _REL * (nodes[-1] - nodes[0])
+            if nodes[0] > edges[0] + tol:
+                out.append((name, 0, float(nodes[0]), float(edges[0])))
+            if nodes[-1] < edges[1] - tol:
+                out.append((name, 1, float(nodes[-1]), float(edges[1])))
+        return out
+
     def covers(self, x_mm: tuple[float, float], y_mm: tuple[float, float]) -> bool:
-        tol_x = _REL * (self.x_mm[-1] - self.x_mm[0])
-        tol_y = _REL * (self.y_mm[-1] - self.y_mm[0])
-        return (self.x_mm[0] <= x_mm[0] + tol_x and self.x_mm[-1] >= x_mm[1] - tol_x
-                and self.y_mm[0] <= y_mm[0] + tol_y and self.y_mm[-1] >= y_mm[1] - tol_y)
+        return not self._short(x_mm, y_mm)
 
     def check_covers(self, x_mm, y_mm) -> "HeightMap":
         """This map, or HeightMapError when it does not cover the rectangle (the workplane)."""
-        if not self.covers(x_mm, y_mm):
+        short = self._short(x_mm, y_mm)
+        if short:
+            # an end that falls short is written with the digits that tell it from the edge
+            # (a grid 0.5 um short printed as -185 beside the workplane's -185.0)
+            ends = {"x_mm": [f"{v:g}" for v in self.x_mm[[0, -1]]],
+                    "y_mm": [f"{v:g}" for v in self.y_mm[[0, -1]]]}
+            gaps = []
+            for name, side, end, edge in short:
+                ends[name][side] = _apart(end, edge)[0]
+                gaps.append(f"{abs(end - edge):.3g} mm short of {name}={edge!r}")
             raise HeightMapError(
-                f"{self.source}: the grid spans x_mm=[{self.x_mm[0]:g}, {self.x_mm[-1]:g}], "
-                f"y_mm=[{self.y_mm[0]:g}, {self.y_mm[-1]:g}] and does not cover the workplane "
-                f"x_mm={list(x_mm)}, y_mm={list(y_mm)}")
+                f"{self.source}: the grid spans x_mm=[{', '.join(ends['x_mm'])}], "
+                f"y_mm=[{', '.join(ends['y_mm'])}] and does not cover the workplane "
+                f"x_mm={list(x_mm)}, y_mm={list(y_mm)} (it ends {', '.join(gaps)})")
         return self
 
 
@@ -79,10 +97,11 @@ def _cell(nodes: np.ndarray, v: np.ndarray):
     return i, t
 
 
-def _axis(values: np.ndarray, name: str, source: str) -> np.ndarray:
+def _axis(values: np.ndarray, name: str, source: str, lines=None) -> np.ndarray:
     """The distinct grid positions of one axis, equally spaced, or HeightMapError. Positions
     closer than _REL of the axis' span are one node (a writer's round-off, e.g. -224.99999999999997
-    beside -225.0); the node is their first value in sorted order.
+    beside -225.0); the node is their first value in sorted order. ``lines``: each value's file
+    line, for the message (the first line holding the node off the grid).
 
     "Equally spaced" allows the round-off of a writer that gives its coordinates few decimals: a
     step of 370/14 = 26.4286 mm written to 0.1 mm (-185.0, -158.6, -132.1, ...) puts a node up
@@ -93,9 +112,12 @@ def _axis(values: np.ndarray, name: str, source: str) -> np.ndarray:
     read at most 1/20 of a cell from where the writer meant it -- the surface's slope times that,
     well below what the node spacing itself resolves. A grid with a node or a grid line missing
     is at least half a step off, and refused."""
-    u = np.unique(values)
+    u, inverse = np.unique(values, return_inverse=True)
+    keep = np.ones(len(u), bool)
     if len(u) > 1:
-        u = u[np.concatenate(([True], np.diff(u) > _REL * (u[-1] - u[0])))]
+        keep[1:] = np.diff(u) > _REL * (u[-1] - u[0])
+    node = (np.cumsum(keep) - 1)[inverse.ravel()]  # each value's node
+    u = u[keep]
     if len(u) < 2:
         raise HeightMapError(f"{source}: {name} takes one value ({u[0]:g}): a grid needs at "
                              "least two nodes along each axis")
@@ -105,11 +127,21 @@ def _axis(values: np.ndarray, name: str, source: str) -> np.ndarray:
         step = np.diff(u)
         k = int(np.argmax(np.abs(step - h)))  # the two nodes farthest from the spacing
         a, b = _apart(step[k], h)
-        raise HeightMapError(f"{source}: not a regular grid: {name} nodes {u[k]:g} and "
+        # the node to name: one fewer rows hold than the others (a typed value), else the
+        # node farthest from its place
+        held = np.bincount(node, minlength=len(u))
+        bad = int(np.argmin(held)) if held.min() < held.max() else int(np.argmax(off))
+        first = int(np.flatnonzero(node == bad)[0])
+        where = source if lines is None else f"{source}, line {lines[first]}"
+        odd = (f", on {held[bad]} row(s) where each other {name} node is on "
+               f"{held[np.arange(len(u)) != bad].min()} or more" if held.min() < held.max()
+               else "")
+        raise HeightMapError(f"{where}: not a regular grid: {name} nodes {u[k]:g} and "
                              f"{u[k + 1]:g} are {a} mm apart, the grid's spacing is {b} mm "
                              f"({len(u)} nodes from {u[0]:g} to {u[-1]:g} mm; a node may lie "
-                             f"1/20 of the spacing, {ROUND_OFF * h:.3g} mm, from its place, "
-                             f"node {u[int(np.argmax(off))]:g} lies {off.max():.3g} mm from it)")
+                             f"1/20 of the spacing, {ROUND_OFF * h:.3g} mm, from its place; "
+                             f"{name} {float(values[first])!r} lies {off[bad]:.3g} mm from "
+                             f"its place{odd})")
     return u
 
 
@@ -145,18 +177,21 @@ def _fast_numbers(text: str) -> np.ndarray | None:
     return a
 
 
-def _place(a: np.ndarray, source: str):
+def _place(a: np.ndarray, source: str, lines=None):
     """The grid's nodes (xs, ys) and each row's node indices (i, j), from rows ``a`` (x, y,
-    height); axis faults raise HeightMapError."""
-    xs = _axis(a[:, 0], "x_mm", source)
-    ys = _axis(a[:, 1], "y_mm", source)
+    height) on file ``lines``; axis faults raise HeightMapError."""
+    xs = _axis(a[:, 0], "x_mm", source, lines)
+    ys = _axis(a[:, 1], "y_mm", source, lines)
     return xs, ys, _node(xs, a[:, 0]), _node(ys, a[:, 1])
 
 
 def _grid(a: np.ndarray, source: str) -> HeightMap | None:
-    """The map from rows ``a`` (x, y, height), or None when a node is given twice or missing
-    (the careful reader names the lines). Axis faults raise HeightMapError here."""
-    xs, ys, i, j = _place(a, source)
+    """The map from rows ``a`` (x, y, height), or None when a node is given twice or missing or
+    an axis is not a regular grid (the careful reader names the lines)."""
+    try:
+        xs, ys, i, j = _place(a, source)
+    except HeightMapError:
+        return None
     flat = i * len(ys) + j
     if len(flat) != xs.size * ys.size or len(np.unique(flat)) != len(flat):
         return None
@@ -222,7 +257,7 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     if not numbers:
         raise HeightMapError(f"{source}: no rows after the header")
     a = np.array(numbers)
-    xs, ys, i, j = _place(a, source)
+    xs, ys, i, j = _place(a, source, rows)
     z = np.full((len(xs), len(ys)), np.nan)
     seen = np.full((len(xs), len(ys)), 0)
     for k, (ii, jj) in enumerate(zip(i, j)):

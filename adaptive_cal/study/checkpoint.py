@@ -1,24 +1,59 @@
 """The study's checkpoint: finished plates as JSON lines, appended as they finish.
 
-The first line names the study (a hash of the study and its base cell), so a checkpoint of
-another study is never mixed in; a line cut by an interruption is dropped and that plate runs
-again.
+The first line names the study (a hash of the study and its base cell, and of its height maps'
+names and bytes), so a checkpoint of another study is never mixed in; a line cut by an
+interruption is dropped and that plate runs again.
 """
 from __future__ import annotations
 
+import glob
 import hashlib
 import json
 import os
 from pathlib import Path
 from typing import Iterable
 
-from adaptive_cal.study.config import Study
+from adaptive_cal.study.config import Study, surface_files
+
+
+def _sha256(path: str) -> str:
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:  # unreadable: the run refuses it, naming the file
+        return "unreadable"
+
+
+def _glob_root(pattern: str) -> str:
+    """The folder a glob's matches are named from: its parts before the first wildcard."""
+    parts = Path(pattern).parts
+    fixed = next((k for k, p in enumerate(parts) if glob.has_magic(p)), len(parts) - 1)
+    return str(Path(*parts[:fixed])) if fixed else "."
+
+
+def maps_key(study: Study, base: dict) -> str | None:
+    """A hash of the study's height maps (plate.surface_files, the base cell's
+    simulation.surface_file): the matched names, sorted (plate i is the i-th), and the bytes
+    of each, so a map added, removed or rewritten in place makes another study. None without
+    maps."""
+    files = surface_files(study)
+    root = _glob_root(study.plate.surface_files) if files else "."
+    parts = [[os.path.relpath(f, root), _sha256(f)] for f in files]
+    own = (base.get("simulation") or {}).get("surface_file")
+    if isinstance(own, str) and own:
+        parts.append(["simulation.surface_file", _sha256(own)])
+    if not parts:
+        return None
+    return hashlib.sha256(json.dumps(parts).encode()).hexdigest()[:16]
 
 
 def study_key(study: Study, base: dict) -> str:
+    """The study's settings and base cell hashed; with height maps, "-" and their hash
+    (``maps_key``; a study without maps keeps the key it had before maps were hashed)."""
     text = json.dumps({"study": study.model_dump(mode="json"), "cell": base}, sort_keys=True,
                       default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    key = hashlib.sha256(text.encode()).hexdigest()[:16]
+    maps = maps_key(study, base)
+    return key if maps is None else f"{key}-{maps}"
 
 
 def read_checkpoint(path: Path, key: str) -> list[dict]:
@@ -35,6 +70,13 @@ def read_checkpoint(path: Path, key: str) -> list[dict]:
     if not isinstance(head, dict) or not isinstance(head.get("study_key"), str):
         raise ValueError(f"{path}: not a study's checkpoint (its first line, {lines[0][:40]!r}, "
                          f"is not a study key): {where}")
+    old = head["study_key"]
+    if old != key and old.split("-")[0] == key.split("-")[0]:  # the settings agree
+        why = ("a map of plate.surface_files added, removed, renamed or rewritten since, or the "
+               "base cell's simulation.surface_file rewritten" if "-" in old else
+               "it was written before a study's key covered its maps, which may have changed")
+        raise ValueError(f"{path} holds plates of this study over other height maps (key {old}, "
+                         f"this study {key}: {why}): {where}")
     if head["study_key"] != key:
         raise ValueError(f"{path} holds plates of another study (key {head['study_key']}, "
                          f"this study {key}; its plates, strategies, seed or settings differ): "

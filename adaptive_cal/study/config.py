@@ -49,8 +49,9 @@ class PlateDistribution(Strict):
         None, min_length=1,
         description="glob of height maps (DESIGN.md format; relative to the study file; "
         "** matches any depth of folders): "
-        "plate i is the i-th file in sorted order (cycling), its truth that map alone (tilt, "
-        "offset and form above are not drawn); noise drawn as before")
+        "plate i is the i-th file in sorted order (cycling), its truth that map with the base "
+        "cell's simulation.effects on top (tilt, offset and form above are not drawn); noise "
+        "drawn as before")
 
     @field_validator("form_pv_mm", "noise_std_mm")
     @classmethod

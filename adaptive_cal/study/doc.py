@@ -68,7 +68,10 @@ touches), `table.md`; per-plate records in `{out_dir}/plates.jsonl`.
   running cluster (start workers with `OPENBLAS_NUM_THREADS=1`). An unreachable scheduler fails
   within seconds naming the address.
 * Each finished plate is appended to `plates.jsonl` at once; an interrupted study keeps them, and
-  the same command skips them on the rerun.
+  the same command skips them on the rerun. Its key covers the height maps' names and bytes: a
+  map added, removed or rewritten makes another study, and the rerun refuses the old plates.
+* A plate of `plate.surface_files` is its map with the base cell's `simulation.effects` added on
+  top (as a cell's own `simulation.surface_file`); a drawn plate's tilt and form replace them.
 * A study file is validated like a cell file: unknown keys are refused, and distributions no
   planner can serve (negative noise, a tilt past what the probe stroke allows under the cell's
   prior, a bound below the noise floor of `bound.max_touches` touches) are refused naming the key.

@@ -23,7 +23,7 @@ class Plate:
     effects: dict
     noise_std_mm: float
     repeatability_mm: float
-    surface_file: str | None = None  # a height map (plate.surface_files): the whole truth
+    surface_file: str | None = None  # a height map (plate.surface_files), under the base's effects
 
 
 def sample_plate(study: Study, index: int) -> Plate:
@@ -52,10 +52,14 @@ def plate_cell(study: Study, base: dict, plate: Plate) -> Cell:
     """The base cell with this plate's truth, the study's bound and keep-outs."""
     data = copy.deepcopy(base)
     sim = dict(data.get("simulation") or {})
-    sim.update(seed=plate.seed, effects=plate.effects, noise_std_mm=plate.noise_std_mm,
-               repeatability_mm=plate.repeatability_mm)
+    effects = plate.effects  # a drawn plate's tilt and form take the base cell's place
     if plate.surface_file is not None:
+        # the map is the plate; the base cell's effects add on top, as on a cell's own map
+        # (DESIGN.md "Height maps")
         sim["surface_file"] = plate.surface_file
+        effects = {**(sim.get("effects") or {}), **plate.effects}
+    sim.update(seed=plate.seed, effects=effects, noise_std_mm=plate.noise_std_mm,
+               repeatability_mm=plate.repeatability_mm)
     data["simulation"] = sim
     if study.plate.noise_range_known:
         # the reading noise the planner sees: probe noise and z repeatability together; a

@@ -7,6 +7,7 @@ and one BLAS thread there); a LocalCluster's processes inherit this process's en
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Callable
 
@@ -52,8 +53,10 @@ def connect(scheduler: str | None, workers: int, timeout_s: float = 5.0):
             raise SchedulerError(f"cannot reach the Dask scheduler at {scheduler} within "
                                  f"{timeout_s:.0f} s ({type(e).__name__}); is it running "
                                  "and is the address right?") from None
+    # silence_logs: a plate that fails is the CLI's to report (its error, once); a worker's
+    # "Compute Failed ... Traceback" log before it only buries the message
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0")
+                           dashboard_address=":0", silence_logs=logging.CRITICAL)
     return Client(cluster)
 
 
