@@ -17,6 +17,7 @@ Readings that disagree with every probable model are suspect readings (``suspect
 """
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -29,9 +30,10 @@ from adaptive_cal.analysis.explain.beside import beside_verdict
 from adaptive_cal.analysis.explain.params import effect_params, held, summary as _summary
 from adaptive_cal.analysis.explain.candidates import Candidate, Context
 from adaptive_cal.analysis.explain.design import Design, build_design
-from adaptive_cal.analysis.explain.evidence import loo_residuals, prior_precision
+from adaptive_cal.analysis.explain.evidence import Projector, loo_residuals, prior_precision
 from adaptive_cal.analysis.explain.heavy import heavy_tailed
 from adaptive_cal.analysis.explain.identify import not_identifiable
+from adaptive_cal.analysis.explain.inputs import checked_recording, checked_threshold
 from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
 from adaptive_cal.analysis.explain.spans import covering
@@ -97,7 +99,9 @@ def verdict_probabilities(ctx: Context, cands: list[Candidate]) -> np.ndarray:
     lbf = np.array([c.log_bf for c in cands])
     b = int(np.argmax(lbf))
     v = cands[b].noise_var
-    fit_gap = np.maximum(rss - rss[b], 0.0) / (2.0 * v)
+    gap = np.maximum(rss - rss[b], 0.0)
+    # an exact fit (every reading the nominal: v = 0) has no Occam part to give back
+    fit_gap = np.divide(gap, 2.0 * v, out=np.where(gap > 0, np.inf, 0.0), where=v > 0)
     lift = np.clip(lbf[b] - lbf - fit_gap, 0.0, OCCAM_NATS)
     return model_probabilities([replace(c, log_bf=float(l)) for c, l in zip(cands, lbf + lift)])
 
@@ -181,18 +185,25 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     ``rng``: a Generator, or the seed of one, for the bootstrap of the round-to-round flatness
     change (the CLI's ``--seed``).
     """
-    design, ctx, cands, suspects, noise = _screened(design)
+    # readings exactly the nominal after the tilt: every model fits exactly, its evidence is
+    # 0/0 (NaN, taken as no preference below the readout step); numpy's warnings say no more
+    exact = not np.any(Projector.of(design.nuisance()[0])(design.target))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore") if exact else nullcontext():
+        design, ctx, cands, suspects, noise = _screened(design)
     sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))
     # the whole mismatch below the probe's readout step (a noise-free simulation written to a
     # few decimals): what is left is rounding, not physics -- no effect can be shown
     readout = sigma < design.readout_mm
-    if readout:
-        cands = [replace(c, log_bf=min(c.log_bf, 0.0)) for c in cands]
+    if readout:  # an exact fit (sigma 0) has no finite evidence: the data cannot tell, 0
+        cands = [replace(c, log_bf=min(c.log_bf, 0.0) if np.isfinite(c.log_bf) else 0.0)
+                 for c in cands]
     # the named candidates' sds and intervals averaged over their searched grids
     cands = [averaged(ctx, c) if c.log_bf > threshold else c for c in cands]
     best = cands[0] if cands else None
     winner = best if best and best.log_bf > threshold else None
-    structure = residual_structure(ctx, cands, winner, threshold, design.noise_stated_mm)
+    # rounding has no structure to test (a lag-1 correlation of 1e-17 residuals is not one)
+    structure = residual_structure(ctx, cands, winner, threshold, design.noise_stated_mm,
+                                   tested=not readout)
     cands, serial = serially_deflated(cands, structure)
     if serial is not None:  # the evidence re-judged: where no library effect survives it, the
         best = cands[0] if cands else None  # readings' correlation is the finding
@@ -244,8 +255,10 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
                          "dof": noise["nu"], "log_lr_vs_gaussian": noise["log_lr_vs_gaussian"],
                          "judged_under": noise["judged_under"],
                          **({"serial": serial} if serial is not None else {})}},
-        "not_identifiable": (_separated(not_identifiable(ctx, sigma, verdict=verdict, ambiguous=tuple(
-            ambiguous)), verdict, ambiguous) if identifiability else []),
+        # below the readout step no effect has a size in sigmas (sigma is rounding, or 0)
+        "not_identifiable": (_separated(not_identifiable(
+            ctx, None if readout else sigma, verdict=verdict, ambiguous=tuple(ambiguous)),
+            verdict, ambiguous) if identifiability else []),
         "mismatch": locate(ctx),
         "fit": {"rms_before_mm": rms(before), "rms_after_mm": rms(after),
                 "cv_rms_before_mm": rms(loo0), "cv_rms_after_mm": rms(loo1),
@@ -286,9 +299,12 @@ def explain(recordings, cell, *, threshold: float = THRESHOLD,
 
     if isinstance(recordings, (Recording, str, os.PathLike)):
         recordings = [recordings]
-    recordings = [r if isinstance(r, Recording) else read_recording(r) for r in recordings]
+    # one built in memory is checked as the reader checks a file (``inputs``)
+    recordings = [checked_recording(r, r.path or f"recording {i}") if isinstance(r, Recording)
+                  else read_recording(r) for i, r in enumerate(recordings)]
     if not recordings:
         raise ValueError("explain needs at least one recording")
+    threshold = checked_threshold(threshold)
     if not isinstance(cell, Cell):
         cell = load_cell(cell)
     if not isinstance(rng, np.random.Generator) and (

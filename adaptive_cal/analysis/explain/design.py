@@ -16,6 +16,7 @@ import numpy as np
 from adaptive_cal import effects
 from adaptive_cal.cell.schema import Cell, ConfigError, Simulation
 from adaptive_cal.formats.recording import MAX_ROWS, NOT_FUSED, Recording, RecordingError
+from adaptive_cal.analysis.explain.layout import refuse_one_line
 
 # what explain says where t_s is blank (``touch_times``, ``time_note``)
 TIME_FILLED = "their times filled between the nearest rows with a time"
@@ -144,9 +145,7 @@ def _check_recording(rec: Recording, cell: Cell, label: str) -> None:
         raise RecordingError(
             f"{label}: touch seq {int(fused.seq[i])}: column {c} = {getattr(fused, c)[i]:g} lies "
             f"outside the workplane {c} [{lo:g}, {hi:g}] of the cell file ({count} such touches)")
-    if np.ptp(fused.x_mm) <= 0 or np.ptp(fused.y_mm) <= 0:
-        raise RecordingError(f"{label}: all touches share one x or one y: the tilt cannot be "
-                             "calibrated (columns x_mm, y_mm)")
+    refuse_one_line(fused.x_mm, fused.y_mm, label)  # one x, one y, or any one line: no tilt
 
 
 def _refuse_repeats(recordings: list[Recording], probe) -> None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import linalg
 from scipy.special import logsumexp
 
 LOG2PI = float(np.log(2.0 * np.pi))
@@ -37,10 +38,9 @@ class Projector:
 
     @classmethod
     def of(cls, nuisance: np.ndarray, rtol: float = 1e-10) -> "Projector":
-        q, r = np.linalg.qr(nuisance)
-        d = np.abs(np.diag(r))
-        keep = d > rtol * max(d.max(initial=0.0), 1e-300)
-        return cls(q[:, keep])
+        q, r, _ = linalg.qr(nuisance, mode="economic", pivoting=True)  # rank-revealing: its
+        d = np.abs(np.diag(r))  # leading columns span N where N is rank-deficient too
+        return cls(q[:, :int(np.count_nonzero(d > rtol * max(d.max(initial=0.0), 1e-300)))])
 
     @property
     def rank(self) -> int:

@@ -92,6 +92,8 @@ def t_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, nu: float) -> fl
 def tail_gains(residual: np.ndarray) -> np.ndarray:
     """l_nu - l_N per nu in ``NU_GRID`` of residuals held fixed (the scale fitted: EM)."""
     r = np.asarray(residual, float)
+    if not np.any(r):  # no scatter at all (readings exactly the nominal): no tail to judge
+        return np.zeros(len(NU_GRID))
     s2n = max(float(r @ r) / r.size, 1e-300)
     base = -r.size * (LOG_SQRT_2PI + 0.5 * np.log(s2n) + 0.5)
     return np.array([_t_loglik_at(r, _em(r, nu)[1], nu) - base for nu in NU_GRID])

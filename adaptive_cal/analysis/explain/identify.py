@@ -229,13 +229,13 @@ def _gap_touches(ctx: Context, count: int = 4) -> dict:
             "touches": touches, "fill_distance_mm": fill0}
 
 
-def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0, *,
+def not_identifiable(ctx: Context, sigma_mm: float | None, dz_mm: float = 2.0, *,
                      verdict: str | None = None, ambiguous: tuple[str, ...] = ()) -> list[dict]:
     """The ``not_identifiable`` block: effects the design cannot show (not testable), effects
     the tilt absorbs, and effects whose signature lies inside another's span (directional:
     ``spans``; ``inside_span_of``, with ``share_explained_by`` and ``explains_share_of`` per
     partner). The verdict is left out where the data separated it (no partner of it is in
-    ``ambiguous``)."""
+    ``ambiguous``). ``sigma_mm``: the noise, None below the readout step (no sizes in sigma)."""
     d = ctx.design
     out = []
     names = [n for n in CANDIDATES if n not in d.unknown]
@@ -254,13 +254,16 @@ def not_identifiable(ctx: Context, sigma_mm: float, dz_mm: float = 2.0, *,
     projected = {n: ctx.project(E) for n, E in regs.items()}
     for name, E in regs.items():
         effect = effects.get(name)
-        left = (float(np.linalg.norm(projected[name], axis=0).max())
-                * prior_scale(effect, _shown(effect)) / sigma_mm)
+        # its size in noise sds; not said below the readout step (sigma_mm None: the noise is
+        # rounding, or 0 where every reading is the nominal)
+        size = float(np.linalg.norm(projected[name], axis=0).max()) * prior_scale(
+            effect, _shown(effect))
+        left = (f"; an effect of typical prior size leaves {size / sigma_mm:.2f} sigma after "
+                "the tilt" if sigma_mm else "")
         cc_t = canonical_correlations(_centred(offsets, E), offsets(T))
         if cc_t.min() > ALIAS_CC and name != verdict:  # a verdict passed the tilt: shown
             why = (f"the tilt absorbs {100 * cc_t.min() ** 2:.2f} % of the regressor's variation "
-                   f"(canonical correlation {cc_t.min():.4f}); an effect of typical prior size "
-                   f"leaves {left:.2f} sigma after the tilt")
+                   f"(canonical correlation {cc_t.min():.4f}){left}")
             if effect.axis == "time":
                 why += ("; time is then a linear function of position on this design, so any "
                         "drift -- linear or a warm-up -- is a function of position too and "

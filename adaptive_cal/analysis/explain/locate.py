@@ -71,6 +71,14 @@ def axis_bases(ctx: Context) -> dict[str, np.ndarray | str]:
     return out
 
 
+ROUNDOFF = 1e-10  # of a column's norm: what is left of it after a projection that spans it
+
+
+def column_norm(X: np.ndarray) -> float:
+    """The largest column norm of X."""
+    return float(np.linalg.norm(X, axis=0).max(initial=0.0))
+
+
 def f_test(ctx: Context, X: np.ndarray, given: np.ndarray | None = None) -> dict:
     """Nested-model F-test of the added columns X against the calibrated nuisance model
     (plus the columns ``given``, for a test conditional on another axis)."""
@@ -81,7 +89,8 @@ def f_test(ctx: Context, X: np.ndarray, given: np.ndarray | None = None) -> dict
         yt, m = project(ctx.design.target), ctx.design.n - project.rank
     Xt = project(X)
     U, s, _ = np.linalg.svd(Xt, full_matrices=False)
-    keep = s > 1e-8 * max(s.max(initial=0.0), 1e-300)
+    # a column the nuisance spans leaves round-off (1e-13 of its norm), not variation to test
+    keep = (s > 1e-8 * max(s.max(initial=0.0), 1e-300)) & (s > ROUNDOFF * column_norm(X))
     q = int(min(keep.sum(), max(m - 3, 0)))
     yy = float(yt @ yt)
     if q == 0:

@@ -33,7 +33,8 @@ from scipy import special
 
 from adaptive_cal.analysis.explain.candidates import Candidate, Context
 from adaptive_cal.analysis.explain.evidence import Projector
-from adaptive_cal.analysis.explain.locate import MIN_GROUP, axis_bases, direction_columns, where
+from adaptive_cal.analysis.explain.locate import (MIN_GROUP, ROUNDOFF, axis_bases, column_norm,
+                                                  direction_columns, where)
 
 MAX_COLUMNS = 48  # of a one-coordinate basis (memory: n x 48 floats)
 ALPHA = 0.01  # family-wise false-alarm rate of the structure tests on a recording of noise only
@@ -87,7 +88,8 @@ def _bases(ctx: Context) -> dict[str, np.ndarray]:
 def _axis_test(P: Projector, r: np.ndarray, m: int, X: np.ndarray) -> dict:
     Xt = P(X)
     U, s, _ = np.linalg.svd(Xt, full_matrices=False)
-    keep = s > 1e-8 * max(s.max(initial=0.0), 1e-300)
+    # a column the nuisance spans leaves round-off (1e-13 of its norm), not variation to test
+    keep = (s > 1e-8 * max(s.max(initial=0.0), 1e-300)) & (s > ROUNDOFF * column_norm(X))
     q = int(min(keep.sum(), max(m - 3, 0)))
     if q == 0:
         return {"p_value": 1.0, "excess_mm2": 0.0, "q": 0}
@@ -190,8 +192,9 @@ def ar1_rho(P: Projector, R: float, d) -> float:
 
 
 def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate | None,
-                       threshold: float, noise_mm: float) -> dict:
-    """The ``structure_after_model`` block, and whether the verdict is ``unexplained``."""
+                       threshold: float, noise_mm: float, tested: bool = True) -> dict:
+    """The ``structure_after_model`` block, and whether the verdict is ``unexplained``.
+    ``tested`` False (a mismatch below the probe's readout step): the residual's size, no tests."""
     d = ctx.design
     lib = [c for c in cands if c.log_bf > threshold]
     G = np.hstack([ctx.nuisance] + [c.columns for c in lib])
@@ -200,6 +203,11 @@ def residual_structure(ctx: Context, cands: list[Candidate], winner: Candidate |
     m = d.n - P.rank
     if m < 4:
         return {"unexplained": False, "tests": {}, "note": "too few readings to test"}
+    if not tested:
+        rss = float(r @ r)
+        return {"library": [c.effect for c in lib], "residual_rms_mm": float(np.sqrt(rss / d.n)),
+                "library_rms_mm": 0.0, "tests": {}, "alpha": ALPHA, "unexplained": False,
+                "note": "not tested: the residual is below the probe's readout step (rounding)"}
     tests = {name: _axis_test(P, r, m, X) for name, X in _bases(ctx).items()}
     tests[SERIAL] = serial_test(P, r, m, touch_pairs(d))
     rss = float(r @ r)

@@ -170,8 +170,10 @@ def log_model_prior(k: int) -> np.ndarray:
 
 
 def model_probabilities(cands: list[Candidate]) -> np.ndarray:
-    """Posterior over none and the candidates (``log_model_prior``)."""
-    logp = log_model_prior(len(cands)) + np.array([0.0] + [c.log_bf for c in cands])
+    """Posterior over none and the candidates (``log_model_prior``). A log BF that is NaN (an
+    exact fit, every reading the nominal, has no finite evidence) counts as 0: no preference."""
+    lbf = np.nan_to_num(np.array([0.0] + [c.log_bf for c in cands], float), nan=0.0)
+    logp = log_model_prior(len(cands)) + lbf
     return np.exp(logp - logp.max()) / np.exp(logp - logp.max()).sum()
 
 
