@@ -280,8 +280,8 @@ def _noise_prior_text(probe) -> str:
                 f"guess, {probe.noise_std_mm * 1e3:g} um (`plate.noise_range_known: false`).")
     lo, hi = probe.noise_range_mm
     return (f"The planner is told the span of the reading noise, {lo * 1e3:g}-{hi * 1e3:g} um, "
-            "as a user quotes the probe's datasheet (`probe.noise_range_mm`, a log-normal prior "
-            "with 95 % inside), and learns the noise within it.")
+            "as a user quotes the probe's datasheet (`probe.noise_range_mm`: a prior flat from the "
+            "span's middle to its top, log-normal beyond), and learns the noise within it.")
 
 
 #: the provenance of the project's own page (configs/study-tilts.yaml -> docs/study.md): how
