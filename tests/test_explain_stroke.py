@@ -91,3 +91,22 @@ def test_a_cell_whose_stroke_holds_few_of_the_readings_does_not_empty_the_record
     assert f["readings"]["used"] + f["readings"]["suspect"] == 40
     assert main(["flatness", str(cheng_round0), "--robot", str(cell)]) == 0
     assert f"{cheng_round0}: 40 touches" in capsys.readouterr().out
+
+
+def test_one_file_of_two_rounds_names_the_round_of_each_reading_set_aside(
+        tmp_path, cheng_round0, cheng_round1):
+    """Rounds in one file (a ``round`` column, seq running on): a reading set aside names its
+    round, as a reading of several files names its recording (an outside audit)."""
+    rows = []
+    for k, path in enumerate((cheng_round0, cheng_round1)):
+        body = [line for line in path.read_text().splitlines() if line and line[0] != "#"][1:]
+        rows += [f"{int(r.split(',')[0]) + 40 * k},{r.split(',', 1)[1]},{k}" for r in body]
+    both = tmp_path / "both.csv"
+    both.write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm,round\n"
+                    + "\n".join(rows) + "\n")
+    out = tmp_path / "e.json"
+    assert main(["explain", str(both), "--robot", str(_counting_from_zero(tmp_path)),
+                 "--json", str(out)]) == 0
+    aside = json.loads(out.read_text())["readings"]["not_used"]
+    assert [(r["seq"], r["round"]) for r in aside] == [(0, 0.0), (19, 0.0), (20, 0.0)]
+    assert all("recording" not in r for r in aside)

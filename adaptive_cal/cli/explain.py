@@ -72,8 +72,10 @@ def within_stroke(recordings: list, cell, cell_file: str) -> tuple[list, list[di
     for rec in recordings:
         out = for_replay(rec, cell, cell_file)
         judged.append(out)
+        rounds = rec.extra.get("round") if len(rec.rounds) > 1 else None  # one file, rounds
         aside += [{"seq": int(rec.seq[i]), "reading_mm": float(rec.reading_mm[i]), "why": why,
-                   **({"recording": rec.path} if len(recordings) > 1 else {})}
+                   **({"recording": rec.path} if len(recordings) > 1 else {}),
+                   **({"round": float(rounds[i])} if rounds is not None else {})}
                   for i in (rec.fused & ~out.fused).nonzero()[0]]
     return judged, aside
 
