@@ -50,6 +50,9 @@ def command(args) -> int:
             raise UserError(f"--resume {out}: {'a file, not a' if out.exists() else 'no such'} "
                             "folder (give the folder an interrupted 'adaptive-cal run --out DIR' "
                             "wrote)")
+        if not (out / "recording.csv").exists():  # before its cell.yaml is looked for
+            raise UserError(f"--resume {out}: no recording.csv there, nothing to resume (give "
+                            "the folder an interrupted 'adaptive-cal run --out DIR' wrote)")
         cell_path = Path(args.robot) if args.robot else out / "cell.yaml"
         if args.robot and (out / "cell.yaml").exists():
             same_cell(out, cell_path)
@@ -75,6 +78,11 @@ def command(args) -> int:
         held = [n for n in ("result.json", "belief.npz") if (out / n).exists()]
         if held:  # another run's results, its recording moved away: never overwritten
             raise UserError(f"{out} holds {' and '.join(held)} of another run: another --out")
+        theirs = [n for n in RUN_FILES if (out / n).exists()
+                  and not (n == "cell.yaml" and (out / n).resolve() == cell_path.resolve())]
+        if theirs:  # a run writes these names: a user's own files of that name are never lost
+            raise UserError(f"{out} holds {', '.join(theirs)}, which a run writes: choose "
+                            "another --out, or move them away")
         folders = [d for d in (out, *out.parents) if not d.exists()][::-1]
         before = {p.name for p in out.iterdir()} if out.is_dir() else set()
         created = (folders, before)
@@ -166,6 +174,10 @@ def _correction(args):
         raise UserError(f"--correction-applied {text!r}: each angle must be finite and within "
                         "+-10 deg")
     return rx, ry
+
+
+# files a run writes in --out besides its recording and results (refused if there before)
+RUN_FILES = ("cell.yaml", "surface.png", "convergence.png")
 
 
 def _copy_cell(out: Path, cell_path: Path) -> None:

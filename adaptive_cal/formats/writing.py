@@ -151,12 +151,23 @@ class RecordingWriter:
                   "reading_mm": f"{reading_mm:.6f}", "flags": ";".join(sorted(flags))}
         for k, v in extra.items():
             values[k] = "" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.6g}"
-        self._file.write(",".join(values.get(c, "") for c in self.columns) + self.newline)
-        self._sync()
+        line = ",".join(values.get(c, "") for c in self.columns)
+        try:
+            self._file.write(line + self.newline)
+            self._sync()
+        except OSError as e:  # a full disk, a file-size limit: say which reading is lost
+            raise OSError(e.errno, f"touch seq {int(seq)} could not be written "
+                          f"({e.strerror or e}); its row, taken and not in the recording, "
+                          f"reads {line} ({','.join(self.columns)}); make room, then continue "
+                          "with --resume (a part of the row already written is kept in "
+                          "recording.cut.txt and not fused)", str(self.path)) from e
 
     def close(self) -> None:
         if not self._file.closed:
-            self._file.close()
+            try:
+                self._file.close()
+            except OSError:  # the buffer of a row whose append failed, already reported
+                pass
 
     def __enter__(self) -> "RecordingWriter":
         return self

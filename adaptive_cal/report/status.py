@@ -44,13 +44,29 @@ FINISHING = ("mean_std_bound", "max_std_bound", "touch_budget", "at_least")
 
 
 def unmet_bounds(result: dict) -> list[str]:
-    """Each bound of the cell file the posterior does not meet, as words with units."""
+    """Each bound of the cell file the run does not meet, as words with units: the posterior
+    stds, the largest gap (``plan.stop.max_gap_mm``), and where a std bound is set the touch
+    floor (a bound met on fewer touches rests on too few readings) and the model's self-checks
+    (a bound never stops a run whose model they call inadequate), said where the stds are
+    met -- the stop rule's own terms: a budget spent with any of them open is not a result."""
     bound, post = result.get("bound", {}), result["posterior"]
     out = []
     for key, name in (("mean_std_mm", "posterior RMS std"), ("max_std_mm", "posterior max std")):
         b = bound.get(key)
         if b is not None and post[key] > b:
             out.append(f"{name} {post[key] * 1e3:.1f} um against the {b * 1e3:g} um bound")
+    gap, radius = bound.get("max_gap_mm"), (result.get("largest_gap") or {}).get("radius_mm")
+    if gap is not None and radius is not None and radius > gap:
+        out.append(f"largest gap between touches {radius:.0f} mm radius against the {gap:g} mm "
+                   "bound (plan.stop.max_gap_mm)")
+    stds = [key for key in ("mean_std_mm", "max_std_mm") if bound.get(key) is not None]
+    if stds and not out:  # the stds met: what else a bound stop would have waited for
+        floor = bound.get("min_touches") or 0
+        if result["touches"] < floor:
+            out.append(f"{result['touches']} touches, fewer than the {floor} a bound needs "
+                       "before it may stop a run (the touch floor: plan.stop.min_touches)")
+        if (result.get("model") or {}).get("adequate") is False:
+            out.append("the model's self-checks fail (model.adequate false: see the model line)")
     return out
 
 

@@ -92,9 +92,9 @@ def replay(plan: SurveyPlan, state: sv.SurveyState, rec
 
 @contextmanager
 def _deferred_interrupt():
-    """First Ctrl-C sets a flag (stop after this touch); a second one interrupts at once --
-    except once ``state["shield"]`` is set (the touches done, the results being written: a
-    second press there left a folder without result.json, an outside audit)."""
+    """First Ctrl-C (or SIGTERM) sets a flag (stop after this touch); a second one interrupts at
+    once -- except once ``state["shield"]`` is set (the touches done, the results being
+    written: a second press there left a folder without result.json, an outside audit)."""
     state = {"stop": False, "shield": False}
     if signal.getsignal(signal.SIGINT) is None or not _main_thread():
         yield state
@@ -105,11 +105,13 @@ def _deferred_interrupt():
             raise KeyboardInterrupt
         state["stop"] = True
 
-    old = signal.signal(signal.SIGINT, handler)
+    # SIGTERM (a timeout, a service stopped) as Ctrl-C: it had ended the run silently (143)
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield state
     finally:
-        signal.signal(signal.SIGINT, old)
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def _main_thread() -> bool:
@@ -256,12 +258,19 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         if error is None or state.touches:
             if carried is not None and stopped == PRIOR_DISAGREES:
                 carried = {**carried, "disagreement": disagreement(carried, surprises)}
-            result = write_results(cell, plan, state, paths.out, stopped or "interrupted",
-                                   rng=np.random.default_rng(RESULTS_SEED),
-                                   history=history.statuses, refits=history.refits, truth=truth,
-                                   true_rms_mm=true_rms.rms_mm if true_rms else None,
-                                   extra={**({} if carried is None else {"prior_from": carried}),
-                                          **({} if error is None else {"error": str(error)})})
+            try:
+                result = write_results(
+                    cell, plan, state, paths.out, stopped or "interrupted",
+                    rng=np.random.default_rng(RESULTS_SEED), history=history.statuses,
+                    refits=history.refits, truth=truth,
+                    true_rms_mm=true_rms.rms_mm if true_rms else None,
+                    extra={**({} if carried is None else {"prior_from": carried}),
+                           **({} if error is None else {"error": str(error)})})
+            except OSError as e:  # a full disk: the recording is whole, the results are not
+                raise OSError(e.errno, f"the results could not be written ({e.strerror or e}); "
+                              f"{paths.recording.name} holds every touch ({state.touches}): make "
+                              "room, then adaptive-cal run --resume writes them",
+                              str(paths.out)) from e
     if error is not None:
         error.result = result  # what was measured before the device stopped: the CLI shows it
         raise error
