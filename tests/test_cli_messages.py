@@ -225,11 +225,14 @@ def test_a_folder_or_binary_file_given_as_yaml(tmp_path, capsys):
     from adaptive_cal.cli import main
 
     (tmp_path / "bad.yaml").write_bytes(b"\xff\xfe")
+    (tmp_path / "latin.yaml").write_bytes(b"a: 1\nb: 2\nname: caf\xe9\n")  # its line named
     for argv, words in ((["study", str(tmp_path), "--json", str(tmp_path / "x.json")],
                          f"{tmp_path}: a folder, not a YAML file"),
                         (["emulate", "--robot", str(tmp_path)], "a folder, not a YAML file"),
                         (["run", "--robot", str(tmp_path / "bad.yaml"), "--out",
-                          str(tmp_path / "o")], "bad.yaml: not a UTF-8 text file (invalid start")):
+                          str(tmp_path / "o")], "bad.yaml:1: not a UTF-8 text file (invalid start"),
+                        (["run", "--robot", str(tmp_path / "latin.yaml"), "--out",
+                          str(tmp_path / "o")], "latin.yaml:3: not a UTF-8 text file")):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err, err

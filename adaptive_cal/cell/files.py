@@ -214,8 +214,11 @@ def load_yaml(path: str | Path) -> dict:
         raise ConfigError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise ConfigError(f"{path}: a folder, not a YAML file") from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+    except UnicodeDecodeError as e:  # name the line: a byte offset sends the user counting
+        line = e.object[:e.start].count(b"\n") + 1
+        raise ConfigError(f"{path}:{line}: not a UTF-8 text file ({e.reason} at byte {e.start}: "
+                          f"{e.object[e.start:e.start + 1]!r}; saved as Latin-1 or Windows-1252? "
+                          "save it as UTF-8)") from None
     try:
         data = parse_yaml(text, str(path))
     except yaml.YAMLError as e:
