@@ -76,7 +76,8 @@ def test_a_last_number_cut_by_a_crash_is_left_out_and_said(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("kind, data", [
-    ("gzip-compressed", gzip.compress(b"# adaptive-cal recording v1\n")),
+    # mtime=0: the same bytes on every xdist worker (a timestamp made their test ids differ)
+    ("gzip-compressed", gzip.compress(b"# adaptive-cal recording v1\n", mtime=0)),
     ("zip archive", None), ("PNG image", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")])
 def test_a_file_that_is_no_text_is_named_for_what_it_is(tmp_path, capsys, kind, data):
     if data is None:
