@@ -497,9 +497,11 @@ def test_a_stop_or_end_on_a_split_cut_goes_with_its_last_piece(mapped, tmp_path,
     assert has == [False] * (len(cut) - 1) + [True]
     assert "(end)" in cut[0]  # the line's comment stays on it, with the first piece
     assert cut[-1].startswith("G1 X-150.0000 Y100.0000 Z")
-    back = tmp_path / "o2.gcode"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["compensate", str(out), "--map", str(run_dir), "--out", str(back)]) == 0
+    back = tmp_path / "o2.gcode"  # the output reads back; compensating it again is refused
+    assert read_toolpath(out.read_text(), "o").compensated[0] == 1
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["compensate", str(out), "--map", str(run_dir), "--out", str(back)]) == 2
+    assert not back.exists()
 
 
 def test_a_tolerance_that_looks_like_um_typed_as_mm_is_warned(capsys):

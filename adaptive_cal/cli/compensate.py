@@ -177,6 +177,35 @@ def _grid(hmap, args) -> int:
     return 0
 
 
+def _blending(path, name: str, T: float) -> str | None:
+    """Refuse a program compensate wrote (its heights would be added twice), and a G64 P or Q
+    beyond the tolerance (path blending: LinuxCNC leaves the path by up
+    to P and merges nearly collinear points -- the splits -- within Q, P where no Q is given:
+    the Z between them is then the chord's, not the map's); a warning for one within it, or a
+    G64 without P (LinuxCNC then keeps speed however far it leaves the path)."""
+    from adaptive_cal.cli.common import UserError
+
+    if path.compensated is not None:
+        at, text = path.compensated
+        raise UserError(f"{name} line {at}: this program is an output of adaptive-cal compensate "
+                        f"({text[:70]}...): compensating it again adds the heights twice; "
+                        "compensate the original program")
+    if path.blend is None:
+        return None
+    at, mm = path.blend
+    if mm > T:
+        raise UserError(f"{name} line {at}: G64 P/Q {mm:g} mm lets the control leave the path, "
+                        f"or merge the split points, by up to {mm * 1e3:.4g} um, more than the "
+                        f"tolerance {T * 1e3:.4g} um: give G64 P (and Q) at most the tolerance, "
+                        "or G61 (exact path)")
+    if mm == 0:
+        return (f"warning: {name} line {at}: G64 without P -- on LinuxCNC the control then keeps "
+                "its speed however far it leaves the path, and the tolerance does not hold; "
+                f"give G64 P{T:g} or G61 where that control runs it")
+    return (f"warning: {name} line {at}: G64 P/Q {mm:g} mm -- the control may leave the path by "
+            f"that much on top of the tolerance {T * 1e3:.4g} um")
+
+
 def _program(hmap, args) -> int:
     from pathlib import Path
 
@@ -188,6 +217,7 @@ def _program(hmap, args) -> int:
     path = read_toolpath(_text(name), name)
     if not path.moves:
         raise UserError(f"{name}: no moves found (G0/G1 with X, Y, Z, or CSV rows x_mm,y_mm,z_mm)")
+    blend = _blending(path, name, T)
     result = compensate(path, hmap.height(args.frame), hmap.plate_mm, T,
                         top_mm=hmap.top_mm(args.frame), name=name, reach_mm=hmap.reach_mm)
     marks = {}
@@ -227,6 +257,8 @@ def _program(hmap, args) -> int:
                                            ("the map is extrapolated", result.beyond)) if hit)
         print(f"marked {len(marks)} line(s) where {why}: the output is NOT within the tolerance "
               "there")
+    if blend:
+        print(blend, file=sys.stderr)
     if path.whole_numbers:
         (line, word), n = path.whole_numbers[0], len(path.whole_numbers)
         print(f"warning: {n} axis word{'s' * (n != 1)} without a decimal point (first: line "

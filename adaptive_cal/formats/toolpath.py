@@ -23,14 +23,12 @@ control left in inches or incremental would read the heights added 25.4 x or rel
 from __future__ import annotations
 
 import csv
-import io
 import math
 import re
-from dataclasses import dataclass
 
-from adaptive_cal.formats.table import strict_float
-
-Point = tuple  # (x_mm, y_mm, z_mm), None where not known yet
+from adaptive_cal.formats.toolpath_base import (DIGITS, Move, Point, Toolpath,  # noqa: F401
+                                                ToolpathError, fmt, newline_of)
+from adaptive_cal.formats.toolpath_csv import read_csv_toolpath, write_csv_toolpath
 
 # G codes that change nothing we compensate (plane, mm, cutter comp off, length offset, work
 # offsets, path mode, canned cycle off, absolute, feed per minute, dwell)
@@ -52,47 +50,16 @@ REFUSED_G = {
     28: "G28 (return home through a point): not supported",
     53: "G53 (machine coordinates): not supported; the map is in the workplane frame",
 }
-_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+# ASCII only: a control reads no Arabic-Indic digit or no-break space (Python's \d and \s would)
+_WORD = re.compile(r"([A-Za-z])[ \t]*([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))")
 _EXPONENT = re.compile(r"[eE][-+]?\d")  # right after a number: 1.5e2 is no G-code number
 # axis words of other machines: rotary A B C, parallel U V W, arc centre I J K and radius R, and
 # E, the extruder axis of RepRap-style controllers (Marlin, RepRapFirmware, Klipper)
 OTHER_AXES = "ABCEUVWIJKR"
 _COMMENT = re.compile(r"\([^)]*\)|;.*$")
-DIGITS = 4  # written coordinates: 0.1 um
-
-
-class ToolpathError(ValueError):
-    """A toolpath this tool cannot read or does not support; the message names the line."""
-
-
-@dataclass(frozen=True)
-class Move:
-    """One straight move: ``cut`` (G1 or a CSV row) or a rapid (G0); ``item``: its index in
-    ``Toolpath.lines``; ``line``: its 1-based line number in the file; ``start``: None for a
-    CSV's first point (a point, not a move)."""
-
-    item: int
-    line: int
-    cut: bool
-    start: Point
-    end: Point
-
-
-@dataclass(frozen=True)
-class Toolpath:
-    kind: str  # "gcode" or "csv"
-    lines: list  # G-code: the lines; CSV: the rows (lists of fields), header first
-    moves: list
-    newline: str = "\n"
-    final_newline: bool = True
-    columns: tuple = ()  # CSV: indices of x_mm, y_mm, z_mm
-    bom: bool = False  # the file began with a UTF-8 byte order mark (written back)
-    whole_numbers: tuple = ()  # G-code: (line, word) of axis words without a decimal point
-    assumed: tuple = ()  # G-code: "G21", "G90" where a move came before the program said it
-
-
-def fmt(value: float) -> str:
-    return f"{value:.{DIGITS}f}"
+#: the header comment a compensated program carries (``Toolpath.compensated``: compensate refuses
+#: such a program, whose heights would be added twice)
+MADE_BY = re.compile(r"\(adaptive-cal [^)]* compensate,")
 
 
 def read_toolpath(text: str, name: str = "program") -> Toolpath:
@@ -102,16 +69,12 @@ def read_toolpath(text: str, name: str = "program") -> Toolpath:
     line = re.split(r"\r\n|\n|\r", text, maxsplit=1)[0].strip()
     first = [f.strip().lower() for f in next(csv.reader([line]), [])]
     if "x_mm" in first:
-        return _read_csv(text, name, bom)
+        return read_csv_toolpath(text, name, bom)
     if any("x_mm" in [f.strip().strip('"').lower() for f in line.split(sep)]
            for sep in (";", "\t")):  # a header, but not of a comma-separated file
         raise ToolpathError(f"{name} line 1: {line[:60]!r} looks like a point table's header, but "
                             "a point CSV is comma-separated with the header x_mm,y_mm,z_mm")
     return _read_gcode(text, name, bom)
-
-
-def _newline(text: str) -> tuple[str, bool]:
-    return ("\r\n" if "\r\n" in text else "\n"), text.endswith(("\n", "\r"))
 
 
 def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
@@ -120,9 +83,15 @@ def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
     if "(" in code or ")" in code:
         raise ToolpathError(f"{where}: unbalanced parenthesis comment")
     out, pos = [], 0
+    if code.strip(" \t") == "%":  # the tape mark: a line of its own (inside a line it ends the
+        return out                 # record on a Fanuc, and a reader drops the words after it)
     for m in _WORD.finditer(code):
-        gap = code[pos:m.start()].strip()
-        if gap and gap != "%":
+        gap = code[pos:m.start()].strip(" \t")
+        if "%" in gap:
+            raise ToolpathError(f"{where}: '%' inside a line: the tape mark stands on a line of "
+                                "its own (a Fanuc ends the record there, and readers drop the "
+                                "words after it)")
+        if gap:
             raise ToolpathError(f"{where}: cannot read {gap[:30]!r} (expressions, parameters and "
                                 "block delete are not supported)")
         if _EXPONENT.match(code, m.end()):
@@ -131,8 +100,11 @@ def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
                                 "number: write the value in plain decimals (150 for 1.5e2)")
         out.append((m.group(1).upper(), float(m.group(2)), m.span()))
         pos = m.end()
-    gap = code[pos:].strip()
-    if gap and gap != "%":
+    gap = code[pos:].strip(" \t")
+    if "%" in gap:
+        raise ToolpathError(f"{where}: '%' inside a line: the tape mark stands on a line of its "
+                            "own")
+    if gap:
         hint = ("; a point table (CSV) needs the header line x_mm,y_mm,z_mm first"
                 if "," in line and re.fullmatch(r"[\s\w.,+-]*", line) else "")
         raise ToolpathError(f"{where}: cannot read {gap[:30]!r}{hint}")
@@ -150,11 +122,11 @@ def _lines(text: str) -> list[str]:
 
 
 def _read_gcode(text: str, name: str, bom: bool = False) -> Toolpath:
-    newline, final = _newline(text)
+    newline, final = newline_of(text)
     lines = _lines(text)
     pos: list = [None, None, None]
     mode = None  # 0 or 1 once set
-    moves, whole, offset, ended, assumed = [], [], None, None, set()
+    moves, whole, offset, ended, assumed, blend, made = [], [], None, None, set(), None, None
     said = {21: None, 90: None}  # the line each was first given on
     for i, line in enumerate(lines):
         where = f"{name} line {i + 1}"
@@ -184,11 +156,17 @@ def _read_gcode(text: str, name: str, bom: bool = False) -> Toolpath:
                 raise ToolpathError(f"{where}: {REFUSED_M[v]} is not supported: the called code "
                                     "runs from the call's position, not the one the text gives; "
                                     "expand the subprogram into the program")
-        if 4 in gs:  # dwell: its P (or a Fanuc's X) is a time, on Grbl an X/Y/Z is a move too
-            if any(k in "XYZ" for k, _, _ in words):
-                raise ToolpathError(f"{where}: axis words on a dwell (G4) line: a time on some "
-                                    "controls, a move on others; give the dwell with P alone")
-            continue
+        if made is None and MADE_BY.search(line):
+            made = (i + 1, line.strip())
+        if 64 in gs:  # path blending: the control may leave the path by up to P, and LinuxCNC
+            # merges nearly collinear points (the splits) within Q (P where no Q is given)
+            tol = max([v for k, v, _ in words if k in "PQ"], default=0.0)
+            if blend is None or tol > blend[1]:
+                blend = (i + 1, tol)
+        if 4 in gs and any(k in "XYZ" for k, _, _ in words):
+            # dwell: its P (or a Fanuc's X) is a time, on Grbl an X/Y/Z is a move too
+            raise ToolpathError(f"{where}: axis words on a dwell (G4) line: a time on some "
+                                "controls, a move on others; give the dwell with P alone")
         axes = {}
         for k, v, _ in words:
             if k in "XYZ":
@@ -227,41 +205,7 @@ def _read_gcode(text: str, name: str, bom: bool = False) -> Toolpath:
                 pos[j] = axes[k]
         moves.append(Move(i, i + 1, mode == 1, start, tuple(pos)))
     return Toolpath("gcode", lines, moves, newline, final, bom=bom, whole_numbers=tuple(whole),
-                    assumed=tuple(sorted(assumed)))
-
-
-def _read_csv(text: str, name: str, bom: bool = False) -> Toolpath:
-    newline, final = _newline(text)
-    rows = list(csv.reader(io.StringIO(text)))
-    header = [h.strip() for h in rows[0]]
-    names = [h.lower() for h in header]  # X_MM is x_mm, as the detection reads it
-    for j, h in enumerate(header):
-        if h and h.lower() in names[:j]:
-            raise ToolpathError(f"{name} line 1: column {h!r} given twice (columns "
-                                f"{names.index(h.lower()) + 1} and {j + 1}): give each column once")
-    try:
-        cols = tuple(names.index(k) for k in ("x_mm", "y_mm", "z_mm"))
-    except ValueError:
-        raise ToolpathError(f"{name} line 1: a point CSV needs the columns x_mm, y_mm, z_mm; "
-                            f"got {', '.join(header)}") from None
-    moves, prev = [], None  # the first point starts nothing: it is a point, not a move
-    for i, row in enumerate(rows[1:], start=1):
-        if not row or all(not f.strip() for f in row):
-            continue
-        where = f"{name} line {i + 1}"
-        if len(row) != len(header):
-            raise ToolpathError(f"{where}: {len(row)} fields, the header has {len(header)}")
-        point = []
-        for c, k in zip(cols, ("x_mm", "y_mm", "z_mm")):
-            v = strict_float(row[c].strip())
-            if v is None:
-                raise ToolpathError(f"{where}: {k} {row[c]!r} is not a number")
-            if not math.isfinite(v):
-                raise ToolpathError(f"{where}: {k} {row[c]!r} is not finite")
-            point.append(v)
-        moves.append(Move(i, i + 1, True, prev, tuple(point)))
-        prev = tuple(point)
-    return Toolpath("csv", rows, moves, newline, final, cols, bom=bom)
+                    assumed=tuple(sorted(assumed)), blend=blend, compensated=made)
 
 
 def _replace_words(line: str, values: dict) -> str:
@@ -286,6 +230,12 @@ def _replace_words(line: str, values: dict) -> str:
     return out[:at] + " " + extra + (tail if not tail or tail[0].isspace() else " " + tail)
 
 
+def _plain(text: str) -> str:
+    """A note as a G-code comment holds it everywhere: no ';' (a comment to some readers), '%'
+    (the tape mark) or parentheses."""
+    return (text.replace("%", "pct").replace(";", ",").replace("(", "[").replace(")", "]"))
+
+
 def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
                    header_comment: str | None = None, note_column: str = "compensate_note") -> str:
     """The toolpath as text with ``pieces[item]`` (a list of (x, y, z) mm, the last one the
@@ -294,7 +244,7 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
     marks = marks or {}
     bom = "\ufeff" if path.bom else ""
     if path.kind == "csv":
-        return bom + _write_csv(path, pieces, marks, note_column)
+        return bom + write_csv_toolpath(path, pieces, marks, note_column)
     out = []
     # the header comment after a leading % and O number (a Fanuc or Haas loads a program by its
     # O number on its first line), else first
@@ -305,7 +255,7 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
     for i, line in enumerate(path.lines):
         if i == lead and header_comment:
             out.append(f"({header_comment})")
-        note = f" ({marks[i]})" if i in marks else ""
+        note = f" ({_plain(marks[i])})" if i in marks else ""
         if i in pieces:
             first, *rest = pieces[i]
             # unsplit: only Z changes (X, Y as written, or modal); split: the first piece in full
@@ -326,25 +276,3 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
     if lead == len(path.lines) and header_comment:
         out.append(f"({header_comment})")
     return bom + path.newline.join(out) + (path.newline if path.final_newline else "")
-
-
-def _write_csv(path: Toolpath, pieces: dict, marks: dict, note_column: str) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator=path.newline)
-    header = list(path.lines[0]) + ([note_column] if marks else [])
-    w.writerow(header)
-    cx, cy, cz = path.columns
-    for i, row in enumerate(path.lines[1:], start=1):
-        note = [marks.get(i, "")] if marks else []
-        if i not in pieces:
-            w.writerow(list(row) + note)
-            continue
-        *before, last = pieces[i]
-        for x, y, z in before:
-            new = list(row)
-            new[cx], new[cy], new[cz] = fmt(x), fmt(y), fmt(z)
-            w.writerow(new + note)
-        new = list(row)
-        new[cz] = fmt(last[2])
-        w.writerow(new + note)
-    return buf.getvalue()
