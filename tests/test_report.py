@@ -86,7 +86,7 @@ def test_page_is_self_contained_with_every_section_and_unit(run_dir, capsys):
     # flatness with its interval, in um, as the terminal prints it
     assert f"{ls['value'] * 1e3:.1f} um" in html
     assert f"(95 % {ls['ci95'][0] * 1e3:.1f} .. {ls['ci95'][1] * 1e3:.1f} um)" in html
-    assert "of the whole plate (from the map)" in html and "touched points (Cheng eqs. 1-6)" in html
+    assert "of the whole plate (from the map)" in html and "touched points as measured (Cheng eqs. 1-6;" in html
     assert "minimum zone (ISO 1101)" in html and "95 % interval" in html
     assert "No explain findings" in html  # and it says how to get them
     # the closure touch's verdict, as the terminal says it

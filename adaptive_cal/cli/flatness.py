@@ -68,6 +68,8 @@ def command(args) -> int:
         second = _picked(args.compare, args.compare_round, "--compare-round")
         _not_itself(args.recording, args.compare, first, second,
                     files=args.round is None and args.compare_round is None)
+        for said in _compare_notes(args, first, second):
+            print(said, file=sys.stderr)
         rng = np.random.default_rng(args.seed)
         out, _, sampled = recording_flatness(first, rng, bare_samples)
         other, _, sampled_b = recording_flatness(second, rng, bare_samples)
@@ -84,6 +86,21 @@ def command(args) -> int:
     else:
         _print(out)
     return 0
+
+
+def _compare_notes(args, first, second) -> list[str]:
+    """What --compare does not do: use --robot (the change is of the touched points' figures,
+    every reading as recorded), or compare like with like where the touches differ."""
+    notes = [f"note: --robot {args.robot} is not used by --compare: the change is of the touched "
+             "points' figures, every reading as recorded"] if args.robot else []
+    at = [{(round(x * 2), round(y * 2)) for x, y in zip(r.x_mm, r.y_mm)} for r in (first, second)]
+    a, b = len(at[0] - at[1]), len(at[1] - at[0])
+    if a or b:
+        notes.append(f"warning: the recordings' touches differ ({a} of {len(at[0])} places of "
+                     f"{args.recording} not in {args.compare}, {b} of {len(at[1])} the other way, "
+                     "to 0.5 mm): each figure is of its own points, so their change is not the "
+                     "plate's alone")
+    return notes
 
 
 def map_flatness(args, picked=None) -> dict | None:
@@ -310,7 +327,8 @@ def compare_table(out: dict) -> list[str]:
         c = out["change"][k]
         va, vb = a["flatness_mm"][k]["value"], b["flatness_mm"][k]["value"]
         lo, hi = c["diff_ci95"]
-        lines.append(f"  {LABELS[k]:<19}{um(va):>9}{um(vb):>9}{um(vb - va, '+'):>9}   "
+        change = round(vb * 1e3, 1) - round(va * 1e3, 1)  # of the figures as printed
+        lines.append(f"  {LABELS[k]:<19}{um(va):>9}{um(vb):>9}{fixed(change, 1, '+'):>9}   "
                      f"{um(lo, '+') + ' .. ' + um(hi, '+'):<26}{c['p_b_greater']:>8.2f}  "
                      f"{_verdict(c)}")
     lines += ["  change: the later figure minus the earlier, as measured. 95 % interval of",

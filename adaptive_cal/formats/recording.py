@@ -135,11 +135,12 @@ class Recording:
         if len(rounds) <= 1:
             return self
         shown = ", ".join(f"{v:g}" for v in rounds[:6]) + (", ..." if len(rounds) > 6 else "")
+        pick = ("pick one (flatness --round R; --compare-round R for the second of two) or "
+                if what == "flatness" else "")  # report has no --round
         raise RecordingError(
             f"{self.path or 'the recording'}: column round holds {len(rounds)} rounds ({shown}); "
-            f"{what} is of one round's surface: pick one (flatness --round R; --compare-round R "
-            "for the second of two) or give each round as its own file (explain takes every "
-            "round of one file as it is)")
+            f"{what} is of one round's surface: {pick}give each round as its own file (the "
+            "rows of one round value; explain takes every round of one file as it is)")
 
     def select(self, mask: np.ndarray) -> "Recording":
         """Rows where ``mask`` holds (metadata kept)."""

@@ -1,0 +1,59 @@
+"""What an outside audit of flatness and the report found (2026-11-29): --compare's change column
+disagreed with the printed figures by a digit, --robot was dropped by --compare without a word,
+two different sets of touches were compared without one, the touched points' line did not say
+what its interval holds, and report's several-rounds message named an option it lacks."""
+import pytest
+
+from adaptive_cal.analysis.flatness_answer import OUTSIDE_NOTE, touched_what
+from adaptive_cal.cli import main
+from adaptive_cal.formats.recording import RecordingError, read_recording
+
+from conftest import ROOT
+
+
+def _change_rows(out: str) -> dict:
+    rows = {}
+    for line in out.splitlines():
+        parts = line.split()
+        if parts[:2] in (["least", "squares"], ["minimum", "zone"]):
+            rows[" ".join(parts[:2])] = [float(v) for v in parts[2:5]]
+    return rows
+
+
+def test_the_change_column_is_the_difference_of_the_printed_figures(
+        cheng_round0, cheng_round1, capsys):
+    assert main(["flatness", str(cheng_round0), "--compare", str(cheng_round1)]) == 0
+    rows = _change_rows(capsys.readouterr().out)
+    assert rows["least squares"] == [541.7, 596.0, 54.3]  # printed +54.4 before
+    for earlier, later, change in rows.values():
+        assert change == pytest.approx(later - earlier, abs=1e-9)
+
+
+def test_compare_says_what_it_does_not_use_and_when_the_touches_differ(tmp_path, cheng_round0,
+                                                                       capsys):
+    rows = [line for line in cheng_round0.read_text().splitlines() if line[:1] != "#"]
+    part = tmp_path / "part.csv"
+    part.write_text("# adaptive-cal recording v1\n" + "\n".join(rows[:31]) + "\n")  # 30 touches
+    cell = ROOT / "configs" / "cheng2025-cell.yaml"
+    assert main(["flatness", str(cheng_round0), "--compare", str(part), "--robot",
+                 str(cell)]) == 0
+    err = capsys.readouterr().err
+    assert f"--robot {cell} is not used by --compare" in err
+    assert "touches differ (10 of 40 places" in err and "0 of 30 the other way" in err
+
+
+def test_the_touched_line_says_what_its_interval_holds():
+    assert "a repeat measurement's figure" in touched_what(40)
+    assert "by chance one time in twenty" in OUTSIDE_NOTE
+
+
+def test_a_report_of_several_rounds_names_no_option_it_lacks(tmp_path, cheng_round0):
+    rows = [line for line in cheng_round0.read_text().splitlines() if line[:1] != "#"]
+    both = tmp_path / "both.csv"
+    body = [f"{r},{0 if i < 20 else 1}" for i, r in enumerate(rows[1:])]
+    both.write_text("# adaptive-cal recording v1\n" + rows[0] + ",round\n" + "\n".join(body) + "\n")
+    with pytest.raises(RecordingError) as e:
+        read_recording(both).one_round("a report's map")
+    assert "--round" not in str(e.value) and "give each round as its own file" in str(e.value)
+    with pytest.raises(RecordingError, match="flatness --round R"):
+        read_recording(both).one_round("flatness")
