@@ -71,7 +71,7 @@ def test_compare_prints_a_table_with_units_and_p_worse():
     assert "P(worse)" in lines[head + 1] and "95 % interval of change" in lines[head + 1]
     ls = lines[head + 2].split()
     assert ls[:2] == ["least", "squares"]
-    assert ls[2:5] == ["541.7", "596.0", "+54.4"]  # um, as each round's own lines
+    assert ls[2:5] == ["541.7", "596.0", "+54.3"]  # um, as printed; the change of those
     assert ls[-4:] == ["0.90", "within", "the", "noise"]
     assert lines[head + 4].startswith("  range (tilt incl.)") and lines[head + 4].endswith("smaller")
     assert "{" not in p.stdout  # no raw dicts
