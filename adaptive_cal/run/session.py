@@ -105,7 +105,6 @@ def _deferred_interrupt():
             raise KeyboardInterrupt
         state["stop"] = True
 
-    # SIGTERM (a timeout, a service stopped) as Ctrl-C: it had ended the run silently (143)
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield state
@@ -267,9 +266,10 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                     extra={**({} if carried is None else {"prior_from": carried}),
                            **({} if error is None else {"error": str(error)})})
             except OSError as e:  # a full disk: the recording is whole, the results are not
+                stop = f"; the run had stopped on: {error}" if error is not None else ""
                 raise OSError(e.errno, f"the results could not be written ({e.strerror or e}); "
                               f"{paths.recording.name} holds every touch ({state.touches}): make "
-                              "room, then adaptive-cal run --resume writes them",
+                              f"room, then adaptive-cal run --resume writes them{stop}",
                               str(paths.out)) from e
     if error is not None:
         error.result = result  # what was measured before the device stopped: the CLI shows it
