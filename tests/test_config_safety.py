@@ -162,8 +162,9 @@ def test_a_yes_no_is_no_number_but_yaml_exponents_without_a_dot_are():
 
     assert yaml.safe_load("v: 4e-3")["v"] == "4e-3"  # the YAML quirk itself
     for value in (True, False):
-        with pytest.raises(ConfigError, match=r"plan\.stop: max_touches: (True|False) is a "
-                                              r"yes/no, not a number"):
+        with pytest.raises(ConfigError, match=r"plan\.stop: max_touches: a yes/no, not a "
+                                              r"number \(YAML reads yes, no, on, off, true and "
+                                              r"false as one: here (True|False)\)"):
             sim_cell(plan={"stop": {"max_touches": value}})
     stop = yaml.safe_load("mean_std_mm: 4e-3\nmax_touches: 40")
     assert sim_cell(plan={"stop": stop}).plan.stop.mean_std_mm == 0.004

@@ -36,7 +36,8 @@ class Strict(BaseModel):
             for name, field in cls.model_fields.items():
                 v = data.get(name)
                 if isinstance(v, bool) and _numeric(field.annotation):
-                    raise ValueError(f"{name}: {v!r} is a yes/no, not a number")
+                    raise ValueError(f"{name}: a yes/no, not a number (YAML reads yes, no, "
+                                     f"on, off, true and false as one: here {v!r})")
         return data
 
 
