@@ -88,3 +88,12 @@ def test_sigterm_stops_a_run_after_its_touch_as_ctrl_c_does():
         assert signal.getsignal(signal.SIGTERM) is outer
     finally:
         signal.signal(signal.SIGTERM, guard)
+
+
+def test_the_cli_keeps_pymodbus_reconnect_lines_off_stderr(tmp_path, capsys):
+    import logging
+
+    logging.getLogger("pymodbus").setLevel(logging.NOTSET)
+    main(["flatness", str(tmp_path / "none.csv")])  # any command sets up the CLI's logging
+    capsys.readouterr()
+    assert logging.getLogger("pymodbus").getEffectiveLevel() == logging.CRITICAL

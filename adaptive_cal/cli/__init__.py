@@ -133,6 +133,9 @@ def _main(argv: list[str] | None) -> int:
     import logging
 
     logging.getLogger("matplotlib.font_manager").setLevel(logging.ERROR)
+    # pymodbus logs each failed reconnect ("Connection to ... failed", "Repeating....") between
+    # the adapter's own lines, which say what failed and what to do (an outside audit)
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     from adaptive_cal.hardware.base import AdapterError
     from adaptive_cal.cell.schema import ConfigError
     from adaptive_cal.formats.recording import RecordingError
