@@ -244,7 +244,12 @@ def test_study_map_beyond_the_probes_reach_is_refused_naming_it(tmp_path):
     write_map(tmp_path / "maps" / "p1.csv",  # an 8 mm bump: more form than the stroke holds
               f=lambda x, y: bilinear(x, y) + 8.0 * np.exp(-(x * x + y * y) / 100.0 ** 2))
     with pytest.raises(ConfigError, match=r"p1.csv is beyond the probe's reach: .* and [5-9]\.\d+ "
-                                          r"mm of form about it"):
+                                          r"mm of form about it") as e:
+        load_study(path)
+    assert "in um?" not in str(e.value)
+    write_map(tmp_path / "maps" / "p1.csv",  # a plate's heights written in um: +-300 "mm"
+              f=lambda x, y: 1e3 * 0.3 * (x / 225.0) ** 2)
+    with pytest.raises(ConfigError, match=r"heights in um\? a map's heights are mm"):
         load_study(path)
 
 

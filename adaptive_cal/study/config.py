@@ -211,7 +211,9 @@ def map_in_reach(path: str, cell: Cell, source: str) -> None:
             f"slope of {math.hypot(a, b):.4f} mm/mm (the planner serves up to {allowed:.4f}), a "
             f"height of {c:+.3f} mm at the plate centre (the prior reaches +-{offset:.3f} mm, "
             f"model.offset_std_mm) and {form:.3f} mm of form about it; the usable stroke "
-            f"{list(probe.usable_mm)} mm holds +-{half:.3f} mm")
+            f"{list(probe.usable_mm)} mm holds +-{half:.3f} mm" + (
+                " -- heights in um? a map's heights are mm" if abs(c) + form > 20 * half
+                else ""))
 
 
 def reach(cell: Cell) -> tuple[float, float, float]:
