@@ -290,3 +290,16 @@ def compare_rounds(samples_a: Mapping[str, np.ndarray],
     """
     _require_same_names(samples_a, samples_b, "compare_rounds")
     return {name: _compare_one(samples_a[name], samples_b[name]) for name in samples_a}
+
+
+LINE_RATIO = 1e-3  # touches spread across their line less than this share of along it: a line
+
+
+def line_spread(x, y) -> tuple[np.ndarray, np.ndarray]:
+    """(RMS spread along and across the touches' principal line, mm; its direction vectors,
+    rows): the touches (x, y) lie on one line, or nearly, where spread[1] <= ``LINE_RATIO`` x
+    spread[0] -- the test flatness and explain refuse such touches by (no tilt across it)."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    _, spread, vt = np.linalg.svd(np.c_[x - x.mean(), y - y.mean()], full_matrices=False)
+    return spread / np.sqrt(len(x)), vt
+

@@ -86,7 +86,7 @@ def repeat_samples(x, y, z, rng: np.random.Generator, n: int,
     return fl.sampled_figures(x, y, draws), dict(hyper._asdict()), plate
 
 
-LINE_RATIO = 1e-3  # touches spread across their line less than this share of along it: a line
+LINE_RATIO = fl.LINE_RATIO  # the one line test (``flatness.line_spread``)
 
 
 def spans_area(x, y, path) -> None:
@@ -94,8 +94,7 @@ def spans_area(x, y, path) -> None:
     point): across it a plane's tilt is not determined, and the minimum zone's planes may turn
     steep enough to hold the points by their spread across the line (1 um from 20 points 10 um
     out of straight). A strip 0.4 mm wide on 400 mm still spans an area."""
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    spread = np.linalg.svd(np.c_[x - x.mean(), y - y.mean()], compute_uv=False) / np.sqrt(len(x))
+    spread, _ = fl.line_spread(x, y)
     if spread[1] <= LINE_RATIO * spread[0]:
         raise RecordingError(f"{path}: the {len(x)} fused touches lie on (or within "
                              f"{spread[1] * 1e3:.3g} um RMS of) one line or at one point "

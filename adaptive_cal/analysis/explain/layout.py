@@ -6,12 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from adaptive_cal.analysis.flatness import LINE_RATIO, line_spread  # flatness's own test
 from adaptive_cal.formats.recording import RecordingError
-
-# touches spread across their line less than this share of along it: a line. flatness's test
-# (analysis.flatness_intervals.LINE_RATIO, spans_area), copied: importing that module loads the
-# Gaussian-process stack (jax), seconds of start-up explain does not otherwise need
-LINE_RATIO = 1e-3
 
 
 def _line(x0: float, y0: float, dx: float, dy: float) -> str:
@@ -37,8 +33,7 @@ def refuse_one_line(x_mm, y_mm, label: str) -> None:
     along it (flatness's test)."""
     x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
     xm, ym = float(x.mean()), float(y.mean())
-    _, spread, vt = np.linalg.svd(np.c_[x - xm, y - ym], full_matrices=False)
-    spread = spread / np.sqrt(len(x))
+    spread, vt = line_spread(x, y)
     if spread[1] > LINE_RATIO * spread[0]:
         return
     points = np.unique(np.c_[x, y], axis=0)
