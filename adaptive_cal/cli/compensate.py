@@ -177,7 +177,7 @@ def _grid(hmap, args) -> int:
     return 0
 
 
-def _blending(path, name: str, T: float) -> str | None:
+def _checked(path, name: str, T: float) -> str | None:
     """Refuse a program compensate wrote (its heights would be added twice), and a G64 P or Q
     beyond the tolerance (path blending: LinuxCNC leaves the path by up
     to P and merges nearly collinear points -- the splits -- within Q, P where no Q is given:
@@ -217,7 +217,7 @@ def _program(hmap, args) -> int:
     path = read_toolpath(_text(name), name)
     if not path.moves:
         raise UserError(f"{name}: no moves found (G0/G1 with X, Y, Z, or CSV rows x_mm,y_mm,z_mm)")
-    blend = _blending(path, name, T)
+    blend = _checked(path, name, T)  # a warning to print, or None
     result = compensate(path, hmap.height(args.frame), hmap.plate_mm, T,
                         top_mm=hmap.top_mm(args.frame), name=name, reach_mm=hmap.reach_mm)
     marks = {}
