@@ -187,3 +187,43 @@ def test_a_cell_whose_workspace_does_not_fit_the_modbus_registers_is_refused_at_
                                           r"robot\.modbus\.number='int16' carries at most"):
         parse_cell(bad)
     parse_cell(edited(bad, "robot.modbus.scale", 100))  # 327 mm: the workspace fits
+
+
+def _modbus_probe(number, scale):
+    """The HSES cell with the Modbus cell's probe (a gauge read through the PLC), its length
+    format ``number`` at ``scale`` counts per mm."""
+    d = copy.deepcopy(HSES)
+    probe = copy.deepcopy(MODBUS["probe"])
+    probe["modbus"] = {**copy.deepcopy(probe["modbus"]), "number": number, "scale": scale,
+                       "parked_at_safe_height": True}
+    for role in ("actual_x", "actual_y", "actual_z"):
+        probe["modbus"]["registers"].pop(role, None)
+    d["probe"] = probe
+    return d
+
+
+def test_a_modbus_probe_whose_registers_cannot_hold_the_stroke_is_refused():
+    """int16 at 10000 counts per mm holds +-3.2767 mm: a 7.1 mm reading wrapped to 0.5464 mm,
+    inside the usable stroke, and was fused (an outside audit, 2026-11-29)."""
+    with pytest.raises(ConfigError, match=r"probe\.modbus\.scale=10000 with probe\.modbus\."
+                       r"number='int16' carries at most 3\.2767 mm, but a reading anywhere in "
+                       r"probe\.stroke_mm=\[0\.0, 10\.0\] reaches 10 mm"):
+        parse_cell(_modbus_probe("int16", 10000), "cell.yaml")
+    assert parse_cell(_modbus_probe("int16", 1000), "cell.yaml").probe.modbus.reach_mm() > 10
+
+
+@pytest.mark.parametrize("path, value, expect", [
+    ("robot.hses.orientation_deg", [1e6, 0, 0], "robot.hses.orientation_deg: orientation_deg "
+     "[1000000.0, 0.0, 0.0]: each angle must lie in [-180, 180]"),
+    ("robot.hses.orientation_deg", [float("nan"), 0, 0], "robot.hses.orientation_deg"),
+    ("robot.hses.offset_mm", [3e6, 0, 0], "robot.hses.offset_mm: offset_mm [3000000.0, 0.0, "
+     "0.0] puts the workplane more than 10 m"),
+    ("probe.serial.scale", 0, "probe.serial.scale: must be a finite, non-zero number"),
+])
+def test_numbers_sent_or_read_by_the_adapters_are_checked_at_load(path, value, expect):
+    """Before, these loaded: the HSES angle and offset switched servo power on and failed at the
+    first move with a bare struct.error (an i32 word); a serial scale of 0 read every sample as
+    0.0 mm, each touch rejected as a stroke end (an outside audit, 2026-11-29)."""
+    with pytest.raises(ConfigError, match=expect.replace("(", r"\(").replace("[", r"\[")
+                       .replace(".", r"\.")):
+        parse_cell(edited(HSES, path, value), "cell.yaml")

@@ -224,3 +224,26 @@ def test_a_model_not_checked_still_says_where_the_map_is_extrapolated():
     assert block["summary"].endswith("of the workplane's edge (10 % of the plate) is "
                                      "extrapolated: no touch can reach it and no check tests it")
     assert block["extrapolated"]["margin_mm"] == [10.0, 10.0, 10.0, 10.0]
+
+
+def test_a_stop_that_may_leave_the_probe_down_erases_the_bar_so_the_warning_comes_first():
+    """With the progress bar on, its last redraw came after the stop and before "THE PROBE MAY
+    BE DOWN" (an outside audit, 2026-11-29): such a stop now erases the bar; any other stop
+    leaves it where the run stopped."""
+    import io
+
+    from tqdm import tqdm
+
+    from adaptive_cal.hardware.base import AdapterError, ProbeLeftDown
+    from adaptive_cal.run.session import _close_bar
+
+    def last_line(error):
+        out = io.StringIO()
+        bar = tqdm(total=120, file=out, desc="touches")
+        bar.update(3)
+        _close_bar(bar, "interrupted", error)
+        return out.getvalue().split("\r")[-1]
+
+    assert "3/120" in last_line(AdapterError("link lost"))
+    assert "3/120" in last_line(None)
+    assert last_line(ProbeLeftDown("THE PROBE MAY BE DOWN")).strip() == ""

@@ -46,6 +46,11 @@ def check_cell(cell) -> None:
         if r.adapter == "modbus" and r.modbus is not None:  # every target fits the registers
             r.modbus.check_reach({"x_mm": ws.x_mm, "y_mm": ws.y_mm, "z_mm": ws.z_mm},
                                  "robot.modbus")
+    if p.adapter == "modbus" and p.modbus is not None:  # every reading fits the registers:
+        # a wider value wraps (int16 at 10000 counts/mm: 7.1 mm arrives as 0.5464 mm, inside
+        # the usable stroke, and would be fused)
+        p.modbus.check_reach({"probe.stroke_mm": (0.0, p.stroke_mm)}, "probe.modbus",
+                             "a reading anywhere in")
     if (r.adapter == "sim") != (p.adapter == "sim"):
         raise ValueError(f"robot.adapter={r.adapter!r} with probe.adapter={p.adapter!r}: the "
                          "simulated robot and probe only exist together; set both to 'sim'")

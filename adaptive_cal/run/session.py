@@ -22,7 +22,7 @@ from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
-from adaptive_cal.hardware.base import AdapterError, OperatorStop
+from adaptive_cal.hardware.base import AdapterError, OperatorStop, ProbeLeftDown
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
@@ -251,7 +251,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             writer.close()
             opened.close()
             if bar is not None:
-                _close_bar(bar, stopped)
+                _close_bar(bar, stopped, error)
         state = loop.state
         result = None
         if error is None or state.touches:
@@ -278,8 +278,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
 
 
 def _saved_result(out: Path) -> dict | None:
-    """result.json, when it and belief.npz exist (result.json is written last: it marks the
-    results complete), else None."""
+    """result.json when it and belief.npz exist (result.json, written last, marks them whole)."""
     if not (out / "result.json").exists() or not (out / "belief.npz").exists():
         return None
     return read_json(out / "result.json")
@@ -311,7 +310,6 @@ def _progress(enabled: bool, cell: Cell, initial: int):
     if not enabled:
         return None
     from tqdm import tqdm
-
     return tqdm(total=cell.plan.stop.max_touches, initial=initial, unit="touch",
                 desc="touches", dynamic_ncols=True)
 
@@ -320,12 +318,14 @@ def _progress(enabled: bool, cell: Cell, initial: int):
 BOUND_MET = ("mean_std_bound", "max_std_bound")
 
 
-def _close_bar(bar, stopped: str | None) -> None:
-    """Close the bar. A run that stopped on its bound ends it full (its total set to the touches
-    made, the last text -- "bound met" -- kept): at "26% 31/120" of the budget it would read as
-    aborted. Any other stop leaves it where the run stopped."""
+def _close_bar(bar, stopped: str | None, error=None) -> None:
+    """Close the bar. A run that stopped on its bound ends it full ("bound met" kept): at "26%
+    31/120" of the budget it would read as aborted. Any other stop leaves it where the run
+    stopped; one that may have left the probe down erases it: the CLI says so first."""
     if stopped in BOUND_MET:
         bar.total = bar.n  # close() draws the bar once more
+    if isinstance(error, ProbeLeftDown):
+        bar.leave = False  # close() erases it
     bar.close()
 
 

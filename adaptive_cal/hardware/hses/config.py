@@ -98,6 +98,21 @@ class HsesConfig(Strict):
     def _check_host(cls, v):
         return check_host(v)
 
+    @field_validator("orientation_deg")
+    @classmethod
+    def _orientation(cls, v):  # sent as i32 in 0.0001 deg: a wild angle failed at the first move
+        if not all(abs(c) <= 180 for c in v):  # NaN fails too
+            raise ValueError(f"orientation_deg {list(v)}: each angle must lie in [-180, 180]")
+        return v
+
+    @field_validator("offset_mm")
+    @classmethod
+    def _offset(cls, v):  # added to every target, sent as i32 um
+        if not all(abs(c) <= 10000 for c in v):  # NaN fails too
+            raise ValueError(f"offset_mm {list(v)} puts the workplane more than 10 m from the "
+                             "robot frame's origin")
+        return v
+
     @model_validator(mode="after")
     def _frame_for_the_check(self):
         if self.frame == "user" and self.check_position and self.user_frame_in_base is None:

@@ -143,14 +143,16 @@ class ModbusConfig(Strict):
         counts = {"int16": 2 ** 15 - 1, "int32": 2 ** 31 - 1, "float32": 2 ** 24}[self.number]
         return counts / abs(self.scale)
 
-    def check_reach(self, box: dict[str, tuple[float, float]], key: str) -> None:
+    def check_reach(self, box: dict[str, tuple[float, float]], key: str,
+                    what: str = "the workspace") -> None:
         """ValueError naming ``key``.scale/number when a corner of ``box`` (axis -> (lo, hi), mm:
-        the workspace, every target that can be sent) does not fit the registers."""
+        the workspace, every target that can be sent; or the probe's stroke, every reading that
+        can come) does not fit the registers."""
         reach = self.reach_mm()
         for axis, (lo, hi) in box.items():
             worst = max(abs(lo), abs(hi))
             if not worst <= reach:
                 raise ValueError(
                     f"{key}.scale={self.scale:g} with {key}.number={self.number!r} carries at "
-                    f"most {reach:g} mm, but the workspace {axis}={[lo, hi]} reaches {worst:g} "
+                    f"most {reach:g} mm, but {what} {axis}={[lo, hi]} reaches {worst:g} "
                     f"mm: lower {key}.scale or use a wider number (int32)")

@@ -41,6 +41,14 @@ class SerialConfig(Strict):
                                  "(5 decimals, a value 25.4 x too small) or a line with digits "
                                  "lost; left out: not checked")
 
+    @field_validator("scale")
+    @classmethod
+    def _scale(cls, v):  # 0 read every sample as 0.0 mm: each touch rejected as a stroke end
+        if not (math.isfinite(v) and v != 0):
+            raise ValueError(f"scale must be a finite, non-zero number (mm per unit of the "
+                             f"parsed number), got {v}")
+        return v
+
     @field_validator("range_mm")
     @classmethod
     def _range(cls, v):
