@@ -160,3 +160,84 @@ def test_keyence_out_of_range_readouts_say_so(line):
     with pytest.raises(BadSample, match="out-of-range or error readout"):
         parse(line, PRESETS["keyence"].pattern, 1.0)
     assert parse(b"M0,+012.3456\r\n", PRESETS["keyence"].pattern, 1.0) == 12.3456
+
+
+def _pty_gauge(answer):
+    """A pty pair whose responder calls ``answer(i, request)`` -> bytes for the i-th request
+    line (CR-terminated) and writes them back; (probe port path, closer)."""
+    import os
+    import threading
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    stop = threading.Event()
+
+    def serve():
+        buf, i = b"", 0
+        while not stop.is_set():
+            try:
+                buf += os.read(master, 64)
+            except OSError:
+                return
+            while b"\r" in buf:
+                req, buf = buf.split(b"\r", 1)
+                out = answer(i, req)
+                i += 1
+                if out:
+                    os.write(master, out)
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+
+    def close():
+        stop.set()
+        os.close(master)
+        os.close(slave)
+    return os.ttyname(slave), close
+
+
+def test_an_answer_later_than_the_drain_is_caught_not_taken_for_the_next_requests():
+    """An outside audit (2026-11-29): a request answered only after the drain had ended (more
+    than 2 x timeout_s late) gave its value to the next request, stamped with that request's
+    time, and the next request's own answer was lost. After an unanswered request the next
+    read waits for a second line; when one comes, neither is used; the read after is clean."""
+    def answer(i, req):
+        return {0: b"", 1: b"01A+0001.111\r01A+0002.222\r"}.get(i, b"01A+0003.333\r")
+
+    path, close = _pty_gauge(answer)
+    probe = SerialProbe(SerialConfig(port=path, timeout_s=0.2, preset="mitutoyo"))
+    try:
+        with pytest.raises(BadSample, match="did not answer"):
+            probe.read()
+        with pytest.raises(BadSample, match=r"two answers to one request \(b'01A\+0001\.111"
+                           r"\\r', then b'01A\+0002\.222\\r'\)"):
+            probe.read()
+        assert probe.read().reading_mm == pytest.approx(3.333)
+        assert probe.read().reading_mm == pytest.approx(3.333)  # no longer suspect
+    finally:
+        probe.close()
+        close()
+
+
+def test_a_gauge_may_end_its_lines_with_lf_or_cr_lf_whatever_the_request_ends_with():
+    """A custom gauge asked with CR that answers with LF waited timeout_s for every sample (the
+    line end was guessed from the request) and was read only because the timed-out bytes
+    ended in LF (an outside audit, 2026-11-29). Either line end ends a line now, a CR LF pair
+    kept whole in the raw bytes."""
+    import time
+
+    path, close = _pty_gauge(lambda i, req: b"+1.2345\n" if i % 2 == 0 else b"+1.2346\r\n")
+    probe = SerialProbe(SerialConfig(port=path, timeout_s=1.0, preset="custom", request="R\\r",
+                                     pattern=r"^([-+]?\d+\.\d+)$"))
+    try:
+        t0 = time.monotonic()
+        got = [probe.read() for _ in range(4)]
+        took = time.monotonic() - t0
+    finally:
+        probe.close()
+        close()
+    assert [s.reading_mm for s in got] == pytest.approx([1.2345, 1.2346] * 2)
+    assert [s.raw for s in got] == [b"+1.2345\n", b"+1.2346\r\n"] * 2
+    assert took < 2.0  # four timeouts would be 4 s

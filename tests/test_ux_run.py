@@ -247,3 +247,25 @@ def test_a_stop_that_may_leave_the_probe_down_erases_the_bar_so_the_warning_come
     assert "3/120" in last_line(AdapterError("link lost"))
     assert "3/120" in last_line(None)
     assert last_line(ProbeLeftDown("THE PROBE MAY BE DOWN")).strip() == ""
+
+
+def test_a_second_sigterm_is_named_sigterm_not_ctrl_c():
+    """A service manager's or a timeout's SIGTERM stopped a run with "interrupted: Ctrl-C"
+    (an outside audit, 2026-11-29): the interrupt now carries the signal's name into the
+    probe-down warning; the exit status stays 130 (README)."""
+    import os
+    import signal
+
+    from adaptive_cal.hardware.base import Interrupted, _left_down
+    from adaptive_cal.run.session import _deferred_interrupt
+
+    with pytest.raises(Interrupted) as caught:
+        with _deferred_interrupt() as state:
+            os.kill(os.getpid(), signal.SIGTERM)  # the first: stop after this touch
+            assert state["stop"]
+            os.kill(os.getpid(), signal.SIGTERM)  # the second: at once
+    assert caught.value.by == "SIGTERM"
+    down = _left_down(1.0, 2.0, 0.0, 15.0, caught.value, "then")
+    assert "failed (interrupted: SIGTERM)" in str(down) and down.interrupted
+    plain = _left_down(1.0, 2.0, 0.0, 15.0, KeyboardInterrupt(), "then")
+    assert "failed (interrupted: Ctrl-C)" in str(plain)

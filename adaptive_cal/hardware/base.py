@@ -30,6 +30,21 @@ class OperatorStop(AdapterError):
     as after Ctrl-C (exit status 130, no ``error``), and ``--resume`` continues it."""
 
 
+class Interrupted(KeyboardInterrupt):
+    """A stop signal that interrupts at once (the second Ctrl-C or SIGTERM of a run): ``by``
+    names it for the messages -- a SIGTERM comes from a service manager or a timeout, not from
+    someone at the keyboard."""
+
+    def __init__(self, by: str = "Ctrl-C"):
+        super().__init__(by)
+        self.by = by
+
+
+def interrupted_by(e: BaseException) -> str:
+    """What interrupted: "Ctrl-C" for a plain KeyboardInterrupt, else ``Interrupted.by``."""
+    return getattr(e, "by", "Ctrl-C")
+
+
 class UnsafeTarget(AdapterError):
     """A target outside the workplane, a keep-out or the workspace box; it was not sent."""
 
@@ -42,13 +57,13 @@ class ProbeLeftDown(AdapterError):
     def __init__(self, message: str, touch: "Touch | None" = None):
         super().__init__(message)
         self.touch = touch
-        self.interrupted = False  # a Ctrl-C stopped the touch or its retract (exit 130)
+        self.interrupted = False  # a Ctrl-C or SIGTERM stopped the touch or retract (exit 130)
 
 
 def _left_down(x_mm, y_mm, z_mm, safe_mm, lift: BaseException, then: str,
                touch: "Touch | None" = None, z_is: str = "approach",
                err: BaseException | None = None) -> ProbeLeftDown:
-    said = "interrupted: Ctrl-C" if isinstance(lift, KeyboardInterrupt) else lift
+    said = f"interrupted: {interrupted_by(lift)}" if isinstance(lift, KeyboardInterrupt) else lift
     out = ProbeLeftDown(
         f"THE PROBE MAY BE DOWN at x={x_mm:.3f} y={y_mm:.3f} mm ({z_is} z={z_mm:.3f} mm): the "
         f"retract to z={safe_mm:.3f} mm failed ({said}). Hold the robot (pendant hold or servo "
@@ -197,7 +212,7 @@ class ProbeCycle:
                 try:
                     self.motion.move_to(x_mm, y_mm, safe)
                 except BaseException as lift:  # the danger first (a Ctrl-C too), then the cause
-                    why = ("Ctrl-C" if isinstance(err, KeyboardInterrupt)
+                    why = (interrupted_by(err) if isinstance(err, KeyboardInterrupt)
                            else f"{type(err).__name__}: {err}")
                     raise _left_down(x_mm, y_mm, z_mm, safe, lift,
                                      f"What stopped the touch: {why}", err=err) from err

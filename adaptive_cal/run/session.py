@@ -22,7 +22,7 @@ from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
-from adaptive_cal.hardware.base import AdapterError, OperatorStop, ProbeLeftDown
+from adaptive_cal.hardware.base import AdapterError, Interrupted, OperatorStop, ProbeLeftDown
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
@@ -102,7 +102,7 @@ def _deferred_interrupt():
 
     def handler(signum, frame):
         if state["stop"] and not state["shield"]:
-            raise KeyboardInterrupt
+            raise Interrupted("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
         state["stop"] = True
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}

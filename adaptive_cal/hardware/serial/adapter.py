@@ -103,6 +103,8 @@ class SerialProbe:
         self.request = unescape(cfg.request) if cfg.request is not None else p.request
         self.pattern = cfg.pattern or p.pattern
         self.scale = cfg.scale
+        self._suspect = False  # a request went unanswered: its answer may still come
+        self._pending = b""  # a byte read past a CR that was not its LF
         try:
             self.port = serial.serial_for_url(
                 cfg.port, do_not_open=True, baudrate=cfg.baudrate or p.baudrate,
@@ -121,16 +123,19 @@ class SerialProbe:
                                "cable, the device name and that no other program holds it") from e
 
     def read(self) -> Sample:
+        late = b""
         try:
             self.port.reset_input_buffer()  # a late answer to an earlier request is stale
-            end = b"\n" if self.request.endswith(b"\n") else b"\r"
+            self._pending = b""
             if self.request:
                 self.port.write(self.request)
             else:  # a streaming gauge is mid-line now: its tail ("1.2345" of "-1.2345") is
-                self.port.read_until(end)  # no value -- drop it, read the next whole line
-            line = self.port.read_until(end)
+                self._line()  # no value -- drop it, read the next whole line
+            line = self._line()
             if self.request and line.strip() == self.request.strip():
-                line = self.port.read_until(end)  # the gauge echoed the request: skip it
+                line = self._line()  # the gauge echoed the request: skip it
+            if self._suspect and self.request and line.endswith((b"\r", b"\n")):
+                late = self._line()  # a second answer: one of the two is a late one
         except (serial.SerialException, OSError) as e:
             raise AdapterError(f"probe.serial.port={self.cfg.port!r}: link lost ({e}); "
                                "reconnect the gauge and continue with --resume") from e
@@ -141,6 +146,12 @@ class SerialProbe:
             raise BadSample(f"gauge on {self.cfg.port} did not answer within "
                             f"{self.cfg.timeout_s} s (got {line!r}); check power (DTR/RTS), "
                             "baud rate and the request string", line)
+        if late.strip():
+            raise BadSample(f"gauge on {self.cfg.port} sent two answers to one request "
+                            f"({line!r}, then {late!r}) after an earlier request went "
+                            "unanswered: one is that request's late answer, so neither is used",
+                            line + late)
+        self._suspect = False
         value = parse(line, self.pattern, self.scale, self.cfg.decimals)
         rng = self.cfg.range_mm
         if rng and not rng[0] <= value <= rng[1]:
@@ -148,10 +159,37 @@ class SerialProbe:
                             f"{list(rng)}", line)
         return Sample(value, t, line)
 
+    def _line(self) -> bytes:
+        """One answer line, ended by CR or LF, whichever the gauge sends (the line end guessed
+        from the request made a gauge answering a CR request with LF wait timeout_s for every
+        sample); empty lines (the LF of a CR LF pair) skipped. What came within about
+        timeout_s when no line end did."""
+        deadline, out = time.monotonic() + self.cfg.timeout_s, bytearray()
+        while time.monotonic() < deadline:
+            b, self._pending = (self._pending[:1], self._pending[1:]) if self._pending \
+                else (self.port.read(1), b"")
+            if not b:
+                break
+            if b not in (b"\r", b"\n"):
+                out += b
+            elif not out.strip():
+                out.clear()
+            else:  # a CR LF pair is one line end (the raw bytes keep both)
+                if b == b"\r" and (self.port.in_waiting or self.request.endswith(b"\r\n")):
+                    after = self.port.read(1)
+                    if after == b"\n":
+                        return bytes(out + b + after)
+                    self._pending = after  # the next line's first byte
+                return bytes(out + b)
+        return bytes(out)
+
     def _drain(self) -> None:
         """After a request that timed out: its answer may still come, and the next request
         would take it for its own (reset_input_buffer drops only what has arrived). Drop what
-        arrives until the line has been quiet for timeout_s (at most 3 x timeout_s)."""
+        arrives until the line has been quiet for timeout_s (at most 3 x timeout_s); an answer
+        later than that is caught by the next read, which then waits for a second line
+        (``_suspect``) and uses neither when one comes."""
+        self._suspect = True
         end = time.monotonic() + 3 * self.cfg.timeout_s
         try:
             while time.monotonic() < end and self.port.read(max(1, self.port.in_waiting)):
