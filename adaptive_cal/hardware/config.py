@@ -5,6 +5,7 @@ marks "(verify)" is a field, not a constant in the code.
 """
 from __future__ import annotations
 
+import math
 import typing
 
 from pydantic import BaseModel, ConfigDict, model_validator
@@ -46,6 +47,14 @@ def check_host(v: str) -> str:
     if not v or not v.strip():
         raise ValueError("host must be an IP address or a host name, got an empty string")
     return v.strip()
+
+
+def check_scale(v: float, unit: str) -> float:
+    """A scale by which a number on the wire becomes mm (or mm one): finite and non-zero, else
+    ValueError (0 read every value as 0 mm; NaN or inf none at all)."""
+    if not (math.isfinite(v) and v != 0):
+        raise ValueError(f"scale must be a finite, non-zero number ({unit}), got {v}")
+    return v
 
 
 def check_baud(v: int | None) -> int | None:

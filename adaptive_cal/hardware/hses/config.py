@@ -8,6 +8,20 @@ from pydantic import Field, field_validator, model_validator
 from adaptive_cal.hardware.config import Strict, check_host
 
 
+def _angles_deg(v, key: str):
+    """Rx Ry Rz each in [-180, 180] (NaN fails too; sent as i32 in 0.0001 deg)."""
+    if not all(abs(c) <= 180 for c in v):
+        raise ValueError(f"{key} {list(v)}: each angle must lie in [-180, 180]")
+    return v
+
+
+def _within_10_m(v, key: str, said: str):
+    """A position (mm) at most 10 m out on each axis (NaN fails too; sent as i32 um)."""
+    if not all(abs(c) <= 10000 for c in v):
+        raise ValueError(f"{key} {list(v)} {said}")
+    return v
+
+
 class UserFrameInBase(Strict):
     """The user frame as the pendant shows it: origin in the base frame and Rx Ry Rz, composed
     R = Rz Ry Rx (verify on the controller: docs/adapters/hses.md)."""
@@ -20,16 +34,12 @@ class UserFrameInBase(Strict):
     @field_validator("origin_mm")
     @classmethod
     def _origin(cls, v):
-        if not all(abs(c) <= 10000 for c in v):  # NaN fails too
-            raise ValueError(f"origin_mm {list(v)} is more than 10 m from the robot base")
-        return v
+        return _within_10_m(v, "origin_mm", "is more than 10 m from the robot base")
 
     @field_validator("rotation_deg")
     @classmethod
     def _rotation(cls, v):
-        if not all(abs(c) <= 180 for c in v):  # NaN fails too
-            raise ValueError(f"rotation_deg {list(v)}: each angle must lie in [-180, 180]")
-        return v
+        return _angles_deg(v, "rotation_deg")
 
 
 class HsesConfig(Strict):
@@ -100,18 +110,14 @@ class HsesConfig(Strict):
 
     @field_validator("orientation_deg")
     @classmethod
-    def _orientation(cls, v):  # sent as i32 in 0.0001 deg: a wild angle failed at the first move
-        if not all(abs(c) <= 180 for c in v):  # NaN fails too
-            raise ValueError(f"orientation_deg {list(v)}: each angle must lie in [-180, 180]")
-        return v
+    def _orientation(cls, v):  # a wild angle failed as a bare struct.error at the first move
+        return _angles_deg(v, "orientation_deg")
 
     @field_validator("offset_mm")
     @classmethod
-    def _offset(cls, v):  # added to every target, sent as i32 um
-        if not all(abs(c) <= 10000 for c in v):  # NaN fails too
-            raise ValueError(f"offset_mm {list(v)} puts the workplane more than 10 m from the "
-                             "robot frame's origin")
-        return v
+    def _offset(cls, v):  # added to every target
+        return _within_10_m(v, "offset_mm",
+                            "puts the workplane more than 10 m from the robot frame's origin")
 
     @model_validator(mode="after")
     def _frame_for_the_check(self):

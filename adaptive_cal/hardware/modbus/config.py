@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from adaptive_cal.hardware.config import Strict, check_baud, check_host
+from adaptive_cal.hardware.config import Strict, check_baud, check_host, check_scale
 from adaptive_cal.hardware.modbus.registers import check_map
 
 
@@ -112,9 +112,7 @@ class ModbusConfig(Strict):
     @field_validator("scale")
     @classmethod
     def _scale(cls, v):
-        if not v or v != v:
-            raise ValueError(f"scale must be a non-zero number, got {v}")
-        return v
+        return check_scale(v, "register counts per mm")
 
     @model_validator(mode="after")
     def _link(self):

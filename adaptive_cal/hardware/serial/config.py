@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from adaptive_cal.hardware.config import Strict, check_baud
+from adaptive_cal.hardware.config import Strict, check_baud, check_scale
 
 
 PRESETS = ("mitutoyo", "sylvac", "keyence", "custom")
@@ -44,10 +44,7 @@ class SerialConfig(Strict):
     @field_validator("scale")
     @classmethod
     def _scale(cls, v):  # 0 read every sample as 0.0 mm: each touch rejected as a stroke end
-        if not (math.isfinite(v) and v != 0):
-            raise ValueError(f"scale must be a finite, non-zero number (mm per unit of the "
-                             f"parsed number), got {v}")
-        return v
+        return check_scale(v, "mm per unit of the parsed number")
 
     @field_validator("range_mm")
     @classmethod
