@@ -26,9 +26,11 @@ class Strict(BaseModel):
     """Base for config blocks: immutable, unknown keys are an error (a typo must fail), and a
     yes/no is no number: ``max_touches: true`` (YAML's yes, on, true) is refused naming the key,
     not read as 1. Text that reads as a number stays allowed: PyYAML leaves ``4e-3`` (no dot)
-    a string, and a cell file that writes it means the number."""
+    a string, and a cell file that writes it means the number. NaN and inf are refused in
+    every number field, as in the cell file's own blocks (``cell.block``): a block built in
+    Python meets the same checks as one read from a file."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     @model_validator(mode="before")
     @classmethod
