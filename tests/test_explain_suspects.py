@@ -249,3 +249,29 @@ def test_terminal_lists_suspects_and_heavy_tails():
     report["suspect_readings"] = []
     report["readings"]["noise"] = {"distribution": "gaussian", "dof": None}
     assert readings_lines(report) == []
+
+
+def test_a_recording_too_short_once_its_suspects_are_out_names_them(tmp_path):
+    """8 touches (explain's least), one of them 40 sd off: refused, and the message names the
+    suspect's seq (before: "1 readings disagree with every model" and no row to look at; an
+    outside audit, 2026-11-29)."""
+    from adaptive_cal.formats.recording import RecordingError
+
+    import yaml
+
+    data = yaml.safe_load((ROOT / "configs" / "sim-cell.yaml").read_text())
+    data["probe"]["noise_std_mm"] = 0.003
+    data["simulation"] = {"seed": 1, "noise_std_mm": 0.003, "unknown": ["tilt"],
+                          "effects": {"tilt": {"a": 0.004, "b": 0.0019, "c": 0.2}}}
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(data))
+    cell = load_cell(tmp_path / "cell.yaml")
+    rng = np.random.default_rng(8)
+    x = np.array([-202.5, -67.5, 67.5, 202.5, 202.5, 67.5, -67.5, -202.5])
+    y = np.array([-166.5] * 4 + [166.5] * 4)
+    reading = 5.0 + 0.004 * x + 0.0019 * y + 0.2 + 0.003 * rng.standard_normal(8)
+    reading[5] += 40 * 0.003
+    path = tmp_path / "short.csv"
+    path.write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm\n" + "".join(
+        f"{i},{3.0 * i:.1f},{x[i]},{y[i]},0.0,{reading[i]:.6f}\n" for i in range(8)))
+    with pytest.raises(RecordingError, match=r"1 reading \(seq 5\) disagrees with every model"):
+        explain([path], cell, identifiability=False)
