@@ -226,3 +226,32 @@ def test_calibration_gives_the_correction_as_result_json_does(cheng_round0, chen
     assert (cal["rx_deg"], cal["ry_deg"]) == tilt_correction_deg(cal["a"], cal["b"])
     assert cal["ry_deg"] * cal["about_y_deg"] < 0 and cal["rx_deg"] == pytest.approx(
         cal["about_x_deg"], rel=1e-12)
+
+
+def test_the_tilt_beside_a_named_drift_is_the_plates(tmp_path):
+    """A recording written here (plane + a linear drift of 0.3 um/s + 3 um noise, a 10 x 4
+    S-path whose rows are taken in time order, so the drift looks like a tilt across y): once
+    explain names thermal_drift, the calibration's b is the plate's within 3 of its sds. Before,
+    the tilt was fitted alone and took the drift (an outside audit, 2026-11-29: b 21 sd off)."""
+    import yaml
+
+    data = yaml.safe_load((ROOT / "configs" / "sim-cell.yaml").read_text())
+    data["workplane"]["keep_outs"] = []
+    data["probe"]["noise_std_mm"] = 0.003
+    data["simulation"] = {"seed": 1, "noise_std_mm": 0.003, "unknown": ["tilt"],
+                          "effects": {"tilt": {"a": 0.004, "b": 0.0019, "c": 0.2}}}
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(data))
+    rng = np.random.default_rng(4)
+    xs, ys = np.linspace(-202.5, 202.5, 10), np.linspace(-165, 165, 4)
+    x = np.concatenate([xs if j % 2 == 0 else xs[::-1] for j in range(4)])
+    y = np.repeat(ys, 10)
+    t = 3.0 * np.arange(40)
+    reading = (5.0 + 0.004 * x + 0.0019 * y + 0.2 + 0.0003 * t
+               + 0.003 * rng.standard_normal(40))
+    path = tmp_path / "drift.csv"
+    path.write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm\n" + "".join(
+        f"{i},{t[i]:.1f},{x[i]},{y[i]},0.0,{reading[i]:.6f}\n" for i in range(40)))
+    f = explain([path], load_cell(tmp_path / "cell.yaml"), identifiability=False).findings
+    assert f["verdict"] == "thermal_drift"
+    cal = f["calibration"][0]
+    assert abs(cal["b"] - 0.0019) < 3 * cal["b_std"] and abs(cal["a"] - 0.004) < 3 * cal["a_std"]

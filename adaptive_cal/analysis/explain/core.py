@@ -63,9 +63,20 @@ class Explanation:
     residual_after: np.ndarray
 
 
-def _calibration(ctx: Context, sigma: float) -> list[dict]:
-    coef, *_ = np.linalg.lstsq(ctx.nuisance, ctx.design.target, rcond=None)
-    cov = sigma ** 2 * np.linalg.pinv(ctx.nuisance.T @ ctx.nuisance)
+def _calibration(ctx: Context, sigma: float, winner: Candidate | None = None) -> list[dict]:
+    """The tilt of every round: least squares on the nuisance alone, or, with a verdict, beside
+    the named effect (its columns under the prior the evidence gave it, as the refit's leave-one
+    -out): a drift taken for tilt had put b 21 sd off its truth (an outside audit, 2026-11-29)."""
+    n, y = ctx.nuisance, ctx.design.target
+    if winner is None:
+        coef, *_ = np.linalg.lstsq(n, y, rcond=None)
+        cov = sigma ** 2 * np.linalg.pinv(n.T @ n)
+    else:
+        d, k0 = np.hstack([n, winner.columns]), n.shape[1]
+        a = d.T @ d
+        a[k0:, k0:] += winner.noise_var * prior_precision(winner.prior_var)
+        a_inv = np.linalg.pinv(a)
+        coef, cov = (a_inv @ d.T @ y)[:k0], winner.noise_var * a_inv[:k0, :k0]
     from adaptive_cal.analysis.flatness import tilt_correction_deg
 
     out = []
@@ -267,7 +278,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         "model": None,
         "candidates": [{"effect": c.effect, "log_bayes_factor": float(c.log_bf),
                         "sharing": c.sharing} for c in cands],
-        "calibration": _calibration(ctx, sigma),
+        "calibration": _calibration(ctx, sigma, winner),
         "threshold": {"log_bayes_factor": threshold},
         "structure_after_model": structure,
     }
