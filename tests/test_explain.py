@@ -255,3 +255,22 @@ def test_the_tilt_beside_a_named_drift_is_the_plates(tmp_path):
     assert f["verdict"] == "thermal_drift"
     cal = f["calibration"][0]
     assert abs(cal["b"] - 0.0019) < 3 * cal["b_std"] and abs(cal["a"] - 0.004) < 3 * cal["a_std"]
+
+
+def test_positions_in_metres_are_refused_naming_the_columns(tmp_path):
+    """x and y written in m: the plate then rises 76 deg across its 0.4 "mm". Before, explain
+    answered `none` with that tilt and suggested touches 3,500 mm off the workspace (an outside
+    audit, 2026-11-29)."""
+    from adaptive_cal.formats.recording import RecordingError
+
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(-200, 200, 30), rng.uniform(-160, 160, 30)
+    reading = 5.0 + 0.004 * x + 0.0019 * y + 0.003 * rng.standard_normal(30)
+    path = tmp_path / "metres.csv"
+    path.write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm\n" + "".join(
+        f"{i},{3.0 * i:.1f},{x[i] / 1000:.6f},{y[i] / 1000:.6f},0.0,{reading[i]:.6f}\n"
+        for i in range(30)))
+    cell = load_cell(ROOT / "configs" / "sim-cell.yaml")
+    with pytest.raises(RecordingError, match=r"metres.csv: the readings rise 7\d\.\d deg .*"
+                                             r"x_mm and y_mm in mm \(not m\)"):
+        explain([path], cell, identifiability=False)

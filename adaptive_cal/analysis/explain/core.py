@@ -33,7 +33,8 @@ from adaptive_cal.analysis.explain.design import Design, build_design
 from adaptive_cal.analysis.explain.evidence import Projector, loo_residuals, prior_precision
 from adaptive_cal.analysis.explain.heavy import heavy_tailed
 from adaptive_cal.analysis.explain.identify import not_identifiable
-from adaptive_cal.analysis.explain.inputs import checked_recording, checked_threshold
+from adaptive_cal.analysis.explain.inputs import (checked_recording, checked_threshold,
+                                                  plausible_tilt)
 from adaptive_cal.analysis.explain.locate import locate
 from adaptive_cal.analysis.explain.rounds import flatness_change
 from adaptive_cal.analysis.explain.spans import covering
@@ -282,6 +283,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         "threshold": {"log_bayes_factor": threshold},
         "structure_after_model": structure,
     }
+    plausible_tilt(findings["calibration"], design.paths)
     if readout:
         findings["readout_limited"] = {
             "rms_mm": sigma, "readout_mm": design.readout_mm,

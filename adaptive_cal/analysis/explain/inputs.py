@@ -91,3 +91,22 @@ def checked_threshold(threshold) -> float:
         raise ValueError(f"threshold = {threshold!r}: a finite number (a log Bayes factor) is "
                          "needed")
     return float(threshold)
+
+
+#: the steepest plate a probe on a robot maps (the cell's model.tilt_std_deg stops at 30 deg)
+MAX_TILT_DEG = 30.0
+
+
+def plausible_tilt(calibration: list[dict], paths) -> None:
+    """RecordingError naming the round's file where its fitted plate is steeper than
+    ``MAX_TILT_DEG``: positions in m (not mm), or the recording of another cell -- a recording
+    with x and y in m had been explained as ``none`` with an 86 deg tilt, its suggested touches
+    3,500 mm off the workspace (an outside audit, 2026-11-29)."""
+    for cal, path in zip(calibration, paths):
+        steep = max(abs(cal["about_x_deg"]), abs(cal["about_y_deg"]))
+        if steep > MAX_TILT_DEG:
+            raise RecordingError(
+                f"{path}: the readings rise {steep:.1f} deg across the plate (a {cal['a']:.4g}, "
+                f"b {cal['b']:.4g} mm/mm): no plate a probe maps tilts beyond {MAX_TILT_DEG:.0f} "
+                "deg -- are columns x_mm and y_mm in mm (not m), and is this the cell's "
+                "recording?")
