@@ -57,7 +57,9 @@ class Workplane(Block):
     y_mm: Interval = Field(description="[low, high]: the plate's extent in y")
     edge_margin_mm: float = Field(5.0, ge=0, description="no touch closer than this to the plate edge")
     keep_outs: list[Rect] = Field([], description="rectangles never touched (clamps, holes); "
-                                "each must overlap the workplane")
+                                "each must overlap the workplane; the probe tip's centre stays "
+                                "outside, so give each its clearance: the stylus radius and the "
+                                "robot's accuracy added on every side")
 
     @field_validator("x_mm", "y_mm")
     @classmethod
