@@ -313,9 +313,9 @@ def screened(design: Design):
                 seqs = ", ".join(str(int(design.seq[i])) for i, _, _ in found)
                 raise RecordingError(
                     f"{path}: {len(found)} reading{'s' * (len(found) != 1)} (seq {seqs}) "
-                    f"disagree{'s' * (len(found) == 1)} with every model (suspect); {left} are left in this recording "
-                    f"and explain needs at least {MIN_ROWS_PER_ROUND}: check the probe and "
-                    "those rows")
+                    f"disagree{'s' * (len(found) == 1)} with every model (suspect); {left} are "
+                    f"left in this recording and explain needs at least {MIN_ROWS_PER_ROUND}: "
+                    "check the probe and those rows")
     cands = sorted((replace(c, log_bf=c.log_bf + offset.get(c.effect, 0.0)) for c in cands),
                    key=lambda c: -c.log_bf)
     return d, ctx, cands, found
