@@ -139,3 +139,28 @@ def unresolved_form_var(surface, form_std_mm: float, length_scale_mm: float, x_m
     py = _axis_projection(surface.sy, y_mm, length_scale_mm)
     var = form_std_mm**2 * (1 - 2 * px.a * py.a + px.c * py.c)
     return np.maximum(var, 0.0), max(0.0, form_std_mm**2 * (1 - px.mean * py.mean))
+
+
+#: readings closer than this (mm) are taken at one place (a repeat sent to the same x, y)
+SAME_PLACE_MM = 0.01
+
+
+def repeats(xy_mm, readings, weights=None) -> tuple[int, float]:
+    """(dof, s^2): the pooled variance (mm^2) of readings taken at one place, about each place's
+    mean, s^2 = sum_places sum_i (y_i - mean)^2 / dof, dof = sum_places (n_place - 1): the
+    probe's own noise, whatever the plate does between places (a repeatability study; the
+    nugget's measurement part, Cressie 1993 sec. 3.2.1). ``weights``: a reading judged an
+    outlier (w < 1/2) is left out. (0, nan) with no place read twice."""
+    xy = np.asarray(xy_mm, float).reshape(-1, 2)
+    y = np.asarray(readings, float)
+    keep = np.ones(len(y), bool) if weights is None else np.asarray(weights, float) >= 0.5
+    if keep.sum() < 2:
+        return 0, float("nan")
+    _, place, counts = np.unique(np.round(xy[keep] / SAME_PLACE_MM).astype(np.int64), axis=0,
+                                 return_inverse=True, return_counts=True)
+    place = place.ravel()
+    dof = int(np.sum(counts - 1))
+    if dof == 0:
+        return 0, float("nan")
+    means = np.bincount(place, y[keep]) / counts
+    return dof, float(np.sum((y[keep] - means[place]) ** 2) / dof)

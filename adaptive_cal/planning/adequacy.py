@@ -16,7 +16,12 @@ plate, which the map's bands must carry. Checks (each at a stated level; ALPHA i
    which says *where*;
 5. ``resolution``: the learned form (amplitude s_f, length scale l) has a part finer than the
    knots, f - P f (P: L2 projection onto the spline), whose variance is exact and closed form
-   (``gaussian.checks.unresolved_form_var``); its RMS must stay below half the probe noise.
+   (``gaussian.checks.unresolved_form_var``); its RMS must stay below half the probe noise;
+6. ``repeats`` (the learned noise suspect and ``MIN_REPEATS`` readings repeats at their place,
+   ``gaussian.checks.repeats``): sigma_n^2 over the repeats' pooled variance s_r^2 (dof d)
+   below the F(n, d) upper ``REPEAT_ALPHA`` point: repeats read the probe alone, so a learned
+   noise well above them is plate structure the model missed. Where it fails, the unresolved
+   variance is measured beyond s_r^2 instead (``planning.repeats`` asks for the repeats).
 
 Unresolved variance at a point: the projection variance of the learned form there, plus the
 region's s_k^2 = max(0, mean_k(e_i^2 - q_i - r_p)) (unbiased for an extra white term), kept
@@ -55,7 +60,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import f as f_dist, norm
 
 from adaptive_cal.gaussian import checks
 
@@ -63,6 +68,8 @@ ALPHA = 0.01  # false-alarm level of the whole check on an adequate model (split
 MIN_READINGS = 3  # a region is tested with at least this many readings
 NEGLIGIBLE_MM = 0.5e-3  # unresolved RMS below this is not reported (still in the stds)
 SHOWN_REGIONS = 3  # the summary names this many regions, then says how many more
+MIN_REPEATS = 6  # repeat readings the repeats check needs (a place read twice by chance: none)
+REPEAT_ALPHA = 0.05  # run only where the noise exceeds the cell's: a miss costs more there
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,6 +91,9 @@ class Adequacy:
     plate_mm: tuple | None = None  # ((x0, x1), (y0, y1)) the workplane
     reach_mm: tuple | None = None  # ((x0, x1), (y0, y1)) the box touches can reach
     unseen_rms_mm: float | None = None  # structure that passes the checks (``unseen_rms``)
+    noise_std_mm: float | None = None  # the learned reading noise the checks judged by
+    repeat_dof: int = 0  # readings beyond the first at a place (``checks.repeats``)
+    repeat_std_mm: float | None = None  # their pooled std: the probe's own noise
 
     def unresolved_var_mm2(self, x_mm, y_mm) -> np.ndarray:
         """s_u^2 (mm^2) at points (x, y): the projection variance of the learned form there
@@ -143,7 +153,8 @@ class Adequacy:
 
     def _summary(self) -> str:
         if self.adequate and self.unresolved_rms_mm < NEGLIGIBLE_MM:
-            head = "model adequate: the readings agree with the spline and the probe's noise"
+            head = ("model adequate: the readings agree with the spline and the probe's noise"
+                    + self._noise())
             if self.unseen_rms_mm is None:
                 return (f"{head}; structure finer than the touches' spacing cannot be told from "
                         "that noise (no probe.noise_range_mm stated)")
@@ -153,8 +164,8 @@ class Adequacy:
         knots = f"{self.knot_spacing_mm:.0f} mm"
         if not self.adequate:
             failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
-            parts = [f"model inadequate ({failed}): structure finer than {knots}, about "
-                     f"{self.unresolved_rms_mm * 1e3:.1f} um RMS unresolved"]
+            parts = [f"model inadequate ({failed}{self._noise()}): structure finer than "
+                     f"{knots}, about {self.unresolved_rms_mm * 1e3:.1f} um RMS unresolved"]
         else:
             parts = [f"model checks pass; bands widened by about "
                      f"{self.unresolved_rms_mm * 1e3:.1f} um RMS: {self._widened_by(knots)}"]
@@ -166,6 +177,17 @@ class Adequacy:
             more = len(where) - SHOWN_REGIONS
             parts[-1] += f" (and {more} more region{'s' * (more != 1)})"
         return "; ".join(parts)
+
+    def _noise(self) -> str:
+        """" (learned noise 9.4 um; 12 repeat readings: the probe 5.1 um)": the noise the
+        checks judged by, and the probe's own where places were read again ("" unknown)."""
+        if self.noise_std_mm is None:
+            return ""
+        out = f" (learned noise {self.noise_std_mm * 1e3:.1f} um"
+        if self.repeat_dof and self.repeat_std_mm is not None:
+            out += (f"; {self.repeat_dof} repeat reading{'s' * (self.repeat_dof != 1)}: the "
+                    f"probe {self.repeat_std_mm * 1e3:.1f} um")
+        return out + ")"
 
     def _widened_by(self, knots: str) -> str:
         """What widens the bands of a model whose checks all pass (module docstring): the
@@ -190,6 +212,8 @@ class Adequacy:
         return {"adequate": self.adequate, "checks": self.checks,
                 "unresolved_rms_mm": self.unresolved_rms_mm, "where": self.where(),
                 "finer_than_mm": self.knot_spacing_mm, "unseen_rms_mm": self.unseen_rms_mm,
+                "noise_std_mm": self.noise_std_mm,
+                "repeats": {"dof": self.repeat_dof, "std_mm": self.repeat_std_mm},
                 "extrapolated": self.extrapolated(),
                 "summary": self.summary()}
 
@@ -205,7 +229,7 @@ def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
 
 def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
            regions: tuple[int, int] = (3, 3), form_surface=None, suspect: bool = False,
-           reach_mm=None, weights=None) -> Adequacy:
+           reach_mm=None, weights=None, repeats: bool = False) -> Adequacy:
     """Checks of the readings (heights y at basis ``rows`` of ``surface``) against the Gaussian
     ``prior`` belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the
     probe's stated span [lo, hi] or None; ``regions``: the grid the plate is split into;
@@ -216,7 +240,10 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     reach (the workplane less its edge margin), for ``Adequacy.extrapolated``; ``weights``:
     each reading's share w = 1 - p of the noise precision, as it was fused (the outlier
     mixture, ``planning.gate``): the checks judge reading i with noise r / w_i, the model the
-    belief holds, so a reading the fusion trusted less does not count as structure in full."""
+    belief holds, so a reading the fusion trusted less does not count as structure in full;
+    ``repeats``: judge the learned noise against the readings repeated at one place (the
+    ``repeats`` check, run where the learned noise exceeds what the cell says of its probe:
+    ``planning.repeats``; elsewhere a place read twice by chance is no question asked)."""
     form_surface = form_surface or surface
     n = len(readings)
     noise_std_mm = hyper.noise_std_mm
@@ -229,6 +256,14 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     if suspect and noise_range_mm is not None:
         r_mag = min(r_p, noise_range_mm[0] * noise_range_mm[1])
     r_p0 = r_p  # the probe's share, for a reading fused with full weight
+    xy = positions_mm(surface, rows)
+    rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w)
+    rep_dof = rep_dof if repeats and rep_dof >= MIN_REPEATS else 0
+    rep_bound = float(f_dist.isf(REPEAT_ALPHA, n, rep_dof)) if rep_dof else np.inf
+    # a repeat reading's own resolution floor: identical readings are not a noise of 0
+    rep_ratio = noise_std_mm**2 / max(rep_var, 1e-14) if rep_dof else 0.0
+    if rep_ratio > rep_bound:  # the learned noise holds structure: measure beyond the probe's
+        r_mag = min(r_mag, rep_var)
     r_p, r_mag = r_p * inv_w, r_mag * inv_w
     ex = np.linspace(*plate_mm[0], regions[0] + 1)
     ey = np.linspace(*plate_mm[1], regions[1] + 1)
@@ -239,7 +274,6 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     loo = checks.leave_one_out(rows, readings, prior.mean, prior.cov, r)
     q = np.maximum(loo.variance_mm2 - r, 0.0)
     e2 = loo.residual_mm**2
-    xy = positions_mm(surface, rows)
     form = (hyper.form_std_mm, hyper.length_scale_mm)
     form_pts, form_var = checks.unresolved_form_var(form_surface, *form, xy[:, 0], xy[:, 1])
     excess = e2 - q - r_mag - form_pts  # beyond the probe noise and the form's finer part
@@ -256,6 +290,10 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
         result["noise_span"] = {"value": noise_std_mm, "bound": float(noise_range_mm[1]) * slack,
                                 "is": "learned noise std (mm) against the probe's stated high, "
                                       "with its sampling error"}
+    if rep_dof:
+        result["repeats"] = {"value": rep_ratio, "bound": rep_bound,
+                             "is": "learned noise variance over that of repeat readings at one "
+                                   "place"}
     i = np.clip(np.searchsorted(ex, xy[:, 0], side="right") - 1, 0, regions[0] - 1)
     j = np.clip(np.searchsorted(ey, xy[:, 1], side="right") - 1, 0, regions[1] - 1)
     counts = np.zeros(regions, int)
@@ -293,7 +331,9 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var,
                     plate_mm=tuple(map(tuple, plate_mm)),
                     reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)),
-                    unseen_rms_mm=unseen_rms(result, q, noise_range_mm))
+                    unseen_rms_mm=unseen_rms(result, q, noise_range_mm),
+                    noise_std_mm=float(noise_std_mm), repeat_dof=rep_dof,
+                    repeat_std_mm=float(np.sqrt(rep_var)) if rep_dof else None)
 
 
 def unseen_rms(result: dict, q: np.ndarray, noise_range_mm) -> float | None:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from adaptive_cal.planning import repeats
 from adaptive_cal.planning.gap import largest_gap
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import plan_batch, travel_order
@@ -67,6 +68,14 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
     if state.retake is not None:
         x, y, z, _ = state.retake
         return [target(plan, state, x, y, z_mm=z, retake=True)]
+    now = status(plan, state) if repeats.suspected(plan, state) else None
+    if now is not None and now.repeats_owed and plan.stop(replace(now, repeats_owed=0)):
+        # the bound waits for the probe's own noise (``planning.repeats``): the last place
+        # again while it holds fewer than PER_PLACE repeats, else one touch the criterion picks
+        p = repeats.place(plan, state)
+        if p is not None:
+            return [target(plan, state, *p)]
+        n = 1
     rows, cov, r = plan.candidates.rows, state.belief.cov, state.noise_var
     xy = plan.candidates.xy_mm
     here = None if from_xy is None else np.asarray(from_xy, float)[:2]
@@ -155,7 +164,7 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         # only where they pass, a batch planned while one fails ran its whole length in travel
         # order, where the greedy order would have met the bound touches sooner)
         now = status(plan, state, c, state.touches + k, unresolved_mm2=u)
-        return bool(plan.stop(replace(now, adequate=True)))
+        return bool(plan.stop(replace(now, adequate=True, repeats_owed=0)))
 
     chosen = plan_batch(pick_apart, rows, cov, r, n, enough=enough)
     if not chosen:
@@ -200,7 +209,7 @@ def out_of_reach(plan: SurveyPlan, state: SurveyState, left: int | None = None,
         return False
     exact = status(plan, state, np.zeros_like(state.belief.cov), state.touches + left - 1,
                    unresolved_mm2=unresolved_mm2)
-    return not plan.stop(replace(exact, adequate=True))
+    return not plan.stop(replace(exact, adequate=True, repeats_owed=0))
 
 
 def kept_apart(plan: SurveyPlan, state: SurveyState) -> float:

@@ -1,7 +1,8 @@
 """Stopping rules: each returns the reason to stop or None; compose with | (any) and & (all).
 
 A variance bound never stops a survey whose model is known to be inadequate
-(``Status.adequate`` False, see ``planning.adequacy``): only the touch budget stops it then."""
+(``Status.adequate`` False, see ``planning.adequacy``): only the touch budget stops it then.
+Nor one that owes repeat touches (``Status.repeats_owed``, see ``planning.repeats``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -16,6 +17,7 @@ class Status:
     adequate: bool = True  # the model's self-checks pass (or have nothing to check)
     unresolved_rms_mm: float = 0.0  # structure finer than the spline, included in the stds
     gap_mm: float = 0.0  # the largest gap between touches (``planning.gap``; 0: not asked for)
+    repeats_owed: int = 0  # repeat touches a bound waits for (``planning.repeats``)
 
 
 class StopRule:
@@ -39,7 +41,8 @@ class MeanStdBelow(StopRule):
     name = "mean_std_bound"
 
     def __call__(self, status):
-        return self.name if status.adequate and status.mean_std_mm <= self.bound_mm else None
+        return self.name if (status.adequate and not status.repeats_owed
+                             and status.mean_std_mm <= self.bound_mm) else None
 
 
 @dataclass(frozen=True)
@@ -48,7 +51,8 @@ class MaxStdBelow(StopRule):
     name = "max_std_bound"
 
     def __call__(self, status):
-        return self.name if status.adequate and status.max_std_mm <= self.bound_mm else None
+        return self.name if (status.adequate and not status.repeats_owed
+                             and status.max_std_mm <= self.bound_mm) else None
 
 
 @dataclass(frozen=True)

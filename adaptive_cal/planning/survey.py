@@ -41,6 +41,7 @@ from adaptive_cal.planning.robust import (W_MIN, InvalidReading, check_touch,  #
                                           predictive, replayed_weights)
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.gap import largest_gap
+from adaptive_cal.planning import repeats
 from adaptive_cal.planning.stopping import Status
 
 
@@ -111,10 +112,10 @@ def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
     """Touches, RMS std sqrt(trace(Q C) / area + mean s_u^2) and the largest std on the grid
     (mm), of the TRUE plate: the spline's posterior variance plus the unresolved-structure
     variance s_u^2 the self-checks found; ``adequate``: the checks pass (a survey that learns
-    is not adequate before its first check). ``cov``/``touches``: the status a batch planned
-    ahead would reach (the covariance after its picks, without readings), under the checks
-    as they stand now; ``unresolved_mm2``: ``unresolved_var_mm2`` on ``plan.eval_xy`` when
-    already at hand (it depends on the state alone, not on ``cov``)."""
+    is not adequate before its first check; ``repeats_owed``: ``planning.repeats``).
+    ``cov``/``touches``: the status a batch planned ahead would reach (the covariance after its
+    picks, without readings), under the checks as they stand now; ``unresolved_mm2``:
+    ``unresolved_var_mm2`` on ``plan.eval_xy`` when at hand (from the state, not ``cov``)."""
     c = state.belief.cov if cov is None else cov
     var = np.einsum("nk,nk->n", plan.eval_rows @ c, plan.eval_rows)
     j_area = float(bl.integrated_variance(c, plan.gram)) / plan.model.surface.area_mm2
@@ -123,10 +124,10 @@ def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
     adequate = state.adequacy.adequate if state.adequacy is not None else not learns(plan, state)
     gap = (largest_gap(plan.candidates.xy_mm, state.touched_xy_mm)[0]
            if plan.max_gap_mm is not None else 0.0)  # of the touches made, not a batch's picks
-    return Status(state.touches if touches is None else touches,
-                  float(np.sqrt(max(j_area, 0.0) + u.mean())),
-                  float(np.sqrt(max((var + u).max(), 0.0))), adequate,
-                  float(np.sqrt(u.mean())), gap)
+    mean_std = float(np.sqrt(max(j_area, 0.0) + u.mean()))
+    return Status(state.touches if touches is None else touches, mean_std,
+                  float(np.sqrt(max((var + u).max(), 0.0))), adequate, float(np.sqrt(u.mean())),
+                  gap, repeats.owed(plan, state, mean_std))
 
 
 def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:
@@ -154,7 +155,7 @@ def check(plan: SurveyPlan, state: SurveyState, *, coarse: bool = False) -> Adeq
     return assess(plan.model.surface, plan.plate_mm, state.rows, state.heights_mm, prior,
                   state.hyper, plan.noise_range_mm, plan.adequacy_regions, form_surface=form,
                   suspect=extra is not None, reach_mm=plan.bounds_mm,
-                  weights=state.fused_weights)
+                  weights=state.fused_weights, repeats=repeats.suspected(plan, state))
 
 
 def stop_reason(plan: SurveyPlan, state: SurveyState) -> str | None:

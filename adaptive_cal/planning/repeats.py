@@ -1,0 +1,73 @@
+"""Repeat touches: the probe's own noise read before a stop rests on a learned noise that could
+be the plate.
+
+The learned reading noise sigma_n is a nugget: the probe's noise plus whatever of the plate the
+spline does not follow (``planning.adequacy``). No check can tell the two apart from readings
+at different places. The learned noise is suspect (``suspected``) where
+
+* the probe's span is stated (``probe.noise_range_mm`` [lo, hi]) and sigma_n lies within its
+  sampling error of the span's top, sigma_n >= hi (1 - 1 / sqrt(2 n)): the top binds, the
+  readings would have more noise than the datasheet allows the probe;
+* no span is stated and sigma_n exceeds the cell's ``probe.noise_std_mm`` sigma_0 by more than
+  the claim itself, sigma_n^2 - sigma_0^2 > (RMS posterior std)^2: if the cell is right about
+  its probe, more structure than the claimed error hides in the "noise".
+
+An outside audit (2026-11-29; plates of 10-30 um RMS of 100-250 mm waves on a 50-150 um bow)
+saw runs stop at 31-45 touches claiming 3.9 um with a true 10-15 um error, the noise learned
+8.0-9.4 um on a 3-8 um span (5 um true) and 14 um against a stated 5 um; every check passed.
+
+Readings at one place differ by the probe alone. So before a bound stops a suspect run the
+planner reads places again -- the last touch, where the probe is (no travel, ``touch_time_s``
+each), ``PER_PLACE`` times at most, then the next touch the criterion picks -- until ``DOF``
+repeat readings are in (``gaussian.checks.repeats``). The ``repeats`` check (run where the
+noise is suspect) compares the two variances: a learned noise well above the repeats' fails
+it, the model is inadequate, grows and widens its bands by the excess over the probe's
+measured noise; one in line with them passes -- the probe is as noisy as learned, and the
+summary gives both. A bound waits for the repeats (``Status.repeats_owed``); the touch budget
+does not.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from adaptive_cal.gaussian.checks import SAME_PLACE_MM, repeats
+from adaptive_cal.planning.adequacy import positions_mm
+
+#: repeat readings asked for (dof of their variance): with 12 and 40-60 readings, a learned
+#: noise 1.3 x the probe's fails the check 26 % of the time, 1.6 x 58-60 %, 1.88 x (the
+#: audit's 9.4 against 5 um) 82-84 %, 2.8 x always; 1 x 5 % (F(n, 12) at REPEAT_ALPHA)
+DOF = 12
+#: readings beyond the first at one place before the planner moves on
+PER_PLACE = 3
+
+
+def suspected(plan, state, claimed_mm: float = 0.0) -> bool:
+    """The learned noise could hold plate structure the bands leave out (module docstring);
+    ``claimed_mm``: the RMS posterior std (mm), for a cell that states no span. False where the
+    survey does not learn its noise (or has not yet)."""
+    if not plan.learn or state.prior is not None or not state.hyper_points or state.fused < 3:
+        return False
+    sigma, span = state.hyper.noise_std_mm, plan.noise_range_mm
+    if span is not None:
+        return sigma >= float(span[1]) * (1.0 - 1.0 / np.sqrt(2.0 * state.fused))
+    return sigma**2 - float(plan.model.hyper0.noise_std_mm) ** 2 > claimed_mm**2
+
+
+def owed(plan, state, claimed_mm: float) -> int:
+    """Repeat readings a bound waits for: ``DOF`` less those already fused where the learned
+    noise is ``suspected`` (``claimed_mm``: the RMS posterior std), else 0."""
+    if not suspected(plan, state, claimed_mm):
+        return 0
+    xy = positions_mm(plan.model.surface, state.rows)
+    return max(0, DOF - repeats(xy, state.heights_mm, state.fused_weights)[0])
+
+
+def place(plan, state) -> tuple[float, float] | None:
+    """Where the next repeat goes: the last fused reading's place while it holds at most
+    ``PER_PLACE`` repeats, else None (a touch the criterion picks first)."""
+    if not state.fused:
+        return None
+    xy = positions_mm(plan.model.surface, state.rows)
+    here = np.round(xy[-1], 9)
+    same = np.hypot(*(xy - xy[-1]).T) < SAME_PLACE_MM
+    return (float(here[0]), float(here[1])) if same.sum() <= PER_PLACE else None

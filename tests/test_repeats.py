@@ -1,0 +1,136 @@
+"""Repeat touches tell the probe's noise from the plate (planning.repeats): the pooled variance
+against a direct sum, the repeats check's false-alarm rate and power by Monte Carlo against the
+F distribution it is built on, and the loop on a simulated cell that owes repeats before its
+bound may stop it.
+
+The plates of the last test are written here (numpy only, sharing nothing with the simulator's
+effect library): a bow with waves of 120-250 mm, the kind an outside audit (2026-11-29) saw
+stop at 31-45 touches claiming 3.9 um with a true error of 10-15 um."""
+import numpy as np
+import pytest
+import yaml
+
+import adaptive_cal
+from adaptive_cal.gaussian import belief as bl
+from adaptive_cal.gaussian.checks import repeats
+
+adaptive_cal.use_float64()
+
+
+def test_pooled_variance_of_repeats_is_the_direct_sum():
+    """Oracle: for every place, the squared deviations from its own mean, summed and divided by
+    the readings beyond the first; readings judged outliers (w < 1/2) left out."""
+    rng = np.random.default_rng(0)
+    places = rng.uniform(-200, 200, (9, 2))
+    which = rng.integers(0, 9, 40)
+    xy = places[which] + rng.uniform(-1e-4, 1e-4, (40, 2))  # the same place, to round-off
+    y = rng.normal(0, 1, 40)
+    w = np.where(rng.uniform(size=40) < 0.1, 0.2, 1.0)
+    dof, var = repeats(xy, y, w)
+    ss, n = 0.0, 0
+    for k in range(9):
+        sel = (which == k) & (w >= 0.5)
+        if sel.sum() > 1:
+            ss += float(np.sum((y[sel] - y[sel].mean()) ** 2))
+            n += int(sel.sum()) - 1
+    assert dof == n and var == pytest.approx(ss / n, rel=1e-12)
+    assert repeats(places, y[:9])[0] == 0  # no place read twice
+
+
+def _plan():
+    from adaptive_cal.cell.build import survey_plan
+    from helpers import sim_cell
+
+    return survey_plan(sim_cell(probe={"noise_range_mm": [0.003, 0.008]}), grow=False)
+
+
+@pytest.mark.parametrize("structure_mm, lo, hi", [(0.0, 0.0, 0.10),   # the probe alone
+                                                    (0.0075, 0.70, 1.0)])  # 1.8 x the probe
+def test_the_repeats_check_fires_as_its_f_test_says(structure_mm, lo, hi):
+    """60 places on plates drawn from the model, 4 of them read 4 times (12 repeat readings),
+    probe noise 5 um; each place also carries white structure of ``structure_mm`` (the same at
+    every reading there: finer than the touches' spacing). The check is given the noise the fit
+    would learn, sqrt(probe^2 + structure^2). F(60, 12) at REPEAT_ALPHA says: 5 % fail on the
+    probe alone, about 84 % at a learned noise 1.8 x the probe's (60 runs: the bounds hold with
+    binomial probability above 99 %). Where it fails, the unresolved variance is measured beyond
+    the repeats' variance: about the structure's."""
+    from adaptive_cal.planning.adequacy import assess
+
+    plan = _plan()
+    probe = 0.005
+    hyper = plan.model.hyper0._replace(noise_std_mm=float(np.hypot(probe, structure_mm)))
+    prior = plan.model.belief(hyper)
+    rng = np.random.default_rng(11)
+    (x0, x1), (y0, y1) = plan.bounds_mm
+    fails, unresolved = 0, []
+    for _ in range(60):
+        a = bl.sample(prior, rng, 1)[0]
+        xy = np.stack([rng.uniform(x0, x1, 60), rng.uniform(y0, y1, 60)], 1)
+        xy = np.vstack([xy, np.repeat(xy[:4], 3, axis=0)])
+        extra = structure_mm * rng.standard_normal(60)
+        rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])
+        y = rows @ a + np.concatenate([extra, np.repeat(extra[:4], 3)]) \
+            + probe * rng.standard_normal(len(xy))
+        v = assess(plan.model.surface, plan.plate_mm, rows, y, prior, hyper,
+                   plan.noise_range_mm, plan.adequacy_regions, repeats=True)
+        assert v.repeat_dof == 12
+        if not v.checks["repeats"]["passed"]:
+            fails += 1
+            unresolved.append(v.unresolved_rms_mm)
+    assert lo <= fails / 60 <= hi, fails
+    if structure_mm:
+        assert 0.5 * structure_mm < np.median(unresolved) < 1.5 * structure_mm
+
+
+def test_without_suspicion_a_place_read_twice_asks_no_question():
+    """The check is judged only where the learned noise is suspect (and 6 repeats are in): a
+    run's natural repeats (a corner picked twice, the closure touch) are no test of the probe."""
+    from adaptive_cal.planning.adequacy import assess
+
+    plan = _plan()
+    hyper = plan.model.hyper0._replace(noise_std_mm=0.005)
+    prior = plan.model.belief(hyper)
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(-150, 150, (30, 2))
+    xy = np.vstack([xy, np.repeat(xy[:3], 3, axis=0)])
+    rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])
+    y = 0.005 * rng.standard_normal(len(xy))
+    off = assess(plan.model.surface, plan.plate_mm, rows, y, prior, hyper, plan.noise_range_mm)
+    on = assess(plan.model.surface, plan.plate_mm, rows, y, prior, hyper, plan.noise_range_mm,
+                repeats=True)
+    assert "repeats" not in off.checks and off.repeat_dof == 0
+    assert "repeats" in on.checks and on.repeat_dof == 9
+
+
+def _sim_cell(tmp_path, **edits):
+    data = yaml.safe_load(open(adaptive_cal.__path__[0] + "/../configs/sim-cell.yaml"))
+    for section, values in edits.items():
+        data[section] = {**data.get(section, {}), **values}
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_a_probe_noisier_than_the_cell_says_is_read_again_then_the_bound_stops(tmp_path):
+    """The quick start's cell told its probe reads 2 um while it reads 8 um (no span stated):
+    the noise learned exceeds the cell's by more than the claim, so before its bound stops the
+    run it reads places again -- 12 repeat readings, at most 4 readings a place, no travel --
+    the repeats find the probe as noisy as learned, and the bound stops the run; the summary
+    gives both noises."""
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.run.session import run
+
+    cell = _sim_cell(tmp_path, probe={"noise_std_mm": 0.002},
+                     simulation={"noise_std_mm": 0.008, "repeatability_mm": 0.0},
+                     plan={"stop": {"mean_std_mm": 0.006, "max_touches": 120}})
+    result = run(load_cell(cell), tmp_path / "run", progress=False)
+    assert result["stopped_because"] == "mean_std_bound"
+    rec = read_recording(tmp_path / "run" / "recording.csv")
+    xy = np.round(np.c_[rec.x_mm, rec.y_mm], 4)
+    _, counts = np.unique(xy, axis=0, return_counts=True)
+    assert np.sum(counts - 1) >= 12 and counts.max() <= 5  # 4 a place, the closure's besides
+    model = result["model"]
+    assert model["checks"]["repeats"]["passed"] and model["repeats"]["dof"] >= 12
+    assert 0.005 < model["repeats"]["std_mm"] < 0.011
+    assert "learned noise" in model["summary"] and "repeat readings: the probe" in model["summary"]
