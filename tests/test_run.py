@@ -636,3 +636,19 @@ def test_a_resume_appends_to_a_recording_a_spreadsheet_saved_as_the_reader_reads
         assert raw.count(b"\r\n") == raw.count(b"\n")  # no mixed line ends
     else:
         assert b"\r" not in raw
+
+
+def test_a_keep_out_over_the_plates_centre_is_named_when_no_first_touch_fits(tmp_path, capsys):
+    """A fixture of 200 x 150 mm over the centre of the simulated plate: while the tilt is
+    unknown the first touches must lie near the centre, so none is allowed. The refusal names
+    the keep-out (before: "the keep-outs and the edge margin leave no point near the plate's
+    centre", none named; an outside audit, 2026-11-29)."""
+    import yaml
+    data = load_yaml(SIM_CELL)
+    data["workplane"]["keep_outs"] = [{"x_mm": [-100, 100], "y_mm": [-75, 75]}]
+    f = tmp_path / "fixture.yaml"
+    f.write_text(yaml.safe_dump(data))
+    assert main(["run", "--robot", str(f), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert "workplane.keep_outs[0] (x_mm [-100.0, 100.0], y_mm [-75.0, 75.0]) covers the " \
+           "plate's centre" in err

@@ -84,3 +84,30 @@ def doubts(cell) -> list[str]:
                        f"stroke ({span:g} mm): the run stops once the map is known to that -- "
                        f"um given as mm? ({value:g} um is {value / 1000:g})")
     return out
+
+
+def no_admissible_point(cell, plan) -> str:
+    """Why a run (or its dry run) cannot make its first touch: no point the prior allows --
+    the workspace's z range missing the approach height of a nominal plate, named first; a
+    keep-out over the plate's centre, where the first touches must be, named."""
+    lo, hi = cell.probe.usable_mm
+    z0 = float(plan.approach_height(0.0))  # over the nominal plate
+    box = cell.workspace
+    if not plan.z_allowed(z0):
+        return (f"workspace.z_mm {list(box.z_mm)} mm: the nominal plate (z 0) is read mid-stroke "
+                f"from an approach height of {z0:g} mm (probe.zero_mm {cell.probe.zero_mm:g} "
+                f"less the middle of probe.usable_mm {[lo, hi]}), outside that range: no touch "
+                "can be made. Widen workspace.z_mm to hold it")
+    cx, cy = plan.model.centre_mm
+    over = [f"workplane.keep_outs[{i}] (x_mm {list(k.x_mm)}, y_mm {list(k.y_mm)})"
+            for i, k in enumerate(cell.workplane.keep_outs) if k.contains(cx, cy)]
+    where = (f"{' and '.join(over)} covers the plate's centre ({cx:g}, {cy:g}) mm, where the first "
+             "touches must be while the tilt is unknown: make it smaller (the clamp's own "
+             "footprint and its clearance), or level the plate first so the prior allows "
+             "touches farther out" if over else
+             "the prior is too wide for the stroke (level the plate first, or narrow "
+             "model.offset_std_mm / tilt_std_deg), or the keep-outs and the edge margin leave "
+             "no point near the plate's centre, where the first touches must be while the "
+             "tilt is unknown")
+    return (f"no allowed point can be promised to land inside the usable probe stroke "
+            f"{[lo, hi]} mm: {where}")

@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from adaptive_cal.cell.build import survey_plan, touch_floor
+from adaptive_cal.cell.consistency import no_admissible_point  # noqa: F401 (cli.run's import)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import read_recording, say
@@ -39,24 +40,6 @@ RESULTS_SEED = 0  # the posterior samples behind result.json's intervals
 
 class NoAdmissiblePoint(AdapterError):
     """No allowed point can be promised to land inside the probe stroke."""
-
-
-def no_admissible_point(cell: Cell, plan: SurveyPlan) -> str:
-    """Why a run (or its dry run) cannot make its first touch: no point the prior allows --
-    the workspace's z range missing the approach height of a nominal plate, named first."""
-    lo, hi = cell.probe.usable_mm
-    z0 = float(plan.approach_height(0.0))  # over the nominal plate
-    box = cell.workspace
-    if not plan.z_allowed(z0):
-        return (f"workspace.z_mm {list(box.z_mm)} mm: the nominal plate (z 0) is read mid-stroke "
-                f"from an approach height of {z0:g} mm (probe.zero_mm {cell.probe.zero_mm:g} "
-                f"less the middle of probe.usable_mm {[lo, hi]}), outside that range: no touch "
-                "can be made. Widen workspace.z_mm to hold it")
-    return ("no allowed point can be promised to land inside the usable probe stroke "
-            f"{[lo, hi]} mm: the prior is too wide for the stroke (level the plate first, or "
-            "narrow model.offset_std_mm / tilt_std_deg), or the keep-outs and the edge margin "
-            "leave no point near the plate's centre, where the first touches must be while the "
-            "tilt is unknown")
 
 
 @dataclass(frozen=True)
