@@ -256,4 +256,20 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   Adopted: a datasheet's span says where the noise lies, not that its middle is likelier, and
   a probe at the top of its span got bands 1.2 x too narrow. Over the mix: robot time 1.063 ->
   1.045 x, touches 1.048 -> 1.028 x the grid's.
+* **repeat touches** (2026-11-29b; before: `benchmarks/results/plates-2026-11-29.json`): where
+  the learned noise is suspect -- within its sampling error of the stated span's top -- a bound
+  now waits for 12 repeat readings at the places the probe is (`planning.repeats`), and the
+  `repeats` check fails where the learned noise is well above theirs. It was made for an
+  outside audit's wavy plates (waves of 100-250 mm on a bow, the same 3-8 um span and 5 um
+  probe): 5 of 13 re-run plates had stopped at 31-89 touches claiming 3.9 um with a true 9-12
+  um error (coverage 0.44-0.54); with the repeats they run on to 160-200 touches, coverage
+  0.89-0.98, true 4.4-7.8 um; the other 8 identical. Here 12 of 140 adaptive runs changed (rough
+  1, dent 1, edge 2, ripple 3, seam 4, noisy 1): repeats were taken and passed (the structure
+  here is at the probe's own level, below what 12 repeats can tell), and, fused like any
+  reading, they pulled the learned noise toward the probe's, narrowing those runs' bands:
+  coverage rough 0.899 -> 0.897, edge 0.855 -> 0.857, ripple 0.745 -> 0.740, seam 0.863 ->
+  0.854, noisy 0.919 -> 0.909, the mix's robot time 1.045 -> 1.053 x and touches 1.028 ->
+  1.037 x the grid's. Repeats that measure the probe without entering the map's fit (as the
+  closure's repeat measures drift) would keep the first gain without this cost: not yet built.
+  In-family (`configs/study-tilts.yaml`, 40 plates) no run changed.
 """
