@@ -198,6 +198,9 @@ def test_the_progress_bar_shows_each_bound_with_its_unit():
     assert shown[-1].endswith(", bound met, going on to the touch floor of 30")
     session._update(bar, sim_cell(), Status(31, 0.0039, 0.0102, adequate=False), floor=30)
     assert shown[-1].endswith(", bound met, going on: the model's self-checks fail")
+    session._update(bar, sim_cell(), Status(31, 0.0039, 0.0102, repeats_owed=7), floor=30)
+    assert shown[-1].endswith(", bound met, going on: 7 repeat readings measure the probe's own "
+                              "noise")
     session._update(bar, sim_cell(), Status(23, 0.0041, 0.0102), floor=30)
     assert shown[-1] == "RMS std 4.1 um / bound 4.0 um, max std 10.2 um"
 

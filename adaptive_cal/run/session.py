@@ -315,8 +315,8 @@ def _close_bar(bar, stopped: str | None, error=None) -> None:
 def _update(bar, cell: Cell, s, floor: int = 0) -> None:
     """The bar's text: each std with its bound and unit, e.g. ``RMS std 3.9 um / bound 4.0 um``
     (the RMS over the plate: result.json's ``mean_std_mm``), and, once a bound is met, "bound
-    met" or why the run goes on (the touch floor, or a model the self-checks call
-    inadequate)."""
+    met" or why the run goes on (the touch floor, a model the self-checks call inadequate, or
+    repeat touches owed)."""
     stop, parts, met = cell.plan.stop, [], False
     for what, value, bound in (("RMS std", s.mean_std_mm, stop.mean_std_mm),
                                ("max std", s.max_std_mm, stop.max_std_mm)):
@@ -327,6 +327,9 @@ def _update(bar, cell: Cell, s, floor: int = 0) -> None:
         parts.append(f"bound met, going on to the touch floor of {floor}")
     elif met and not s.adequate:
         parts.append("bound met, going on: the model's self-checks fail")
+    elif met and s.repeats_owed:  # planning.repeats: the learned noise may be the plate
+        parts.append(f"bound met, going on: {s.repeats_owed} repeat readings measure the "
+                     "probe's own noise")
     elif met:
         parts.append("bound met")
     bar.set_postfix_str(", ".join(parts), refresh=False)
