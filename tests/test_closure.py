@@ -374,12 +374,8 @@ def test_one_reading_that_says_drift_is_confirmed_before_the_run_is_ended(monkey
     enough to pass the gate here no longer fails the test alone on its degrees of freedom):
     the test fails on it alone, so the place is touched once more; the second reading does not
     repeat the departure and the two together pass -- no drift, the run stops on its bound."""
-    from adaptive_cal.planning import gate, repeats
+    from adaptive_cal.planning import gate
     monkeypatch.setattr(gate, "GATE_P", 0.9)
-    # the misreading, fused, lifts the learned noise (6.9 um) above the cell's 5 um by more
-    # than the claim: the bound would then wait for repeat touches (planning.repeats) and a
-    # later stop close again; this test is about the confirmation alone
-    monkeypatch.setattr(repeats, "DOF", 0)
     state, why, rows = _run_misread({"mean_std_mm": 0.004, "max_touches": 120}, 0.026, 0.005,
                                     gate_sigma=8.0)
     c = state.closure

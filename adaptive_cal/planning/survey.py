@@ -127,7 +127,7 @@ def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
     mean_std = float(np.sqrt(max(j_area, 0.0) + u.mean()))
     return Status(state.touches if touches is None else touches, mean_std,
                   float(np.sqrt(max((var + u).max(), 0.0))), adequate, float(np.sqrt(u.mean())),
-                  gap, repeats.owed(plan, state, mean_std))
+                  gap, repeats.owed(plan, state))
 
 
 def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:

@@ -18,9 +18,10 @@ Each touch:
 5. every hook sees the new ``Step``.
 
 A batch is cut short after a gated reading (the retake comes first), when ``interrupt()`` says
-so, or when the stop predicate fires: it is asked before each ask and after each touch, so a
-batch larger than the touch budget left never makes more touches than the budget.
-``loop.state`` is the latest state even when a device raises.
+so, when a met bound waits for repeats (``planning.repeats``: ask gives them next), or when the
+stop predicate fires: it is asked before each ask and after each touch, so a batch larger than
+the touch budget left never makes more touches than the budget. ``loop.state`` is the latest
+state even when a device raises.
 
 The closure touch (``plan.closure``, ``planning.closure``): when the predicate stops on a bound,
 the first place is touched again (and retaken if gated; confirmed if one reading alarms), flagged
@@ -142,9 +143,10 @@ class SurveyLoop:
                     return INVALID_READINGS
                 if self.rejected_in_a_row >= MAX_REJECTED:
                     return READOUT_FROZEN if "frozen" in step.rejected.flags else TOUCHES_REJECTED
+                owed = step.status.repeats_owed and self.plan.stop(replace(step.status, repeats_owed=0))
                 if (step.invalid is not None or self.state.retake is not None or self.interrupt()
-                        or self.stop(self.state, step.status) or self._last_touch()):
-                    break  # a batch never runs past the stop rule (the touch budget included)
+                        or owed or self.stop(self.state, step.status) or self._last_touch()):
+                    break  # a batch never runs past the stop rule, nor past repeats a bound owes
 
     def _closes(self, why: str) -> bool:
         """A closure touch is due: the plan asks for one, a variance bound stopped the loop,
