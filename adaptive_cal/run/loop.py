@@ -62,8 +62,7 @@ MAX_REJECTED = 3
 DRIFT = cl.DRIFT
 #: the stop reasons that close with a closure touch (a variance bound met)
 CLOSING = ("mean_std_bound", "max_std_bound")
-#: touches after a closure before a later stop closes again
-CLOSURE_GAP = 10
+CLOSURE_GAP = 10  # touches after a closure before a later stop closes again
 
 
 class Row(NamedTuple):
