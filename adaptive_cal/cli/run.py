@@ -276,7 +276,7 @@ def _dry_run(cell) -> int:
               "pass, but the bound asks for nothing -- is it the one meant (mm)?")
         return 0
     if not targets:  # as the run would say before its first touch
-        from adaptive_cal.run.session import no_admissible_point
+        from adaptive_cal.cell.consistency import no_admissible_point
 
         raise UserError(no_admissible_point(cell, plan))
 

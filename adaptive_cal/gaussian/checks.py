@@ -145,6 +145,15 @@ def unresolved_form_var(surface, form_std_mm: float, length_scale_mm: float, x_m
 SAME_PLACE_MM = 0.01
 
 
+def places(xy_mm) -> tuple[np.ndarray, np.ndarray]:
+    """(label of each point's place, readings per place): points within ``SAME_PLACE_MM`` of
+    one grid node are one place."""
+    xy = np.asarray(xy_mm, float).reshape(-1, 2)
+    _, label, counts = np.unique(np.round(xy / SAME_PLACE_MM).astype(np.int64), axis=0,
+                                 return_inverse=True, return_counts=True)
+    return label.ravel(), counts
+
+
 def repeats(xy_mm, readings, weights=None) -> tuple[int, float]:
     """(dof, s^2): the pooled variance (mm^2) of readings taken at one place, about each place's
     mean, s^2 = sum_places sum_i (y_i - mean)^2 / dof, dof = sum_places (n_place - 1): the
@@ -156,9 +165,7 @@ def repeats(xy_mm, readings, weights=None) -> tuple[int, float]:
     keep = np.ones(len(y), bool) if weights is None else np.asarray(weights, float) >= 0.5
     if keep.sum() < 2:
         return 0, float("nan")
-    _, place, counts = np.unique(np.round(xy[keep] / SAME_PLACE_MM).astype(np.int64), axis=0,
-                                 return_inverse=True, return_counts=True)
-    place = place.ravel()
+    place, counts = places(xy[keep])
     dof = int(np.sum(counts - 1))
     if dof == 0:
         return 0, float("nan")

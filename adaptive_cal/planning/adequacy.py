@@ -257,8 +257,8 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
         r_mag = min(r_p, noise_range_mm[0] * noise_range_mm[1])
     r_p0 = r_p  # the probe's share, for a reading fused with full weight
     xy = positions_mm(surface, rows)
-    rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w)
-    rep_dof = rep_dof if repeats and rep_dof >= MIN_REPEATS else 0
+    rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w) if repeats else (0, np.nan)
+    rep_dof = rep_dof if rep_dof >= MIN_REPEATS else 0
     rep_bound = float(f_dist.isf(REPEAT_ALPHA, n, rep_dof)) if rep_dof else np.inf
     # a repeat reading's own resolution floor: identical readings are not a noise of 0
     rep_ratio = noise_std_mm**2 / max(rep_var, 1e-14) if rep_dof else 0.0

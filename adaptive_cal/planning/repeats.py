@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from adaptive_cal.gaussian.checks import SAME_PLACE_MM, repeats
+from adaptive_cal.gaussian.checks import places, repeats
 from adaptive_cal.planning.adequacy import positions_mm
 
 #: repeat readings asked for (dof of their variance): with 12 and 40-60 readings, a learned
@@ -67,6 +67,6 @@ def place(plan, state) -> tuple[float, float] | None:
     if not state.fused:
         return None
     xy = positions_mm(plan.model.surface, state.rows)
+    label, counts = places(xy)
     here = np.round(xy[-1], 9)
-    same = np.hypot(*(xy - xy[-1]).T) < SAME_PLACE_MM
-    return (float(here[0]), float(here[1])) if same.sum() <= PER_PLACE else None
+    return (float(here[0]), float(here[1])) if counts[label[-1]] <= PER_PLACE else None

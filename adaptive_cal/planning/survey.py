@@ -124,10 +124,10 @@ def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
     adequate = state.adequacy.adequate if state.adequacy is not None else not learns(plan, state)
     gap = (largest_gap(plan.candidates.xy_mm, state.touched_xy_mm)[0]
            if plan.max_gap_mm is not None else 0.0)  # of the touches made, not a batch's picks
-    mean_std = float(np.sqrt(max(j_area, 0.0) + u.mean()))
-    return Status(state.touches if touches is None else touches, mean_std,
-                  float(np.sqrt(max((var + u).max(), 0.0))), adequate, float(np.sqrt(u.mean())),
-                  gap, repeats.owed(plan, state))
+    return Status(state.touches if touches is None else touches,
+                  float(np.sqrt(max(j_area, 0.0) + u.mean())),
+                  float(np.sqrt(max((var + u).max(), 0.0))), adequate,
+                  float(np.sqrt(u.mean())), gap, repeats.owed(plan, state))
 
 
 def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:

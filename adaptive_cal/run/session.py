@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from adaptive_cal.cell.build import survey_plan, touch_floor
-from adaptive_cal.cell.consistency import no_admissible_point  # noqa: F401 (cli.run's import)
+from adaptive_cal.cell.consistency import no_admissible_point
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import read_recording, say
