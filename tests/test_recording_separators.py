@@ -1,5 +1,6 @@
 """A recording saved with ';' (a European spreadsheet's export) or tabs between its columns is
 refused with the reason and what to do, not only "header lacks column(s)"."""
+import numpy as np
 import pytest
 
 from adaptive_cal.cli import main
@@ -45,3 +46,22 @@ def test_a_comma_header_missing_a_column_gets_no_separator_hint(tmp_path):
     # a flags cell holds ';' (rejected;stroke_end): a comma header with one ';' is no hint
     assert separated_hint("seq,t_s,x_mm,y_mm,z_mm,flags;x") == ""
     assert separated_hint("a;b;c") and separated_hint("a\tb\tc")
+
+
+def test_a_header_without_t_s_is_read_with_unknown_times_either_way(tmp_path, capsys):
+    """t_s may be blank (DESIGN.md): a header without the column is the same file as one with
+    every t_s blank -- read the same under the v1 line as without it (an outside audit found
+    it refused with the line and read as a plain table without)."""
+    rows = "seq,x_mm,y_mm,z_mm,reading_mm\n0,1,2,0.5,5.1\n3,3,4,0.5,5.2\n"
+    with_magic, without = tmp_path / "a.csv", tmp_path / "b.csv"
+    with_magic.write_text("# adaptive-cal recording v1\n" + rows)
+    without.write_text(rows)
+    a, b = read_recording(with_magic), read_recording(without)
+    assert np.isnan(a.t_s).all() and np.isnan(b.t_s).all()
+    assert list(a.seq) == [0, 3]
+    for field in ("x_mm", "y_mm", "z_mm", "reading_mm"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert "a.csv:2: the header has no t_s column" in capsys.readouterr().err
+    with_magic.write_text("# adaptive-cal recording v1\nseq,x_mm,y_mm,z_mm,reading_mm\n0,1,2,0\n")
+    with pytest.raises(RecordingError, match=r"a.csv:3: 4 fields, the header has 5$"):
+        read_recording(with_magic)

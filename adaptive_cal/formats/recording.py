@@ -198,6 +198,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
     labels: dict[int, str] = {}  # row: a round given as text ("first", "A")
     notes: list[str] = []
     headless = False  # the first line is the header: the '#' lines were removed
+    timeless = False  # the header has no t_s column: every time unknown (a blank t_s)
     prev_seq = -math.inf
     lineno = 0
     pending: str | None = None  # a row whose quoted field goes on past its line's end
@@ -251,15 +252,21 @@ def read_recording(path: str | os.PathLike) -> Recording:
                     pending = line
                     continue
                 if header is None:
+                    if "t_s" not in cells and all(c in cells for c in REQUIRED if c != "t_s"):
+                        timeless, cells = True, cells + ["t_s"]  # DESIGN.md: t_s may be blank
+                        notes.append(f"{where}: the header has no t_s column: every touch's time "
+                                     "is read as unknown, as a blank t_s")
                     header = _header(cells, where)
                     col = {name: i for i, name in enumerate(header)}
                     numeric_extra = [c for c in header if c not in REQUIRED and c != "flags"
                                      and header.count(c) == 1]  # a name given twice: ignored
                     extra = {c: [] for c in numeric_extra}
                     continue
+                if timeless:
+                    cells = cells + [""]
                 if len(cells) != len(header):
-                    raise RecordingError(
-                        f"{where}: {len(cells)} fields, the header has {len(header)}")
+                    raise RecordingError(f"{where}: {len(cells) - timeless} fields, the "
+                                         f"header has {len(header) - timeless}")
                 if len(flags if "flags" in col else data["seq"]) >= MAX_ROWS:
                     raise RecordingError(f"{where}: more than {MAX_ROWS} rows; a recording "
                                          "this tool reads holds at most that many: split it by round")
