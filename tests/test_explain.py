@@ -257,11 +257,14 @@ def test_the_tilt_beside_a_named_drift_is_the_plates(tmp_path):
     assert abs(cal["b"] - 0.0019) < 3 * cal["b_std"] and abs(cal["a"] - 0.004) < 3 * cal["a_std"]
 
 
-def test_positions_in_metres_are_refused_naming_the_columns(tmp_path):
+def test_positions_in_metres_are_refused_naming_the_columns(tmp_path, monkeypatch):
     """x and y written in m: the plate then rises 76 deg across its 0.4 "mm". Before, explain
     answered `none` with that tilt and suggested touches 3,500 mm off the workspace (an outside
-    audit, 2026-11-29)."""
+    audit, 2026-11-29). The refusal comes before the candidate search (which would fail here)."""
+    from adaptive_cal.analysis.explain import core
     from adaptive_cal.formats.recording import RecordingError
+
+    monkeypatch.setattr(core, "_screened", lambda design: pytest.fail("searched first"))
 
     rng = np.random.default_rng(5)
     x, y = rng.uniform(-200, 200, 30), rng.uniform(-160, 160, 30)

@@ -199,6 +199,7 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     """
     # readings exactly the nominal after the tilt: every model fits exactly, its evidence is
     # 0/0 (NaN, taken as no preference below the readout step); numpy's warnings say no more
+    plausible_tilt(design)  # positions in m: refused before the search, not after it
     exact = not np.any(Projector.of(design.nuisance()[0])(design.target))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore") if exact else nullcontext():
         design, ctx, cands, suspects, noise = _screened(design)
@@ -283,7 +284,6 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
         "threshold": {"log_bayes_factor": threshold},
         "structure_after_model": structure,
     }
-    plausible_tilt(findings["calibration"], design.paths)
     if readout:
         findings["readout_limited"] = {
             "rms_mm": sigma, "readout_mm": design.readout_mm,

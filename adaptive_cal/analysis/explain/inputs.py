@@ -97,16 +97,19 @@ def checked_threshold(threshold) -> float:
 MAX_TILT_DEG = 30.0
 
 
-def plausible_tilt(calibration: list[dict], paths) -> None:
-    """RecordingError naming the round's file where its fitted plate is steeper than
-    ``MAX_TILT_DEG``: positions in m (not mm), or the recording of another cell -- a recording
-    with x and y in m had been explained as ``none`` with an 86 deg tilt, its suggested touches
-    3,500 mm off the workspace (an outside audit, 2026-11-29)."""
-    for cal, path in zip(calibration, paths):
-        steep = max(abs(cal["about_x_deg"]), abs(cal["about_y_deg"]))
+def plausible_tilt(design) -> None:
+    """RecordingError naming the round's file where a plane fitted to its readings (the tilt
+    columns alone, by least squares) is steeper than ``MAX_TILT_DEG``: positions in m (not mm),
+    or the recording of another cell -- a recording with x and y in m had been explained as
+    ``none`` with an 86 deg tilt, its suggested touches 3,500 mm off the workspace (an outside
+    audit, 2026-11-29). Checked before the analysis, so the refusal comes at once."""
+    coef = np.linalg.lstsq(design.nuisance()[0], design.target, rcond=None)[0]
+    for r, path in enumerate(design.paths):
+        a, b = coef[3 * r:3 * r + 2]
+        steep = float(np.degrees(np.arctan(max(abs(a), abs(b)))))
         if steep > MAX_TILT_DEG:
             raise RecordingError(
-                f"{path}: the readings rise {steep:.1f} deg across the plate (a {cal['a']:.4g}, "
-                f"b {cal['b']:.4g} mm/mm): no plate a probe maps tilts beyond {MAX_TILT_DEG:.0f} "
+                f"{path}: the readings rise {steep:.1f} deg across the plate (a {a:.4g}, "
+                f"b {b:.4g} mm/mm): no plate a probe maps tilts beyond {MAX_TILT_DEG:.0f} "
                 "deg -- are columns x_mm and y_mm in mm (not m), and is this the cell's "
                 "recording?")
