@@ -91,6 +91,23 @@ def test_stopping_rules_compose():
     assert stopping.MaxStdBelow(0.01)(s) is None
 
 
+def test_a_rule_of_ones_own_composes_and_one_without_a_call_is_refused_on_creation():
+    class Few(stopping.StopRule):
+        name = "few"
+
+        def __call__(self, status):
+            return self.name if status.touches >= 10 else None
+
+    s = stopping.Status(touches=10, mean_std_mm=0.003, max_std_mm=0.02)
+    assert (stopping.MaxStdBelow(0.01) | Few())(s) == "few"
+
+    class Forgot(stopping.StopRule):
+        name = "forgot"
+
+    with pytest.raises(TypeError, match="abstract"):
+        Forgot()
+
+
 def test_survey_module_example_runs_as_a_doctest(monkeypatch):
     """The survey module's docstring example (start, ask, tell, stop_reason) runs as written."""
     import doctest

@@ -5,7 +5,9 @@ A variance bound never stops a survey whose model is known to be inadequate
 Nor one that owes repeat touches (``Status.repeats_owed``, see ``planning.repeats``)."""
 from __future__ import annotations
 
+import abc
 from dataclasses import dataclass
+
 
 @dataclass(frozen=True)
 class Status:
@@ -20,13 +22,15 @@ class Status:
     repeats_owed: int = 0  # repeat touches a bound waits for (``planning.repeats``)
 
 
-class StopRule:
-    """A rule returns the reason to stop, or None. Compose with | (any) and & (all)."""
+class StopRule(abc.ABC):
+    """A rule returns the reason to stop, or None. Compose with | (any) and & (all). A rule of
+    one's own subclasses this and defines ``__call__`` (without it: a TypeError on creation)."""
 
     name = "rule"
 
+    @abc.abstractmethod
     def __call__(self, status: Status) -> str | None:
-        raise NotImplementedError
+        """The reason to stop (the rule's ``name``), or None to go on."""
 
     def __or__(self, other: "StopRule") -> "StopRule":
         return _Any(self, other)
