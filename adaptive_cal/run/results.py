@@ -116,6 +116,7 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
     # where a narrow feature could hide between the fused touches (all touches without them)
     result["largest_gap"] = largest_gap(
         plan, np.c_[xyz[0], xyz[1]] if xyz is not None else state.touched_xy_mm)
+    result["keep_outs"] = keep_out_maps(cell, plan, state)
     # the units of the tilt's plane (its keys a, b, c stay as they are: a stable interface)
     result["tilt"] = {**result["tilt"], "plane_is": TILT_PLANE_IS}
     if truth is not None:
@@ -197,6 +198,35 @@ def model_block(state: sv.SurveyState, status, plan: SurveyPlan | None = None) -
                 "where": [], "extrapolated": ext,
                 "summary": summary if ext is None else f"{summary}; {ext['text']}"}
     return state.adequacy.as_dict()
+
+
+def keep_out_maps(cell: Cell, plan: SurveyPlan, state: sv.SurveyState) -> list[dict]:
+    """The map under each keep-out (``workplane.keep_outs``, clipped to the plate), where no
+    touch goes and no check looks: how far it lies from the nearest touch (mm), and the band's
+    std there (its largest and RMS on a 9 x 9 grid, mm, the unresolved structure included),
+    with a line. An outside audit (2026-11-29) found a corner clamp's map 13-23 um off the truth
+    under bands of 9-13 um and nothing that said the map there was untouched."""
+    (px0, px1), (py0, py1) = plan.plate_mm
+    touched = np.asarray(state.touched_xy_mm, float).reshape(-1, 2)
+    out = []
+    for i, k in enumerate(cell.workplane.keep_outs):
+        (x0, x1), (y0, y1) = (max(k.x_mm[0], px0), min(k.x_mm[1], px1)), (max(k.y_mm[0], py0),
+                                                                            min(k.y_mm[1], py1))
+        if x1 <= x0 or y1 <= y0:
+            continue
+        xx, yy = (v.ravel() for v in np.meshgrid(np.linspace(x0, x1, 9), np.linspace(y0, y1, 9)))
+        var = bl.predict(state.belief, plan.model.surface.basis(xx, yy))[1]
+        std = np.sqrt(np.maximum(var + sv.unresolved_var_mm2(plan, state, np.c_[xx, yy]), 0.0))
+        far = (float(np.max(np.min(np.hypot(xx[:, None] - touched[:, 0], yy[:, None]
+                                            - touched[:, 1]), axis=1))) if len(touched) else None)
+        text = (f"keep_outs[{i}] (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm) is never touched: the "
+                f"map under it is extrapolated" + (f" up to {far:.0f} mm from a touch" if far is
+                                                   not None else "")
+                + f" and no check tests it; its std there up to {std.max() * 1e3:.1f} um")
+        out.append({"index": i, "x_mm": [x0, x1], "y_mm": [y0, y1], "farthest_from_touch_mm": far,
+                    "std_max_mm": float(std.max()), "std_rms_mm": float(np.sqrt(np.mean(std**2))),
+                    "text": text})
+    return out
 
 
 def _extrapolated(plan: SurveyPlan) -> dict | None:
