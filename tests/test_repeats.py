@@ -135,3 +135,46 @@ def test_a_probe_at_its_spans_top_is_read_again_then_the_bound_stops(tmp_path):
     assert model["checks"]["repeats"]["passed"] and model["repeats"]["dof"] >= 12
     assert 0.004 < model["repeats"]["std_mm"] < 0.008
     assert "learned noise" in model["summary"] and "repeat readings: the probe" in model["summary"]
+
+
+def test_without_a_span_a_noise_well_above_the_first_guess_is_suspect_and_judged_strictly():
+    """No span: the learned noise at GUESS_FACTOR x probe.noise_std_mm or more is suspect (the
+    guess is wrong or plate structure hides in the noise), and the check then waits for all DOF
+    repeats and judges at 1 %; what it lets pass (F - 1) s_r^2 is the unseen structure."""
+    from types import SimpleNamespace
+
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.planning import repeats as rp
+    from adaptive_cal.planning.adequacy import assess
+    from helpers import sim_cell
+
+    plan = survey_plan(sim_cell(probe={"noise_std_mm": 0.004}), grow=False)
+    assert plan.noise_range_mm is None and plan.model.hyper0.noise_std_mm == 0.004
+
+    def state(sigma):
+        return SimpleNamespace(prior=None, hyper_points=[1], fused=30,
+                               hyper=plan.model.hyper0._replace(noise_std_mm=sigma))
+
+    assert not rp.suspected(plan, state(0.0059)) and rp.judged(plan, state(0.0059)) is None
+    assert rp.suspected(plan, state(0.0061)) and rp.judged(plan, state(0.0061)) == (0.01, 12)
+    hyper = plan.model.hyper0._replace(noise_std_mm=0.006)
+    prior = plan.model.belief(hyper)
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-150, 150, (40, 2))
+    for extra, judged in ((3, False), (4, True)):  # 9 repeat readings, then 12
+        pts = np.vstack([xy, np.repeat(xy[:extra], 3, axis=0)])
+        rows = plan.model.surface.basis(pts[:, 0], pts[:, 1])
+        y = 0.006 * rng.standard_normal(len(pts))
+        v = assess(plan.model.surface, plan.plate_mm, rows, y, prior, hyper, None,
+                   plan.adequacy_regions, repeats=rp.NO_SPAN_TEST)
+        assert ("repeats" in v.checks) is judged
+        if judged:
+            from scipy.stats import f
+
+            bound = v.checks["repeats"]["bound"]
+            assert bound == pytest.approx(f.isf(0.01, len(y), 12), rel=1e-12)
+            assert v.unseen_rms_mm == pytest.approx(np.sqrt((bound - 1) * v.repeat_std_mm**2),
+                                                    rel=1e-12)
+            assert "its repeats leave room for it" in v.summary() or not v.adequate
+        else:
+            assert v.unseen_rms_mm is None

@@ -107,7 +107,9 @@ class Probe(Block):
                            "height; inside the stroke's indications")
     resolution_mm: float = Field(1e-4, gt=0, description="readout step; below the stroke")
     noise_std_mm: float = Field(0.005, gt=0, description="first guess of the reading noise "
-                                "(a weak prior: the noise is learned from the readings)")
+                                "(a weak prior: the noise is learned from the readings; learned "
+                                "1.5 x this or more, a bound waits for 12 repeat readings that "
+                                "measure the probe's own)")
     noise_range_mm: Interval | None = Field(
         None, description="[low, high] the reading noise is known to lie in (datasheet, a gauge "
         "study): the prior is flat from the span's middle sqrt(low * high) up to high, with "

@@ -6,31 +6,27 @@ its knots cannot follow. With the probe's stated noise span [lo, hi] (``probe.no
 the probe's share is r_p = min(sigma_n, hi)^2; the rest is unresolved structure of the TRUE
 plate, which the map's bands must carry. Checks (each at a stated level; ALPHA in all):
 
-1. ``innovations``: the mean square of the standardized innovations (gaussian.checks) below
-   its chi2(n) / n upper bound;
-2. ``noise_span``: sigma_n <= hi (1 + z / sqrt(2 n)), its sampling error allowed (skipped
-   without a span);
+1. ``innovations``: the standardized innovations' mean square below its chi2(n) / n bound;
+2. ``noise_span``: sigma_n <= hi (1 + z / sqrt(2 n)), its sampling error allowed (with a span);
 3. ``loo``: closed-form leave-one-out residuals e_i standardized by the surface's LOO variance
    q_i plus r_p: their mean square below the chi2 bound;
-4. ``regions``: the same per region of a grid over the plate (Bonferroni over the regions),
-   which says *where*;
+4. ``regions``: the same per region of a grid over the plate (Bonferroni), which says *where*;
 5. ``resolution``: the learned form (amplitude s_f, length scale l) has a part finer than the
    knots, f - P f (P: L2 projection onto the spline), whose variance is exact and closed form
    (``gaussian.checks.unresolved_form_var``); its RMS must stay below half the probe noise;
-6. ``repeats`` (the learned noise suspect and ``MIN_REPEATS`` readings repeats at their place,
+6. ``repeats`` (the learned noise suspect and enough readings repeats at their place,
    ``gaussian.checks.repeats``): sigma_n^2 over the repeats' pooled variance s_r^2 (dof d)
-   below the F(n, d) upper ``REPEAT_ALPHA`` point: repeats read the probe alone, so a learned
-   noise well above them is plate structure the model missed. Where it fails, the unresolved
-   variance is measured beyond s_r^2 instead (``planning.repeats`` asks for the repeats).
+   below the F(n, d) upper alpha point (``planning.repeats.judged``: its level, the readings):
+   repeats read the probe alone, so a learned noise well above them is plate structure the
+   model missed. Where it fails, the unresolved variance is measured beyond s_r^2 instead.
 
 Unresolved variance at a point: the projection variance of the learned form there, plus the
 region's s_k^2 = max(0, mean_k(e_i^2 - q_i - r_p)) (unbiased for an extra white term), kept
 only where a check 1-4 fails (else 0) -- except in a model that grew (``suspect``: the coarse
 knots failed their checks, ``planning.survey.refit``), which keeps it in every region while
 its checks pass (the plate's mean excess where a region has too few readings): the bands and
-the stop statistic add it (``planning.survey.status``), and the stop never fires while a check
-fails. So with every check passing the bands still carry the form's finer part, and a grown
-model's excess too; the summary says which (``Adequacy._widened_by``).
+the stop statistic add it (``survey.status``); the stop never fires while a check fails. With
+every check passing the bands still carry the form's finer part, and a grown model's excess.
 
 What the checks cannot see (``unseen_rms``): structure finer than the touches' spacing looks
 like noise. With a stated span [lo, hi] the probe may be as good as lo, so the learned noise can
@@ -40,20 +36,19 @@ hi (1 + z / sqrt(2 n)), and the leave-one-out check (r_p held at hi^2) at a mean
 structure reaches before a check sees it: ``Adequacy.unseen_rms_mm``, in result.json and the
 summary. Measured (tests/test_adequacy.py; span 3-8 um, the probe at 3 um, learned noise): at
 that size the checks fire 30 % of the time (30/100 at 30 readings, 23/60 at 80), at 1.3 x it
-80-100 %, at 0.7 x never. Without a span it is not bounded: the learned noise takes all of
-it. Even with the probe's noise told as 4.9-5.1 um, a 6 um ripple at a 30 mm period passed
-every check after 12 touches (true error 5.3 um against a claimed 3.4 um; unseen 6.5 um;
-``adaptive-cal run`` on plate 0 of benchmarks/plates' ripple family).
+80-100 %, at 0.7 x never. Without a span only repeat readings bound it: structure passes the
+repeats check up to s^2 = (F - 1) s_r^2, F its bound; with neither, the noise takes all of it.
+Even with the probe's noise told as 4.9-5.1 um, a 6 um ripple at a 30 mm period passed every
+check after 12 touches (true error 5.3 um against a claimed 3.4 um; unseen 6.5 um; plate 0 of
+benchmarks/plates' ripple family).
 
 The map beyond the reachable box (the edge margin no touch can reach, ``reach_mm``) is an
-extrapolation that no check can test: ``extrapolated`` names it (result.json, the summary)
-instead of adding a variance for it. A variance derived from the form prior would be the
-Taylor remainder of its curvature over the margin d, sqrt(3) s_f / l^2 * d^2 / 2: for d = 10 mm
-and the forms learned on realistic plates (s_f 15-30 um, l 150-350 mm) 0.02-0.1 um, while
-edge roll-off (non-stationary, where lapping and clamping act) put 11-16 um RMS of error there
-(benchmarks/bench_plates.py, edge family): no number from the touches or from the stationary
-prior bounds it, so the claim there is marked, not widened (and ``adaptive-cal compensate``
-refuses, or marks, a cut there).
+extrapolation no check can test: ``extrapolated`` names it (result.json, the summary), with no
+variance added: the form prior's Taylor remainder over the margin d, sqrt(3) s_f / l^2 d^2 / 2,
+is 0.02-0.1 um at d = 10 mm for the forms learned on realistic plates, while edge roll-off put
+11-16 um RMS of error there (benchmarks/bench_plates.py, edge family): no number from the
+touches or the stationary prior bounds it, so the claim there is marked, not widened (and
+``adaptive-cal compensate`` refuses, or marks, a cut there).
 """
 from __future__ import annotations
 
@@ -158,9 +153,10 @@ class Adequacy:
             if self.unseen_rms_mm is None:
                 return (f"{head}; structure finer than the touches' spacing cannot be told from "
                         "that noise (no probe.noise_range_mm stated)")
+            room = "the stated span leaves" if "noise_span" in self.checks else "its repeats leave"
             return (f"{head}; structure finer than the touches' spacing up to about "
-                    f"{self.unseen_rms_mm * 1e3:.1f} um RMS would pass these checks (the probe's "
-                    "stated noise span leaves room for it)")
+                    f"{self.unseen_rms_mm * 1e3:.1f} um RMS would pass these checks ({room} "
+                    "room for it)")
         knots = f"{self.knot_spacing_mm:.0f} mm"
         if not self.adequate:
             failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
@@ -229,7 +225,7 @@ def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
 
 def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
            regions: tuple[int, int] = (3, 3), form_surface=None, suspect: bool = False,
-           reach_mm=None, weights=None, repeats: bool = False) -> Adequacy:
+           reach_mm=None, weights=None, repeats: bool | tuple[float, int] = False) -> Adequacy:
     """Checks of the readings (heights y at basis ``rows`` of ``surface``) against the Gaussian
     ``prior`` belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the
     probe's stated span [lo, hi] or None; ``regions``: the grid the plate is split into;
@@ -243,7 +239,8 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     belief holds, so a reading the fusion trusted less does not count as structure in full;
     ``repeats``: judge the learned noise against the readings repeated at one place (the
     ``repeats`` check, run where the learned noise exceeds what the cell says of its probe:
-    ``planning.repeats``; elsewhere a place read twice by chance is no question asked)."""
+    ``planning.repeats``; elsewhere a place read twice by chance is no question asked): True,
+    or (alpha, the repeat readings it needs)."""
     form_surface = form_surface or surface
     n = len(readings)
     noise_std_mm = hyper.noise_std_mm
@@ -257,9 +254,10 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
         r_mag = min(r_p, noise_range_mm[0] * noise_range_mm[1])
     r_p0 = r_p  # the probe's share, for a reading fused with full weight
     xy = positions_mm(surface, rows)
-    rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w) if repeats else (0, np.nan)
-    rep_dof = rep_dof if rep_dof >= MIN_REPEATS else 0
-    rep_bound = float(f_dist.isf(REPEAT_ALPHA, n, rep_dof)) if rep_dof else np.inf
+    test = (REPEAT_ALPHA, MIN_REPEATS) if repeats is True else (repeats or None)
+    rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w) if test else (0, np.nan)
+    rep_dof = rep_dof if test and rep_dof >= test[1] else 0
+    rep_bound = float(f_dist.isf(test[0], n, rep_dof)) if rep_dof else np.inf
     # a repeat reading's own resolution floor: identical readings are not a noise of 0
     rep_ratio = noise_std_mm**2 / max(rep_var, 1e-14) if rep_dof else 0.0
     if rep_ratio > rep_bound:  # the learned noise holds structure: measure beyond the probe's
@@ -331,17 +329,19 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var,
                     plate_mm=tuple(map(tuple, plate_mm)),
                     reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)),
-                    unseen_rms_mm=unseen_rms(result, q, noise_range_mm),
+                    unseen_rms_mm=unseen_rms(result, q, noise_range_mm, rep_var),
                     noise_std_mm=float(noise_std_mm), repeat_dof=rep_dof,
                     repeat_std_mm=float(np.sqrt(rep_var)) if rep_dof else None)
 
 
-def unseen_rms(result: dict, q: np.ndarray, noise_range_mm) -> float | None:
+def unseen_rms(result: dict, q: np.ndarray, noise_range_mm, rep_var: float) -> float | None:
     """RMS (mm) of structure finer than the touches' spacing (white at the touches) that the
     noise-span and leave-one-out checks begin to see, the probe as good as the span's low end
-    (module docstring; they fire about a third of the time at it); None without a span
-    (unbounded). ``result``: the checks with their bounds (``assess``); ``q``: the surface's
-    LOO variances (mm^2)."""
+    (module docstring; they fire about a third of the time at it); without a span, what the
+    repeats check lets pass, (F - 1) s_r^2 (``rep_var``: s_r^2), or None (unbounded).
+    ``result``: the checks with their bounds (``assess``); ``q``: the LOO variances (mm^2)."""
+    if noise_range_mm is None and "repeats" in result:
+        return float(np.sqrt(max(0.0, (result["repeats"]["bound"] - 1.0) * rep_var)))
     if noise_range_mm is None or not len(q):
         return None
     lo, hi = (float(v) for v in noise_range_mm)

@@ -155,7 +155,7 @@ def check(plan: SurveyPlan, state: SurveyState, *, coarse: bool = False) -> Adeq
     return assess(plan.model.surface, plan.plate_mm, state.rows, state.heights_mm, prior,
                   state.hyper, plan.noise_range_mm, plan.adequacy_regions, form_surface=form,
                   suspect=extra is not None, reach_mm=plan.bounds_mm,
-                  weights=state.fused_weights, repeats=repeats.suspected(plan, state))
+                  weights=state.fused_weights, repeats=repeats.judged(plan, state))
 
 
 def stop_reason(plan: SurveyPlan, state: SurveyState) -> str | None:
