@@ -677,4 +677,4 @@ def test_the_map_under_a_keep_out_is_said_to_be_untouched_with_its_band(tmp_path
     assert k["std_max_mm"] == pytest.approx(std[0, -1], rel=1e-9)
     assert k["std_rms_mm"] <= k["std_max_mm"]
     assert "keep_outs[0] (x -225..-150, y 110..185 mm) is never touched" in k["text"]
-    assert f"up to {corner:.0f} mm from a touch" in k["text"]
+    assert f"rests on touches up to {corner:.0f} mm away" in k["text"]

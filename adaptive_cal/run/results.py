@@ -220,9 +220,9 @@ def keep_out_maps(cell: Cell, plan: SurveyPlan, state: sv.SurveyState) -> list[d
         far = (float(np.max(np.min(np.hypot(xx[:, None] - touched[:, 0], yy[:, None]
                                             - touched[:, 1]), axis=1))) if len(touched) else None)
         text = (f"keep_outs[{i}] (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm) is never touched: the "
-                f"map under it is extrapolated" + (f" up to {far:.0f} mm from a touch" if far is
-                                                   not None else "")
-                + f" and no check tests it; its std there up to {std.max() * 1e3:.1f} um")
+                "map under it rests on touches" + (f" up to {far:.0f} mm away" if far is not None
+                                                   else "") + " and no check tests it there; its "
+                f"std there up to {std.max() * 1e3:.1f} um")
         out.append({"index": i, "x_mm": [x0, x1], "y_mm": [y0, y1], "farthest_from_touch_mm": far,
                     "std_max_mm": float(std.max()), "std_rms_mm": float(np.sqrt(np.mean(std**2))),
                     "text": text})
