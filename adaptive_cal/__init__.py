@@ -105,7 +105,10 @@ def flatness(recording, *, samples: int = 400, seed: int = 0) -> dict:
     """Tilt, least-squares flatness (Cheng et al. eqs. 1-6), range and ISO 1101 minimum zone of a
     recording (a path, or a Recording), each with a 95 % interval from ``samples`` predicted
     repeat measurements drawn with ``numpy.random.default_rng(seed)`` (mm, deg). ``samples`` at
-    least 2 (an interval needs two draws), ``seed`` at least 0: else a ValueError naming them."""
+    least 2 (an interval needs two draws), ``seed`` at least 0: else a ValueError naming them.
+    The intervals learn the noise: call ``use_float64()`` first (else a RuntimeError says so).
+    ``flatness_mm`` is of the touched points (``flatness_mm_is``); the whole plate's needs a map
+    (``adaptive-cal flatness REC --robot CELL.yaml``)."""
     import numbers
 
     import numpy as np

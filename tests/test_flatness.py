@@ -288,6 +288,7 @@ def test_flatness_json_is_valid_json_off_grid(tmp_path, capsys):
     assert main(["flatness", str(path), "--json", "--samples", "50"]) == 0
     out = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(c))
     assert out["average_range_mm"] == {"x": None, "y": None}
+    assert out["flatness_mm_is"].startswith("the touched points as measured (no map")
     assert main(["flatness", str(path), "--samples", "50"]) == 0
     assert "x n/a (touches not on a grid along x)" in capsys.readouterr().out
 

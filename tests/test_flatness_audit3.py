@@ -2,6 +2,8 @@
 disagreed with the printed figures by a digit, --robot was dropped by --compare without a word,
 two different sets of touches were compared without one, the touched points' line did not say
 what its interval holds, and report's several-rounds message named an option it lacks."""
+import json
+
 import pytest
 
 from adaptive_cal.analysis.flatness_answer import OUTSIDE_NOTE, touched_what
@@ -37,9 +39,28 @@ def test_compare_says_what_it_does_not_use_and_when_the_touches_differ(tmp_path,
     cell = ROOT / "configs" / "cheng2025-cell.yaml"
     assert main(["flatness", str(cheng_round0), "--compare", str(part), "--robot",
                  str(cell)]) == 0
-    err = capsys.readouterr().err
+    said = capsys.readouterr()
+    err = said.err
     assert f"--robot {cell} is not used by --compare" in err
     assert "touches differ (10 of 40 places" in err and "0 of 30 the other way" in err
+    # every verdict of the table says it compares other points (an outside audit, 2026-11-29:
+    # an unchanged plate on two designs read "larger" at P(worse) >= 0.95 in 4 of 10 pairs)
+    rows = [ln for ln in said.out.splitlines() if ln.startswith(("  least squares",
+                                                                   "  minimum zone", "  range"))]
+    assert len(rows) == 3 and all(ln.endswith(" (other points)") for ln in rows)
+    assert main(["flatness", str(cheng_round0), "--compare", str(part), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["touches_differ"] == {"first_only": 10, "first_places": 40, "second_only": 0,
+                                     "second_places": 30}
+
+
+
+def test_rounds_at_the_same_places_are_compared_without_the_mark(cheng_round0, cheng_round1,
+                                                                   capsys):
+    assert main(["flatness", str(cheng_round0), "--compare", str(cheng_round1), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["touches_differ"] is None
+    assert main(["flatness", str(cheng_round0), "--compare", str(cheng_round1)]) == 0
+    assert "(other points)" not in capsys.readouterr().out
 
 
 def test_the_touched_line_says_what_its_interval_holds():

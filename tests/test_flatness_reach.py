@@ -105,3 +105,11 @@ def test_run_result_and_its_lines_carry_it(tmp_path):
     reach = [i for i, ln in enumerate(lines) if ln.startswith("flatness within reach")]
     assert reach == [plate[0] + 1]
     assert "x -215..215, y -175..175 mm; beyond, the map is extrapolated" in lines[reach[0]]
+    # what the whole plate's intervals held on plates the prior did not make, said under them
+    # (an outside audit, 2026-11-29: 88 of 120 plates, edge roll-off 7 of 17, while every line
+    # said "95 %"); a result's flatness_mm says what it is of
+    from adaptive_cal.analysis.flatness_answer import PLATE_CALIBRATION, PLATE_IS
+
+    assert lines.index(PLATE_CALIBRATION) > reach[0] and "70-80 %" in PLATE_CALIBRATION
+    assert r["flatness_mm_is"] == PLATE_IS
+    assert PLATE_CALIBRATION not in answer_lines({"touched_flatness_mm": r["touched_flatness_mm"]})

@@ -48,6 +48,12 @@ FIGURES = (("least_squares", "least squares (Cheng eq. 5)"),
            ("minimum_zone", "minimum zone (ISO 1101)"))
 PLATE = "of the whole plate (from the map)"
 SPREAD = "height spread, max - min with the tilt included (not flatness)"
+#: what a result's flatness_mm is (a bare recording's is of its touched points instead)
+PLATE_IS = "the whole plate, from the map; touched_flatness_mm: the touched points as measured"
+#: under the whole plate's figures: what their intervals held on plates the prior did not make
+PLATE_CALIBRATION = ("the whole plate's 95 % intervals are the map's belief: on plates the prior "
+                     "did not make they held the true flatness 70-80 % of the time (edge roll-off "
+                     "35-60 %; docs/flatness.md)")
 MEDIAN = "posterior median"
 MEDIAN_NOTE = ("* posterior median of the samples: the figure itself lay outside its 95 % interval "
                "(flatness is a max - min statistic, biased by noise and by smoothing)")
@@ -267,7 +273,7 @@ def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=No
             f = t_std_factor(nu)
             tilt["rx_std_deg"], tilt["ry_std_deg"] = tilt["rx_std_deg"] * f, tilt["ry_std_deg"] * f
             tilt["noise_dof"] = float(nu)
-    out = {"tilt": tilt, "flatness_mm": plate}
+    out = {"tilt": tilt, "flatness_mm": plate, "flatness_mm_is": PLATE_IS}
     within = plate.pop("within_reach", None)
     if within is not None:
         within.pop("range")
@@ -328,6 +334,7 @@ def answer_lines(result: dict, provisional: bool = False, no_plate: str | None =
             used.append(within)
         if "range" in plate:
             lines.append(f"{SPREAD}: {value_text(plate['range'])}")
+        lines.append(PLATE_CALIBRATION)
     elif no_plate:
         lines.append(f"flatness {PLATE}: {no_plate}")
     said = {f.get("value_is") for u in used for f in u.values() if isinstance(f, dict)}

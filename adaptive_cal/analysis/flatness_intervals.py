@@ -123,10 +123,24 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
            # interval (value_is says which: analysis.flatness_answer.entry)
            "flatness_mm": {k: entry(values[k], sampled[k], MEASURED)
                            for k in NAMES},
+           "flatness_mm_is": "the touched points as measured (no map: with the cell file, "
+                             "--robot CELL.yaml, flatness_mm is the whole plate's)",
            # None where the touches are not a grid along that axis (the paper's method needs one)
            "average_range_mm": {"x": fl.finite_or_none(rx), "y": fl.finite_or_none(ry)},
            "noise_std_mm": hyper["noise_std_mm"], "hyper": hyper}
     return out, sampled, plate
+
+
+def touches_differ(first: Recording, second: Recording) -> dict | None:
+    """{"first_only", "second_only"}: how many places of each recording (to 0.5 mm) the other
+    does not hold, of its {"first_places", "second_places"}; None where they touch the same. Where they differ, each figure is
+    of its own points, and a change between them is not the plate's alone (an outside audit,
+    2026-11-29: one unchanged plate read on two random designs came out "larger" at
+    P(worse) >= 0.95 in 4 of 10 pairs)."""
+    at = [{(round(x * 2), round(y * 2)) for x, y in zip(r.x_mm, r.y_mm)} for r in (first, second)]
+    a, b = len(at[0] - at[1]), len(at[1] - at[0])
+    return ({"first_only": a, "first_places": len(at[0]), "second_only": b,
+             "second_places": len(at[1])} if a or b else None)
 
 
 def compare(sampled_a: dict, sampled_b: dict) -> dict:
@@ -138,3 +152,10 @@ def compare(sampled_a: dict, sampled_b: dict) -> dict:
     -- where the plate's figures hold it 28 and 29 of 30 (a worse and an unchanged pair of an
     outside auditor's generator) and call that worsening in 26 of 30."""
     return fl.compare_rounds({k: sampled_a[k] for k in NAMES}, {k: sampled_b[k] for k in NAMES})
+
+
+def verdict(change: dict) -> str:
+    """A figure's change in words: "larger" or "smaller" where its 95 % interval (``compare``'s
+    ``diff_ci95``) excludes 0, else "within the noise"."""
+    lo, hi = change["diff_ci95"]
+    return "larger" if lo > 0 else "smaller" if hi < 0 else "within the noise"

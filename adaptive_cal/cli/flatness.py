@@ -44,7 +44,7 @@ NO_PLATE = ("needs a map: give the cell file (--robot CELL.yaml), or the recordi
 def command(args) -> int:
     import numpy as np
 
-    from adaptive_cal.analysis.flatness_intervals import compare, recording_flatness
+    from adaptive_cal.analysis.flatness_intervals import compare, recording_flatness, touches_differ
     from adaptive_cal.cli.common import check_cell_file
 
     check_recording(args.recording)
@@ -68,7 +68,8 @@ def command(args) -> int:
         second = _picked(args.compare, args.compare_round, "--compare-round")
         _not_itself(args.recording, args.compare, first, second,
                     files=args.round is None and args.compare_round is None)
-        for said in _compare_notes(args, first, second):
+        differ = touches_differ(first, second)
+        for said in _compare_notes(args, first, second, differ):
             print(said, file=sys.stderr)
         rng = np.random.default_rng(args.seed)
         out, _, sampled = recording_flatness(first, rng, bare_samples)
@@ -76,7 +77,8 @@ def command(args) -> int:
         change = compare(sampled, sampled_b)
         for k, c in change.items():  # the table's "change": the figures as measured
             c["measured_mm"] = other["flatness_mm"][k]["value"] - out["flatness_mm"][k]["value"]
-        out = {"first": out, "second": other, "change": change}
+        out = {"first": out, "second": other, "change": change,
+               "touches_differ": differ}
     else:
         out = map_flatness(args, first) or recording_flatness(first, np.random.default_rng(
             args.seed), bare_samples)[0]
@@ -88,18 +90,18 @@ def command(args) -> int:
     return 0
 
 
-def _compare_notes(args, first, second) -> list[str]:
+def _compare_notes(args, first, second, differ) -> list[str]:
     """What --compare does not do: use --robot (the change is of the touched points' figures,
-    every reading as recorded), or compare like with like where the touches differ."""
+    every reading as recorded), or compare like with like where the touches differ
+    (``differ``: ``touches_differ``'s)."""
     notes = [f"note: --robot {args.robot} is not used by --compare: the change is of the touched "
              "points' figures, every reading as recorded"] if args.robot else []
-    at = [{(round(x * 2), round(y * 2)) for x, y in zip(r.x_mm, r.y_mm)} for r in (first, second)]
-    a, b = len(at[0] - at[1]), len(at[1] - at[0])
-    if a or b:
-        notes.append(f"warning: the recordings' touches differ ({a} of {len(at[0])} places of "
-                     f"{args.recording} not in {args.compare}, {b} of {len(at[1])} the other way, "
-                     "to 0.5 mm): each figure is of its own points, so their change is not the "
-                     "plate's alone")
+    if differ:
+        a, b = differ["first_only"], differ["second_only"]
+        notes.append(f"warning: the recordings' touches differ ({a} of {differ['first_places']} "
+                     f"places of {args.recording} not in {args.compare}, {b} of "
+                     f"{differ['second_places']} the other way, to 0.5 mm): each figure is of its "
+                     "own points, so their change is not the plate's alone")
     return notes
 
 
@@ -300,15 +302,6 @@ LABELS = {"least_squares": "least squares", "minimum_zone": "minimum zone",
           "range": "range (tilt incl.)"}
 
 
-def _verdict(c: dict) -> str:
-    lo, hi = c["diff_ci95"]
-    if lo > 0:
-        return "larger"
-    if hi < 0:
-        return "smaller"
-    return "within the noise"
-
-
 def compare_table(out: dict) -> list[str]:
     """The change between two recordings as a table in um, with P(worse) = P(later > earlier),
     and what its interval is (of the change, given the data), beside explain's test of
@@ -316,6 +309,7 @@ def compare_table(out: dict) -> list[str]:
     from pathlib import Path
 
     a, b = out["first"], out["second"]
+    from adaptive_cal.analysis.flatness_intervals import verdict
     from adaptive_cal.formats.numbers import fixed
 
     um = lambda v, sign="": fixed(v * 1e3, 1, sign)  # noqa: E731 (um, never "-0.0")
@@ -330,7 +324,7 @@ def compare_table(out: dict) -> list[str]:
         change = round(vb * 1e3, 1) - round(va * 1e3, 1)  # of the figures as printed
         lines.append(f"  {LABELS[k]:<19}{um(va):>9}{um(vb):>9}{fixed(change, 1, '+'):>9}   "
                      f"{um(lo, '+') + ' .. ' + um(hi, '+'):<26}{c['p_b_greater']:>8.2f}  "
-                     f"{_verdict(c)}")
+                     f"{verdict(c)}{' (other points)' if out.get('touches_differ') else ''}")
     lines += ["  change: the later figure minus the earlier, as measured. 95 % interval of",
               "  change: of the plate's figure at the touches, given the two recordings (each",
               "  round's smooth surface fitted to it alone, the readings' noise removed; the",
