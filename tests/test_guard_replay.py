@@ -1,7 +1,7 @@
 """A bare recording replayed with a cell file (flatness/report --robot) is judged as the live
 run judges a reading: one outside probe.usable_mm is not used (counted and said with its line),
-a touch outside the workplane is refused naming its line and value, and no RuntimeWarning
-reaches the user."""
+a touch outside the workplane is refused naming its line and value, one inside a keep-out is
+used and said, and no RuntimeWarning reaches the user."""
 import json
 import warnings
 from pathlib import Path
@@ -16,9 +16,9 @@ CELL = str(ROOT / "configs" / "sim-cell.yaml")  # usable_mm [0.5, 9.5], workplan
 XY = [(x, y) for y in (-150, -75, 0, 75, 150) for x in (-200, -100, 0, 100, 200)]
 
 
-def _write(path, change=None, flags=None):
+def _write(path, change=None, flags=None, xy=XY):
     rows = []
-    for i, (x, y) in enumerate(XY):
+    for i, (x, y) in enumerate(xy):
         reading = 5.0 + 0.014 * x + 0.002 * y + 0.1 * (y / 150) ** 2 + 0.001 * np.sin(3 * i)
         rows.append([str(i), f"{3.0 * i:.3f}", f"{x:.4f}", f"{y:.4f}", "0.0000",
                      f"{reading:.6f}", "", "0"])
@@ -87,3 +87,17 @@ def test_a_table_of_heights_is_not_judged_as_indications(tmp_path, column, offse
         f"{x},{y},{offset + 0.014 * x + 0.002 * y + 0.1 * (y / 150) ** 2:.6f}\n" for x, y in XY))
     rc, out, err = _flatness(path, capsys)
     assert rc == 0 and out["touches"] == len(XY) and "usable stroke" not in err
+
+
+def test_a_touch_inside_a_keep_out_is_used_and_said_with_its_line(tmp_path, capsys):
+    """The sim cell's clamp is x -40..10, y 60..110 mm: a recording touching (0, 75) is not of a
+    run of this cell (an outside audit, 2026-11-29: replayed with no word). The reading is real,
+    so it is used; the warning names its line, seq, place and the keep-out."""
+    rc, out, err = _flatness(_write(tmp_path / "rec.csv"), capsys)  # (0, 75) is seq 17
+    assert rc == 0 and out["touches"] == len(XY)
+    assert ("rec.csv:21: touch seq 17 at (0, 75) mm lies inside keep_outs[0] of " in err
+            and "(1 such touch, used): a run of this cell never touches there" in err)
+    moved = [(x, y) if (x, y) != (0, 75) else (100, 110) for x, y in XY]
+    rc, _, err = _flatness(_write(tmp_path / "free.csv", xy=moved), capsys)
+    assert rc == 0 and "keep_outs" not in err
+

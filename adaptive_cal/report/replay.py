@@ -55,7 +55,8 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
     (said on stderr) -- unless they are more than ``STROKE_MISMATCH_SHARE`` of its readings:
     then the cell does not describe the recording's gauge, and they are used (said);
     RecordingError naming the line and the value for a touch to be fused outside the
-    workplane."""
+    workplane; a warning naming the first touch inside a keep-out (used: a real reading, but
+    a run of this cell never touches there)."""
     where = rec.path or "the recording"
     used = rec.fused
     off = cell.workplane.first_outside(rec.x_mm[used], rec.y_mm[used])
@@ -69,6 +70,15 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
             f"{getattr(rec, c)[i]:g} lies outside the workplane {c} [{lo:g}, {hi:g}] of "
             f"{cell_file} ({count} such touch{'es' * (count != 1)}): is the recording of this "
             "cell?")
+    inside = [(i, k) for i in np.flatnonzero(used) for k, ko in enumerate(cell.workplane.keep_outs)
+              if ko.contains(float(rec.x_mm[i]), float(rec.y_mm[i]))]
+    if inside:  # a real reading, used; but a run of this cell never touches there
+        i, k = inside[0]
+        line = line_of(rec.path, int(i))
+        say([f"{where}{f':{line}' if line else ''}: touch seq {int(rec.seq[i])} at "
+             f"({rec.x_mm[i]:g}, {rec.y_mm[i]:g}) mm lies inside keep_outs[{k}] of {cell_file} "
+             f"({len(inside)} such touch{'es' * (len(inside) != 1)}, used): a run of this cell "
+             "never touches there -- is the recording of this cell?"])
     if rec.meta.get("column") in HEIGHT_COLUMNS:
         return rec
     lo, hi = cell.probe.usable_mm
