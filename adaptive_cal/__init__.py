@@ -19,9 +19,13 @@ The ask / tell loop on the built-in simulated cell (run from the repository root
 ('mean_std_bound', True)
 >>> sim.close()
 
-The same loop with the recording written before each fusion, progress and truth hooks is
-``run_loop`` (the CLI's ``adaptive-cal run`` is ``run_session``). Names are imported on first use, so
-``import adaptive_cal`` stays light:
+``stop_reason()`` also ends the loop with ``no_admissible_point`` where ``ask()`` has no touch
+to offer (e.g. heights told in place of readings), and with ``readout_frozen``. The same loop with
+the recording written before each fusion, progress and truth hooks is ``run_loop`` (the CLI's
+``adaptive-cal run`` is ``run_session``); it also makes the closure touch (the first place
+again at a bound's stop: did the cell drift?) and ends after 3 invalid readings in a row, which
+this loop leaves to its writer. Names are imported on first use, so ``import adaptive_cal``
+stays light:
 
 =====================  ==========================================================================
 ``load_cell``          read and validate a cell file (``parse_cell`` for a dict)

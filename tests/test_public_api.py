@@ -221,3 +221,35 @@ def test_the_belief_refuses_to_fuse_what_would_turn_it_to_nan():
         bl.condition(b, np.ones((1, 99)), np.zeros(1), 1e-6)
     fused, _ = bl.fuse(b, row, 0.1, 1e-6)  # and a good reading still fuses
     assert np.all(np.isfinite(fused.mean))
+
+
+def test_stop_reason_says_no_admissible_point_where_ask_has_nothing_and_ask_is_not_redone(
+        monkeypatch):
+    """Heights told in place of readings put the plate millimetres off the stroke: ask() then
+    offers nothing. The documented loop ``while not survey.stop_reason(): survey.ask()[0]`` had
+    raised IndexError there (an outside audit, 2026-11-29); stop_reason now ends it as the run's
+    loop does. The ask() after stop_reason() reuses its answer (same state, same question)."""
+    import numpy as np
+
+    from adaptive_cal.planning import shell
+
+    adaptive_cal.use_float64()
+    survey = adaptive_cal.start_survey(ROOT / "configs" / "sim-cell.yaml")
+    calls = []
+    real = shell.ask
+    monkeypatch.setattr(shell, "ask", lambda *a, **k: calls.append(1) or real(*a, **k))
+    assert survey.stop_reason() is None and len(calls) == 1
+    first = survey.ask()
+    assert len(calls) == 1 and first and survey.ask() == first and len(calls) == 1
+    survey.ask(1)  # another question: asked
+    assert len(calls) == 2
+    rng = np.random.default_rng(1)
+    reasons = []
+    for _ in range(60):
+        reasons.append(survey.stop_reason())
+        if reasons[-1] is not None:
+            break
+        t = survey.ask()[0]  # the documented loop: never an IndexError
+        survey.tell(t.x_mm, t.y_mm, t.z_mm,
+                    0.012 * t.x_mm - 0.006 * t.y_mm + 1.0 + rng.normal(0, 0.005))
+    assert reasons[-1] == shell.NO_ADMISSIBLE_POINT and survey.ask() == []

@@ -27,6 +27,7 @@ from adaptive_cal.planning.stopping import Status
 #: frozen readouts in a row that end a survey, as the run's loop ends (``run.loop.MAX_REJECTED``)
 FROZEN_STOP = 3
 READOUT_FROZEN = "readout_frozen"
+NO_ADMISSIBLE_POINT = "no_admissible_point"  # as ``run.loop``'s
 
 
 class Survey:
@@ -43,6 +44,7 @@ class Survey:
         self.history: list[Status] = [self.status()]
         self._same = (float("nan"), 0)  # the last reading told and how often in a row
         self._frozen = 0  # touches in a row rejected as a frozen readout
+        self._asked: tuple | None = None  # (state, n, from_xy, targets): the last ask's answer
 
     def ask(self, n: int | None = None, *, from_xy=None) -> list[Target]:
         """The next touch(es) (``planning.ask.ask``): ``n`` of them (None: the plan's batch)."""
@@ -51,7 +53,11 @@ class Survey:
             raise ValueError(f"n = {n!r}: ask for at least 1 touch (None: the plan's batch)")
         if from_xy is not None:
             from_xy = _point(from_xy, "from_xy")
-        return ask(self.plan, self.state, n, from_xy=from_xy)
+        last = self._asked  # the same question of the same state: the same answer, not redone
+        if last is None or last[0] is not self.state or last[1:3] != (n, from_xy):
+            last = self._asked = (self.state, n, from_xy,
+                                  ask(self.plan, self.state, n, from_xy=from_xy))
+        return list(last[3])
 
     def tell(self, x_mm: float, y_mm: float, z_mm: float, reading_mm: float) -> Told:
         """Judge and fuse one reading that was taken; returns the flags for the recording.
@@ -100,10 +106,15 @@ class Survey:
 
     def stop_reason(self) -> str | None:
         """Why the survey's stopping rule stops now, or None; ``readout_frozen`` after
-        ``FROZEN_STOP`` touches in a row rejected as a frozen readout (``tell``)."""
+        ``FROZEN_STOP`` touches in a row rejected as a frozen readout (``tell``);
+        ``no_admissible_point`` where the rule would go on but ``ask()`` has no touch to offer
+        (as the run's loop ends; the answer is kept, so the ``ask()`` after it is not redone) --
+        e.g. heights told in place of readings put the plate millimetres off the probe's stroke
+        (an outside audit's loop ``survey.ask()[0]`` raised IndexError there)."""
         if self._frozen >= FROZEN_STOP:
             return READOUT_FROZEN
-        return sv.stop_reason(self.plan, self.state)
+        why = sv.stop_reason(self.plan, self.state)
+        return NO_ADMISSIBLE_POINT if why is None and not self.ask() else why
 
     def grid(self, n: int = 61):
         """(gx, gy, mean, std) on an n x n grid over the whole plate (mm); the std includes the
