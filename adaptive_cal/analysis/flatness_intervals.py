@@ -133,10 +133,10 @@ def recording_flatness(path, rng: np.random.Generator, n: int) -> tuple[dict, di
 
 def touches_differ(first: Recording, second: Recording) -> dict | None:
     """{"first_only", "second_only"}: how many places of each recording (to 0.5 mm) the other
-    does not hold, of its {"first_places", "second_places"}; None where they touch the same. Where they differ, each figure is
-    of its own points, and a change between them is not the plate's alone (an outside audit,
-    2026-11-29: one unchanged plate read on two random designs came out "larger" at
-    P(worse) >= 0.95 in 4 of 10 pairs)."""
+    does not hold, of its {"first_places", "second_places"}; None where they touch the same.
+    Where they differ, each figure is of its own points, and a change between them is not the
+    plate's alone (an outside audit, 2026-11-29: one unchanged plate read on two random designs
+    came out "larger" at P(worse) >= 0.95 in 4 of 10 pairs)."""
     at = [{(round(x * 2), round(y * 2)) for x, y in zip(r.x_mm, r.y_mm)} for r in (first, second)]
     a, b = len(at[0] - at[1]), len(at[1] - at[0])
     return ({"first_only": a, "first_places": len(at[0]), "second_only": b,
