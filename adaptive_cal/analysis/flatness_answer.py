@@ -40,6 +40,7 @@ from scipy.stats import t as student_t
 from adaptive_cal.analysis import flatness as fl
 from adaptive_cal.analysis.reach import (GAP_MEANS, gap_line, largest_gap,  # noqa: F401
                                         on_grid, reach_grid)  # (largest_gap: its home before)
+from adaptive_cal.analysis.tails import tail_dof_of, unit_noise
 from adaptive_cal.gaussian import belief as bl
 
 SAMPLES = 200  # posterior samples behind every interval (run, flatness and report alike)
@@ -185,32 +186,32 @@ def plate_answer(eval_xy, eval_rows, belief: bl.Belief, rng: np.random.Generator
 def touched_answer(x, y, z, rows, belief: bl.Belief, noise_std_mm: float,
                    rng: np.random.Generator, samples: int = SAMPLES, nu: float | None = None) -> dict:
     """Flatness of the touched points: the figures of the heights z (mm) at (x, y), intervals over
-    predicted repeats B m* + e* (``rows`` = B, the spline rows of the touches). The noise of a
-    repeat is as uncertain as its learned sd: e* ~ N(0, s*^2 I) with s*^2 = s^2 nu / chi2_nu
-    drawn once per repeat (the posterior of the noise variance on nu degrees of freedom, a
-    Jeffreys prior), nu = sum_i (1 - l_i) the touches less what the map spent fitting them
-    (``noise_dof``). With s alone the intervals held fresh repeats 0.91 of the time over seven
-    plate families, 0.88-0.90 on the smooth family's (benchmarks/bench_flatness.py). ``nu``:
-    those degrees of freedom where already known (None: from ``rows``), inf for a noise the
-    cell states and does not learn (drawn as stated)."""
+    predicted repeats B m* + e* (``rows`` = B, the touches' spline rows; ``repeat_noise_mm``).
+    A repeat's noise is as uncertain as its learned sd: s*^2 = s^2 nu / chi2_nu drawn once per
+    repeat (the noise variance's posterior on nu degrees of freedom, a Jeffreys prior), nu =
+    sum_i (1 - l_i) the touches less what the map spent (``noise_dof``; with s alone the
+    intervals held fresh repeats 0.91 of the time, benchmarks/bench_flatness.py). ``nu``: where
+    known (None: from ``rows``), inf for a noise the cell states and does not learn."""
     x, y, z = (np.asarray(v, dtype=np.float64) for v in (x, y, z))
     rows = np.asarray(rows, dtype=np.float64)
     draws = bl.sample(belief, rng, samples) @ rows.T
     if noise_std_mm > 0:
-        draws = draws + repeat_noise_mm(rows, belief, noise_std_mm, rng, samples, nu)
+        draws = draws + repeat_noise_mm(rows, belief, noise_std_mm, rng, samples, nu, z)
     out = _figures(x, y, z, draws, MEASURED)
     return {"points": int(len(z)), **out}
 
 
 def repeat_noise_mm(rows, belief: bl.Belief, noise_std_mm: float, rng: np.random.Generator,
-                    samples: int, nu: float | None = None) -> np.ndarray:
-    """(samples, n) reading noise of repeats at the touches ``rows``: each row s* e, e ~ N(0, I),
-    s*^2 = s^2 nu / chi2_nu (``touched_answer``); ``nu`` None: ``noise_dof`` of the rows; inf:
-    s* = s (a stated noise, no chi2 drawn)."""
+                    samples: int, nu: float | None = None, heights=None) -> np.ndarray:
+    """(samples, n) reading noise of repeats at the touches ``rows``: each row s* e, e ~ N(0, I)
+    -- Student-t of unit variance where the readings ``heights`` (mm) there are heavy-tailed
+    (``analysis.tails``) -- s*^2 = s^2 nu / chi2_nu (``touched_answer``); ``nu`` None:
+    ``noise_dof`` of the rows; inf: s* = s (a stated noise, no chi2 drawn)."""
     nu = noise_dof(rows, belief, noise_std_mm) if nu is None else nu
     scale = (np.full(samples, noise_std_mm) if np.isinf(nu)
              else noise_std_mm * np.sqrt(nu / rng.chisquare(nu, samples)))
-    return scale[:, None] * rng.standard_normal((samples, len(rows)))
+    tails = tail_dof_of(rows, belief, heights, noise_std_mm)
+    return scale[:, None] * unit_noise(tails, rng, (samples, len(rows)))
 
 
 def noise_dof(rows, belief: bl.Belief, noise_std_mm: float) -> float:

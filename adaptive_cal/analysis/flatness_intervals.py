@@ -82,7 +82,7 @@ def repeat_samples(x, y, z, rng: np.random.Generator, n: int,
     post = bl.condition(model.belief(hyper), rows, z, hyper.noise_std_mm**2)
     draws = bl.sample(post, rng, n) @ rows.T
     plate = fl.sampled_figures(x, y, draws)
-    draws = draws + repeat_noise_mm(rows, post, hyper.noise_std_mm, rng, n)
+    draws = draws + repeat_noise_mm(rows, post, hyper.noise_std_mm, rng, n, heights=z)
     return fl.sampled_figures(x, y, draws), dict(hyper._asdict()), plate
 
 
