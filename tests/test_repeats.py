@@ -13,6 +13,7 @@ import yaml
 import adaptive_cal
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.checks import repeats
+from adaptive_cal.planning.repeats import SPAN_TEST
 
 adaptive_cal.use_float64()
 
@@ -50,7 +51,7 @@ def test_the_repeats_check_fires_as_its_f_test_says(structure_mm, lo, hi):
     """60 places on plates drawn from the model, 4 of them read 4 times (12 repeat readings),
     probe noise 5 um; each place also carries white structure of ``structure_mm`` (the same at
     every reading there: finer than the touches' spacing). The check is given the noise the fit
-    would learn, sqrt(probe^2 + structure^2). F(60, 12) at REPEAT_ALPHA says: 5 % fail on the
+    would learn, sqrt(probe^2 + structure^2). F(60, 12) at SPAN_TEST's level says: 5 % fail on the
     probe alone, about 84 % at a learned noise 1.8 x the probe's (60 runs: the bounds hold with
     binomial probability above 99 %). Where it fails, the unresolved variance is measured beyond
     the repeats' variance: about the structure's."""
@@ -72,7 +73,7 @@ def test_the_repeats_check_fires_as_its_f_test_says(structure_mm, lo, hi):
         y = rows @ a + np.concatenate([extra, np.repeat(extra[:4], 3)]) \
             + probe * rng.standard_normal(len(xy))
         v = assess(plan.model.surface, plan.plate_mm, rows, y, prior, hyper,
-                   plan.noise_range_mm, plan.adequacy_regions, repeats=True)
+                   plan.noise_range_mm, plan.adequacy_regions, repeats=SPAN_TEST)
         assert v.repeat_dof == 12
         if not v.checks["repeats"]["passed"]:
             fails += 1
@@ -97,7 +98,7 @@ def test_without_suspicion_a_place_read_twice_asks_no_question():
     y = 0.005 * rng.standard_normal(len(xy))
     off = assess(plan.model.surface, plan.plate_mm, rows, y, prior, hyper, plan.noise_range_mm)
     on = assess(plan.model.surface, plan.plate_mm, rows, y, prior, hyper, plan.noise_range_mm,
-                repeats=True)
+                repeats=SPAN_TEST)
     assert "repeats" not in off.checks and off.repeat_dof == 0
     assert "repeats" in on.checks and on.repeat_dof == 9
 

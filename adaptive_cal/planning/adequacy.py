@@ -63,8 +63,6 @@ ALPHA = 0.01  # false-alarm level of the whole check on an adequate model (split
 MIN_READINGS = 3  # a region is tested with at least this many readings
 NEGLIGIBLE_MM = 0.5e-3  # unresolved RMS below this is not reported (still in the stds)
 SHOWN_REGIONS = 3  # the summary names this many regions, then says how many more
-MIN_REPEATS = 6  # repeat readings the repeats check needs (a place read twice by chance: none)
-REPEAT_ALPHA = 0.05  # run only where the noise exceeds the cell's: a miss costs more there
 
 
 @dataclass(frozen=True, eq=False)
@@ -225,7 +223,7 @@ def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
 
 def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
            regions: tuple[int, int] = (3, 3), form_surface=None, suspect: bool = False,
-           reach_mm=None, weights=None, repeats: bool | tuple[float, int] = False) -> Adequacy:
+           reach_mm=None, weights=None, repeats: tuple[float, int] | None = None) -> Adequacy:
     """Checks of the readings (heights y at basis ``rows`` of ``surface``) against the Gaussian
     ``prior`` belief under ``hyper`` (the learned form and noise); ``noise_range_mm``: the
     probe's stated span [lo, hi] or None; ``regions``: the grid the plate is split into;
@@ -239,8 +237,8 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     belief holds, so a reading the fusion trusted less does not count as structure in full;
     ``repeats``: judge the learned noise against the readings repeated at one place (the
     ``repeats`` check, run where the learned noise exceeds what the cell says of its probe:
-    ``planning.repeats``; elsewhere a place read twice by chance is no question asked): True,
-    or (alpha, the repeat readings it needs)."""
+    ``planning.repeats``; elsewhere a place read twice by chance is no question asked): (its
+    level alpha, the repeat readings it needs), ``repeats.judged``'s."""
     form_surface = form_surface or surface
     n = len(readings)
     noise_std_mm = hyper.noise_std_mm
@@ -254,10 +252,9 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
         r_mag = min(r_p, noise_range_mm[0] * noise_range_mm[1])
     r_p0 = r_p  # the probe's share, for a reading fused with full weight
     xy = positions_mm(surface, rows)
-    test = (REPEAT_ALPHA, MIN_REPEATS) if repeats is True else (repeats or None)
-    rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w) if test else (0, np.nan)
-    rep_dof = rep_dof if test and rep_dof >= test[1] else 0
-    rep_bound = float(f_dist.isf(test[0], n, rep_dof)) if rep_dof else np.inf
+    rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w) if repeats else (0, np.nan)
+    rep_dof = rep_dof if repeats and rep_dof >= repeats[1] else 0
+    rep_bound = float(f_dist.isf(repeats[0], n, rep_dof)) if rep_dof else np.inf
     # a repeat reading's own resolution floor: identical readings are not a noise of 0
     rep_ratio = noise_std_mm**2 / max(rep_var, 1e-14) if rep_dof else 0.0
     if rep_ratio > rep_bound:  # the learned noise holds structure: measure beyond the probe's

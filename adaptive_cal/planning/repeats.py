@@ -41,16 +41,19 @@ from __future__ import annotations
 import numpy as np
 
 from adaptive_cal.gaussian.checks import places, repeats
-from adaptive_cal.planning.adequacy import MIN_REPEATS, REPEAT_ALPHA, positions_mm
+from adaptive_cal.planning.adequacy import positions_mm
 
 #: repeat readings asked for (dof of their variance): with 12 and 40-60 readings, a learned
 #: noise 1.3 x the probe's fails the check 26 % of the time, 1.6 x 58-60 %, 1.88 x (the
-#: audit's 9.4 against 5 um) 82-84 %, 2.8 x always; 1 x 5 % (F(n, 12) at REPEAT_ALPHA)
+#: audit's 9.4 against 5 um) 82-84 %, 2.8 x always; 1 x 5 % (F(n, 12) at SPAN_TEST's level)
 DOF = 12
 #: readings beyond the first at one place before the planner moves on
 PER_PLACE = 3
 #: without a span: the learned noise this many times the cell's first guess is suspect
 GUESS_FACTOR = 1.5
+#: the repeats check with a span: its level (run only where the noise exceeds the cell's: a miss
+#: costs more there) and the repeat readings it needs (a place read twice by chance: none)
+SPAN_TEST = (0.05, 6)
 #: without a span: the repeats check's level and the repeat readings it waits for
 NO_SPAN_TEST = (0.01, DOF)
 
@@ -69,11 +72,11 @@ def suspected(plan, state) -> bool:
 
 def judged(plan, state) -> tuple[float, int] | None:
     """How the ``repeats`` check judges a suspect run (``adequacy.assess(repeats=...)``): its
-    level and the repeat readings it needs -- ``adequacy.REPEAT_ALPHA`` from
-    ``adequacy.MIN_REPEATS`` with a span, ``NO_SPAN_TEST`` without; None where not suspect."""
+    level and the repeat readings it needs -- ``SPAN_TEST`` with a span, ``NO_SPAN_TEST``
+    without; None where not suspect."""
     if not suspected(plan, state):
         return None
-    return (REPEAT_ALPHA, MIN_REPEATS) if plan.noise_range_mm is not None else NO_SPAN_TEST
+    return SPAN_TEST if plan.noise_range_mm is not None else NO_SPAN_TEST
 
 
 def owed(plan, state) -> int:
