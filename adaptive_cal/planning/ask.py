@@ -39,7 +39,7 @@ from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import plan_batch, travel_order
 from adaptive_cal.planning.scoring import (minimax_choice, rate_choice, refine, stroke_ok,
                                            touch_time_s, variance_drop)
-from adaptive_cal.planning.stopping import touches_left
+from adaptive_cal.planning.stopping import touches_left, waits_for_repeats
 from adaptive_cal.planning.survey import SurveyState, status, unresolved_var_mm2
 
 
@@ -69,7 +69,7 @@ def ask(plan: SurveyPlan, state: SurveyState, n: int | None = None, *,
         x, y, z, _ = state.retake
         return [target(plan, state, x, y, z_mm=z, retake=True)]
     now = status(plan, state) if repeats.suspected(plan, state) else None
-    if now is not None and now.repeats_owed and plan.stop(replace(now, repeats_owed=0)):
+    if now is not None and waits_for_repeats(plan.stop, now):
         # the bound waits for the probe's own noise (``planning.repeats``): the last place
         # again while it holds fewer than PER_PLACE repeats, else one touch the criterion picks
         p = repeats.place(plan, state)

@@ -6,7 +6,7 @@ Nor one that owes repeat touches (``Status.repeats_owed``, see ``planning.repeat
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 @dataclass(frozen=True)
@@ -117,3 +117,9 @@ class _All(StopRule):
     def __call__(self, status):
         ra, rb = self.a(status), self.b(status)
         return ra if ra and rb else None
+
+
+def waits_for_repeats(rule: StopRule, status: Status) -> bool:
+    """The rule would stop now but for the repeat readings ``status`` owes (``planning.repeats``):
+    ask gives them next, and a batch planned ahead breaks there."""
+    return bool(status.repeats_owed) and bool(rule(replace(status, repeats_owed=0)))

@@ -47,7 +47,7 @@ from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.robust import InvalidReading
 from adaptive_cal.planning.shell import READOUT_FROZEN  # the stop for repeats (frozen_after)
-from adaptive_cal.planning.stopping import Status, touches_left
+from adaptive_cal.planning.stopping import Status, touches_left, waits_for_repeats
 
 #: the reason a loop ends when no allowed point can be promised inside the probe stroke
 NO_ADMISSIBLE_POINT = "no_admissible_point"
@@ -142,7 +142,7 @@ class SurveyLoop:
                     return INVALID_READINGS
                 if self.rejected_in_a_row >= MAX_REJECTED:
                     return READOUT_FROZEN if "frozen" in step.rejected.flags else TOUCHES_REJECTED
-                owed = step.status.repeats_owed and self.plan.stop(replace(step.status, repeats_owed=0))
+                owed = waits_for_repeats(self.plan.stop, step.status)
                 if (step.invalid is not None or self.state.retake is not None or self.interrupt()
                         or owed or self.stop(self.state, step.status) or self._last_touch()):
                     break  # a batch never runs past the stop rule, nor past repeats a bound owes
