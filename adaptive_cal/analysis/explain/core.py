@@ -199,8 +199,9 @@ def explain_design(design: Design, *, threshold: float = THRESHOLD,
     """
     # readings exactly the nominal after the tilt: every model fits exactly, its evidence is
     # 0/0 (NaN, taken as no preference below the readout step); numpy's warnings say no more
-    plausible_tilt(design)  # positions in m: refused before the search, not after it
-    exact = not np.any(Projector.of(design.nuisance()[0])(design.target))
+    nuisance = design.nuisance()[0]
+    plausible_tilt(design, nuisance)  # positions in m: refused before the search, not after it
+    exact = not np.any(Projector.of(nuisance)(design.target))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore") if exact else nullcontext():
         design, ctx, cands, suspects, noise = _screened(design)
     sigma = float(np.sqrt(ctx.yt @ ctx.yt / max(ctx.m, 1)))

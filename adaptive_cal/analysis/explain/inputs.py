@@ -97,13 +97,14 @@ def checked_threshold(threshold) -> float:
 MAX_TILT_DEG = 30.0
 
 
-def plausible_tilt(design) -> None:
-    """RecordingError naming the round's file where a plane fitted to its readings (the tilt
-    columns alone, by least squares) is steeper than ``MAX_TILT_DEG``: positions in m (not mm),
-    or the recording of another cell -- a recording with x and y in m had been explained as
-    ``none`` with an 86 deg tilt, its suggested touches 3,500 mm off the workspace (an outside
-    audit, 2026-11-29). Checked before the analysis, so the refusal comes at once."""
-    coef = np.linalg.lstsq(design.nuisance()[0], design.target, rcond=None)[0]
+def plausible_tilt(design, nuisance: np.ndarray) -> None:
+    """RecordingError naming the round's file where a plane fitted to its readings (on
+    ``nuisance``, ``design.nuisance()``'s columns, by least squares) is steeper than
+    ``MAX_TILT_DEG``: positions in m (not mm), or the recording of another cell -- a recording
+    with x and y in m had been explained as ``none`` with an 86 deg tilt, its suggested touches
+    3,500 mm off the workspace (an outside audit, 2026-11-29). Checked before the analysis, so
+    the refusal comes at once."""
+    coef = np.linalg.lstsq(nuisance, design.target, rcond=None)[0]
     for r, path in enumerate(design.paths):
         a, b = coef[3 * r:3 * r + 2]
         steep = float(np.degrees(np.arctan(max(abs(a), abs(b)))))
