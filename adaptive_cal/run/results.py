@@ -18,6 +18,7 @@ from adaptive_cal.formats.npz import read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
 from adaptive_cal.formats.writing import provenance
 from adaptive_cal.formats.numbers import count
+from adaptive_cal.planning.gap import largest_gap as gap_radius
 from adaptive_cal.planning.gate import flagged_p
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
@@ -202,7 +203,8 @@ def model_block(state: sv.SurveyState, status, plan: SurveyPlan | None = None) -
 
 def keep_out_maps(cell: Cell, plan: SurveyPlan, state: sv.SurveyState) -> list[dict]:
     """The map under each keep-out (``workplane.keep_outs``, clipped to the plate), where no
-    touch goes and no check looks: how far it lies from the nearest touch (mm), and the band's
+    touch goes and no check looks: how far it lies from the nearest touch (mm; the fill
+    distance of the touches over it, ``planning.gap.largest_gap``), and the band's
     std there (its largest and RMS on a 9 x 9 grid, mm, the unresolved structure included),
     with a line. An outside audit (2026-11-29) found a corner clamp's map 13-23 um off the truth
     under bands of 9-13 um and nothing that said the map there was untouched."""
@@ -217,8 +219,7 @@ def keep_out_maps(cell: Cell, plan: SurveyPlan, state: sv.SurveyState) -> list[d
         xx, yy = (v.ravel() for v in np.meshgrid(np.linspace(x0, x1, 9), np.linspace(y0, y1, 9)))
         var = bl.predict(state.belief, plan.model.surface.basis(xx, yy))[1]
         std = np.sqrt(np.maximum(var + sv.unresolved_var_mm2(plan, state, np.c_[xx, yy]), 0.0))
-        far = (float(np.max(np.min(np.hypot(xx[:, None] - touched[:, 0], yy[:, None]
-                                            - touched[:, 1]), axis=1))) if len(touched) else None)
+        far = gap_radius(np.c_[xx, yy], touched)[0] if len(touched) else None
         text = (f"keep_outs[{i}] (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm) is never touched: the "
                 "map under it rests on touches" + (f" up to {far:.0f} mm away" if far is not None
                                                    else "") + " and no check tests it there; its "
