@@ -329,7 +329,7 @@ def test_special_functions_equal_scipy_stats():
     scipy.stats' own (exactly, on this scipy), edge cases included."""
     from scipy import special, stats
 
-    from adaptive_cal.analysis.explain.suspects import LOG_SQRT_2PI, t_logpdf
+    from adaptive_cal.analysis.tails import LOG_SQRT_2PI, t_logpdf
 
     rng = np.random.default_rng(11)
     x, df = 10 * rng.standard_normal(5000), rng.uniform(1.0, 5000.0, 5000)

@@ -8,7 +8,7 @@ where the probe's noise is heavy-tailed (a chip, dust, a sticking stylus): an ou
 fresh repeat 0.71 of the time, every miss above it.
 
 ``tail_dof`` judges the readings' standardized residuals: the Student-t among ``DOFS`` (scale
-fitted by maximum likelihood) whose likelihood beats the Gaussian's (scale fitted) by more than
+fitted by maximum likelihood, ``t_scale_em``) whose likelihood beats the Gaussian's (scale fitted) by more than
 ``LR_NATS``, the upper 5 % of chi2(1) / 2, or inf. Where it finds one, a repeat's noise is that
 Student-t at the learned noise sd (``unit_noise``); Gaussian readings keep Gaussian repeats and
 the very same random draws, but for the 1-2 % the test takes for heavy-tailed.
@@ -22,16 +22,62 @@ Gaussian recordings unchanged (0.93); the noisy family of benchmarks/bench_flatn
 runs: Student-t 3 dof and 1-2 % gross errors of 50 um) 0.908 -> 0.956 and 0.910 -> 0.964.
 Drawn at the t's own fitted scale instead of the learned sd, the same runs held 0.838 and
 0.818 (the bulk too narrow where gross errors set the tail): not adopted.
+
+The Student-t pieces (``t_logpdf``, the EM scale fit, ``tail_gains``) are explain's too: its
+heavy-tailed noise model (``analysis.explain.heavy``) and its suspect readings
+(``analysis.explain.suspects``) import them from here. This module loads neither scipy.stats
+nor the explain package, so the flatness path stays light.
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize_scalar
-from scipy.stats import t as student_t
+from scipy import special
 
 DOFS = (2.5, 3.0, 4.0, 6.0, 10.0)
 LR_NATS = 1.9207  # chi2(1) upper 5 % point 3.841, halved
 MIN_READINGS = 12  # fewer residuals tell no tail
+EM_STEPS = 60
+LOG_SQRT_2PI = float(np.log(np.sqrt(2 * np.pi)))
+
+
+def t_logpdf(x, df):
+    """Student-t log density (finite df): scipy.stats.t.logpdf's formula, without loading
+    scipy.stats (about half of explain's start-up)."""
+    return (np.log(special.poch(0.5 * df, 0.5)) - 0.5 * (np.log(df) + np.log(np.pi))
+            - (df + 1) / 2 * np.log1p(x * x / df))
+
+
+def t_scale_em(r: np.ndarray, nu: float, refit=None) -> tuple[np.ndarray, float]:
+    """Maximum likelihood scale s^2 of residuals r under Student-t noise of ``nu`` dof, by EM (a
+    scale mixture of normals: w_i = (nu + 1) / (nu + r_i^2 / s^2), s^2 = sum w_i r_i^2 / n);
+    with ``refit`` (weights -> residuals of the weighted fit) the fit too. (r, s^2)."""
+    s2 = max(float(r @ r) / r.size, 1e-300)
+    for _ in range(EM_STEPS):
+        w = (nu + 1.0) / (nu + r * r / s2)
+        if refit is not None:
+            r = refit(w)
+        s2_new = max(float(np.sum(w * r * r)) / r.size, 1e-300)
+        done = abs(s2_new - s2) <= 1e-10 * s2
+        s2 = s2_new
+        if done:
+            break
+    return r, s2
+
+
+def t_loglik_at(r: np.ndarray, s2: float, nu: float) -> float:
+    """Student-t log likelihood of residuals r at scale s^2."""
+    return float(np.sum(t_logpdf(r / np.sqrt(s2), nu))) - 0.5 * r.size * np.log(s2)
+
+
+def tail_gains(residual, dofs) -> np.ndarray:
+    """l_nu - l_N per nu in ``dofs``: the Student-t's maximised log likelihood of residuals held
+    fixed (its scale fitted, ``t_scale_em``) less the Gaussian's (its scale fitted)."""
+    r = np.asarray(residual, float)
+    if not np.any(r):  # no scatter at all (readings exactly the nominal): no tail to judge
+        return np.zeros(len(dofs))
+    s2n = max(float(r @ r) / r.size, 1e-300)
+    base = -r.size * (LOG_SQRT_2PI + 0.5 * np.log(s2n) + 0.5)
+    return np.array([t_loglik_at(r, t_scale_em(r, nu)[1], nu) - base for nu in dofs])
 
 
 def standardized_residuals(rows, belief, heights, noise_std_mm: float) -> np.ndarray:
@@ -50,14 +96,9 @@ def tail_dof(z) -> float:
     z = z[np.isfinite(z)]
     if len(z) < MIN_READINGS or not np.any(z):
         return np.inf
-    sigma = float(np.sqrt(np.mean(z**2)))
-    best, best_ll = np.inf, -0.5 * len(z) * (np.log(2 * np.pi * sigma**2) + 1.0) + LR_NATS
-    for nu in DOFS:
-        fit = minimize_scalar(lambda ls: -float(np.sum(student_t.logpdf(z, nu, scale=np.exp(ls)))),
-                              bounds=(np.log(sigma) - 6.0, np.log(sigma) + 1.0), method="bounded")
-        if -fit.fun > best_ll:
-            best, best_ll = nu, -fit.fun
-    return best
+    gain = tail_gains(z, DOFS)
+    best = int(np.argmax(gain))
+    return DOFS[best] if gain[best] > LR_NATS else np.inf
 
 
 def tail_dof_of(rows, belief, heights, noise_std_mm: float) -> float:

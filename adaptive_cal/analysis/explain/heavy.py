@@ -41,11 +41,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from adaptive_cal.analysis.explain.suspects import LOG_SQRT_2PI, model_terms, t_logpdf
+from adaptive_cal.analysis import tails
+from adaptive_cal.analysis.explain.suspects import model_terms
+from adaptive_cal.analysis.tails import LOG_SQRT_2PI, t_loglik_at, t_scale_em
 
 NU_GRID = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.0, 20.0, 50.0)  # Student-t dof tried; inf = Gaussian
 GAUSSIAN_PRIOR = 0.5  # prior probability of Gaussian noise; the rest spread over NU_GRID
-EM_STEPS = 60
 
 
 def _fit(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -62,41 +63,15 @@ def gaussian_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray) -> float:
     return -y.size * (LOG_SQRT_2PI + 0.5 * np.log(s2) + 0.5)
 
 
-def _em(r: np.ndarray, nu: float, refit=None) -> tuple[np.ndarray, float]:
-    """EM for Student-t noise of ``nu`` dof (module docstring): the scale s^2 of residuals r and,
-    with ``refit`` (weights -> residuals of the weighted fit), the fit too. (r, s^2)."""
-    s2 = max(float(r @ r) / r.size, 1e-300)
-    for _ in range(EM_STEPS):
-        w = (nu + 1.0) / (nu + r * r / s2)
-        if refit is not None:
-            r = refit(w)
-        s2_new = max(float(np.sum(w * r * r)) / r.size, 1e-300)
-        done = abs(s2_new - s2) <= 1e-10 * s2
-        s2 = s2_new
-        if done:
-            break
-    return r, s2
-
-
-def _t_loglik_at(r: np.ndarray, s2: float, nu: float) -> float:
-    """Student-t log likelihood of residuals r at scale s^2."""
-    return float(np.sum(t_logpdf(r / np.sqrt(s2), nu))) - 0.5 * r.size * np.log(s2)
-
-
 def t_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, nu: float) -> float:
     """max log likelihood under Student-t noise of ``nu`` dof (EM in the module docstring)."""
-    r, s2 = _em(_fit(D, y, penalty, np.ones(y.size)), nu, lambda w: _fit(D, y, penalty, w))
-    return _t_loglik_at(r, s2, nu)
+    r, s2 = t_scale_em(_fit(D, y, penalty, np.ones(y.size)), nu, lambda w: _fit(D, y, penalty, w))
+    return t_loglik_at(r, s2, nu)
 
 
 def tail_gains(residual: np.ndarray) -> np.ndarray:
-    """l_nu - l_N per nu in ``NU_GRID`` of residuals held fixed (the scale fitted: EM)."""
-    r = np.asarray(residual, float)
-    if not np.any(r):  # no scatter at all (readings exactly the nominal): no tail to judge
-        return np.zeros(len(NU_GRID))
-    s2n = max(float(r @ r) / r.size, 1e-300)
-    base = -r.size * (LOG_SQRT_2PI + 0.5 * np.log(s2n) + 0.5)
-    return np.array([_t_loglik_at(r, _em(r, nu)[1], nu) - base for nu in NU_GRID])
+    """l_nu - l_N per nu in ``NU_GRID`` of residuals held fixed (``analysis.tails.tail_gains``)."""
+    return tails.tail_gains(residual, NU_GRID)
 
 
 def noise_dof(gain: np.ndarray) -> float:

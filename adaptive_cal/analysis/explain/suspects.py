@@ -42,6 +42,7 @@ from scipy import special
 from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
 from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design
 from adaptive_cal.analysis.explain.evidence import prior_precision
+from adaptive_cal.analysis.tails import LOG_SQRT_2PI, t_logpdf
 from adaptive_cal.formats.recording import RecordingError
 
 RATE = 0.005  # prior share of gross errors among the fused readings (the loop's gate and retake
@@ -92,16 +93,6 @@ def predictive(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, keep: np.ndarr
     rss_i = np.where(keep, rss - e ** 2 / (1.0 - q_in), rss)  # least squares: exact
     dof_i = np.maximum(dof - keep.astype(float), 1.0)
     return loo, factor, np.maximum(rss_i, 0.0) / dof_i, dof_i
-
-
-LOG_SQRT_2PI = float(np.log(np.sqrt(2 * np.pi)))
-
-
-def t_logpdf(x, df):
-    """Student-t log density (finite df): scipy.stats.t.logpdf's formula, without loading
-    scipy.stats (about half of explain's start-up)."""
-    return (np.log(special.poch(0.5 * df, 0.5)) - 0.5 * (np.log(df) + np.log(np.pi))
-            - (df + 1) / 2 * np.log1p(x * x / df))
 
 
 def _gross_logpdf(e, scale):
