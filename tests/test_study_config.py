@@ -109,9 +109,14 @@ def test_overrides_set_keys_strategies_and_plates_and_name_bad_keys():
     for item, words in (("bound.true_rms_mm", "expected KEY=VALUE"),
                         ("plates.x=1", "'plates' is not a block"),
                         ("bound.mean_std_mm=-1", "bound.mean_std_mm"),
-                        ("bound.mean_std_mm=1e-9", "noise floor")):
+                        ("bound.mean_std_mm=1e-9", "noise floor"),
+                        ("bound.max_touches=[1,", r"--set bound.max_touches=\[1,: the value is "
+                         "not YAML")):
         with pytest.raises(ConfigError, match=words):
             apply_overrides(study, base, settings=[item])
+    for empty in ("", " , "):  # an empty list is refused, not taken for "the file's"
+        with pytest.raises(ConfigError, match="name at least one strategy"):
+            apply_overrides(study, base, strategies=empty)
 
 
 def test_a_budget_below_the_papers_first_round_is_refused_with_paper():
@@ -123,6 +128,8 @@ def test_a_budget_below_the_papers_first_round_is_refused_with_paper():
 
 
 def test_a_damaged_checkpoint_is_named_and_records_that_are_not_plates_run_again(tmp_path):
+    """A damaged line in the middle is skipped and its number told; the records after it are
+    kept (an outside audit: one blank line threw away the 10 records after it, silently)."""
     from adaptive_cal.study.checkpoint import read_checkpoint
 
     f = tmp_path / "plates.jsonl"
@@ -130,9 +137,12 @@ def test_a_damaged_checkpoint_is_named_and_records_that_are_not_plates_run_again
         f.write_text(first + "\n")
         with pytest.raises(ValueError, match=r"plates\.jsonl: not a study's checkpoint"):
             read_checkpoint(f, "k")
-    f.write_text('{"study_key": "k"}\n{"plate": 0, "strategy": "grid"}\n[1, 2]\n'
-                 '{"plate": 1, "strategy": "grid"}\n')
-    assert read_checkpoint(f, "k") == [{"plate": 0, "strategy": "grid"}]
+    f.write_text('{"study_key": "k"}\n{"plate": 0, "strategy": "grid"}\n[1, 2]\n\n'
+                 '{"plate": 1, "strategy": "grid"}\n{"plate": 0, "strategy": "grid"}\n{"pla')
+    skipped = []
+    assert read_checkpoint(f, "k", skipped) == [{"plate": 0, "strategy": "grid"},
+                                                {"plate": 1, "strategy": "grid"}]
+    assert skipped == [3]  # the blank line is no damage, the cut last line an interruption's
     with pytest.raises(ValueError, match="another study .*another --out, or another --json"):
         read_checkpoint(f, "j")
 
@@ -174,3 +184,20 @@ def test_outputs_that_would_overwrite_what_they_should_not_are_refused(tmp_path,
     assert main(["study", str(SMOKE), "--json", str(precious)]) == 2
     assert "is not an earlier study's --json" in capsys.readouterr().err
     assert json.loads(precious.read_text()) == {"calibration": "do not lose"}
+
+
+def test_settings_that_change_nothing_are_said():
+    """Drawn-plate keys beside plate.surface_files are warned about; a study without the
+    adaptive strategy says why it has no lower bound (an outside audit: both were silent)."""
+    from adaptive_cal.cli.study import ignored
+    from adaptive_cal.study.summary import summarise
+
+    study, _ = load_study(SMOKE)
+    assert ignored(study) == []
+    maps = study.model_copy(update={"plate": study.plate.model_copy(
+        update={"surface_files": "maps/*.csv", "tilt_deg": 0.9})})
+    (line,) = ignored(maps)
+    assert line.startswith("plate.tilt_deg, plate.form_pv_mm not used: plate.surface_files") \
+        or line.startswith("plate.tilt_deg not used: plate.surface_files"), line
+    grid_only = study.model_copy(update={"strategies": ["grid"]})
+    assert "does not run" in summarise(grid_only, [])["lower_bound"]["why_none"]

@@ -44,3 +44,48 @@ def test_an_output_that_is_an_input_is_refused_before_any_plate(study, tmp_path,
         assert option in err and ("itself" in err or "not an earlier study" in err)
         assert (target.read_text() if target.exists() else None) == before
         assert not (tmp_path / "out" / "plates.jsonl").exists() or what == "checkpoint"
+
+
+def test_an_output_that_cannot_be_written_or_a_page_without_its_folder_is_refused_first(
+        study, tmp_path):
+    """--json and --doc are written after the whole study: a place that cannot take them, or a
+    page whose links would point at nothing (--doc without --out), is refused before any plate
+    runs (an outside audit: --json /proc/x.json failed after every run, naming a temp file)."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        probe = ro / "probe"
+        try:
+            probe.write_text("")
+            root = True  # root writes anyway: the read-only folder cannot be tested here
+        except PermissionError:
+            root = False
+        cases = [(["--json", "/proc/x.json", "--out", tmp_path / "out"], "--json /proc/x.json"),
+                 (["--json", tmp_path / "o.json", "--doc", tmp_path / "page.md"],
+                  "needs --out DIR")]
+        if not root:
+            cases.append((["--json", tmp_path / "o.json", "--out", tmp_path / "out", "--doc",
+                           ro / "page.md"], "cannot write in"))
+        for args, words in cases:
+            code, err = _run(study, *args)
+            assert code == 2 and words in err, err
+            assert not (tmp_path / "out" / "plates.jsonl").exists()
+    finally:
+        ro.chmod(0o700)
+
+
+def test_a_second_study_on_the_same_checkpoint_is_refused_while_the_first_holds_it(
+        study, tmp_path):
+    """Two studies on one --out: the second used to replace plates.jsonl under the first, whose
+    later records then went to the replaced file (an outside audit: 8 of 12 lost)."""
+    from adaptive_cal.study.checkpoint import Checkpoint
+
+    held = Checkpoint(tmp_path / "out" / "plates.jsonl", "k")
+    try:
+        code, err = _run(study, "--json", tmp_path / "o.json", "--out", tmp_path / "out")
+        assert code == 2 and "another study is writing to it now" in err, err
+    finally:
+        held.close()
+    again = Checkpoint(tmp_path / "out" / "plates.jsonl", "k")  # free once the first is done
+    again.close()

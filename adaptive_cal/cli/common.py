@@ -165,6 +165,24 @@ def _same(a: Path, b: Path) -> bool:
         return False
 
 
+def check_writable(option: str, out) -> None:
+    """UserError naming ``option`` unless a file can be made where ``out`` goes: a scratch file
+    is made and removed in its nearest existing folder (folders still missing are made later,
+    by the writer). For outputs written at the end of long work, checked before it starts (an
+    outside audit: --json /proc/x.json failed after the whole study, naming a temporary file)."""
+    import tempfile
+
+    folder = next((q for q in Path(out).absolute().parents if q.exists()), None)
+    if folder is None or not folder.is_dir():
+        return  # the caller names a file standing where a folder should
+    try:
+        with tempfile.TemporaryFile(dir=folder, prefix=".adaptive-cal-check-"):
+            pass
+    except OSError as e:
+        raise UserError(f"{option} {out}: cannot write in {folder} "
+                        f"({e.strerror or type(e).__name__}); give another place") from None
+
+
 def refuse_input_as_output(option: str, out, inputs, folders=(), also=()) -> None:
     """Raise UserError when the output ``out`` of ``option`` is one of the ``inputs`` (same file,
     resolved, links followed) or one of the measurement files of a run folder: the ``folders``

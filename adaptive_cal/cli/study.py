@@ -2,7 +2,8 @@
 synthetic plates under every strategy, a lower bound on touches, tables and plots.
 
 Plates finished are appended to DIR/plates.jsonl (or OUT.json's name + .plates.jsonl) as they
-finish; an interrupted study keeps them and a rerun skips them. Progress goes to stderr (a start
+finish; an interrupted study (Ctrl-C, SIGTERM, a kill) keeps them and a rerun skips them; a
+second study on the same checkpoint is refused while the first runs. Progress goes to stderr (a start
 line, then runs finished with the time taken and a rough time left), the table to stdout. The
 work is the library's (``adaptive_cal.study``); this module parses arguments, prepares Dask
 workers and reports progress.
@@ -147,15 +148,18 @@ def _where(args) -> str:
 
 
 #: what a study writes into --out (study.figures.write_summary and its checkpoint)
-OUT_FILES = ("plates.jsonl", "table.md", "touches_vs_bound.png", "coverage.png",
-             "example_plate.png")
+OUT_FILES = ("plates.jsonl", "plates.jsonl.lock", "table.md", "touches_vs_bound.png",
+             "coverage.png", "example_plate.png")
 
 
 def _check_outputs(args, study, checkpoint: Path) -> None:
     """Before any plate runs: --json and --doc overwrite neither the study file, its cell file,
     the checkpoint nor each other, and each can be written (its folder is not a file)."""
-    from adaptive_cal.cli.common import UserError, refuse_input_as_output
+    from adaptive_cal.cli.common import UserError, check_writable, refuse_input_as_output
 
+    if args.doc and not args.out:
+        raise UserError(f"--doc {args.doc} needs --out DIR: the page links the table and the "
+                        "figures the study writes there")
     inputs = [args.study, checkpoint]
     if isinstance(study.cell, str):
         cell = Path(study.cell)
@@ -168,6 +172,7 @@ def _check_outputs(args, study, checkpoint: Path) -> None:
         parent = next((q for q in Path(out).absolute().parents if q.exists()), None)
         if parent is not None and not parent.is_dir():
             raise UserError(f"{option} {out}: {parent} is a file, not a folder")
+        check_writable(option, out)
     if args.out:  # the files the study writes into --out
         written = {(Path(args.out) / n).absolute(): n for n in OUT_FILES}
         for option, out in outs:
@@ -188,6 +193,48 @@ def _check_outputs(args, study, checkpoint: Path) -> None:
         raise UserError(f"--doc {args.doc} is --json {args.json}: give two files")
 
 
+def ignored(study) -> list[str]:
+    """The study's settings that change nothing, one line each: the drawn plate's keys where
+    plate.surface_files gives the plates (an outside audit: ignored without a word). (A lower
+    bound without the adaptive strategy says why in the summary's ``lower_bound.why_none``.)"""
+    from adaptive_cal.study.config import PlateDistribution
+
+    out = []
+    plate, default = study.plate, PlateDistribution()
+    if plate.surface_files is not None:
+        drawn = [k for k in ("tilt_deg", "offset_mm", "form_pv_mm", "form_shapes")
+                 if getattr(plate, k) != getattr(default, k)]
+        if drawn:
+            out.append(", ".join(f"plate.{k}" for k in drawn) + " not used: "
+                       "plate.surface_files gives the plates (each map with the base cell's "
+                       "simulation.effects on top)")
+    return out
+
+
+class _sigterm_as_ctrl_c:
+    """SIGTERM (a service manager, a timeout) stops the study as Ctrl-C does: the runs finished
+    are said to be kept (an outside audit: SIGTERM exited 143 without a word)."""
+
+    def __enter__(self):
+        import signal
+
+        def stop(signum, frame):
+            raise KeyboardInterrupt
+
+        try:
+            self.old = signal.signal(signal.SIGTERM, stop)
+        except ValueError:  # not the main thread: leave SIGTERM as it is
+            self.old = None
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self.old is not None:
+            signal.signal(signal.SIGTERM, self.old)
+        return False
+
+
 def command(args) -> int:
     from adaptive_cal.study.config import load_study
     from adaptive_cal.study.doc import write_doc
@@ -203,6 +250,8 @@ def command(args) -> int:
     checkpoint = (out_dir / "plates.jsonl" if out_dir
                   else out_json.with_name(out_json.name + ".plates.jsonl"))
     _check_outputs(args, study, checkpoint)
+    for line in ignored(study):
+        print(f"warning: {line}", file=sys.stderr)
     runs = study.plates * len(study.strategies)
     progress = Progress(study.name, runs, checkpoint, per_plate=len(study.strategies))
     if not args.quiet:
@@ -219,8 +268,11 @@ def command(args) -> int:
         except SchedulerError as e:  # the address given is wrong or down: the user's to fix
             raise UserError(f"--scheduler {args.scheduler}: {e}") from None
     try:
-        records = run_study(study, base, checkpoint, client=client, worker_setup=worker_setup,
-                            progress=None if args.quiet else progress)
+        with _sigterm_as_ctrl_c():
+            records = run_study(study, base, checkpoint, client=client,
+                                worker_setup=worker_setup,
+                                progress=None if args.quiet else progress,
+                                warn=lambda text: print(f"warning: {text}", file=sys.stderr))
     except KeyboardInterrupt:
         progress.close()
         kept = _kept(checkpoint, study, base)

@@ -2,7 +2,12 @@
 
 The first line names the study (a hash of the study and its base cell, and of its height maps'
 names and bytes), so a checkpoint of another study is never mixed in; a line cut by an
-interruption is dropped and that plate runs again.
+interruption is dropped and that plate runs again. A damaged line elsewhere (not a plate's
+record) is skipped and named, the records after it kept; a plate's record given twice counts
+once. While a study runs it holds a lock on the checkpoint (``plates.jsonl.lock`` beside it):
+a second study on the same checkpoint is refused, where it used to replace the file under the
+first one, whose later records then went to the replaced file and were lost (an outside audit,
+2026-11-29).
 """
 from __future__ import annotations
 
@@ -10,6 +15,10 @@ import glob
 import hashlib
 import json
 import os
+try:
+    import fcntl
+except ImportError:  # not POSIX: no lock (one study per folder is then the user's to keep)
+    fcntl = None
 from pathlib import Path
 from typing import Iterable
 
@@ -56,7 +65,10 @@ def study_key(study: Study, base: dict) -> str:
     return key if maps is None else f"{key}-{maps}"
 
 
-def read_checkpoint(path: Path, key: str) -> list[dict]:
+def read_checkpoint(path: Path, key: str, skipped: list | None = None) -> list[dict]:
+    """The plate records of ``path`` for the study ``key`` (ValueError naming the file where it
+    holds another study's). ``skipped``: the numbers of damaged lines (not a plate's record,
+    and not the last line, which an interruption may cut) are appended to it."""
     if not path.exists():
         return []
     lines = path.read_text(encoding="utf-8").splitlines()
@@ -81,15 +93,21 @@ def read_checkpoint(path: Path, key: str) -> list[dict]:
         raise ValueError(f"{path} holds plates of another study (key {head['study_key']}, "
                          f"this study {key}; its plates, strategies, seed or settings differ): "
                          f"{where}")
-    records = []
-    for line in lines[1:]:
+    records, seen = [], set()
+    for number, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
         try:
             record = json.loads(line)
-        except json.JSONDecodeError:  # a line cut by the interruption: that plate runs again
-            break
+        except json.JSONDecodeError:
+            record = None
         if not isinstance(record, dict) or not {"plate", "strategy"} <= record.keys():
-            break  # not a plate's record: it and what follows run again
-        records.append(record)
+            if number < len(lines) and skipped is not None:  # not the last line: damage
+                skipped.append(number)
+            continue  # the last line cut by an interruption, or a damaged one: it runs again
+        if (record["plate"], record["strategy"]) not in seen:
+            seen.add((record["plate"], record["strategy"]))
+            records.append(record)
     return records
 
 
@@ -99,15 +117,21 @@ class Checkpoint:
     def __init__(self, path: Path, key: str):
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
-        self.records = read_checkpoint(path, key)
-        # rewrite without a cut last line (atomically), then append
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(json.dumps({"study_key": key}) + "\n")
-            for r in self.records:
-                f.write(json.dumps(r) + "\n")
-        os.replace(tmp, path)
-        self._f = open(path, "a", encoding="utf-8")
+        self._lock = _lock(path)
+        try:
+            self.skipped: list[int] = []
+            self.records = read_checkpoint(path, key, self.skipped)
+            # rewrite without a cut last line (atomically), then append
+            tmp = path.with_name(path.name + ".tmp")
+            with open(tmp, "w", encoding="utf-8") as f:
+                f.write(json.dumps({"study_key": key}) + "\n")
+                for r in self.records:
+                    f.write(json.dumps(r) + "\n")
+            os.replace(tmp, path)
+            self._f = open(path, "a", encoding="utf-8")
+        except BaseException:
+            self._lock.close()
+            raise
 
     def done(self) -> set[tuple[int, str]]:
         return {(r["plate"], r["strategy"]) for r in self.records}
@@ -121,3 +145,21 @@ class Checkpoint:
 
     def close(self) -> None:
         self._f.close()
+        self._lock.close()  # the lock goes with the file; the lock file stays (no race)
+
+
+def _lock(path: Path):
+    """An open lock file beside ``path``, locked for this process (``fcntl.flock``; released
+    when it is closed or the process ends, a kill included). ValueError naming the checkpoint
+    where another study holds it."""
+    lock = open(path.with_name(path.name + ".lock"), "a")
+    if fcntl is None:
+        return lock
+    try:
+        fcntl.flock(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.close()
+        raise ValueError(f"{path}: another study is writing to it now (it holds "
+                         f"{path.name}.lock); wait for it to end, or write this study elsewhere "
+                         "(another --out, or another --json)") from None
+    return lock

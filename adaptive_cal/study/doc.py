@@ -70,6 +70,8 @@ touches), `table.md`; per-plate records in `{out_dir}/plates.jsonl`.
 * Each finished plate is appended to `plates.jsonl` at once; an interrupted study keeps them, and
   the same command skips them on the rerun. Its key covers the height maps' names and bytes: a
   map added, removed or rewritten makes another study, and the rerun refuses the old plates.
+  A second study on the same `plates.jsonl` is refused while the first runs (a lock beside it,
+  `plates.jsonl.lock`); a damaged line is skipped and named, the records after it kept.
 * A plate of `plate.surface_files` is its map with the base cell's `simulation.effects` added on
   top (as a cell's own `simulation.surface_file`); a drawn plate's tilt and form replace them.
 * A study file is validated like a cell file: unknown keys are refused, and distributions no

@@ -26,7 +26,11 @@ def set_key(data: dict, item: str) -> dict:
             raise ConfigError(f"--set {key}: {part!r} is not a block of the study file")
         node[part] = dict(node[part])
         node = node[part]
-    node[leaf] = yaml.safe_load(value)
+    try:
+        node[leaf] = yaml.safe_load(value)
+    except yaml.YAMLError as e:
+        problem = getattr(e, "problem", None) or type(e).__name__
+        raise ConfigError(f"--set {key}={value}: the value is not YAML ({problem})") from None
     return out
 
 
@@ -40,6 +44,8 @@ def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
     the study file (``study_path``), not to the folder the command runs in."""
     if plates is not None and plates < 1:
         raise ConfigError(f"--plates {plates}: a study runs at least 1 plate")
+    if strategies is not None and not [s for s in strategies.split(",") if s.strip()]:
+        raise ConfigError(f"--strategies {strategies!r}: name at least one strategy")
     if not (plates or strategies or settings):
         return study
     data = study.model_dump(mode="json")

@@ -63,18 +63,24 @@ def connect(scheduler: str | None, workers: int, timeout_s: float = 5.0):
 def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
               worker_setup: Callable[[], None] | None = None,
               progress: Callable[[int, int], None] | None = None,
-              limit: int | None = None) -> list[dict]:
+              limit: int | None = None,
+              warn: Callable[[str], None] | None = None) -> list[dict]:
     """Run every plate not yet in ``checkpoint``; returns all records. ``client``: a Dask client
     (None: in-process, float64 already on). ``worker_setup``: called in the worker before each
     task (e.g. ``adaptive_cal.use_float64``: a fresh worker process has JAX in float32, and a
     task refuses to run so). ``progress(done, total)``: runs (one strategy on one plate) finished
     of those still to do, called with 0 before the first and after each one in-process (a Dask
     task reports a plate's per-plate strategies, or one fixed design's plates, at once).
-    ``limit`` stops after that many new tasks (tests of interruption)."""
+    ``limit`` stops after that many new tasks (tests of interruption). ``warn(text)``: told of
+    damaged lines of the checkpoint, skipped (their runs go again, the records after them kept)."""
     parse_cell(base)  # fails early on a bad cell
     key = study_key(study, base)
     ck = Checkpoint(checkpoint, key)
     try:
+        if ck.skipped and warn is not None:
+            lines = ", ".join(map(str, ck.skipped))
+            warn(f"{checkpoint}: line{'s' * (len(ck.skipped) > 1)} {lines} not a plate's record "
+                 "(damaged?): skipped, and a run it held goes again; the records after it are kept")
         per_plate, fixed = _jobs(study, ck.done())
         data = study.model_dump(mode="json")
         total = sum(map(len, per_plate.values())) + sum(map(len, fixed.values()))

@@ -72,6 +72,11 @@ def summarise(study: Study, records: list[dict]) -> dict:
         "adaptive_over_relaxed": _mean(to_bound(r) / r["relaxed_touches"] for r in lb
                                        if r["relaxed_touches"]),  # lb: finite ones only
     }
+    if not lb and not beyond:  # none computed: say why (an outside audit read a bare 0)
+        out["lower_bound"]["why_none"] = (
+            "lower_bound.plates is 0" if not study.lower_bound.plates else
+            "computed beside the adaptive strategy, which this study does not run"
+            if "adaptive" not in study.strategies else "no adaptive record holds one")
     whole = [r for r in lb if r.get("relaxed_whole_touches") is not None]
     if whole:  # the relaxation rounded up to whole touches: the tightest bound computed
         out["lower_bound"].update(
@@ -215,8 +220,9 @@ def table(summary: dict) -> str:
                   f"{_f(vp.get('adaptive_touches_to_paper_mean_accuracy'))} touches (ratio "
                   f"{_f(vp.get('touch_ratio_mean_accuracy'), 1, '{:.2f}')})"
                   + (f". The paper's own map (last round's readings interpolated) has true RMS "
-                     f"{vp['paper_native_true_rms_mm_mean'] * 1e3:.2f} um; adaptive reaches it "
-                     f"with {vp['adaptive_touches_to_paper_native_accuracy_mean']:.1f} touches "
+                     f"{vp['paper_native_true_rms_mm_mean'] * 1e3:.2f} um on average; adaptive reaches "
+                     "each plate's own-map accuracy with "
+                     f"{vp['adaptive_touches_to_paper_native_accuracy_mean']:.1f} touches "
                      f"(ratio {vp['touch_ratio_native']:.2f})" if "touch_ratio_native" in vp
                      else "")]
     return "\n".join(lines)
