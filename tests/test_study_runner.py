@@ -65,6 +65,11 @@ def test_interrupted_study_keeps_finished_plates(tmp_path):
     path = tmp_path / "plates.jsonl"
     first = run_study(study, base, path, limit=1)  # "interrupted" after one plate
     assert len(first) == 1
+    from adaptive_cal.study.plates import sample_plate
+
+    drawn = sample_plate(study, first[0]["plate"])  # the record names its plate's truth
+    assert first[0]["simulation"]["effects"] == drawn.effects
+    assert first[0]["simulation"]["seed"] == drawn.seed
     with open(path, "a") as f:
         f.write('{"cut": ')  # a line cut by the interruption
     calls = []
@@ -224,6 +229,8 @@ def test_a_bound_stop_on_the_last_touch_of_the_budget_pays_no_closure():
     budget = study.bound.max_touches
     ctx = SimpleNamespace(plan=SimpleNamespace(closure=True), study=study,
                           plate=SimpleNamespace(index=0, seed=1, noise_std_mm=0.01),
+                          cell=SimpleNamespace(simulation=SimpleNamespace(
+                              model_dump=lambda **kw: {})),
                           robot=lambda xy: (float(len(xy)), 0.0),
                           robot_time_s=lambda xy: float(len(xy)))
     final = dict(mean_std_mm=0.01, true_rms_mm=0.01, true_max_mm=0.02, coverage95=0.95)

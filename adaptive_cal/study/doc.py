@@ -67,7 +67,9 @@ touches), `table.md`; per-plate records in `{out_dir}/plates.jsonl`.
 * `--workers N` runs on a Dask LocalCluster of N processes; `--scheduler tcp://host:port` on a
   running cluster (start workers with `OPENBLAS_NUM_THREADS=1`). An unreachable scheduler fails
   within seconds naming the address.
-* Each finished plate is appended to `plates.jsonl` at once; an interrupted study keeps them, and
+* Each finished plate is appended to `plates.jsonl` at once (with its `simulation` block: the
+  drawn tilt and form or the map, the noise and the seed; the base cell with that block runs the
+  same plate through `adaptive-cal run`); an interrupted study keeps them, and
   the same command skips them on the rerun. Its key covers the height maps' names and bytes: a
   map added, removed or rewritten makes another study, and the rerun refuses the old plates.
   A second study on the same `plates.jsonl` is refused while the first runs (a lock beside it,

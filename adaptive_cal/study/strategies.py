@@ -77,7 +77,11 @@ def record(ctx: Context, strategy: str, trajectory: list, stop: int, final: dict
 
     A stop on a variance bound pays the closure touch a run makes there (``plan.closure``,
     ``run.loop``): one touch more and the trip back to the first touch, in ``touches`` and the
-    robot time (its reading, a repeat, is not in the figures: it adds little to the map)."""
+    robot time (its reading, a repeat, is not in the figures: it adds little to the map).
+
+    ``simulation``: the plate's simulation block (its drawn tilt and form, or its height map,
+    the noise and the seed), so that the plate can be checked or run again with ``adaptive-cal
+    run`` on the base cell with that block (an outside audit had to call internals for it)."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     reached = [t for t, _, rms in trajectory if rms <= target_true]
     true_touches = reached[0] if reached else None
@@ -87,6 +91,7 @@ def record(ctx: Context, strategy: str, trajectory: list, stop: int, final: dict
     paid = np.vstack([xy[:stop], xy[:1]]) if closes else xy[:stop]
     return {"strategy": strategy, "plate": ctx.plate.index, "seed": ctx.plate.seed,
             "noise_std_mm": ctx.plate.noise_std_mm, "touches": int(stop) + closes,
+            "simulation": ctx.cell.simulation.model_dump(mode="json", exclude_defaults=True),
             "stop_reason": stop_reason, "robot_time_s": ctx.robot_time_s(paid),
             "travel_mm": ctx.robot(paid)[1], "closure": closes,
             **{k: float(final[k]) for k in ("mean_std_mm", "true_rms_mm", "true_max_mm",
