@@ -376,3 +376,22 @@ def test_a_result_json_without_what_the_page_needs_is_named_not_an_internal_erro
         assert "internal error" not in err
         # where the map can come from instead
         assert f"adaptive-cal report {d / 'recording.csv'} --robot {d / 'cell.yaml'}" in err
+
+
+def test_a_map_older_than_its_recording_is_refused_naming_both_counts(run_dir, tmp_path, capsys):
+    """A resumed run killed before it saved again leaves result.json and belief.npz of fewer
+    touches than recording.csv: report and flatness refuse, naming both counts and the replay
+    (an outside audit: the page showed the 20-touch map under a 104-touch recording, exit 0)."""
+    d = tmp_path / "run"
+    shutil.copytree(run_dir, d)
+    lines = (d / "recording.csv").read_text(encoding="utf-8").splitlines(keepends=True)
+    last = lines[-1].split(",")
+    more = [",".join([str(int(last[0]) + k), *last[1:]]) for k in (1, 2)]
+    (d / "recording.csv").write_text("".join(lines) + "".join(
+        m if m.endswith("\n") else m + "\n" for m in more), encoding="utf-8")
+    touches = int(np.load(d / "belief.npz")["touches"])
+    for argv in (["report", str(d)], ["flatness", str(d / "recording.csv")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"holds {touches + 2} touches" in err and f"the first {touches}" in err, err
+        assert "--robot" in err and "run --resume" in err

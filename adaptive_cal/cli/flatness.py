@@ -143,10 +143,12 @@ def map_flatness(args, picked=None) -> dict | None:
         unresolved = sv.unresolved_var_mm2(plan, state, plan.eval_xy)
         weights = state.fused_weights
     else:
+        from adaptive_cal.cli.run_guards import refuse_stale_map
         from adaptive_cal.formats.npz import read_npz, unresolved_at
 
         data = read_npz(saved)
         check_belief(folder, plan.model.surface, data)
+        refuse_stale_map(folder, "flatness")
         belief = Belief(data["mean"], data["cov"])
         unresolved = unresolved_at(data, plan.eval_xy[:, 0], plan.eval_xy[:, 1])
         noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm

@@ -90,8 +90,12 @@ def _check_belief(run_dir: Path) -> None:
     from adaptive_cal.cli.flatness import check_belief
     from adaptive_cal.formats.npz import read_npz
 
+    from adaptive_cal.cli.run_guards import refuse_stale_map
+
     check_belief(run_dir, plan_model(load_run_cell(run_dir / "cell.yaml")).surface,
                  read_npz(run_dir / "belief.npz"), "report")
+    if (run_dir / "recording.csv").is_file():
+        refuse_stale_map(run_dir, "report")
 
 
 def _from_recording(recording, cell_file, out) -> "Path":

@@ -98,3 +98,30 @@ def check_prior_from(prior: Path, correction) -> None:
         raise UserError(f"--prior-from {prior}: not a run folder with a map, it has no "
                         "belief.npz (give the folder an earlier 'adaptive-cal run --out DIR' "
                         "wrote)")
+
+
+def refuse_stale_map(folder: Path, command: str) -> None:
+    """UserError where the run folder's recording holds more touches than the map saved beside
+    it (result.json, belief.npz): a resumed run stopped by a kill before it wrote them again.
+    The page or the flatness would show the older, smaller map beside the newer touches (an
+    outside audit: 20-touch figures under a 104-touch recording, exit 0). The message names
+    both counts and the replay that uses every touch."""
+    from adaptive_cal.formats.npz import read_npz
+    from adaptive_cal.formats.recording import read_recording
+
+    saved = read_npz(folder / "belief.npz", keys=(), optional=("touches",))
+    if "touches" not in saved:  # a map saved before the count was: nothing to compare
+        return
+    map_touches = int(saved["touches"])
+    rows = len(read_recording(folder / "recording.csv"))
+    if rows <= map_touches:
+        return
+    rec = folder / "recording.csv"
+    target = (f"adaptive-cal report {quoted(rec)} --robot {quoted(folder / 'cell.yaml')}"
+              if command == "report" else
+              f"adaptive-cal flatness {quoted(rec)} --robot {quoted(folder / 'cell.yaml')}")
+    raise UserError(f"{rec} holds {rows} touches, but the map saved beside it (result.json, "
+                    f"belief.npz) is of the first {map_touches}: the run went on after it was "
+                    f"saved (a resume) and was stopped before it saved again. To use every "
+                    f"touch, replay the recording: {target}; or finish the run: adaptive-cal "
+                    f"run --resume {quoted(folder)}")
