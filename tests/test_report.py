@@ -395,3 +395,28 @@ def test_a_map_older_than_its_recording_is_refused_naming_both_counts(run_dir, t
         err = capsys.readouterr().err
         assert f"holds {touches + 2} touches" in err and f"the first {touches}" in err, err
         assert "--robot" in err and "run --resume" in err
+
+
+def test_the_page_says_what_the_terminal_says_under_the_flatness_and_the_keep_outs(
+        run_dir, tmp_path, capsys):
+    """The page carries the terminal's lines the audit found missing: what the whole plate's
+    intervals held on plates the prior did not make, each never-touched keep-out's line, and
+    the readings weighted out of the map."""
+    from adaptive_cal.analysis.flatness_answer import PLATE_CALIBRATION
+    from adaptive_cal.analysis.local_features import weighted_out, weighted_out_line
+
+    d = tmp_path / "run"
+    shutil.copytree(run_dir, d)
+    page = _page(d, capsys)
+    result = json.loads((d / "result.json").read_text())
+    assert escape(PLATE_CALIBRATION) in page
+    texts = [k["text"] for k in result["keep_outs"]]
+    assert texts and all(escape(t) in page for t in texts)
+    assert result["weighted_out"] == [] and "weighted out of the map" not in page
+    out = weighted_out([4, 9, 12], [1.0, 0.5, 0.02])
+    assert out == [{"seq": 9, "outlier_probability": 0.5},
+                   {"seq": 12, "outlier_probability": 0.98}]
+    assert weighted_out_line(out).startswith("2 readings weighted out of the map as gross errors "
+                                             "(outlier probability >= 0.5): seq 9 (p 0.50), seq "
+                                             "12 (p 0.98); the touched points' figures include "
+                                             "them")

@@ -119,3 +119,23 @@ def feature_var_mm2(features, x_mm, y_mm) -> np.ndarray:
         inside = np.hypot(x - f["x_mm"], y - f["y_mm"]) <= r
         out = out + np.where(inside, f["departure_mm"] ** 2 + f["sd_mm"] ** 2, 0.0)
     return out
+
+
+def weighted_out(seqs, weights) -> list[dict]:
+    """The fused readings the map weighted out as gross errors (weight <= 0.5, an outlier
+    probability p = 1 - weight >= 0.5): [{seq, outlier_probability}]. Readings the map does not
+    follow either, so the run, the flatness command and the page name them alike."""
+    return [{"seq": int(q), "outlier_probability": round(1.0 - float(w), 4)}
+            for q, w in zip(seqs, weights) if w <= 0.5]
+
+
+def weighted_out_line(out: list[dict]) -> str | None:
+    """The line naming ``weighted_out``'s readings (None for none)."""
+    if not out:
+        return None
+    n = len(out)
+    shown = ", ".join(f"seq {w['seq']} (p {w['outlier_probability']:.2f})" for w in out[:5])
+    return (f"{n} reading{'s' * (n != 1)} weighted out of the map as gross error"
+            f"{'s' * (n != 1)} (outlier probability >= 0.5): {shown}{' ...' if n > 5 else ''}; "
+            f"the touched points' figures include {'them' if n != 1 else 'it'}, their intervals "
+            "(repeats of the map) do not")

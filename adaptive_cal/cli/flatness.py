@@ -120,7 +120,7 @@ def map_flatness(args, picked=None) -> dict | None:
         return None
     from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
     from adaptive_cal.analysis.flatness_intervals import spans_area
-    from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2
+    from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2, weighted_out
     from adaptive_cal.cell.build import survey_plan
     from adaptive_cal.cell.schema import load_cell, load_run_cell
     from adaptive_cal.formats.recording import read_recording
@@ -168,9 +168,8 @@ def map_flatness(args, picked=None) -> dict | None:
     out = flatness_answer(plan, belief, noise_mm, xyz, np.random.default_rng(args.seed),
                           args.samples or SAMPLES, unresolved, features, plan.learn)
     seq = rec.seq[rec.fused]
-    out["weighted_out"] = ([{"seq": int(q), "outlier_probability": round(1.0 - float(w), 4)}
-                            for q, w in zip(seq, weights if len(weights) == len(seq) else [])
-                            if w <= 0.5] if weights is not None else [])
+    out["weighted_out"] = (weighted_out(seq, weights if len(weights) == len(seq) else [])
+                           if weights is not None else [])
     return {"recording": str(rec_path) if args.round is None else picked.path,
             "map": source, "touches": len(xyz[2]),
             "noise_std_mm": noise_mm, **out, "local_features": features,
@@ -290,14 +289,10 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
 
 def _weighted_out(r: dict) -> list[str]:
     """A line naming the readings the map weighted out as gross errors (p >= 0.5)."""
-    out = r.get("weighted_out") or []
-    if not out:
-        return []
-    shown = ", ".join(f"seq {w['seq']} (p {w['outlier_probability']:.2f})" for w in out[:5])
-    return [f"  {len(out)} reading{'s' * (len(out) != 1)} weighted out of the map as gross "
-            f"error{'s' * (len(out) != 1)} (outlier probability >= 0.5): {shown}"
-            f"{' ...' if len(out) > 5 else ''}; the touched points' figures include "
-            f"{'them' if len(out) != 1 else 'it'}, their intervals (repeats of the map) do not"]
+    from adaptive_cal.analysis.local_features import weighted_out_line
+
+    line = weighted_out_line(r.get("weighted_out") or [])
+    return [f"  {line}"] if line else []
 
 
 LABELS = {"least_squares": "least squares", "minimum_zone": "minimum zone",

@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptive_cal.analysis.local_features import feature_line
+from adaptive_cal.analysis.local_features import feature_line, weighted_out_line
 from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE, OUTSIDE,
-                                                   OUTSIDE_NOTE, PLATE, SPREAD, gap_line,
+                                                   OUTSIDE_NOTE, PLATE, PLATE_CALIBRATION,
+                                                   SPREAD, gap_line,
                                                    touched_what, value_text, within_what)
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
@@ -154,6 +155,8 @@ def model_section(result: dict) -> str:
               f"{w['y_mm'][1]:.0f} mm", f"about {_um(w['unresolved_rms_mm'])} RMS unresolved "
               f"({count(w['readings'], 'reading')}): do not trust the map here to better than this")
              for w in m.get("where", [])]
+    rows += [("keep-out", escape(k["text"])) for k in result.get("keep_outs") or ()
+             if k.get("text")]  # never touched: what the map under it rests on
     c = result.get("closure")
     if c:  # the closure touch: did the cell drift during the run?
         rows.append(("closure touch (drift)", escape(c.get("text", ""))))
@@ -247,7 +250,11 @@ def flatness_section(result: dict) -> str:
     said = {f.get("value_is") for u in used for f in u.values() if isinstance(f, dict)}
     notes = [note for kind, note in ((MEDIAN, MEDIAN_NOTE), (OUTSIDE, OUTSIDE_NOTE))
              if kind in said]
+    if plate:
+        notes.append(PLATE_CALIBRATION)  # what the whole plate's intervals held elsewhere
     notes += [feature_line(f) for f in result.get("local_features") or ()]
+    if weighted_out_line(result.get("weighted_out") or []):
+        notes.append(weighted_out_line(result["weighted_out"]))
     if result.get("largest_gap"):
         notes.append(gap_line(result["largest_gap"]))
     head = ("<h2>Flatness (provisional)</h2><p><b>Provisional:</b> the map is not a result "

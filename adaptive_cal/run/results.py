@@ -12,7 +12,7 @@ import numpy as np
 
 from adaptive_cal.cell.build import plan_model, touch_floor
 from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
-from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2
+from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2, weighted_out
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.npz import read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
@@ -104,6 +104,8 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
                                 if rec is not None else [])
     lowered = reweighted(state, rec) if rec is not None else []
     result["model"]["reweighted"] = lowered
+    result["weighted_out"] = (weighted_out(rec.seq[rec.fused], state.fused_weights)
+                              if rec is not None and int(rec.fused.sum()) == state.fused else [])
     if lowered:
         shown = ", ".join(f"seq {r['seq']} p {r['outlier_probability']:.2f}" for r in lowered[:3])
         more = f" and {len(lowered) - 3} more" if len(lowered) > 3 else ""
