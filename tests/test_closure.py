@@ -265,6 +265,8 @@ def test_studies_charge_the_closure_to_bound_stops_only():
         return SimpleNamespace(plan=SimpleNamespace(closure=closure), robot=robot,
                                robot_time_s=lambda xy: robot(xy)[0],
                                plate=SimpleNamespace(index=0, seed=1, noise_std_mm=0.005),
+                               cell=SimpleNamespace(simulation=SimpleNamespace(
+                                   model_dump=lambda **kw: {})),
                                study=SimpleNamespace(bound=SimpleNamespace(max_touches=60)))
 
     xy = np.array([[100.0, 0.0], [100.0, 300.0], [400.0, 300.0]])
