@@ -3,10 +3,10 @@ synthetic plates under every strategy, a lower bound on touches, tables and plot
 
 Plates finished are appended to DIR/plates.jsonl (or OUT.json's name + .plates.jsonl) as they
 finish; an interrupted study (Ctrl-C, SIGTERM, a kill) keeps them and a rerun skips them; a
-second study on the same checkpoint is refused while the first runs. Progress goes to stderr (a start
-line, then runs finished with the time taken and a rough time left), the table to stdout. The
-work is the library's (``adaptive_cal.study``); this module parses arguments, prepares Dask
-workers and reports progress.
+second study on the same checkpoint is refused while the first runs. Progress goes to stderr
+(a start line, then runs finished with the time taken and a rough time left), the table to
+stdout. The work is the library's (``adaptive_cal.study``); this module parses arguments,
+prepares Dask workers and reports progress.
 """
 from __future__ import annotations
 
