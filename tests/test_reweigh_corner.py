@@ -4,7 +4,7 @@ An outside audit (2026-11-29): a 10 x 4 grid recording of a tilted, bowed plate 
 moved to the workplane's corner, its reading kept (0.38 mm off there). One judgement after the
 first fit gave it p 0.90, and weight 0.1 still held the map: the whole plate's least squares
 read 851 um (95 % 579 .. 1247) against the plate's 214 um, the tilt's sd 100 x too wide. Judged
-again after the refit (``planning.survey.REWEIGH_PASSES``) its weight falls to ~0 and the map is
+again after the refit (``planning.robust.REWEIGH_PASSES``) its weight falls to ~0 and the map is
 that of the other 39 readings."""
 import contextlib
 import io

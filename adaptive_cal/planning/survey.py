@@ -36,7 +36,7 @@ from adaptive_cal.planning.adequacy import Adequacy, assess
 from adaptive_cal.planning.closure import Closure
 from adaptive_cal.planning.gate import (FLAG_P, Retake, Told, flagged_p, judge as gate_judge,
                                         pending_after)
-from adaptive_cal.planning.robust import (W_MIN, InvalidReading, check_touch,  # noqa: F401
+from adaptive_cal.planning.robust import (W_MIN, InvalidReading, check_touch, settled,  # noqa: F401
                                           confirmed_against, loo_outlier_probability,
                                           predictive, replayed_weights)
 from adaptive_cal.planning.plan import SurveyPlan
@@ -260,11 +260,6 @@ def extra_cov(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     return d[:, None] * plan.growth * d[None, :]
 
 
-REWEIGH_PASSES = 3  # judge, refit, judge again: a gross error the first fit bent to shows once
-#                     the fit no longer does (an outside audit: a reading 0.38 mm off at a corner
-#                     judged p 0.90, its weight 0.1 still held the map there)
-
-
 def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     """Re-fit the hyper-parameters to every fused reading and rebuild the belief: the
     posterior under each weighted hyper-parameter point, moment-matched (so the belief
@@ -280,12 +275,8 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
         return replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
                        fitted_at=state.fused)
 
-    state = fitted(state)
-    for _ in range(REWEIGH_PASSES):
-        weights = reweighed(plan, state)
-        if weights is None:
-            break
-        state = fitted(replace(state, weights=weights))  # a reading now taken for a gross error
+    state = settled(fitted(state), lambda s: reweighed(plan, s),
+                    lambda s, w: fitted(replace(s, weights=w)))  # gross errors weighted out
     if plan.growth is not None and state.prior is None and state.fused >= 3:
         coarse = check(plan, state, coarse=True)
         grown = np.zeros(plan.adequacy_regions) if coarse.adequate else \
