@@ -95,3 +95,20 @@ def test_heavy_tailed_readings_get_heavy_tailed_repeats_and_gaussian_ones_the_sa
     plain = repeat_noise_mm(X, belief, 0.005, np.random.default_rng(1), 50)
     judged = repeat_noise_mm(X, belief, 0.005, np.random.default_rng(1), 50, heights=z)
     np.testing.assert_array_equal(plain, judged)
+
+
+def test_a_bare_recordings_intervals_do_not_move_with_a_constant_added_to_every_height():
+    """Every figure is blind to a constant; the fit behind the intervals was not (an outside
+    audit: heights 990 mm up learned 4.65 um of noise for 3.66 um, the interval ends moved
+    1 um). The heights are now taken about their mean."""
+    from adaptive_cal.analysis.flatness_intervals import repeat_samples
+
+    rng = np.random.default_rng(3)
+    x, y = (g.ravel() for g in np.meshgrid(np.linspace(-200, 200, 8), np.linspace(-160, 160, 5)))
+    z = 0.012 * x - 0.004 * y + 0.15 * (y / 160) ** 2 + rng.normal(0, 0.004, x.size)
+    a = repeat_samples(x, y, z, np.random.default_rng(0), 60)
+    b = repeat_samples(x, y, z + 990.0, np.random.default_rng(0), 60)
+    # the fit stops at its own tolerance: 1 nm is far below the 1 um the offset used to move
+    assert abs(a[1]["noise_std_mm"] - b[1]["noise_std_mm"]) < 1e-7
+    for k in a[0]:
+        assert np.allclose(a[0][k], b[0][k], atol=1e-6, rtol=0), k
