@@ -119,6 +119,9 @@ def _from_recording(recording, cell_file, out) -> "Path":
     if rec.fused.sum() < 4:
         raise UserError(f"{recording}: {int(rec.fused.sum())} fused touches; a report needs at "
                         "least 4")
+    from adaptive_cal.analysis.flatness_intervals import spans_area
+
+    spans_area(rec.x_mm[rec.fused], rec.y_mm[rec.fused], recording)  # names the file
     state = sv.replay(plan, sv.start(plan), rec)  # the recording read once, above
     stopped = plan.stop(sv.status(plan, state)) or "recording_ended"
     result = result_of(cell, plan, state, rec, stopped, rng=np.random.default_rng(SEED))

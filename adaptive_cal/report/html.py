@@ -183,7 +183,13 @@ def page(result: dict, cell: Cell, rec, surface_b64: str | None, convergence_b64
     title = f"Workplane map: {cell.name}"
     if source is None:
         origin = (f"Run folder <code>{escape(run_dir.resolve())}</code>.")
-        footer = f"{escape(run_dir.name)}/result.json, recording.csv, cell.yaml, belief.npz"
+        has = {n for n in ("result.json", "recording.csv", "cell.yaml", "belief.npz",
+                           "surface.png") if (run_dir / n).is_file()}  # only what is there
+        if "belief.npz" in has:
+            has.discard("surface.png")  # the maps are drawn from the belief itself
+        read = [n for n in ("result.json", "recording.csv", "cell.yaml", "belief.npz",
+                            "surface.png") if n in has]
+        footer = f"{escape(run_dir.name)}/" + ", ".join(read)
         resume = f"adaptive-cal run --resume {quoted(run_dir)}"
     else:
         rec_path, cell_path = source

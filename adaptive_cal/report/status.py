@@ -122,5 +122,7 @@ def unfinished(run_dir, name: str) -> str:
     if name in ("result.json", "belief.npz") and (run_dir / "recording.csv").is_file() \
             and (run_dir / "cell.yaml").is_file():
         return (f"the run stopped before writing its results; adaptive-cal run --resume "
-                f"{quoted(run_dir)} writes them")
+                f"{quoted(run_dir)} writes them (it moves the robot on), or, without the "
+                f"robot, adaptive-cal report {quoted(run_dir / 'recording.csv')} --robot "
+                f"{quoted(run_dir / 'cell.yaml')} replays the touches taken")
     return f"is {run_dir} a folder written by 'adaptive-cal run --out DIR'?"
