@@ -260,3 +260,24 @@ def test_a_map_refuses_underscores_and_non_ascii_digits(value):
     with pytest.raises(HeightMapError, match=f"m, line 5: height_mm must be a finite number, got "
                        f"{value!r}"):
         parse_heightmap("\n".join(lines) + "\n", "m")
+
+
+def test_a_blank_or_nan_reading_on_a_row_flagged_not_fused_is_read_as_not_taken(tmp_path):
+    """Another tool writes a failed reading as NaN or blank on a row it flags invalid: read as
+    this tool writes one (0, flagged nonfinite, not fused), not a refusal of the whole file (an
+    outside audit). Unflagged, a NaN is still refused naming its line."""
+    from adaptive_cal.formats.recording import RecordingError, read_recording
+
+    rows = [f"{i},{i:.1f},{x},{y},0,{5.0 + 0.001 * x:.6f}," for i, (x, y) in
+            enumerate([(-100, -50), (0, -50), (100, -50), (-100, 50), (0, 50), (100, 50)])]
+    rows[2] = "2,2.0,100,-50,0,nan,invalid;rejected"
+    rows[4] = "4,4.0,0,50,0,,Rejected"
+    text = "# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm,flags\n"
+    (tmp_path / "r.csv").write_text(text + "\n".join(rows) + "\n")
+    rec = read_recording(tmp_path / "r.csv")
+    assert rec.fused.tolist() == [True, True, False, True, False, True]
+    assert rec.reading_mm[2] == 0.0 and "nonfinite" in rec.flags[2] and "nonfinite" in rec.flags[4]
+    rows[2] = "2,2.0,100,-50,0,nan,"
+    (tmp_path / "r.csv").write_text(text + "\n".join(rows) + "\n")
+    with pytest.raises(RecordingError, match=r"r\.csv:5: column reading_mm: 'nan' is not a finite"):
+        read_recording(tmp_path / "r.csv")

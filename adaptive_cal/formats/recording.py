@@ -21,15 +21,12 @@ Flags (``;``-separated in the ``flags`` column) say what the loop did with a rea
 failed the gate too but agreed with the first reading: fused -- the surface really is there),
 ``rejected`` (not fused: disagreed with both, or outside the usable stroke, or too much spread),
 ``invalid`` (with ``rejected``: NaN or infinite, off the workplane or inside a keep-out; a NaN is
-written as 0, flagged ``nonfinite``), ``outlier=0.12`` (its outlier probability p; weight 1 - p).
-Flag words are read stripped of white space and lower-cased (a hand edit's `` Rejected``); a
-word this tool does not know is kept and said once per file (``warning:`` on stderr, with its
-line), and changes nothing about what is fused.
-
+written as 0, flagged ``nonfinite``; another tool's blank or NaN on such a row is read so),
+``outlier=0.12`` (its outlier probability p; weight 1 - p). Flag words are read stripped and
+lower-cased; a word this tool does not know is kept and said once per file, fusing nothing.
 A file whose ``#`` lines were removed (a spreadsheet's round trip) but whose first line is a
-recording's header is read as a recording, flags and all, and says so; any other table of
-x, y and a reading is read by ``formats.table``, its ``flags`` column honoured the same way.
-What the reader has to say is in ``Recording.notes`` and is printed once (``say``).
+recording's header is read as a recording and says so; any other table of x, y and a reading is
+read by ``formats.table``, its flags honoured alike. Notes: ``Recording.notes``, said once.
 """
 from __future__ import annotations
 
@@ -45,8 +42,8 @@ import numpy as np
 from adaptive_cal.formats.cells import (MAGIC, OPTIONAL, REQUIRED, RecordingError,  # noqa: F401
                                         _header, _number, _OpenQuote,  # (re-exported: writing,
                                         split_cells)  # callers)
-from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, parse_flags, read_table,
-                                        strict_float, unknown_flag_note)
+from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, not_read, parse_flags,
+                                        read_table, strict_float, unknown_flag_note)
 from adaptive_cal.formats.cut import cut_last_row
 from adaptive_cal.formats.spread import unspread
 from adaptive_cal.formats.text import not_utf8, separated_hint
@@ -270,6 +267,9 @@ def read_recording(path: str | os.PathLike) -> Recording:
                 if len(flags if "flags" in col else data["seq"]) >= MAX_ROWS:
                     raise RecordingError(f"{where}: more than {MAX_ROWS} rows; a recording "
                                          "this tool reads holds at most that many: split it by round")
+                if "flags" in col and not_read(cells[col["reading_mm"]], cells[col["flags"]]):
+                    cells[col["reading_mm"]] = "0"  # as this tool writes a reading not taken
+                    cells[col["flags"]] += ";nonfinite"
                 for c in REQUIRED:
                     data[c].append(_limited(cells[col[c]], c, f"{where}: column {c}",
                                             blank_ok=(c == "t_s")))

@@ -41,6 +41,17 @@ KNOWN_FLAGS = NOT_FUSED | {"retake", "surprise", "closure", "spread", "stroke_en
 OUTLIER_FLAG = "outlier="
 
 
+def not_read(reading: str, flags: str) -> bool:
+    """Whether a row's ``reading`` is no number at all (blank, NaN, infinite) on a row its
+    ``flags`` say is not fused (``NOT_FUSED``): another tool's way to write a failed reading,
+    read as this tool writes one, 0 flagged ``nonfinite`` (an outside audit: one such row
+    refused the whole file)."""
+    value = strict_float(reading) if reading.strip() else math.nan
+    return (value is None and reading.strip().lower() in ("", "nan", "-nan", "inf", "-inf")
+            or value is not None and not math.isfinite(value)) and \
+        bool({w.strip().lower() for w in flags.split(";")} & NOT_FUSED)
+
+
 def strict_float(text: str) -> float | None:
     """``text`` (stripped) as a float, or None when it is not a number as a CSV writer writes
     one: Python's ``float`` also takes ``5_1.0`` (51.0) and non-ASCII digits (``\u0665.\u0661``,
