@@ -420,3 +420,14 @@ def test_the_page_says_what_the_terminal_says_under_the_flatness_and_the_keep_ou
                                              "(outlier probability >= 0.5): seq 9 (p 0.50), seq "
                                              "12 (p 0.98); the touched points' figures include "
                                              "them")
+
+
+def test_an_unmet_bound_the_cell_never_set_is_said_to_be_the_default(tmp_path):
+    """The reference cell's file sets no bound: a replay of its round 0 is incomplete against
+    plan.stop.mean_std_mm's default, and the page says so (an outside audit read a bound the
+    cell never named)."""
+    out = tmp_path / "c0.html"
+    assert main(["report", str(ROOT / "adaptive_cal" / "data" / "cheng2025" / "round0_initial.csv"),
+                 "--robot", str(ROOT / "configs" / "cheng2025-cell.yaml"), "--out", str(out)]) == 0
+    page = out.read_text(encoding="utf-8")
+    assert escape("um bound (plan.stop.mean_std_mm's default: the cell file sets none)") in page

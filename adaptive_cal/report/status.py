@@ -54,7 +54,9 @@ def unmet_bounds(result: dict) -> list[str]:
     for key, name in (("mean_std_mm", "posterior RMS std"), ("max_std_mm", "posterior max std")):
         b = bound.get(key)
         if b is not None and post[key] > b:
-            out.append(f"{name} {post[key] * 1e3:.1f} um against the {b * 1e3:g} um bound")
+            out.append(f"{name} {post[key] * 1e3:.1f} um against the {b * 1e3:g} um bound"
+                       + (f" (plan.stop.{key}'s default: the cell file sets none)"
+                          if key in bound.get("defaulted", ()) else ""))
     gap, radius = bound.get("max_gap_mm"), (result.get("largest_gap") or {}).get("radius_mm")
     if gap is not None and radius is not None and radius > gap:
         out.append(f"largest gap between touches {radius:.0f} mm radius against the {gap:g} mm "

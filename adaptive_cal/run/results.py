@@ -83,6 +83,7 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
         "stopped_because": stopped_because,
         "bound": {"mean_std_mm": stop.mean_std_mm, "max_std_mm": stop.max_std_mm,
                   "max_touches": stop.max_touches, "max_gap_mm": stop.max_gap_mm,
+                  "defaulted": sorted(set(type(stop).model_fields) - stop.model_fields_set),
                   # touches before a bound may stop the run (the stop rule's touch floor)
                   "min_touches": touch_floor(cell, plan.model.form_surface.size,
                                              informed_prior=state.prior is not None)},
