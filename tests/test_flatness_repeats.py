@@ -112,3 +112,21 @@ def test_a_bare_recordings_intervals_do_not_move_with_a_constant_added_to_every_
     assert abs(a[1]["noise_std_mm"] - b[1]["noise_std_mm"]) < 1e-7
     for k in a[0]:
         assert np.allclose(a[0][k], b[0][k], atol=1e-6, rtol=0), k
+
+
+def test_the_touched_points_tilt_sd_is_the_spread_of_repeats_monte_carlo():
+    """tilt_with_std's 1 sd (a, b, rx, ry) against the spread of the least-squares plane over
+    4,000 noise draws at the same touches: the sd of an sd estimate from n draws is about
+    1 / sqrt(2 n) = 1.1 %, so within 5 %."""
+    from adaptive_cal.analysis import flatness as fl
+    from adaptive_cal.analysis.flatness_intervals import tilt_with_std
+
+    x, y = (g.ravel() for g in np.meshgrid(np.linspace(-200, 200, 10), np.linspace(-165, 165, 4)))
+    z = 0.012 * x - 0.004 * y + 0.15 * (y / 165) ** 2
+    t = tilt_with_std(x, y, z, 0.005)
+    rng = np.random.default_rng(1)
+    draws = [fl.plane_tilt(x, y, z + rng.normal(0, 0.005, x.size)) for _ in range(4000)]
+    for key in ("a", "b", "rx_deg", "ry_deg"):
+        spread = np.std([d[key] for d in draws])
+        sd = t[key.replace("_deg", "") + ("_std_deg" if key.endswith("_deg") else "_std")]
+        assert abs(sd / spread - 1) < 0.05, (key, sd, spread)

@@ -274,8 +274,9 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
                 + _weighted_out(r))
     touched = {**r["flatness_mm"], "points": r["touches"]}
     lines = [f"{r['recording']}: {r['touches']} touches, reading noise {r['noise_std_mm'] * 1e3:.1f} um",
-             f"  tilt correction (touched points): rx {t['rx_deg']:+.4f} deg, ry {t['ry_deg']:+.4f} deg "
-             f"(a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm)"]
+             f"  tilt correction (touched points): rx {t['rx_deg']:+.4f}{_sd(t, 'rx_std_deg')} deg, "
+             f"ry {t['ry_deg']:+.4f}{_sd(t, 'ry_std_deg')} deg (a {t['a']:+.6f}, b {t['b']:+.6f} "
+             f"mm/mm{'; 1 sd over repeats at these touches' if 'rx_std_deg' in t else ''})"]
     lines += ["  " + line for line in answer_lines({"touched_flatness_mm": touched},
                                                       no_plate=NO_PLATE if say_no_plate else None)]
     lines.append(f"  height spread of the touched points, max - min with the tilt included (not "
@@ -285,6 +286,10 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
         f"{k} {a[k] * 1e3:.1f} um" if a[k] is not None
         else f"{k} n/a (touches not on a grid along {k})" for k in ("x", "y")))
     return lines
+
+
+def _sd(t: dict, key: str) -> str:
+    return f" +- {t[key]:.4f}" if key in t else ""
 
 
 def _weighted_out(r: dict) -> list[str]:
