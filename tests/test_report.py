@@ -431,3 +431,28 @@ def test_an_unmet_bound_the_cell_never_set_is_said_to_be_the_default(tmp_path):
                  "--robot", str(ROOT / "configs" / "cheng2025-cell.yaml"), "--out", str(out)]) == 0
     page = out.read_text(encoding="utf-8")
     assert escape("um bound (plan.stop.mean_std_mm's default: the cell file sets none)") in page
+
+
+def test_report_takes_one_round_of_a_recording_that_holds_two(tmp_path, capsys):
+    """A recording of two rounds (the reference cell's 0 and 1 in one file, a round column):
+    refused without --round naming report --round, and with it the round's own page."""
+    data = ROOT / "adaptive_cal" / "data" / "cheng2025"
+    rows, seq = [], 0
+    for r, name in enumerate(("round0_initial.csv", "round1_first_correction.csv")):
+        lines = [ln for ln in (data / name).read_text().splitlines() if not ln.startswith("#")]
+        header = lines[0].split(",")
+        for ln in lines[1:]:
+            cells = dict(zip(header, ln.split(",")))
+            cells["seq"] = str(seq)
+            seq += 1
+            rows.append(",".join([cells[c] for c in header] + [str(r)]))
+    two = tmp_path / "two.csv"
+    two.write_text("# adaptive-cal recording v1\n" + ",".join(header + ["round"]) + "\n"
+                   + "\n".join(rows) + "\n")
+    cell = str(ROOT / "configs" / "cheng2025-cell.yaml")
+    assert main(["report", str(two), "--robot", cell]) == 2
+    assert "report --round R" in capsys.readouterr().err
+    assert main(["report", str(two), "--robot", cell, "--round", "1"]) == 0
+    assert (tmp_path / "two-round1.html").is_file()
+    assert main(["report", str(two), "--robot", cell, "--round", "7"]) == 2
+    assert "--round 7" in capsys.readouterr().err

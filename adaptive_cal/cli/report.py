@@ -16,6 +16,9 @@ def add_arguments(p) -> None:
     p.add_argument("--robot", metavar="CELL.yaml", default=None, help="with a recording: the cell "
                    "file it was taken with; the recording is replayed to a map%(default).0s")
     # "%(default).0s" prints nothing; it stops the formatter appending "(default: None)"
+    p.add_argument("--round", type=float, default=None, metavar="R", help="with a recording "
+                   "whose round column holds several rounds: the one numbered R (as flatness "
+                   "--round)%(default).0s")
     p.add_argument("--out", metavar="FILE.html", default=None,
                    help="where to write the page (default: DIR/report.html, or RECORDING.html "
                    "beside a recording)%(default).0s")
@@ -49,9 +52,10 @@ def command(args) -> int:
             import sys
 
             print(said, file=sys.stderr)
-        refuse_input_as_output("--out", args.out or given.with_suffix(".html"),
-                               [given, args.robot])
-        path = _from_recording(given, Path(args.robot), args.out)
+        out = args.out or (given.with_suffix(".html") if args.round is None else
+                           given.with_name(f"{given.stem}-round{args.round:g}.html"))
+        refuse_input_as_output("--out", out, [given, args.robot])
+        path = _from_recording(given, Path(args.robot), out, args.round)
     else:
         if not given.exists():
             raise UserError(f"{given}: " + ("no such recording" if args.robot or given.suffix
@@ -60,6 +64,8 @@ def command(args) -> int:
         if args.robot:
             raise UserError(f"--robot goes with a recording; {given} is a run folder, which holds "
                             "its own cell.yaml")
+        if args.round is not None:
+            raise UserError(f"--round goes with a recording and --robot; {given} is a run folder")
         from adaptive_cal.report.html import write
 
         if given.is_dir():
@@ -98,8 +104,9 @@ def _check_belief(run_dir: Path) -> None:
         refuse_stale_map(run_dir, "report")
 
 
-def _from_recording(recording, cell_file, out) -> "Path":
-    """Replay the recording with the cell's plan (``planning.survey.replay``) and write its page."""
+def _from_recording(recording, cell_file, out, round_=None) -> "Path":
+    """Replay the recording (its round ``round_``, where given) with the cell's plan
+    (``planning.survey.replay``) and write its page."""
     import numpy as np
 
     from adaptive_cal.analysis.flatness_answer import SEED
@@ -115,7 +122,11 @@ def _from_recording(recording, cell_file, out) -> "Path":
     plan = survey_plan(cell)
     from adaptive_cal.report.replay import closure_of, for_replay
 
-    rec = for_replay(read_recording(recording).one_round("a report's map"), cell, cell_file)  # as the run judges a reading
+    from adaptive_cal.cli.flatness import _picked
+
+    picked = _picked(str(recording), round_, "--round") if round_ is not None else \
+        read_recording(recording)
+    rec = for_replay(picked.one_round("a report's map"), cell, cell_file)  # as the run judges
     if rec.fused.sum() < 4:
         raise UserError(f"{recording}: {int(rec.fused.sum())} fused touches; a report needs at "
                         "least 4")

@@ -132,8 +132,8 @@ class Recording:
         if len(rounds) <= 1:
             return self
         shown = ", ".join(f"{v:g}" for v in rounds[:6]) + (", ..." if len(rounds) > 6 else "")
-        pick = ("pick one (flatness --round R; --compare-round R for the second of two) or "
-                if what == "flatness" else "")  # report has no --round
+        pick = {"flatness": "pick one (flatness --round R; --compare-round R for the second of "
+                "two) or ", "a report's map": "pick one (report --round R) or "}.get(what, "")
         raise RecordingError(
             f"{self.path or 'the recording'}: column round holds {len(rounds)} rounds ({shown}); "
             f"{what} is of one round's surface: {pick}give each round as its own file (the "
