@@ -68,13 +68,19 @@ def test_the_touched_line_says_what_its_interval_holds():
     assert "by chance one time in twenty" in OUTSIDE_NOTE
 
 
-def test_a_report_of_several_rounds_names_no_option_it_lacks(tmp_path, cheng_round0):
+def test_a_report_of_several_rounds_names_its_own_option(tmp_path, cheng_round0):
+    """Each command's refusal names the option it has: report --round R since 2026-11-29 (before
+    it had none, and named none); any other use names none."""
     rows = [line for line in cheng_round0.read_text().splitlines() if line[:1] != "#"]
     both = tmp_path / "both.csv"
     body = [f"{r},{0 if i < 20 else 1}" for i, r in enumerate(rows[1:])]
     both.write_text("# adaptive-cal recording v1\n" + rows[0] + ",round\n" + "\n".join(body) + "\n")
     with pytest.raises(RecordingError) as e:
         read_recording(both).one_round("a report's map")
-    assert "--round" not in str(e.value) and "give each round as its own file" in str(e.value)
+    assert "report --round R" in str(e.value) and "flatness --round" not in str(e.value)
+    assert "give each round as its own file" in str(e.value)
+    with pytest.raises(RecordingError) as e:
+        read_recording(both).one_round("a map")
+    assert "--round" not in str(e.value)
     with pytest.raises(RecordingError, match="flatness --round R"):
         read_recording(both).one_round("flatness")
