@@ -320,7 +320,15 @@ def read_belief(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
     if belief_mismatch(plan_model(cell).surface, data) is not None:
         raise ValueError(f"{path}: the earlier run used other knots; give the cell file the same "
                          "model.knots_x / knots_y")
-    return bl.Belief(data["mean"], data["cov"]), Hyper(*data["hyper"].tolist())
+    mean, cov = np.asarray(data["mean"], float), np.asarray(data["cov"], float)
+    bad = next((k for k, a in (("mean", mean), ("cov", cov)) if not np.all(np.isfinite(a))), None)
+    if bad is None and (np.any(np.diag(cov) < 0) or not np.allclose(cov, cov.T, rtol=0,
+                                                                     atol=1e-9 * np.abs(cov).max())):
+        bad = "cov"  # negative variances or asymmetric: no covariance (a band would be wrong)
+    if bad:  # an outside audit: a NaN mean wrote Znan, a NaN cov switched the band check off
+        raise ValueError(f"{path}: array {bad!r} is not a map's (NaN or infinite values, or a "
+                         "covariance with negative variances): was it edited or cut short?")
+    return bl.Belief(mean, cov), Hyper(*data["hyper"].tolist())
 
 
 def belief_mismatch(surface, data) -> str | None:
