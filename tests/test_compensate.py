@@ -82,8 +82,10 @@ def test_a_raised_map_raises_every_z_and_crlf_is_kept():
     out = write_toolpath(path, res.pieces, header_comment="made by a test")
     assert "\r\n" in out and "\n" not in out.replace("\r\n", "")
     again = read_toolpath(out, "out")
-    first, *rest = again.moves
+    first, across, *rest = again.moves
     assert first.end[2] == pytest.approx(5.4)  # X, Y unknown yet: raised by the highest height
+    # the level rapid from there goes across at that height, then down on its own
+    assert across.end == pytest.approx((-100.0, -50.0, 5.4)) and not across.cut
     for a, b in zip(rest, path.moves[1:]):
         assert a.end[:2] == b.end[:2] and a.end[2] == pytest.approx(b.end[2] + 0.25)
 
@@ -512,3 +514,70 @@ def test_a_tolerance_that_looks_like_um_typed_as_mm_is_warned(capsys):
         capsys.readouterr().err
     check_tolerance(0.05)
     assert capsys.readouterr().err == ""
+
+
+def test_a_level_rapid_the_map_tilts_goes_across_at_the_higher_end_then_up_or_down_alone():
+    """A rapid in X, Y only, whose ends the map raises by different heights, is written as two
+    rapids: across at the higher end's Z and the Z change on its own (first when rising, last
+    when descending). Raised as one, a control that moves each axis of a rapid at its own speed
+    finished Z first and ran 0.5 mm into an outside audit's plate."""
+    def tilted(x, y):
+        x = np.asarray(x, float)
+        return 0.01 * x, np.full(x.shape, 0.001)
+
+    text = "G21 G90\nG0 X100 Y0 Z5\nG0 X-100 Y0\nG0 X100 Y0\nM2\n"
+    path = read_toolpath(text, "p")
+    res = cp.compensate(path, tilted, PLATE, T, top_mm=1.0, name="p")
+    moves = read_toolpath(write_toolpath(path, res.pieces), "out").moves
+    ends = [tuple(round(v, 4) for v in m.end) for m in moves]
+    assert ends == [(100, 0, 6), (-100, 0, 6), (-100, 0, 4), (-100, 0, 6), (100, 0, 6)]
+    assert not any(m.cut for m in moves)
+    for m in moves[1:]:  # every rapid moves in X, Y or in Z, never both
+        assert (m.start[:2] == m.end[:2]) != (m.start[2] == m.end[2])
+
+
+def test_cli_refuses_a_cut_over_a_keep_out_and_marks_it(mapped, tmp_path, capsys):
+    """sim-cell's clamp, keep_outs[0] (x -40..10, y 60..110 mm), was cut through in silence (an
+    outside audit): refused naming the line and the keep-out; --mark marks that line."""
+    run_dir, _ = mapped
+    assert load_map(run_dir).keep_outs == (((-40.0, 10.0), (60.0, 110.0)),)
+    prog = tmp_path / "clamp.gcode"
+    prog.write_text("G0 X-60. Y85. Z5.\nG1 Z-0.1\nG1 X30.\nG1 Y140.\nG0 Z5.\n")
+    out = tmp_path / "out.gcode"
+    argv = ["compensate", str(prog), "--map", str(run_dir), "--out", str(out),
+            "--tolerance-mm", "0.05"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "1 cut(s) pass over a keep-out" in err and "line 3 at" in err
+    assert "keep_outs[0] (x -40..10, y 60..110 mm)" in err and not out.exists()
+    assert main(argv + ["--mark"]) == 0
+    marked = [ln for ln in out.read_text().splitlines() if "keep_outs[0]" in ln]
+    assert len(marked) == 1 and marked[0].startswith("G1 X30.")
+    assert "passes over a keep-out: the output is NOT within" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("broken", ["mean", "cov", "negative"])
+def test_a_map_whose_arrays_are_not_a_posterior_is_refused(mapped, tmp_path, capsys, broken):
+    """A NaN mean wrote Znan with exit 0; a NaN or negated covariance switched the band check
+    off (an outside audit). The saved map is refused, naming the file and the array."""
+    import shutil
+
+    run_dir, _ = mapped
+    bad = tmp_path / "run"
+    shutil.copytree(run_dir, bad)
+    data = dict(np.load(bad / "belief.npz"))
+    if broken == "mean":
+        data["mean"][5] = np.nan
+    elif broken == "cov":
+        data["cov"][5, 5] = np.nan
+    else:
+        data["cov"] = -data["cov"]
+    np.savez(bad / "belief.npz", **data)
+    prog = tmp_path / "p.gcode"
+    prog.write_text("G0 X0. Y0. Z5.\nG1 Z-0.1\nG1 X20.\n")
+    assert main(["compensate", str(prog), "--map", str(bad), "--out",
+                 str(tmp_path / "o.gcode")]) == 2
+    err = capsys.readouterr().err
+    name = "mean" if broken == "mean" else "cov"
+    assert f"belief.npz: array '{name}' is not a map's" in err
+    assert not (tmp_path / "o.gcode").exists()

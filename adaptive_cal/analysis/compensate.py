@@ -11,13 +11,17 @@ split to T against the map alone). Where a cut leaves ``reach_mm``, the box touc
 (the workplane less its edge margin), it is reported in ``beyond``, refused or marked the same
 way: the map there is an extrapolation no reading tested (``planning.adequacy``: on plates whose
 edges roll off, the run's bands held the truth at 0.35 of the margin's points), so no tolerance
-can be promised there, however narrow the band.
+can be promised there, however narrow the band. A cut over one of ``keep_outs`` (a clamp or a
+fixture: never touched, the map there rests on touches beside it) is reported in ``under``,
+refused or marked alike (an outside audit: a cut through the clamp was compensated in silence).
 
-Rapids (G0) are not split and not checked against the band: each end point is raised by the
-mapped height there (a clearance programmed above the nominal plane stays a clearance above the
-plate at the rapid's ends), or by ``top_mm`` (the highest mapped height) while X or Y is not known
-yet. ``rapid_dip_mm``: the most the plate rises above a straight rapid between its raised ends,
-i.e. the most any programmed clearance shrinks along the way.
+Rapids (G0) are not checked against the band: each end point is raised by the mapped height
+there (a clearance programmed above the nominal plane stays a clearance above the plate at the
+rapid's ends), or by ``top_mm`` (the highest mapped height) while X or Y is not known yet. A
+level rapid (X, Y only) the raise would tilt is written as two: across at the higher end's Z,
+and the Z change on its own, first when rising, last when descending (a control may move a
+rapid's axes each at its own speed). ``rapid_dip_mm``: the most the plate rises above the
+rapids' travel between their raised ends, the most any programmed clearance shrinks.
 """
 from __future__ import annotations
 
@@ -54,6 +58,16 @@ class Beyond:
     outside_mm: float  # how far beyond the reachable box
 
 
+@dataclass(frozen=True)
+class Under:
+    """Where a cut passes over a keep-out: its first sample there, and which keep-out."""
+
+    line: int
+    x_mm: float
+    y_mm: float
+    index: int
+
+
 @dataclass
 class Compensated:
     """``pieces``: item -> output points (x, y, z) mm, the last the move's end; ``wide``: moves
@@ -65,6 +79,7 @@ class Compensated:
     pieces: dict = field(default_factory=dict)
     wide: list = field(default_factory=list)
     beyond: list = field(default_factory=list)
+    under: list = field(default_factory=list)
     added: int = 0
     max_deviation_mm: float = 0.0
     rapid_dip_mm: float = 0.0
@@ -129,24 +144,25 @@ def outside_mm(reach_mm, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def compensate(path: Toolpath, height: Height, plate_mm, tolerance_mm: float, *,
                top_mm: float, sample_mm: float = SAMPLE_MM, name: str = "program",
-               reach_mm=None) -> Compensated:
+               reach_mm=None, keep_outs=()) -> Compensated:
     """The output points of every move of ``path`` (see the module's doc). Refuses
     (``ToolpathError``) a point outside ``plate_mm`` and a cut whose start is not known.
-    ``reach_mm``: the box touches can reach, or None (the whole plate was reachable)."""
+    ``reach_mm``: the box touches can reach, or None (the whole plate was reachable);
+    ``keep_outs``: ((x0, x1), (y0, y1)) each."""
     if not tolerance_mm > 0:
         raise ValueError(f"tolerance {tolerance_mm} mm must be positive")
     out = Compensated()
     for move in path.moves:
         _check_inside(name, plate_mm, move, move.end, move.start)
         if move.cut:
-            _cut(out, move, height, tolerance_mm, sample_mm, name, reach_mm)
+            _cut(out, move, height, tolerance_mm, sample_mm, name, reach_mm, keep_outs)
         else:
             _rapid(out, move, height, top_mm, sample_mm)
     return out
 
 
 def _cut(out: Compensated, move: Move, height: Height, tol: float, sample_mm: float,
-         name: str, reach_mm=None) -> None:
+         name: str, reach_mm=None, keep_outs=()) -> None:
     out.cuts += 1
     end = np.array(move.end, float) if None not in move.end else None
     if end is None:
@@ -173,6 +189,11 @@ def _cut(out: Compensated, move: Move, height: Height, tol: float, sample_mm: fl
         if far[k] > EDGE_MM:
             out.beyond.append(Beyond(move.line, float(pts[k, 0]), float(pts[k, 1]),
                                      float(far[k])))
+    for i, ((x0, x1), (y0, y1)) in enumerate(keep_outs):
+        over = np.flatnonzero((pts[:, 0] > x0) & (pts[:, 0] < x1) & (pts[:, 1] > y0)
+                              & (pts[:, 1] < y1))
+        if over.size:
+            out.under.append(Under(move.line, float(pts[over[0], 0]), float(pts[over[0], 1]), i))
     limit = np.where(band <= tol, tol - band, tol)
     surface = pts[:, 2] + mean
     kept = bisect(surface, limit)
@@ -197,14 +218,33 @@ def _rapid(out: Compensated, move: Move, height: Height, top_mm: float, sample_m
         return  # Z never given: the line stays as written
     h1 = _raise_at(height, move.end, top_mm)
     out.pieces[move.item] = [(x, y, z + h1)]
-    if move.start is None or None in move.start or None in (x, y):
+    if move.start is None or move.start[2] is None or None in (x, y):
         return
     h0 = _raise_at(height, move.start, top_mm)
+    if None in move.start[:2]:  # from somewhere not known, raised by top_mm: across first
+        if move.start[2] == z and h1 < h0:
+            out.pieces[move.item] = [(x, y, z + h0), (x, y, z + h1)]
+        return
     a, b = np.array(move.start[:2], float), np.array([x, y], float)
     t = samples(float(np.hypot(*(b - a))), sample_mm)
     xy = a + t[:, None] * (b - a)
     mean = np.asarray(height(xy[:, 0], xy[:, 1])[0], float)
+    if move.start[2] == z and np.any(a != b) and h0 != h1:
+        # a level rapid the map would tilt: across in X, Y at the higher end's Z, and up or down
+        # on its own (a control may move each axis of a rapid at its own speed: Z done first,
+        # a descending rapid ran 0.5 mm into the plate of an outside audit's program)
+        up = max(h0, h1)
+        out.pieces[move.item] = ([(x, y, z + h0), (x, y, z + h1)] if h1 < h0 else
+                                 [(a[0], a[1], z + h1), (x, y, z + h1)])
+        out.rapid_dip_mm = max(out.rapid_dip_mm, float(np.max(mean - up)))
+        return
     out.rapid_dip_mm = max(out.rapid_dip_mm, float(np.max(mean - (h0 + t * (h1 - h0)))))
+
+
+def under_text(u: Under, keep_outs) -> str:
+    """``keep_outs[i] (x a..b, y c..d mm)`` of a cut over it."""
+    (x0, x1), (y0, y1) = keep_outs[u.index]
+    return f"keep_outs[{u.index}] (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm)"
 
 
 def beyond_text(mm: float) -> str:
@@ -213,7 +253,7 @@ def beyond_text(mm: float) -> str:
 
 
 def refusal(wide: list, tolerance_mm: float, name: str = "program", shown: int = 5,
-            beyond: list = (), reach_mm=None) -> str:
+            beyond: list = (), reach_mm=None, under: list = (), keep_outs=()) -> str:
     """The message refusing a path whose band exceeds the tolerance (``wide``) or whose cuts
     leave the box touches can reach (``beyond``, ``reach_mm``), naming where."""
     parts = []
@@ -240,5 +280,14 @@ def refusal(wide: list, tolerance_mm: float, name: str = "program", shown: int =
             "rolls off is not in it), so no tolerance can be promised there: keep the cuts "
             "inside that box, or map closer to the edge (a smaller workplane.edge_margin_mm, "
             "where the probe can touch there)")
+    if under:
+        lines = [f"line {u.line} at ({u.x_mm:.1f}, {u.y_mm:.1f}) mm, over {under_text(u, keep_outs)}"
+                 for u in under[:shown]]
+        more = f" and {len(under) - shown} more" if len(under) > shown else ""
+        parts.append(
+            f"{len(under)} cut(s) pass over a keep-out (workplane.keep_outs: a clamp or fixture "
+            "the probe never touched): " + "; ".join(lines) + more + ". The map there rests on "
+            "touches beside it and no reading tested it, and whatever stands there is in the "
+            "cutter's way: keep the cuts off it")
     return (f"{name}: " + ". Also, ".join(parts)
             + ". Or write the output with those lines marked (--mark)")

@@ -209,7 +209,7 @@ def _checked(path, name: str, T: float) -> str | None:
 def _program(hmap, args) -> int:
     from pathlib import Path
 
-    from adaptive_cal.analysis.compensate import beyond_text, compensate, refusal
+    from adaptive_cal.analysis.compensate import beyond_text, compensate, refusal, under_text
     from adaptive_cal.cli.common import UserError
     from adaptive_cal.formats.toolpath import read_toolpath, write_toolpath
 
@@ -219,12 +219,14 @@ def _program(hmap, args) -> int:
         raise UserError(f"{name}: no moves found (G0/G1 with X, Y, Z, or CSV rows x_mm,y_mm,z_mm)")
     blend = _checked(path, name, T)  # a warning to print, or None
     result = compensate(path, hmap.height(args.frame), hmap.plate_mm, T,
-                        top_mm=hmap.top_mm(args.frame), name=name, reach_mm=hmap.reach_mm)
+                        top_mm=hmap.top_mm(args.frame), name=name, reach_mm=hmap.reach_mm,
+                        keep_outs=hmap.keep_outs)
     marks = {}
-    if result.wide or result.beyond:
+    if result.wide or result.beyond or result.under:
         if not args.mark:
             raise UserError(refusal(result.wide, T, name, beyond=result.beyond,
-                                    reach_mm=hmap.reach_mm))
+                                    reach_mm=hmap.reach_mm, under=result.under,
+                                    keep_outs=hmap.keep_outs))
         by_line = {m.line: m.item for m in path.moves}
         notes = {}
         for w in result.wide:
@@ -234,6 +236,9 @@ def _program(hmap, args) -> int:
             notes.setdefault(by_line[b.line], []).append(
                 f"{beyond_text(b.outside_mm)} mm beyond the reach of the touches: the map is "
                 "extrapolated")
+        for u in result.under:
+            notes.setdefault(by_line[u.line], []).append(
+                f"over {under_text(u, hmap.keep_outs)}: never touched, a clamp may stand there")
         marks = {item: "adaptive-cal: " + "; ".join(n) for item, n in notes.items()}
     where = str(args.map).replace("(", "[").replace(")", "]")
     from adaptive_cal.formats.writing import provenance
@@ -249,12 +254,15 @@ def _program(hmap, args) -> int:
     print(f"wrote {args.out}: {result.added} points added by splitting; the path departs from the "
           f"map by at most {result.max_deviation_mm * 1e3:.2f} um at the check samples")
     if result.rapids:
-        print(f"rapids raised at their ends, not split: the plate rises at most "
-              f"{max(result.rapid_dip_mm, 0.0) * 1e3:.1f} um above a straight rapid (the "
+        print(f"rapids raised at their ends (a level one the map tilts: across at the higher "
+              f"end's Z, up or down on its own): the plate rises at most "
+              f"{max(result.rapid_dip_mm, 0.0) * 1e3:.1f} um above a rapid's travel (the "
               "programmed clearance shrinks by that much along it)")
     if marks:
         why = " or ".join(w for w, hit in (("the band exceeds the tolerance", result.wide),
-                                           ("the map is extrapolated", result.beyond)) if hit)
+                                           ("the map is extrapolated", result.beyond),
+                                           ("the cut passes over a keep-out", result.under))
+                          if hit)
         print(f"marked {len(marks)} line(s) where {why}: the output is NOT within the tolerance "
               "there")
     if blend:

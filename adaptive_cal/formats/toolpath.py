@@ -252,6 +252,7 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
     while (lead < len(path.lines) and header_comment
            and re.match(r"\s*(%|[Oo]\d)", path.lines[lead]) and lead < 2):
         lead += 1
+    rapid = {m.item for m in path.moves if not m.cut}  # a rapid's pieces stay rapids
     for i, line in enumerate(path.lines):
         if i == lead and header_comment:
             out.append(f"({header_comment})")
@@ -269,7 +270,8 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
                 line = line[:a].rstrip() + (" " + tail if tail else "")
             ends = "".join(f" M{v:g}" for _, v in after)
             out.append(_replace_words(line, given) + note)
-            out += [f"G1 X{fmt(x)} Y{fmt(y)} Z{fmt(z)}{ends if j == len(rest) - 1 else ''}{note}"
+            g = "G0" if i in rapid else "G1"
+            out += [f"{g} X{fmt(x)} Y{fmt(y)} Z{fmt(z)}{ends if j == len(rest) - 1 else ''}{note}"
                     for j, (x, y, z) in enumerate(rest)]
         else:
             out.append(line + note)

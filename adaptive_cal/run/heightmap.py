@@ -47,6 +47,9 @@ class HeightMap:
     # the box touches could reach (the workplane less its edge margin): beyond it the map is an
     # extrapolation no reading tested; None where touches could reach the whole workplane
     reach_mm: tuple | None = None
+    # the workplane's keep-outs, ((x0, x1), (y0, y1)) each: never touched, the map there rests on
+    # touches beside it (``run.results.keep_out_maps``), and a clamp may stand there
+    keep_outs: tuple = ()
 
     def height(self, frame: str = "nominal"):
         """height(x_mm, y_mm) -> (mean_mm, std_mm) in ``frame`` (see the module's doc)."""
@@ -105,4 +108,5 @@ def load_map(run_dir: str | Path) -> HeightMap:
     return HeightMap(plan_model(cell).surface, belief,
                      (float(tilt["a"]), float(tilt["b"]), float(tilt["c"])),
                      (tuple(wp.x_mm), tuple(wp.y_mm)), missing(result), cell.name,
-                     read_npz(run_dir / "belief.npz", keys=()), reach)
+                     read_npz(run_dir / "belief.npz", keys=()), reach,
+                     tuple((tuple(k.x_mm), tuple(k.y_mm)) for k in wp.keep_outs))
