@@ -599,3 +599,16 @@ def test_grid_export_says_how_far_its_bilinear_reading_departs_from_the_map(mapp
     said = capsys.readouterr()
     gap = float(re.search(r"departs from the map by up to ([0-9.]+) um", said.out).group(1))
     assert gap < 1.0 and "warning" not in said.err
+
+
+def test_an_output_named_for_the_other_format_is_warned_about(mapped, tmp_path, capsys):
+    """The output keeps the program's format: CSV rows written to a .gcode name are said (an
+    outside audit); a neutral name is not."""
+    run_dir, _ = mapped
+    prog = tmp_path / "pts.csv"
+    prog.write_text("x_mm,y_mm,z_mm\n0,0,-0.1\n20,0,-0.1\n")
+    for name, warned in (("o.gcode", True), ("o.txt", False), ("o.csv", False)):
+        assert main(["compensate", str(prog), "--map", str(run_dir), "--out",
+                     str(tmp_path / name)]) == 0
+        err = capsys.readouterr().err
+        assert ("holds CSV rows (the output keeps the program's format)" in err) == warned, name

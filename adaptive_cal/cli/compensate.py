@@ -259,7 +259,8 @@ def _program(hmap, args) -> int:
             notes.setdefault(by_line[u.line], []).append(
                 f"over {under_text(u, hmap.keep_outs)}: never touched, a clamp may stand there")
         marks = {item: "adaptive-cal: " + "; ".join(n) for item, n in notes.items()}
-    where = str(args.map).replace("(", "[").replace(")", "]")
+    # ASCII, no parentheses: a comment every control reads (a non-ASCII path was copied in)
+    where = str(args.map).replace("(", "[").replace(")", "]").encode("ascii", "replace").decode()
     from adaptive_cal.formats.writing import provenance
 
     made = provenance()  # which code bent the path, and when: a machined part can be traced
@@ -286,6 +287,13 @@ def _program(hmap, args) -> int:
               "there")
     if blend:
         print(blend, file=sys.stderr)
+    suffix = Path(args.out).suffix.lower()
+    kind = {".csv": "csv", ".gcode": "gcode", ".nc": "gcode", ".ngc": "gcode", ".tap": "gcode",
+            ".gc": "gcode", ".cnc": "gcode"}.get(suffix, path.kind)
+    if kind != path.kind:
+        print(f"warning: {args.out} holds {'CSV rows' if path.kind == 'csv' else 'G-code'} "
+              f"(the output keeps the program's format), not what its name says",
+              file=sys.stderr)
     if path.whole_numbers:
         (line, word), n = path.whole_numbers[0], len(path.whole_numbers)
         print(f"warning: {n} axis word{'s' * (n != 1)} without a decimal point (first: line "
