@@ -192,7 +192,9 @@ def _read_gcode(text: str, name: str, bom: bool = False) -> Toolpath:
         if not axes:
             continue
         if mode is None:
-            raise ToolpathError(f"{where}: coordinates before any G0 or G1")
+            raise ToolpathError(f"{where}: {', '.join(sorted(axes))} before any G0 or G1: a move "
+                                "in no motion mode yet (a G43 H1 Z50. moves in the modal one); "
+                                "give G0 on that line, or a G0 move before it")
         assumed |= {f"G{g}" for g, at in said.items() if at is None}
         whole += [(i + 1, line[a:b].strip()) for k, _, (a, b) in words
                   if k in "XYZ" and "." not in line[a:b]]
