@@ -144,7 +144,8 @@ def test_heights_only_grid_of_a_small_workplane_covers_its_workplane(tmp_path, c
     from adaptive_cal.cli.compensate import _grid
 
     out = tmp_path / "g.csv"
-    args = argparse.Namespace(step_mm=1.0, frame="nominal", heights_only=True, grid=str(out))
+    args = argparse.Namespace(step_mm=1.0, frame="nominal", heights_only=True, grid=str(out),
+                              tolerance_mm=0.01)
     assert _grid(_FlatMap(), args) == 0
     hm = load_heightmap(out)
     hm.check_covers(*_FlatMap.plate_mm)  # no error
