@@ -456,3 +456,17 @@ def test_report_takes_one_round_of_a_recording_that_holds_two(tmp_path, capsys):
     assert (tmp_path / "two-round1.html").is_file()
     assert main(["report", str(two), "--robot", cell, "--round", "7"]) == 2
     assert "--round 7" in capsys.readouterr().err
+
+
+def test_report_and_flatness_refuse_a_saved_map_that_is_not_a_posterior(run_dir, tmp_path,
+                                                                       capsys):
+    """A NaN in belief.npz's mean is refused by every reader of a saved map (formats.npz
+    ``broken_belief``), not only by compensate's: the page and the flatness named no figure."""
+    d = tmp_path / "run"
+    shutil.copytree(run_dir, d)
+    data = dict(np.load(d / "belief.npz"))
+    data["mean"][3] = np.nan
+    np.savez(d / "belief.npz", **data)
+    for argv in (["report", str(d)], ["flatness", str(d / "recording.csv")]):
+        assert main(argv) == 2
+        assert "belief.npz: array 'mean' is not a map's" in capsys.readouterr().err

@@ -242,10 +242,14 @@ def check_belief(folder, surface, data, command: str = "flatness") -> None:
     cell, or a cell.yaml edited since, would be read as another map."""
     from pathlib import Path
 
+    from adaptive_cal.formats.npz import broken_belief, broken_text
     from adaptive_cal.run.results import belief_mismatch
 
     folder = Path(folder)
     have = belief_mismatch(surface, data)
+    bad = broken_belief(data) if have is None else None  # read as compensate reads it
+    if bad:
+        raise UserError(broken_text(folder / "belief.npz", bad))
     if have is not None:
         k = (len(surface.sx.knots), len(surface.sy.knots))
         raise UserError(

@@ -49,3 +49,22 @@ def unresolved_at(data, x_mm, y_mm) -> np.ndarray:
     f = RegularGridInterpolator((gx, gy), np.asarray(data["unresolved_var_mm2"]))
     pts = np.c_[np.clip(x.ravel(), gx[0], gx[-1]), np.clip(y.ravel(), gy[0], gy[-1])]
     return np.maximum(f(pts), 0.0).reshape(x.shape)
+
+
+def broken_belief(data) -> str | None:
+    """Which of a saved belief's arrays (``data``: read_npz's) is not a posterior's -- NaN or
+    infinite values, or a covariance with negative variances or asymmetric -- or None. An
+    outside audit (2026-11-29): a NaN mean wrote Znan, a NaN or negated covariance switched
+    compensate's band check off."""
+    mean, cov = np.asarray(data["mean"], float), np.asarray(data["cov"], float)
+    bad = next((k for k, a in (("mean", mean), ("cov", cov)) if not np.all(np.isfinite(a))), None)
+    if bad is None and (np.any(np.diag(cov) < 0) or not np.allclose(
+            cov, cov.T, rtol=0, atol=1e-9 * np.abs(cov).max(initial=0.0))):
+        bad = "cov"  # negative variances or asymmetric: no covariance (a band would be wrong)
+    return bad
+
+
+def broken_text(path, bad: str) -> str:
+    """The message naming ``broken_belief``'s array ``bad`` of the file at ``path``."""
+    return (f"{path}: array {bad!r} is not a map's (NaN or infinite values, or a covariance "
+            "with negative variances): was it edited or cut short?")

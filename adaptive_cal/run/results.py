@@ -14,7 +14,7 @@ from adaptive_cal.cell.build import plan_model, touch_floor
 from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
 from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2, weighted_out
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.formats.npz import read_npz
+from adaptive_cal.formats.npz import broken_belief, broken_text, read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
 from adaptive_cal.formats.writing import provenance
 from adaptive_cal.formats.numbers import count
@@ -320,15 +320,10 @@ def read_belief(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
     if belief_mismatch(plan_model(cell).surface, data) is not None:
         raise ValueError(f"{path}: the earlier run used other knots; give the cell file the same "
                          "model.knots_x / knots_y")
-    mean, cov = np.asarray(data["mean"], float), np.asarray(data["cov"], float)
-    bad = next((k for k, a in (("mean", mean), ("cov", cov)) if not np.all(np.isfinite(a))), None)
-    if bad is None and (np.any(np.diag(cov) < 0) or not np.allclose(cov, cov.T, rtol=0,
-                                                                     atol=1e-9 * np.abs(cov).max())):
-        bad = "cov"  # negative variances or asymmetric: no covariance (a band would be wrong)
-    if bad:  # an outside audit: a NaN mean wrote Znan, a NaN cov switched the band check off
-        raise ValueError(f"{path}: array {bad!r} is not a map's (NaN or infinite values, or a "
-                         "covariance with negative variances): was it edited or cut short?")
-    return bl.Belief(mean, cov), Hyper(*data["hyper"].tolist())
+    bad = broken_belief(data)
+    if bad:
+        raise ValueError(broken_text(path, bad))
+    return bl.Belief(data["mean"], data["cov"]), Hyper(*data["hyper"].tolist())
 
 
 def belief_mismatch(surface, data) -> str | None:
