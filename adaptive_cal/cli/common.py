@@ -166,15 +166,17 @@ def _same(a: Path, b: Path) -> bool:
 
 
 def check_writable(option: str, out) -> None:
-    """UserError naming ``option`` unless a file can be made where ``out`` goes: a scratch file
-    is made and removed in its nearest existing folder (folders still missing are made later,
-    by the writer). For outputs written at the end of long work, checked before it starts (an
+    """UserError naming ``option`` unless a file can be made where ``out`` goes: its nearest
+    existing parent is a folder (not a file), and a scratch file is made and removed there
+    (folders still missing are made later, by the writer). For outputs written at the end of long work, checked before it starts (an
     outside audit: --json /proc/x.json failed after the whole study, naming a temporary file)."""
     import tempfile
 
     folder = next((q for q in Path(out).absolute().parents if q.exists()), None)
-    if folder is None or not folder.is_dir():
-        return  # the caller names a file standing where a folder should
+    if folder is None:
+        return
+    if not folder.is_dir():
+        raise UserError(f"{option} {out}: {folder} is a file, not a folder")
     try:
         with tempfile.TemporaryFile(dir=folder, prefix=".adaptive-cal-check-"):
             pass

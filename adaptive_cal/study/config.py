@@ -142,11 +142,11 @@ def base_cell_dict(study: Study, study_path: str | Path | None) -> dict:
     """The base cell as a plain mapping (plates are variations of it)."""
     if isinstance(study.cell, dict):
         return dict(study.cell)
-    path = _cell_path(study.cell, study_path)
+    path = cell_path(study.cell, study_path)
     return resolve_files(load_yaml(path), path)
 
 
-def _cell_path(cell: str, study_path: str | Path | None) -> Path:
+def cell_path(cell: str, study_path: str | Path | None) -> Path:
     """The cell file a study names, relative to the study file."""
     path = Path(cell)
     if not path.is_absolute() and study_path is not None:
@@ -165,7 +165,7 @@ def load_study(path: str | Path) -> tuple[Study, dict]:
     cell_dict = base_cell_dict(study, path)
     # an error names the file it is in: the cell file's own, where the study names one
     source = (f"{path}: cell" if isinstance(study.cell, dict) else
-              f"{_cell_path(study.cell, path)} (the cell of {path})")
+              f"{cell_path(study.cell, path)} (the cell of {path})")
     cell = parse_cell(cell_dict, source)
     check_feasible(study, cell, str(path))
     return study, cell_dict
