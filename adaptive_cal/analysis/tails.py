@@ -26,7 +26,7 @@ Drawn at the t's own fitted scale instead of the learned sd, the same runs held 
 The Student-t pieces (``t_logpdf``, the EM scale fit, ``tail_gains``) are explain's too: its
 heavy-tailed noise model (``analysis.explain.heavy``) and its suspect readings
 (``analysis.explain.suspects``) import them from here. This module loads neither scipy.stats
-nor the explain package, so the flatness path stays light.
+(explain starts without it) nor the explain package (the flatness answer imports this one).
 """
 from __future__ import annotations
 

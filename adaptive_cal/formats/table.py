@@ -46,9 +46,8 @@ def not_read(reading: str, flags: str) -> bool:
     ``flags`` say is not fused (``NOT_FUSED``): another tool's way to write a failed reading,
     read as this tool writes one, 0 flagged ``nonfinite`` (an outside audit: one such row
     refused the whole file)."""
-    value = strict_float(reading) if reading.strip() else math.nan
-    return (value is None and reading.strip().lower() in ("", "nan", "-nan", "inf", "-inf")
-            or value is not None and not math.isfinite(value)) and \
+    value = strict_float(reading) if reading.strip() else math.nan  # float reads nan, inf
+    return value is not None and not math.isfinite(value) and \
         bool({w.strip().lower() for w in flags.split(";")} & NOT_FUSED)
 
 

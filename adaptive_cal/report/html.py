@@ -183,12 +183,10 @@ def page(result: dict, cell: Cell, rec, surface_b64: str | None, convergence_b64
     title = f"Workplane map: {cell.name}"
     if source is None:
         origin = (f"Run folder <code>{escape(run_dir.resolve())}</code>.")
-        has = {n for n in ("result.json", "recording.csv", "cell.yaml", "belief.npz",
-                           "surface.png") if (run_dir / n).is_file()}  # only what is there
-        if "belief.npz" in has:
-            has.discard("surface.png")  # the maps are drawn from the belief itself
+        # only what is there; surface.png where there is no belief to draw the maps from
         read = [n for n in ("result.json", "recording.csv", "cell.yaml", "belief.npz",
-                            "surface.png") if n in has]
+                            "surface.png") if (run_dir / n).is_file()
+                and not (n == "surface.png" and (run_dir / "belief.npz").is_file())]
         footer = f"{escape(run_dir.name)}/" + ", ".join(read)
         resume = f"adaptive-cal run --resume {quoted(run_dir)}"
     else:

@@ -253,8 +253,9 @@ def flatness_section(result: dict) -> str:
     if plate:
         notes.append(PLATE_CALIBRATION)  # what the whole plate's intervals held elsewhere
     notes += [feature_line(f) for f in result.get("local_features") or ()]
-    if weighted_out_line(result.get("weighted_out") or []):
-        notes.append(weighted_out_line(result["weighted_out"]))
+    weighed = weighted_out_line(result.get("weighted_out") or [])
+    if weighed:
+        notes.append(weighed)
     if result.get("largest_gap"):
         notes.append(gap_line(result["largest_gap"]))
     head = ("<h2>Flatness (provisional)</h2><p><b>Provisional:</b> the map is not a result "
