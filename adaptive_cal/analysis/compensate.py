@@ -32,9 +32,11 @@ import numpy as np
 
 from adaptive_cal.formats.toolpath import Move, Toolpath, ToolpathError
 from adaptive_cal.gaussian.belief import Z95
+from adaptive_cal.analysis.compensate_text import beyond_text, refusal, under_text  # noqa: F401
 
 Height = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 SAMPLE_MM = 0.5  # dense check samples along a move at most this far apart
+CHUNK = 50_000  # check samples given to ``height`` at once (each holds 2-3 rows of the basis)
 EDGE_MM = 1e-9  # a point this close outside the plate counts as on its edge
 
 
@@ -144,150 +146,164 @@ def outside_mm(reach_mm, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def compensate(path: Toolpath, height: Height, plate_mm, tolerance_mm: float, *,
                top_mm: float, sample_mm: float = SAMPLE_MM, name: str = "program",
-               reach_mm=None, keep_outs=()) -> Compensated:
+               reach_mm=None, keep_outs=(), progress=None) -> Compensated:
     """The output points of every move of ``path`` (see the module's doc). Refuses
-    (``ToolpathError``) a point outside ``plate_mm`` and a cut whose start is not known.
-    ``reach_mm``: the box touches can reach, or None (the whole plate was reachable);
-    ``keep_outs``: ((x0, x1), (y0, y1)) each."""
+    (``ToolpathError``) a point outside ``plate_mm`` and a cut whose start is not known, the
+    first in the file. ``reach_mm``: the box touches can reach, or None (the whole plate was
+    reachable); ``keep_outs``: ((x0, x1), (y0, y1)) each; ``progress(moves)``: called as
+    moves are done. ``height`` is called on many points at once (CHUNK check samples): a
+    million-line program is a few dozen calls, not a million."""
     if not tolerance_mm > 0:
         raise ValueError(f"tolerance {tolerance_mm} mm must be positive")
-    out = Compensated()
-    for move in path.moves:
+    out, cuts, ends, rapids = Compensated(), [], [], []
+    for move in path.moves:  # every refusal first, in the file's order
         _check_inside(name, plate_mm, move, move.end, move.start)
         if move.cut:
-            _cut(out, move, height, tolerance_mm, sample_mm, name, reach_mm, keep_outs)
+            cuts.append(move)
+            ends.append(_cut_ends(move, name))
         else:
-            _rapid(out, move, height, top_mm, sample_mm)
+            rapids.append(move)
+    out.cuts, out.rapids = len(cuts), len(rapids)
+    if cuts:
+        se = np.asarray(ends, float)  # (cuts, 2, 3): start and end
+        for a, b in _chunks(_counts(se[:, 0], se[:, 1], sample_mm)):
+            _cuts(out, cuts[a:b], se[a:b, 0], se[a:b, 1], height, tolerance_mm, sample_mm,
+                  reach_mm, keep_outs)
+            if progress is not None:
+                progress(b - a)
+    _rapids(out, rapids, height, top_mm, sample_mm)
+    if progress is not None:
+        progress(len(rapids))
     return out
 
 
-def _cut(out: Compensated, move: Move, height: Height, tol: float, sample_mm: float,
-         name: str, reach_mm=None, keep_outs=()) -> None:
-    out.cuts += 1
-    end = np.array(move.end, float) if None not in move.end else None
-    if end is None:
+def _cut_ends(move: Move, name: str):
+    if None in move.end:
         raise ToolpathError(f"{name} line {move.line}: a cutting move (G1) to a point whose X, Y "
                             "or Z is not known yet: give X, Y and Z in full first (a G0)")
     if move.start is None:
-        start = end  # a CSV's first point: a point, not a segment
-    elif None in move.start:
+        return move.end, move.end  # a CSV's first point: a point, not a segment
+    if None in move.start:
         raise ToolpathError(f"{name} line {move.line}: a cutting move (G1) from a point whose X, "
                             "Y or Z is not known yet: move there first with a G0 giving X, Y and Z")
-    else:
-        start = np.array(move.start, float)
-    t = samples(float(np.hypot(*(end - start)[:2])), sample_mm)
-    pts = start + t[:, None] * (end - start)
-    mean, std = (np.asarray(a, float) for a in height(pts[:, 0], pts[:, 1]))
+    return move.start, move.end
+
+
+def _counts(start: np.ndarray, end: np.ndarray, sample_mm: float) -> np.ndarray:
+    """Check samples per move (``samples``'s, ends included), for (n, 2+) starts and ends."""
+    n = np.ceil(np.hypot(end[:, 0] - start[:, 0], end[:, 1] - start[:, 1]) / sample_mm)
+    return np.maximum(n.astype(np.int64), 1) + 1
+
+
+def _chunks(counts: np.ndarray):
+    """(first, last + 1) move ranges of about CHUNK samples each (a longer move alone)."""
+    edges = np.searchsorted(np.cumsum(counts), np.arange(CHUNK, counts.sum(), CHUNK),
+                            side="right")
+    bounds = np.unique(np.r_[0, edges, len(counts)])
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+def _along(start: np.ndarray, end: np.ndarray, counts: np.ndarray):
+    """Every move's check samples, flattened: (owner move, parameter t, points, first index of
+    each move's samples), t as ``samples`` gives it (k / n, the last exactly 1)."""
+    first = np.r_[0, np.cumsum(counts)[:-1]]
+    owner = np.repeat(np.arange(len(counts)), counts)
+    k = np.arange(int(counts.sum())) - first[owner]
+    t = k * (1.0 / (counts - 1))[owner]
+    t[first + counts - 1] = 1.0
+    pts = start[owner] + t[:, None] * (end - start)[owner]
+    return owner, t, pts, first
+
+
+def _cuts(out: Compensated, moves: list, start: np.ndarray, end: np.ndarray, height: Height,
+          tol: float, sample_mm: float, reach_mm, keep_outs) -> None:
+    counts = _counts(start, end, sample_mm)
+    owner, t, pts, first = _along(start, end, counts)
+    mean, std = (np.asarray(a, float).ravel() for a in height(pts[:, 0], pts[:, 1]))
     band = Z95 * std
-    worst = int(np.argmax(band))
-    if band[worst] > tol:
-        out.wide.append(Wide(move.line, float(pts[worst, 0]), float(pts[worst, 1]),
-                             float(band[worst])))
+    for m in np.flatnonzero(np.maximum.reduceat(band, first) > tol):
+        w = first[m] + int(np.argmax(band[first[m]:first[m] + counts[m]]))
+        out.wide.append(Wide(moves[m].line, float(pts[w, 0]), float(pts[w, 1]), float(band[w])))
     if reach_mm is not None:
         far = outside_mm(reach_mm, pts[:, 0], pts[:, 1])
-        k = int(np.argmax(far))
-        if far[k] > EDGE_MM:
-            out.beyond.append(Beyond(move.line, float(pts[k, 0]), float(pts[k, 1]),
+        for m in np.flatnonzero(np.maximum.reduceat(far, first) > EDGE_MM):
+            k = first[m] + int(np.argmax(far[first[m]:first[m] + counts[m]]))
+            out.beyond.append(Beyond(moves[m].line, float(pts[k, 0]), float(pts[k, 1]),
                                      float(far[k])))
+    under = []
     for i, ((x0, x1), (y0, y1)) in enumerate(keep_outs):
-        over = np.flatnonzero((pts[:, 0] > x0) & (pts[:, 0] < x1) & (pts[:, 1] > y0)
-                              & (pts[:, 1] < y1))
-        if over.size:
-            out.under.append(Under(move.line, float(pts[over[0], 0]), float(pts[over[0], 1]), i))
+        over = ((pts[:, 0] > x0) & (pts[:, 0] < x1) & (pts[:, 1] > y0)
+                & (pts[:, 1] < y1)).astype(np.int8)
+        for m in np.flatnonzero(np.maximum.reduceat(over, first)):
+            k = first[m] + int(np.argmax(over[first[m]:first[m] + counts[m]]))
+            under.append((m, i, Under(moves[m].line, float(pts[k, 0]), float(pts[k, 1]), i)))
+    out.under += [u for _, _, u in sorted(under, key=lambda e: e[:2])]
     limit = np.where(band <= tol, tol - band, tol)
     surface = pts[:, 2] + mean
-    kept = bisect(surface, limit)
-    z_out = surface[kept]
-    dev = deviation(t, z_out, pts[:, 2], mean, kept)
-    out.max_deviation_mm = max(out.max_deviation_mm, float(dev.max()))
-    keep = kept[1:] if len(kept) > 1 else kept
-    out.pieces[move.item] = [(float(pts[k, 0]), float(pts[k, 1]), float(surface[k])) for k in keep]
-    out.added += len(keep) - 1
+    last = first + counts - 1
+    # the chord from each move's first sample to its last, at every sample: no split needed
+    # where it stays within the limit at every sample between (bisect's first test)
+    chord = surface[first][owner] + t * (surface[last] - surface[first])[owner]
+    off = np.abs(chord - surface) > limit
+    off[first] = off[last] = False
+    split = np.maximum.reduceat(off.astype(np.int8), first).astype(bool)
+    dev = np.abs(chord - pts[:, 2] - mean)
+    whole = np.flatnonzero(~split)
+    if whole.size:
+        out.max_deviation_mm = max(out.max_deviation_mm,
+                                   float(np.max(np.maximum.reduceat(dev, first)[whole])))
+    ends = np.c_[pts[last, :2], surface[last]].tolist()
+    for m in whole:
+        out.pieces[moves[m].item] = [tuple(ends[m])]
+    for m in np.flatnonzero(split):
+        a, b = first[m], last[m] + 1
+        kept = bisect(surface[a:b], limit[a:b])
+        d = deviation(t[a:b], surface[a:b][kept], pts[a:b, 2], mean[a:b], kept)
+        out.max_deviation_mm = max(out.max_deviation_mm, float(d.max()))
+        out.pieces[moves[m].item] = [(float(pts[a + k, 0]), float(pts[a + k, 1]),
+                                      float(surface[a + k])) for k in kept[1:]]
+        out.added += len(kept) - 2
 
 
-def _raise_at(height: Height, p, top_mm: float):
-    if p[0] is None or p[1] is None:
-        return top_mm
-    return float(np.asarray(height(np.array([p[0]]), np.array([p[1]]))[0])[0])
-
-
-def _rapid(out: Compensated, move: Move, height: Height, top_mm: float, sample_mm: float) -> None:
-    out.rapids += 1
-    x, y, z = move.end
-    if z is None:
-        return  # Z never given: the line stays as written
-    h1 = _raise_at(height, move.end, top_mm)
-    out.pieces[move.item] = [(x, y, z + h1)]
-    if move.start is None or move.start[2] is None or None in (x, y):
+def _rapids(out: Compensated, moves: list, height: Height, top_mm: float,
+            sample_mm: float) -> None:
+    """Each rapid's end raised (``top_mm`` where X or Y is not known yet), a level one the map
+    tilts split in two, and ``rapid_dip_mm`` over the travel of those whose both ends are
+    known; ``height`` called on every end at once, then on every travel sample at once."""
+    moves = [m for m in moves if m.end[2] is not None]  # Z never given: the line as written
+    if not moves:
         return
-    h0 = _raise_at(height, move.start, top_mm)
-    if None in move.start[:2]:  # from somewhere not known, raised by top_mm: across first
-        if move.start[2] == z and h1 < h0:
-            out.pieces[move.item] = [(x, y, z + h0), (x, y, z + h1)]
-        return
-    a, b = np.array(move.start[:2], float), np.array([x, y], float)
-    t = samples(float(np.hypot(*(b - a))), sample_mm)
-    xy = a + t[:, None] * (b - a)
-    mean = np.asarray(height(xy[:, 0], xy[:, 1])[0], float)
-    if move.start[2] == z and np.any(a != b) and h0 != h1:
-        # a level rapid the map would tilt: across in X, Y at the higher end's Z, and up or down
-        # on its own (a control may move each axis of a rapid at its own speed: Z done first,
-        # a descending rapid ran 0.5 mm into the plate of an outside audit's program)
-        up = max(h0, h1)
-        out.pieces[move.item] = ([(x, y, z + h0), (x, y, z + h1)] if h1 < h0 else
-                                 [(a[0], a[1], z + h1), (x, y, z + h1)])
-        out.rapid_dip_mm = max(out.rapid_dip_mm, float(np.max(mean - up)))
-        return
-    out.rapid_dip_mm = max(out.rapid_dip_mm, float(np.max(mean - (h0 + t * (h1 - h0)))))
-
-
-def under_text(u: Under, keep_outs) -> str:
-    """``keep_outs[i] (x a..b, y c..d mm)`` of a cut over it."""
-    (x0, x1), (y0, y1) = keep_outs[u.index]
-    return f"keep_outs[{u.index}] (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm)"
-
-
-def beyond_text(mm: float) -> str:
-    """How far beyond the box, never "0.0" for a cut that is beyond it (0.001 mm)."""
-    return f"{mm:.1f}" if mm >= 0.05 else f"{mm:.3f}"
-
-
-def refusal(wide: list, tolerance_mm: float, name: str = "program", shown: int = 5,
-            beyond: list = (), reach_mm=None, under: list = (), keep_outs=()) -> str:
-    """The message refusing a path whose band exceeds the tolerance (``wide``) or whose cuts
-    leave the box touches can reach (``beyond``, ``reach_mm``), naming where."""
-    parts = []
-    if wide:
-        lines = [f"line {w.line} at ({w.x_mm:.1f}, {w.y_mm:.1f}) mm: band {w.band_mm * 1e3:.1f} um"
-                 for w in sorted(wide, key=lambda w: -w.band_mm)[:shown]]
-        more = f" and {len(wide) - shown} more" if len(wide) > shown else ""
-        parts.append(
-            f"the map's 95 % band exceeds the tolerance {tolerance_mm * 1e3:.1f} um on "
-            f"{len(wide)} move(s): " + "; ".join(lines) + more
-            + f". Measure more there (a cell whose plan.stop.max_std_mm is at most "
-            f"{tolerance_mm / Z95:.4f} mm, the tolerance / 1.96, bounds the band everywhere), "
-            "or raise --tolerance-mm")
-    if beyond:
-        (x0, x1), (y0, y1) = reach_mm
-        lines = [f"line {b.line} at ({b.x_mm:.1f}, {b.y_mm:.1f}) mm, "
-                 f"{beyond_text(b.outside_mm)} mm beyond it"
-                 for b in sorted(beyond, key=lambda b: -b.outside_mm)[:shown]]
-        more = f" and {len(beyond) - shown} more" if len(beyond) > shown else ""
-        parts.append(
-            f"{len(beyond)} cut(s) leave the box touches could reach, x [{x0:g}, {x1:g}] mm, "
-            f"y [{y0:g}, {y1:g}] mm (the workplane less its edge margin): " + "; ".join(lines)
-            + more + ". The map there is an extrapolation no reading tested (an edge that "
-            "rolls off is not in it), so no tolerance can be promised there: keep the cuts "
-            "inside that box, or map closer to the edge (a smaller workplane.edge_margin_mm, "
-            "where the probe can touch there)")
-    if under:
-        lines = [f"line {u.line} at ({u.x_mm:.1f}, {u.y_mm:.1f}) mm, over {under_text(u, keep_outs)}"
-                 for u in under[:shown]]
-        more = f" and {len(under) - shown} more" if len(under) > shown else ""
-        parts.append(
-            f"{len(under)} cut(s) pass over a keep-out (workplane.keep_outs: a clamp or fixture "
-            "the probe never touched): " + "; ".join(lines) + more + ". The map there rests on "
-            "touches beside it and no reading tested it, and whatever stands there is in the "
-            "cutter's way: keep the cuts off it")
-    return (f"{name}: " + ". Also, ".join(parts)
-            + ". Or write the output with those lines marked (--mark)")
+    known = [p is not None and None not in p[:2] for m in moves for p in (m.start, m.end)]
+    pts = np.array([(p[0], p[1]) if ok else (0.0, 0.0)
+                    for (p, ok) in zip((p for m in moves for p in (m.start, m.end)), known)],
+                   float)
+    h = np.where(known, np.asarray(height(pts[:, 0], pts[:, 1])[0], float).ravel(), top_mm)
+    h0s, h1s = h[0::2], h[1::2]
+    travel = []
+    for j, move in enumerate(moves):
+        (x, y, z), h0, h1 = move.end, float(h0s[j]), float(h1s[j])
+        out.pieces[move.item] = [(x, y, z + h1)]
+        if move.start is None or move.start[2] is None or None in (x, y):
+            continue
+        if None in move.start[:2]:  # from somewhere not known, raised by top_mm: across first
+            if move.start[2] == z and h1 < h0:
+                out.pieces[move.item] = [(x, y, z + h0), (x, y, z + h1)]
+            continue
+        level = move.start[2] == z and move.start[:2] != (x, y) and h0 != h1
+        if level:
+            # a level rapid the map would tilt: across in X, Y at the higher end's Z, and up or
+            # down on its own (a control may move each axis of a rapid at its own speed: Z done
+            # first, a descending rapid ran 0.5 mm into the plate of an outside audit's program)
+            out.pieces[move.item] = ([(x, y, z + h0), (x, y, z + h1)] if h1 < h0 else
+                                     [(move.start[0], move.start[1], z + h1), (x, y, z + h1)])
+        travel.append((move.start[0], move.start[1], x, y, h0, h1, level))
+    if travel:
+        tr = np.array(travel, float)
+        for a, b in _chunks(_counts(tr[:, :2], tr[:, 2:4], sample_mm)):
+            part = tr[a:b]
+            counts = _counts(part[:, :2], part[:, 2:4], sample_mm)
+            owner, t, xy, _ = _along(part[:, :2], part[:, 2:4], counts)
+            mean = np.asarray(height(xy[:, 0], xy[:, 1])[0], float).ravel()
+            h0, h1, level = part[owner, 4], part[owner, 5], part[owner, 6] > 0
+            ref = np.where(level, np.maximum(h0, h1), h0 + t * (h1 - h0))
+            out.rapid_dip_mm = max(out.rapid_dip_mm, float(np.max(mean - ref)))

@@ -237,9 +237,10 @@ def _program(hmap, args) -> int:
     if not path.moves:
         raise UserError(f"{name}: no moves found (G0/G1 with X, Y, Z, or CSV rows x_mm,y_mm,z_mm)")
     blend = _checked(path, name, T)  # a warning to print, or None
-    result = compensate(path, hmap.height(args.frame), hmap.plate_mm, T,
-                        top_mm=hmap.top_mm(args.frame), name=name, reach_mm=hmap.reach_mm,
-                        keep_outs=hmap.keep_outs)
+    with _bar(len(path.moves)) as bar:
+        result = compensate(path, hmap.height(args.frame), hmap.plate_mm, T,
+                            top_mm=hmap.top_mm(args.frame), name=name, reach_mm=hmap.reach_mm,
+                            keep_outs=hmap.keep_outs, progress=bar.update)
     marks = {}
     if result.wide or result.beyond or result.under:
         if not args.mark:
@@ -306,6 +307,15 @@ def _program(hmap, args) -> int:
               f"would read {args.out}'s heights wrongly: add G21 G90 before the first move",
               file=sys.stderr)
     return 0
+
+
+def _bar(moves: int):
+    """A progress bar over the moves on a terminal, for a program long enough to wait on (the
+    map costs about 1 us per check sample, one every 0.5 mm of cut: 100 m of cut, 0.2 s)."""
+    from tqdm import tqdm
+
+    return tqdm(total=moves, desc="compensating", unit="move", disable=None if moves > 50_000
+                else True, leave=False, dynamic_ncols=True)
 
 
 def _text(name: str) -> str:

@@ -53,6 +53,9 @@ REFUSED_G = {
 # ASCII only: a control reads no Arabic-Indic digit or no-break space (Python's \d and \s would)
 _WORD = re.compile(r"([A-Za-z])[ \t]*([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))")
 _EXPONENT = re.compile(r"[eE][-+]?\d")  # right after a number: 1.5e2 is no G-code number
+# a line of words and blanks alone, no exponent after a number: ``_words``'s quick path
+_PLAIN = re.compile(r"(?:[ \t]*[A-Za-z][ \t]*[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?![eE][-+]?[0-9]))*"
+                    r"[ \t]*")
 # axis words of other machines: rotary A B C, parallel U V W, arc centre I J K and radius R, and
 # E, the extruder axis of RepRap-style controllers (Marlin, RepRapFirmware, Klipper)
 OTHER_AXES = "ABCEUVWIJKR"
@@ -79,6 +82,8 @@ def read_toolpath(text: str, name: str = "program") -> Toolpath:
 
 def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
     """(letter, value, span in the line) of each word outside comments; anything else refused."""
+    if _PLAIN.fullmatch(line):  # words alone (most lines): nothing to refuse, read them at once
+        return [(m.group(1).upper(), float(m.group(2)), m.span()) for m in _WORD.finditer(line)]
     code = _COMMENT.sub(lambda m: " " * len(m.group()), line)
     if "(" in code or ")" in code:
         raise ToolpathError(f"{where}: unbalanced parenthesis comment")
@@ -214,17 +219,19 @@ def _replace_words(line: str, values: dict) -> str:
     """The line with its X/Y/Z words set to ``values`` (letter -> mm): existing words replaced in
     place, missing ones inserted after the last axis word (or before the first comment)."""
     spans = {k: span for k, _, span in _words(line, "line") if k in "XYZ"}
-    out = line
+    out, grown = line, {}
     for k in sorted(spans, key=lambda k: -spans[k][0]):  # right to left: spans stay valid
         if k in values:
             a, b = spans[k]
-            out = out[:a] + k + fmt(values[k]) + out[b:]
+            word = k + fmt(values[k])
+            out = out[:a] + word + out[b:]
+            grown[k] = len(word) - (b - a)
     extra = " ".join(k + fmt(values[k]) for k in "XYZ" if k in values and k not in spans)
     if not extra:
         return out
-    axis_ends = [span[1] for k, _, span in _words(out, "line") if k in "XYZ"]
-    if axis_ends:
-        at = max(axis_ends)
+    if spans:  # where the last axis word ends now: its end moved by every word replaced up to it
+        last = max(spans, key=lambda k: spans[k][0])
+        at = spans[last][1] + sum(grown.values())
     else:
         comment = _COMMENT.search(out)
         at = len(out[:comment.start()].rstrip()) if comment else len(out.rstrip())
@@ -265,8 +272,8 @@ def write_toolpath(path: Toolpath, pieces: dict, marks: dict | None = None,
             given = {k: v for k, v in zip("XYZ", first) if v is not None and (rest or k == "Z")}
             # a stop or the program's end acts after the line's motion: it goes with the last
             # piece (on the first, the program would end 25 mm into a 200 mm cut)
-            after = [(span, v) for k, v, span in _words(line, "line")
-                     if rest and k == "M" and v in AFTER_MOTION_M]
+            after = [(span, v) for k, v, span in (_words(line, "line") if rest else ())
+                     if k == "M" and v in AFTER_MOTION_M]
             for (a, b), _ in sorted(after, reverse=True):
                 tail = line[b:].strip()
                 line = line[:a].rstrip() + (" " + tail if tail else "")

@@ -12,7 +12,7 @@ class ToolpathError(ValueError):
     """A toolpath this tool cannot read or does not support; the message names the line."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)  # slots: a million-line program holds a million
 class Move:
     """One straight move: ``cut`` (G1 or a CSV row) or a rapid (G0); ``item``: its index in
     ``Toolpath.lines``; ``line``: its 1-based line number in the file; ``start``: None for a
