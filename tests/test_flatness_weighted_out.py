@@ -46,3 +46,25 @@ def test_a_clean_recording_names_none(tmp_path):
     path = _recording(tmp_path / "clean.csv")
     assert "weighted out" not in _flatness(path)
     assert json.loads(_flatness(path, "--json"))["weighted_out"] == []
+
+
+def test_a_row_flagged_outlier_1_00_replays_at_the_least_weight(tmp_path):
+    """A run writes ``outlier=1.00`` for p >= 0.995 (two decimals); a replay read it as weight 0,
+    an infinite noise variance: "rows, readings and noise_var must be finite" (a docs audit,
+    2026-11-29). Its weight is now 1e-6, as in the run that wrote it."""
+    from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.planning.gate import W_MIN, flagged_weight
+
+    path = _recording(tmp_path / "spike.csv", spike_at=33)
+    text = path.read_text().splitlines()
+    head = text.index(next(t for t in text if t.startswith("seq,")))
+    cols = text[head].split(",")
+    row = text[head + 1 + 33].split(",")
+    row[cols.index("flags")] = "outlier=1.00"
+    text[head + 1 + 33] = ",".join(row)
+    path.write_text("\n".join(text) + "\n")
+    assert flagged_weight(read_recording(path).flags[33]) == W_MIN
+    out = _flatness(path)
+    assert "seq 33 (p 1.00)" in out
+    assert main(["report", str(path), "--robot", str(SIM_CELL), "--out",
+                 str(tmp_path / "r.html")]) == 0

@@ -32,7 +32,7 @@ from scipy.stats import norm
 
 from adaptive_cal.formats.recording import Recording, surface_height_mm
 from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.planning.gate import SAME_POINT_MM, flagged_p
+from adaptive_cal.planning.gate import SAME_POINT_MM, flagged_weight
 
 ALPHA = 0.01  # false-alarm level over all of a run's retakes
 MIN_RADIUS_MM = 5.0  # the bands widen at least this far around a confirmed feature
@@ -74,7 +74,7 @@ def confirmed(surface, belief: bl.Belief, noise_std_mm: float, rec: Recording,
         b = surface.basis(np.array([x]), np.array([y]))[0]
         mean = float(b @ belief.mean)
         s = float(b @ belief.cov @ b)
-        rw = sigma2 / max(1.0 - flagged_p(rec.flags[j]), 1e-9)
+        rw = sigma2 / flagged_weight(rec.flags[j])
         if rw <= s:  # the reading carries nearly all the posterior there: nothing to leave out
             continue
         g = rw / (rw - s)

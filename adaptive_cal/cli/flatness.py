@@ -127,7 +127,7 @@ def map_flatness(args, picked=None) -> dict | None:
     from adaptive_cal.gaussian.belief import Belief
     from adaptive_cal.gaussian.prior import Hyper
     from adaptive_cal.planning import survey as sv
-    from adaptive_cal.planning.gate import flagged_p
+    from adaptive_cal.planning.gate import flagged_weight
     from adaptive_cal.run.results import touched_heights
 
     cell = load_cell(args.robot) if args.robot else load_run_cell(folder / "cell.yaml")
@@ -153,7 +153,7 @@ def map_flatness(args, picked=None) -> dict | None:
         unresolved = unresolved_at(data, plan.eval_xy[:, 0], plan.eval_xy[:, 1])
         noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm
         source = f"the map saved in {saved}"
-        weights = ([1.0 - flagged_p(f) for f, k in zip(rec.flags, rec.fused) if k]
+        weights = ([flagged_weight(f) for f, k in zip(rec.flags, rec.fused) if k]
                    if rec.flags else None)
     xyz = touched_heights(plan, rec)
     if len(xyz[2]) < 4:

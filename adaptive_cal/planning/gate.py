@@ -41,6 +41,7 @@ FLAG_P = 0.05
 GATE_P = 0.5
 #: the flag carrying a fused reading's outlier probability: ``outlier=0.12``
 OUTLIER_FLAG = "outlier="
+W_MIN = 1e-6  # the least weight a fused reading keeps: r / W_MIN, 5 um -> 5 mm, no pull
 
 
 SAME_POINT_MM = 1e-3  # a retake is taken at the gated reading's point (the commanded x, y)
@@ -129,6 +130,12 @@ def rounded_p(p: float) -> float:
 def outlier_flag(p: float) -> tuple[str, ...]:
     """``("outlier=0.12",)`` for a flagged probability, () for none."""
     return (f"{OUTLIER_FLAG}{p:.2f}",) if p >= FLAG_P else ()
+
+
+def flagged_weight(flags) -> float:
+    """The weight a recording row's flags give it: 1 - p, at least ``W_MIN`` (the run writes
+    1.00 for p >= 0.995, and a weight of 0 is an infinite noise variance)."""
+    return max(1.0 - flagged_p(flags), W_MIN)
 
 
 def flagged_p(flags) -> float:

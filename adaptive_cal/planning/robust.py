@@ -31,7 +31,7 @@ from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, log_evidence
 from adaptive_cal.formats.recording import surface_height_mm
 from adaptive_cal.gaussian import checks
-from adaptive_cal.planning.gate import GATE_P, Predictive, Retake, outlier_probability
+from adaptive_cal.planning.gate import GATE_P, W_MIN, Predictive, Retake, outlier_probability
 from adaptive_cal.planning.plan import SurveyPlan
 
 
@@ -124,7 +124,6 @@ def predictive(plan: SurveyPlan, belief: bl.Belief, hyper: Hyper, rows: np.ndarr
     return Predictive(np.asarray(means), np.asarray(variances), np.exp(logw - logw.max()))
 
 
-W_MIN = 1e-6  # the least weight a fused reading keeps: r / W_MIN, 5 um -> 5 mm, no pull
 
 
 def loo_outlier_probability(prior: bl.Belief, rows: np.ndarray, heights_mm: np.ndarray,

@@ -34,7 +34,7 @@ from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper, learned_belief, require_float64
 from adaptive_cal.planning.adequacy import Adequacy, assess
 from adaptive_cal.planning.closure import Closure
-from adaptive_cal.planning.gate import (FLAG_P, Retake, Told, flagged_p, judge as gate_judge,
+from adaptive_cal.planning.gate import (FLAG_P, Retake, Told, flagged_weight, judge as gate_judge,
                                         pending_after)
 from adaptive_cal.planning.robust import (W_MIN, InvalidReading, check_touch, settled,  # noqa: F401
                                           confirmed_against, loo_outlier_probability,
@@ -316,7 +316,7 @@ def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
         rows = plan.model.surface.basis(rec.x_mm[fused], rec.y_mm[fused])
         heights = surface_height_mm(rec.reading_mm[fused], rec.z_mm[fused], plan.zero_mm)
         flags = [f for f, keep in zip(rec.flags, fused) if keep] if rec.flags else []
-        weights = 1.0 - np.array([flagged_p(f) for f in flags]) if flags else np.ones(len(rows))
+        weights = np.array([flagged_weight(f) for f in flags]) if flags else np.ones(len(rows))
         first_fit = max(plan.hyper_after, plan.hyper_every) if learns(plan, state) else 0
         weights = replayed_weights(plan, rec, fused, rows, heights, weights, first_fit)
         state = replace(state, rows=rows, heights_mm=heights, weights=weights)

@@ -19,7 +19,7 @@ from adaptive_cal.formats.recording import read_recording, surface_height_mm
 from adaptive_cal.formats.writing import provenance
 from adaptive_cal.formats.numbers import count
 from adaptive_cal.planning.gap import largest_gap as gap_radius
-from adaptive_cal.planning.gate import flagged_p
+from adaptive_cal.planning.gate import flagged_weight
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
@@ -52,7 +52,7 @@ def reweighted(state: sv.SurveyState, rec) -> list[dict]:
     fused = rec.fused
     if not rec.flags or int(fused.sum()) != state.fused:
         return []
-    flagged = np.array([1.0 - flagged_p(f) for f, k in zip(rec.flags, fused) if k])
+    flagged = np.array([flagged_weight(f) for f, k in zip(rec.flags, fused) if k])
     now = state.fused_weights
     return [{"seq": int(seq), "outlier_probability": float(1.0 - w)}
             for seq, w, was in zip(rec.seq[fused], now, flagged) if w < was - 1e-9]

@@ -86,7 +86,7 @@ class ModbusConfig(Strict):
         "the robot stands, and the first move goes straight to the safe height above the first "
         "target: true states that every run starts with the robot parked at or above "
         "robot.safe_height_mm, clear of the plate and fixtures; false (the default) refuses "
-        "that first move before anything is written")
+        "such a cell file at load, before any move")
     scan_s: float = Field(
         0.05, gt=0, le=5, description="the PLC's longest program scan (with an HMI or gateway in "
         "between, its update period): the PC sets a rising-edge flag (start, probe_trigger) only "
