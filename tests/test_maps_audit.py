@@ -211,3 +211,31 @@ def test_a_plate_failing_on_a_dask_worker_logs_no_worker_traceback(tmp_path, cap
         client.close()
     err = capfd.readouterr().err
     assert "Compute Failed" not in err and "Traceback" not in err, err
+
+
+# -- 7. a flat zero plate: no strategy reaches the true target without a touch ------------------
+
+def test_a_zero_plate_credits_no_strategy_with_zero_touches(tmp_path):
+    """The prior's mean is 0: on a flat zero map it is the truth before any touch. A study's
+    touches to the true target counted that as reached at 0 touches for adaptive (an outside
+    audit, 2026-11-29), against the grid's smallest grid: no measurement, no credit."""
+    from adaptive_cal.study.runner import run_study
+
+    (tmp_path / "maps").mkdir()
+    X, Y = np.meshgrid(XS, YS, indexing="ij")
+    write_heightmap(tmp_path / "maps" / "zero.csv", XS, YS, 0.0 * X)
+    cell = load_yaml(SIM_CELL)
+    cell["simulation"]["effects"] = {}  # the map alone: a flat zero plate
+    cell["simulation"]["repeatability_mm"] = 0.0
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    data = load_yaml(SIM_CELL.parent / "study-smoke.yaml")
+    data.update(cell="cell.yaml", plates=1, strategies=["adaptive", "grid"],
+                lower_bound={"plates": 0})
+    data["plate"] = {**data["plate"], "surface_files": "maps/*.csv", "noise_std_mm": [0.002, 0.002]}
+    path = tmp_path / "study.yaml"
+    path.write_text(yaml.safe_dump(data))
+    study, base = load_study(path)
+    records = run_study(study, base, tmp_path / "ck.jsonl")
+    assert {r["strategy"] for r in records} == {"adaptive", "grid"}
+    for r in records:
+        assert r["touches_true"] is not None and r["touches_true"] >= 1, r

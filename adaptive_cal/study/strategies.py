@@ -83,7 +83,9 @@ def record(ctx: Context, strategy: str, trajectory: list, stop: int, final: dict
     the noise and the seed), so that the plate can be checked or run again with ``adaptive-cal
     run`` on the base cell with that block (an outside audit had to call internals for it)."""
     xy = np.asarray(xy, float).reshape(-1, 2)
-    reached = [t for t, _, rms in trajectory if rms <= target_true]
+    # a map no touch made reaches nothing: the prior's mean on a flat plate is no measurement
+    # (an outside audit: a zero map credited adaptive with 0 touches)
+    reached = [t for t, _, rms in trajectory if rms <= target_true and t > 0]
     true_touches = reached[0] if reached else None
     # a run makes no closure once the touch budget is spent (``run.loop``)
     closes = bool(ctx.plan.closure and stop_reason in CLOSING
