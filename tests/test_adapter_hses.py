@@ -230,7 +230,8 @@ def test_emulator_refusals_are_the_manuals_codes(controller, request_, status, a
 
 def test_a_bare_status_1_refusal_is_explained_from_the_status(controller):
     """yrcom's note: a live YRC1000 refuses a move in the wrong state with status 0x01 and
-    added status 0 instead of the manual's codes."""
+    added status 0 instead of the manual's codes (most likely yrcom's misreading of a 0x1F
+    refusal, protocol.STATUS; kept as a refusal either way)."""
     m = connect(controller)
     orig = controller.handle
 
@@ -411,3 +412,55 @@ def test_servo_power_that_never_comes_up_stops_with_what_to_check(controller):
                                            "emergency stops"):
         connect(controller, servo_timeout_s=0.2)
     assert not [r for r in controller.requests if r.command == P.CMD_MOVE]
+
+
+def _move(**words):
+    """A valid linear move's payload (the adapter's own layout), with ``words`` (index -> value)
+    changed."""
+    w = list(struct.unpack("<26i", P.move_payload((10.0, 20.0, 5.0), (180.0, 0.0, 0.0),
+                                                  coord=P.COORD["user"], speed_mm_per_s=50.0,
+                                                  tool=0, user_frame=1)))
+    for i, v in words.items():
+        w[int(i[1:])] = v
+    return struct.pack("<26i", *w)
+
+
+@pytest.mark.parametrize("words, added", [
+    ({"w0": 2}, 0xB008),   # robot 2: a control group this controller has not
+    ({"w2": 0}, 0xB009),   # speed class 0 (%): a link move's, not a linear move's
+    ({"w16": 0}, 0xB00E),  # user frame 0
+    ({"w16": 3}, 0xB00E),  # another user frame than the plate's
+    ({}, 0)])              # the adapter's own words: taken
+def test_the_emulator_refuses_move_words_a_controller_refuses(controller, words, added):
+    """An outside audit (2026-11-29): the emulator took a move for robot 2, speed class 0 or
+    user frame 0, so a regression in those words of ``move_payload`` passed every emulator
+    test. The manual's codes: B008 control group, B009 speed, B00E user frame number."""
+    controller.servo = True
+    ans = raw(controller, P.CMD_MOVE, 2, 1, P.SET_ALL, _move(**words))
+    assert (ans.status, ans.added) == ((0x1F, added) if added else (0, 0))
+
+
+def test_the_emulator_reads_one_status_word_and_refuses_attribute_0_of_a_get_one(controller):
+    whole = raw(controller, P.CMD_STATUS, 1, 0, P.GET_ALL).payload
+    assert len(whole) == 8
+    for attribute in (1, 2):
+        one = raw(controller, P.CMD_STATUS, 1, attribute, P.GET_ONE)
+        assert one.status == 0 and one.payload == whole[4 * attribute - 4:4 * attribute]
+    for command, instance in ((P.CMD_STATUS, 1), (P.CMD_POSITION, P.POSITION_INSTANCE)):
+        ans = raw(controller, command, instance, 0, P.GET_ONE)
+        assert (ans.status, ans.added) == (0x1F, 0xA002)
+
+
+@pytest.mark.parametrize("division, reserved", [(2, P.RESERVED), (1, b"00000000")])
+def test_the_emulator_does_not_answer_a_header_a_controller_would_not(controller, division,
+                                                                       reserved):
+    import socket
+
+    head = P.HEAD.pack(P.MAGIC, P.HEADER_SIZE, 0, 3, division, 0, 9, 0, reserved)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.settimeout(0.3)
+        s.sendto(head + P.REQ_SUB.pack(P.CMD_STATUS, 1, 0, P.GET_ALL, 0),
+                 ("127.0.0.1", controller.port))
+        with pytest.raises(socket.timeout):
+            s.recv(4096)
+    assert raw(controller, P.CMD_STATUS, 1, 0, P.GET_ALL).status == 0  # the right one is

@@ -60,6 +60,15 @@ def test_refusal_answer_golden_bytes_one_added_status_word():
     assert P.decode_answer(want, P.CMD_SERVO, P.SET_ONE)[1:4] == (P.SET_ONE, 0x1F, 0x2070)
 
 
+def test_an_added_status_is_read_only_where_its_size_says_one_is_there():
+    """The manual: 0x1F carries an added status of size 1 or 2, any other status size 0. A 0x1F
+    with size 0 and 0x2010 left in bytes 28-29 was read busy, and the adapter retried to its move
+    timeout instead of stopping (an outside audit, 2026-11-29)."""
+    stale = golden(HEAD.format(size=0, ack=1, rid=7, block="00000080")
+                   + "90 1f 00 00 1020 0000")  # size 0: bytes 28-29 are not an added status
+    assert P.decode_answer(stale, P.CMD_SERVO, P.SET_ONE)[1:4] == (P.SET_ONE, 0x1F, 0)
+
+
 def test_a_refusal_framed_the_yrcom_way_is_a_refusal():
     ans = P.decode_answer(encode_error(0x8A, 3, 0x1F, 0x2070), P.CMD_MOVE, P.SET_ALL)
     assert (ans.status, ans.added) == (0x1F, 0x2070)

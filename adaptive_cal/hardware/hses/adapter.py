@@ -242,7 +242,7 @@ class HsesMotion:
 
     def _refusal(self, e: HsesError) -> HsesError:
         """A refused move, with alarm/error read from the status when the code is 0x2060 or the
-        bare status 0x01 (a YRC1000 answers it without saying why)."""
+        bare status 0x01 (yrcom's reading of a refusal, ``protocol.STATUS``: without a why)."""
         if e.added != 0x2060 and not (e.status == 0x01 and not e.added):
             return e
         d1, d2 = self.status()

@@ -57,13 +57,18 @@ ADDED_STATUS = {
     0xA002: "attribute error",
     0xB003: "data size error: the request's data has the wrong size",
     0xB004: "data out of range",
+    0xB008: "control group not accepted: the move names a robot this controller has not",
     0xB009: "speed out of range: lower robot.hses.speed_mm_per_s",
     0xB00B: "coordinate system not accepted: check robot.hses.frame",
     0xB00D: "tool number not accepted: check robot.hses.tool",
     0xB00E: "user frame number not accepted: check robot.hses.user_frame",
 }
-# status byte without an added status (the manual's status codes; 0x01 is yrcom's note: a live
-# YRC1000 answers it, added status 0, for most requests it cannot carry out)
+# status byte without an added status (the manual's status codes). 0x01 comes from yrcom's note
+# that a live YRC1000 answers it, added status 0, for most requests it cannot carry out -- but
+# yrcom 0.3.1 reads the status two bytes late (at byte 26, the added status's size), so a
+# manual-layout refusal 0x1F with one added-status word reads 0x01, added 0, through yrcom (an
+# outside audit, 2026-11-29, against fs100's parser): most likely yrcom's reading, not the
+# controller's; kept as a refusal, with the pendant's status read to say why
 STATUS = {
     0x01: "the controller cannot carry out the request in its present state, or the data is "
           "not there (a YRC1000 answers this without saying why: look at the pendant)",
@@ -136,9 +141,11 @@ def decode_answer(data: bytes, command: int | None = None,
     """The answer; with ``command`` and ``service`` (those of the request) the sub-header must
     echo one of them (see the module docstring), else ValueError."""
     req_id, payload = _head(data, 1)
-    got_service, status, _, _, added, _ = ANS_SUB.unpack_from(data, 24)
+    got_service, status, size, _, added, _ = ANS_SUB.unpack_from(data, 24)
     if service is None or got_service == service | 0x80:
-        return Answer(req_id, got_service & 0x7F, status, added, payload)
+        # the added status is there only where its size says so (a 0x1F with size 0 and stale
+        # bytes 28-29 read 0x2010, busy, and the adapter retried to its move timeout)
+        return Answer(req_id, got_service & 0x7F, status, added if size else 0, payload)
     if command is not None and struct.unpack_from("<H", data, 24)[0] == command:
         status, size, added = data[26], data[28], struct.unpack_from("<H", data, 30)[0]
         return Answer(req_id, service, status, added if size else 0, payload)
@@ -160,7 +167,8 @@ def move_payload(xyz_mm, rxyz_deg, *, coord: int, speed_mm_per_s: float, tool: i
 
 def unpack_move(payload: bytes) -> dict:
     w = struct.unpack("<26i", payload)
-    return {"speed_mm_per_s": w[3] / 10, "coord": w[4], "xyz_mm": tuple(v / 1000 for v in w[5:8]),
+    return {"group": w[0], "speed_class": w[2], "speed_mm_per_s": w[3] / 10, "coord": w[4],
+            "xyz_mm": tuple(v / 1000 for v in w[5:8]),
             "rxyz_deg": tuple(v / 10000 for v in w[8:11]), "form": w[13], "tool": w[15],
             "user_frame": w[16]}
 

@@ -76,7 +76,8 @@ def start_emulator(cell: Cell, *, ephemeral: bool = False, move_s: float = 0.02)
             u = r.hses.user_frame_in_base
             frame = (u.origin_mm, u.rotation_deg) if u else ((0.0,) * 3, (0.0,) * 3)
             emu.hses = HsesServer(emu.robot, host, 0 if ephemeral else r.hses.port,
-                                  r.hses.offset_mm, frame, r.hses.frame).start()
+                                  r.hses.offset_mm, frame, r.hses.frame,
+                                  user_frame_no=r.hses.user_frame).start()
         ends = {}
         for role, block in (("robot", r), ("probe", p)):
             if block.adapter == "modbus":

@@ -6,7 +6,12 @@ says, of the tool of the last move), hold / servo / HLOCK (0x83 instances 1 / 2 
 frame) with the packet layout of ``hardware.hses.protocol``. Refusals as the manual's table: a
 command hold 0x2050, external 0x2040, pendant 0x2020; status 0x1F with B003 for a data size
 error, A001 for an instance a command does not have, B004 for a value out of range; status 0x28
-for a data instance not emulated, 0x08 for a command not defined. The plate lies at ``offset_mm`` in the
+for a data instance not emulated, 0x08 for a command not defined; a move for another robot than 1
+(B008), in another speed class than V (B009) or another user frame than ``user_frame_no`` (B00E);
+a get-one (0x0E) of attribute 0 (A002). A request whose header names another division than the
+robot's (1) or another reserved field than '99999999' is not answered, as a controller would not
+vouch for it (an outside audit, 2026-11-29: the emulator had taken every one of these, so a
+regression in those words would have passed every test against it). The plate lies at ``offset_mm`` in the
 user frame (``plate_frame='user'``) or the base frame; the user frame lies at ``user_frame``
 (origin mm, Rx Ry Rz deg) in the base frame. Faults for tests are set on ``faults``.
 """
@@ -47,8 +52,9 @@ class HsesServer:
 
     def __init__(self, robot: EmulatedRobot, host: str = "127.0.0.1", port: int = 0,
                  offset_mm=(0.0, 0.0, 0.0), user_frame=((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),
-                 plate_frame: str = "user"):
+                 plate_frame: str = "user", user_frame_no: int = 1):
         self.robot, self.offset = robot, tuple(offset_mm)
+        self.user_frame_no = user_frame_no  # the user frame the plate's frame is taught as
         self.user_frame, self.plate_frame = (tuple(user_frame[0]), tuple(user_frame[1])), plate_frame
         self.faults = HsesFaults()
         self.servo = self.hold = self.hlock = self.error = False
@@ -80,6 +86,10 @@ class HsesServer:
                 continue
             try:
                 req = P.decode_request(data)
+                _, _, _, _, division, _, _, _, reserved = P.HEAD.unpack_from(data)
+                if division != 1 or reserved != P.RESERVED:
+                    raise ValueError(f"division {division} (the robot's is 1), reserved field "
+                                     f"{reserved!r} (the manual's is b'99999999')")
             except ValueError as e:
                 log.warning("hses emulator: dropped a malformed request: %s", e)
                 continue
@@ -168,12 +178,17 @@ class HsesServer:
     def handle(self, req: P.Request) -> bytes:
         r, ok = self.robot, (lambda payload=b"": P.encode_answer(req.req_id, req.service, 0, 0,
                                                                   payload))
+        if req.service == P.GET_ONE and req.attribute == 0:
+            return self._error(req, 0xA002)  # a get-one names its attribute
         if req.command == P.CMD_STATUS:
             d1 = P.PLAY | (P.REMOTE if self.faults.remote else 0)
             d1 |= P.RUNNING if r.moving() else 0
             d2 = (P.SERVO if self.servo_shows() else 0) | (P.ALARM if r.alarm else 0)
             d2 |= (P.ERROR if self.error else 0) | (self.faults.hold_bits & 0x06)
             d2 |= 0x08 if self.hold else 0  # hold by command
+            if req.service == P.GET_ONE:  # one word: attribute 1 data 1, 2 data 2
+                return (ok(struct.pack("<I", (d1, d2)[req.attribute - 1]))
+                        if req.attribute in (1, 2) else self._error(req, 0xA002))
             return ok(struct.pack("<II", d1, d2))
         if req.command == P.CMD_ALARM:
             if not 1 <= req.instance <= 4:
@@ -211,10 +226,14 @@ class HsesServer:
             if req.service != P.SET_ALL or len(req.payload) != 104:
                 return self._error(req, 0xB003)  # data size error
             m = P.unpack_move(req.payload)
+            if m["group"] != 1:
+                return self._error(req, 0xB008)  # one robot here
             if m["coord"] not in (P.COORD["base"], P.COORD["user"]):
                 return self._error(req, 0xB00B)
-            if not 0 < m["speed_mm_per_s"] <= 1000:
-                return self._error(req, 0xB009)
+            if m["speed_class"] != 1 or not 0 < m["speed_mm_per_s"] <= 1000:
+                return self._error(req, 0xB009)  # a linear move's speed: class 1, V
+            if m["coord"] == P.COORD["user"] and m["user_frame"] != self.user_frame_no:
+                return self._error(req, 0xB00E)
             base = (m["xyz_mm"] if m["coord"] == P.COORD["base"]
                     else user_to_base(m["xyz_mm"], *self.user_frame))
             r.command(*self.to_workplane(base))
