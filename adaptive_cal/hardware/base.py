@@ -45,6 +45,9 @@ def interrupted_by(e: BaseException) -> str:
     return getattr(e, "by", "Ctrl-C")
 
 
+CLEARANCE_MM = 0.5  # the least gap kept between the free tip and the plate under a travel
+
+
 class UnsafeTarget(AdapterError):
     """A target outside the workplane, a keep-out or the workspace box; it was not sent."""
 
@@ -160,6 +163,9 @@ class ProbeCycle:
     #: touches in a row with the very same reading that mark the readout frozen (a stale serial
     #: value, a PLC register not updated): that touch is rejected ``frozen`` (``frozen_after``)
     frozen_after: int | None = None
+    #: how far below the commanded height the free tip reaches (probe.zero_mm - probe.rest_mm):
+    #: a travel clears a plate only where it stands lower than that below it
+    reach_mm: float = 0.0
     _same: list = field(default_factory=lambda: [math.nan, 0], init=False, repr=False)
 
     def seed_repeats(self, readings) -> None:
@@ -178,10 +184,27 @@ class ProbeCycle:
                 raise UnsafeTarget(f"target x={x:.3f} y={y:.3f} z={z:.3f} mm is outside the "
                                    "workplane, a keep-out or the workspace box; nothing was sent")
 
-    def touch(self, x_mm: float, y_mm: float, z_mm: float) -> Touch:
-        """Touch at (x, y) with the reference height z; returns the median reading."""
+    def touch(self, x_mm: float, y_mm: float, z_mm: float,
+              plate_top: Callable[[tuple], float] | None = None) -> Touch:
+        """Touch at (x, y) with the reference height z; returns the median reading.
+        ``plate_top(from_xy)``: the highest the plate may stand under the travel from where
+        the probe is (``planning.clearance``): the lift and travel go at least ``reach_mm`` +
+        ``CLEARANCE_MM`` above it, higher than the safe height where need be."""
         safe = max(self.safe_height_mm, z_mm)
         cx, cy, cz = self.motion.position()
+        if plate_top is not None:
+            plate_top_mm = plate_top((cx, cy))
+            need = plate_top_mm + self.reach_mm + CLEARANCE_MM
+            if need > safe and not self.allowed(x_mm, y_mm, need):
+                raise UnsafeTarget(
+                    f"the plate may stand up to {plate_top_mm:.3f} mm under the travel to x="
+                    f"{x_mm:.3f} y={y_mm:.3f} mm, and the free probe tip reaches "
+                    f"{self.reach_mm:g} mm below the commanded height: travel at "
+                    f"robot.safe_height_mm={self.safe_height_mm:g} would drag it over the plate, "
+                    f"and the {need:.3f} mm it needs is outside the workspace box; nothing was "
+                    "sent. Raise robot.safe_height_mm and workspace.z_mm's top, or level the "
+                    "plate")
+            safe = max(safe, need)
         if all(map(math.isfinite, (cx, cy, cz))):
             below = cz < safe - 1e-9  # the tip may be down until this lift is done
             path = [(cx, cy, safe)] if below else []  # lift before travelling

@@ -17,22 +17,23 @@ Each touch:
 4. the reading is fused (and the hyper-parameters refitted on schedule);
 5. every hook sees the new ``Step``.
 
-A batch is cut short after a gated reading (the retake comes first), when ``interrupt()`` says
-so, when a met bound waits for repeats (``planning.repeats``: ask gives them next), or when the
-stop predicate fires: it is asked before each ask and after each touch, so a batch larger than
-the touch budget left never makes more touches than the budget. ``loop.state`` is the latest
-state even when a device raises.
+A batch is cut short after a gated reading (the retake first), at ``interrupt()``, when a met
+bound waits for repeats (``planning.repeats``) or the stop predicate fires: asked before each ask
+and after each touch, so a batch never makes more touches than the budget left. ``loop.state``
+is the latest state even when a device raises. The travel to a touch clears the plate under it
+(``planning.clearance``).
 
-The closure touch (``plan.closure``, ``planning.closure``): when the predicate stops on a bound,
-the first place is touched again (and retaken if gated; confirmed if one reading alarms), flagged
-``closure``, fused like any reading, judged into ``state.closure``. A drift ends the loop with
-``DRIFT``; else it stops as the predicate says (or goes on if the repeat moved the status off the
-bound; a later stop closes again ``CLOSURE_GAP`` touches on). Never past the budget: where no
-bound stopped the run first, the closure comes with two touches left, the last for a retake."""
+The closure touch (``plan.closure``, ``planning.closure``): at a stop on a bound the first place
+is touched again (retaken if gated; confirmed if one reading alarms), flagged ``closure``, fused,
+judged into ``state.closure``. A drift ends the loop with ``DRIFT``; else it stops as the
+predicate says (or goes on if the repeat moved the status off the bound; a later stop closes
+again ``CLOSURE_GAP`` touches on). Never past the budget: where no bound stopped the run first,
+the closure comes with two touches left, the last for a retake."""
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from functools import partial
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -43,6 +44,7 @@ from adaptive_cal.planning import closure as cl
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.adequacy import positions_mm
 from adaptive_cal.planning.ask import Target, ask, target as target_at
+from adaptive_cal.planning.clearance import plate_top_mm  # the travel's height over the plate
 from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.robust import InvalidReading
@@ -52,12 +54,10 @@ from adaptive_cal.planning.stopping import Status, touches_left, waits_for_repea
 #: the reason a loop ends when no allowed point can be promised inside the probe stroke
 NO_ADMISSIBLE_POINT = "no_admissible_point"
 #: the reason a loop ends after ``MAX_INVALID`` invalid readings in a row (a broken device)
-INVALID_READINGS = "invalid_readings"
-MAX_INVALID = 3
+INVALID_READINGS, MAX_INVALID = "invalid_readings", 3
 #: ... after ``MAX_REJECTED`` touches in a row the probe cycle rejected (stroke end, spread):
 #: they teach the planner nothing, so it would ask the same touch again and again
-TOUCHES_REJECTED = "touches_rejected"
-MAX_REJECTED = 3
+TOUCHES_REJECTED, MAX_REJECTED = "touches_rejected", 3
 #: the reason a loop ends when its closure touch found the cell drifting
 DRIFT = cl.DRIFT
 #: the stop reasons that close with a closure touch (a variance bound met)
@@ -78,9 +78,8 @@ class Row(NamedTuple):
 
 
 class Step(NamedTuple):
-    """What the hooks see after each touch: the new state and its status, the target, and
-    either the touch and its judgement or the probe cycle's rejection (``invalid``: the reason
-    ``survey.judge`` refused the reading, or None)."""
+    """What the hooks see after each touch: the new state, its status, the target, and the
+    touch and its judgement or the cycle's rejection (``invalid``: why it was refused, or None)."""
 
     state: sv.SurveyState
     status: Status
@@ -270,7 +269,8 @@ class SurveyLoop:
         plan = self.plan
         touch = told = rejected = invalid = None
         try:
-            touch = self.cycle.touch(target.x_mm, target.y_mm, target.z_mm)
+            touch = self.cycle.touch(target.x_mm, target.y_mm, target.z_mm, partial(
+                plate_top_mm, plan, self.state, to_xy=(target.x_mm, target.y_mm)))
         except TouchRejected as e:
             rejected = e
             self._reject(target, e, extra)

@@ -1,0 +1,112 @@
+"""The free probe tip hangs ``zero_mm - rest_mm`` below the commanded height: a travel at the
+safe height dragged it over a plate standing higher than that (an outside safety audit,
+2026-11-29: a 1 m plate at 1.2 deg read up to 0.33 mm of indication while travelling, a 5.7 deg
+one travelled with the probe pushed 5 mm into its stroke; every run ended on its bound, exit 0).
+Now the travel to each touch goes high enough to clear the plate under it, as the belief bounds
+it (``planning.clearance``), or nothing is sent. Checked against the simulated plate's TRUE
+surface, by this file's own arithmetic."""
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from adaptive_cal.cell.schema import load_yaml
+from adaptive_cal.cli import main
+from adaptive_cal.hardware.base import CLEARANCE_MM, ProbeCycle, Sample, UnsafeTarget
+from adaptive_cal.simulation.cell import SimulatedCell
+
+from helpers import SIM_CELL
+
+
+class Motion:
+    def __init__(self, pose=(0.0, 0.0, 15.0)):
+        self.pose, self.sent = pose, []
+
+    def position(self):
+        return self.pose
+
+    def move_to(self, *p):
+        self.sent.append(p)
+        self.pose = p
+
+
+class Probe:
+    def read(self):
+        return Sample(5.0, 0.0)
+
+
+def _cycle(motion, allowed=lambda x, y, z: True):
+    return ProbeCycle(motion, Probe(), allowed, safe_height_mm=15.0, usable_mm=(0.5, 9.5),
+                      reach_mm=5.0)
+
+
+def test_the_travel_rises_above_a_plate_the_tip_would_reach():
+    m = Motion()
+    asked = []
+
+    def top(from_xy):
+        asked.append(from_xy)
+        return 12.0  # the plate may stand 12 mm high under this travel: 12 + 5 > 15
+
+    _cycle(m).touch(100.0, 50.0, 11.0, top)
+    travel = 12.0 + 5.0 + CLEARANCE_MM
+    assert asked == [(0.0, 0.0)]  # from where the probe is
+    assert m.sent == [(0.0, 0.0, travel), (100.0, 50.0, travel), (100.0, 50.0, 11.0),
+                      (100.0, 50.0, travel)]
+    m2 = Motion()
+    _cycle(m2).touch(100.0, 50.0, 2.0, lambda xy: 3.0)  # a low plate: the safe height as before
+    assert [p[2] for p in m2.sent] == [15.0, 2.0, 15.0]
+
+
+def test_a_travel_the_workspace_cannot_hold_sends_nothing_and_names_the_keys():
+    m = Motion()
+    box = lambda x, y, z: z <= 16.0  # noqa: E731
+    with pytest.raises(UnsafeTarget, match=r"robot\.safe_height_mm=15 would drag it over the "
+                                           r"plate.*workspace\.z_mm"):
+        _cycle(m, box).touch(100.0, 50.0, 11.0, lambda xy: 12.0)
+    assert m.sent == []
+
+
+def _free_everywhere(sent, surface, reach_mm):
+    """The worst (surface - (z - reach)) over every travel: segments between consecutive targets
+    that change x or y, sampled every 1 mm, at the lower of their two heights (mm; below 0: the
+    tip hangs free)."""
+    worst = -math.inf
+    for (x0, y0, z0), (x1, y1, z1) in zip(sent, sent[1:]):
+        d = math.hypot(x1 - x0, y1 - y0)
+        if d < 1e-9:
+            continue  # a plunge or a lift at one place: the approach touches by design
+        t = np.linspace(0.0, 1.0, int(d) + 2)
+        h = surface(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
+        worst = max(worst, float(np.max(h - (min(z0, z1) - reach_mm))))
+    return worst
+
+
+def test_a_large_tilted_plate_is_never_dragged_over(tmp_path, monkeypatch):
+    """The audit's plate: 1 m wide, tilted 1.2 deg (the default 1 deg tilt prior), the safe
+    height 15 mm, the tip reaching 5 mm below: its far edge stands 10.5 mm high."""
+    cell = load_yaml(SIM_CELL)
+    cell["workplane"]["x_mm"] = [-500.0, 500.0]
+    cell.setdefault("workspace", {})
+    cell["workspace"] = {**(cell.get("workspace") or {}), "x_mm": [-505.0, 505.0]}
+    cell["simulation"]["effects"]["tilt"] = {"a": 0.021, "b": 0.0019, "c": 0.2}
+    path = tmp_path / "big.yaml"
+    path.write_text(yaml.safe_dump(cell))
+    sent, sims = [], []
+    original = SimulatedCell.move_to
+
+    def move_to(self, x, y, z):
+        sims.append(self)
+        sent.append((x, y, z))
+        original(self, x, y, z)
+
+    monkeypatch.setattr(SimulatedCell, "move_to", move_to)
+    assert main(["run", "--robot", str(path), "--out", str(tmp_path / "run"),
+                 "--no-progress"]) == 0
+    reach = cell["probe"].get("zero_mm", 5.0) - cell["probe"].get("rest_mm", 0.0)
+    worst = _free_everywhere(sent, sims[0].surface_mm, reach)
+    assert worst < -CLEARANCE_MM + 0.05, f"the tip reached {worst:.3f} mm into the plate"
+    # the plate does stand within the tip's reach of the safe height: the test tests something
+    assert float(sims[0].surface_mm(np.array([500.0]), np.array([185.0]))[0]) > \
+        cell["robot"]["safe_height_mm"] - reach
