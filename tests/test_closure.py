@@ -311,10 +311,10 @@ class _MisreadsTheRepeat:
     def __getattr__(self, name):
         return getattr(self.cycle, name)
 
-    def touch(self, x_mm, y_mm, z_mm):
+    def touch(self, x_mm, y_mm, z_mm, plate_top=None):
         from dataclasses import replace
 
-        t = self.cycle.touch(x_mm, y_mm, z_mm)
+        t = self.cycle.touch(x_mm, y_mm, z_mm, plate_top)
         self.n += 1
         if self.first is None:
             self.first = (x_mm, y_mm)

@@ -54,11 +54,11 @@ def test_the_cli_prints_the_warning_first(tmp_path, monkeypatch, capsys):
 
     calls = []
 
-    def touch(self, x, y, z):  # the second touch's retract fails
+    def touch(self, x, y, z, plate_top=None):  # the second touch's retract fails
         calls.append((x, y, z))
         if len(calls) == 2:
             self.motion = RetractFailsOnce(self.motion, fail_on=3)
-        return real(self, x, y, z)
+        return real(self, x, y, z, plate_top)
 
     monkeypatch.setattr(base.ProbeCycle, "touch", touch)
     code = main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "run"), "--no-progress"])
@@ -125,11 +125,11 @@ def test_a_ctrl_c_during_the_retract_says_the_probe_may_be_down_first_and_exits_
 
     real, calls = base.ProbeCycle.touch, []
 
-    def touch(self, x, y, z):  # the second touch's retract is interrupted
+    def touch(self, x, y, z, plate_top=None):  # the second touch's retract is interrupted
         calls.append((x, y, z))
         if len(calls) == 2:
             self.motion = CtrlCOnRetract(self.motion, fail_on=3)
-        return real(self, x, y, z)
+        return real(self, x, y, z, plate_top)
 
     monkeypatch.setattr(base.ProbeCycle, "touch", touch)
     code = main(["run", "--robot", str(SIM_CELL), "--out", str(tmp_path / "run"), "--no-progress"])

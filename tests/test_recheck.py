@@ -303,3 +303,26 @@ def test_a_recheck_on_another_plate_does_not_stop_on_its_bound_after_one_surpris
     r = session.run(level, tmp_path / "other", prior_from=out, correction_applied="none",
                     progress=False)
     assert r["stopped_because"] == session.PRIOR_DISAGREES, (r["stopped_because"], r["touches"])
+
+
+def test_a_recheck_stops_at_the_first_reading_off_the_stroke(tmp_path):
+    """An outside safety audit (2026-11-29): a 2 deg plate, its correction assumed applied but
+    not: the earlier belief, moved by that correction and trusted to 0.01 mm, put the far edges
+    7 mm off; one touch missed the plate, the next overran the stroke's end by 1.19 mm and the
+    same target was sent again. Now the first reading off the usable stroke, where that belief
+    promised mid-stroke, stops the re-check, naming the correction assumed."""
+    steep = {"effects": {"tilt": {"a": 0.035, "b": 0.0019, "c": 0.2},
+                         "form": {"pv_mm": 0.28, "bow_y": 1.0, "twist": 0.4}}}
+    first = tmp_path / "first"
+    cell = sim_cell(simulation=steep, model={"tilt_std_deg": 3.0}, robot={"safe_height_mm": 30.0})
+    assert session.run(cell, first, progress=False)["stopped_because"] == "mean_std_bound"
+    cell = sim_cell(simulation={**steep, "seed": RECHECK_SEED}, model={"tilt_std_deg": 3.0},
+                    robot={"safe_height_mm": 30.0})
+    r = session.run(cell, tmp_path / "re", prior_from=first, progress=False)
+    assert r["stopped_because"] == session.PRIOR_DISAGREES
+    rows = [line.split(",") for line in (tmp_path / "re" / "recording.csv").read_text()
+            .splitlines() if line[:1].isdigit()]
+    off = [row for row in rows if "stroke_end" in row[6]]
+    assert len(off) == 1 and off[0] is rows[-1]  # the first one off the stroke was the last
+    why = r["prior_from"]["disagreement"]
+    assert "(proposed: rx" in why and "left the probe's usable stroke" in why

@@ -24,12 +24,12 @@ class _Refusing:
         self.cycle, self.motion, self.clock = cycle, cycle.motion, cycle.clock
         self.refuse, self.k = set(refuse), 0
 
-    def touch(self, x, y, z):
+    def touch(self, x, y, z, plate_top=None):
         k, self.k = self.k, self.k + 1
         if k in self.refuse:
             raise TouchRejected("reading 10.0000 mm outside the usable stroke", 10.0,
                                 ("rejected", "stroke_end"))
-        return self.cycle.touch(x, y, z)
+        return self.cycle.touch(x, y, z, plate_top)
 
 
 def _plan_and_cell():
@@ -81,19 +81,26 @@ def test_a_steep_plate_in_a_shallow_workspace_gets_only_approach_heights_inside_
     """The gradient refinement of a pick checked the workplane and the stroke but not the
     workspace's z range: on a plate tilted 0.08 / 0.05 mm/mm in a workspace of z -15..15 mm it
     proposed z 19.2 mm, the motion's safety check refused it (nothing was sent) and the run
-    ended on an error after 7 touches (an audit, 2026-11-24). Now the run goes on to its
-    budget, every approach height inside the box."""
+    ended on an error after 7 touches (an audit, 2026-11-24); then the run went on to its budget,
+    every approach height inside the box -- travelling at the safe height 15 mm over a plate
+    that stands up to 27 mm there, the free tip reaching 5 mm below (a safety audit,
+    2026-11-29). Now every approach height is still inside the box, and the run stops, before
+    it sends a travel the plate would stand in the tip's way of, saying so and naming the keys;
+    every reading taken is kept."""
     data = yaml.safe_load(SIM_CELL.read_text())
     data["simulation"]["effects"]["tilt"].update(a=0.08, b=0.05)
     data["workspace"]["z_mm"] = [-15, 15]
     data["plan"]["stop"]["max_touches"] = 25
     cell = tmp_path / "cell.yaml"
     cell.write_text(yaml.safe_dump(data))
-    with contextlib.redirect_stdout(io.StringIO()):
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         code = main(["run", "--robot", str(cell), "--out", str(tmp_path / "run"),
                      "--no-progress"])
     rec = read_recording(tmp_path / "run" / "recording.csv")
-    assert code == 1 and len(rec.z_mm) == 25  # the budget spent, the bound unmet
-    assert json.loads((tmp_path / "run" / "result.json").read_text())["stopped_because"] == \
-        "touch_budget"
+    assert code == 2 and 3 <= len(rec.z_mm) < 25, err.getvalue()
+    assert "would drag it over the plate" in err.getvalue()
+    assert "robot.safe_height_mm" in err.getvalue() and "workspace.z_mm" in err.getvalue()
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["stopped_because"] == "interrupted" and result["touches"] == len(rec.z_mm)
     assert rec.z_mm.min() >= -15 and rec.z_mm.max() <= 15

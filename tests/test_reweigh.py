@@ -86,8 +86,8 @@ class _FirstTouchMisreads:
     def __getattr__(self, name):
         return getattr(self.cycle, name)
 
-    def touch(self, x_mm, y_mm, z_mm):
-        t = self.cycle.touch(x_mm, y_mm, z_mm)
+    def touch(self, x_mm, y_mm, z_mm, plate_top=None):
+        t = self.cycle.touch(x_mm, y_mm, z_mm, plate_top)
         self.n += 1
         return replace(t, reading_mm=t.reading_mm + self.error_mm) if self.n == 1 else t
 

@@ -164,9 +164,9 @@ class _BadProbe:
         self.cycle, self.motion, self.clock = cycle, cycle.motion, cycle.clock
         self.nan_at, self.off_at, self.k = set(nan_at), set(off_at), 0
 
-    def touch(self, x, y, z):
+    def touch(self, x, y, z, plate_top=None):
         from dataclasses import replace
-        t = self.cycle.touch(x, y, z)
+        t = self.cycle.touch(x, y, z, plate_top)
         k, self.k = self.k, self.k + 1
         if k in self.nan_at:
             return replace(t, reading_mm=math.nan)

@@ -142,8 +142,8 @@ class _OutlierCycle:
         self.cycle, self.bad, self.count = cycle, bad, 0
         self.motion = cycle.motion
 
-    def touch(self, x, y, z):
-        t = self.cycle.touch(x, y, z)
+    def touch(self, x, y, z, plate_top=None):
+        t = self.cycle.touch(x, y, z, plate_top)
         self.count += 1
         if self.count == self.bad:
             from dataclasses import replace
@@ -178,11 +178,11 @@ def _failing_at(monkeypatch, touch: int, error: Exception):
         def __init__(self, cycle):
             self.cycle, self.motion, self.count = cycle, cycle.motion, 0
 
-        def touch(self, x, y, z):
+        def touch(self, x, y, z, plate_top=None):
             self.count += 1
             if self.count == touch:
                 raise error
-            return self.cycle.touch(x, y, z)
+            return self.cycle.touch(x, y, z, plate_top)
 
     monkeypatch.setattr(session, "open_cell",
                         lambda cell, **kw: setattr(oc := real_open(cell, **kw), "cycle",
@@ -467,11 +467,11 @@ def test_a_rejected_touch_keeps_its_real_position_and_is_never_fused():
         def __init__(self, cycle):
             self.cycle, self.motion, self.clock, self.count = cycle, cycle.motion, cycle.clock, 0
 
-        def touch(self, x, y, z):
+        def touch(self, x, y, z, plate_top=None):
             self.count += 1
             if self.count == 3:
                 raise TouchRejected("stroke end", 9.9, ("rejected", "stroke_end"))
-            return self.cycle.touch(x, y, z)
+            return self.cycle.touch(x, y, z, plate_top)
 
     cell = sim_cell()
     plan = survey_plan(cell)

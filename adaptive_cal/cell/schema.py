@@ -55,7 +55,9 @@ class Robot(Block):
         None, description="robot base in the workplane frame (arm_sag, reach)")
     speed_mm_per_s: float = Field(100.0, gt=0, le=10000, description="travel speed (robot time estimates)")
     safe_height_mm: float = Field(15.0, gt=0, le=1000, description="travel height (workplane "
-                                  "z) between touches; above probe.zero_mm, the tip's free reach")
+                                  "z) between touches, above probe.zero_mm (the tip's free reach); "
+                                  "higher (0.5 mm clear) where the plate may stand within that "
+                                  "reach (1 in 10^6), or a stop if workspace.z_mm cannot hold it")
     touch_time_s: float = Field(3.0, le=3600, description="approach, settle, read and retract; "
                                 "above 0 (the planner weighs travel against it)")
     manual: ManualConfig | None = None

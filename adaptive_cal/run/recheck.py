@@ -139,13 +139,21 @@ def load_prior(run_dir: Path, cell: Cell, correction: str | tuple[float, float] 
     return bl.widen(earlier, extra), hyper, info
 
 
-def disagreement(carried: dict, surprises: list[int]) -> str:
-    """Why a re-check stopped early, and what to do, in one sentence for the terminal."""
+def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = ()) -> str:
+    """Why a re-check stopped early, and what to do, in one sentence for the terminal.
+    ``off_stroke``: seqs of touches whose reading left the probe's usable stroke where the
+    belief put it mid-stroke (1 in 10^6): one is enough, and the next could overrun the
+    stroke's end (an outside safety audit, 2026-11-29: a correction assumed but not applied
+    drove the probe 1.19 mm past it, twice)."""
     c = carried["correction_deg"]
+    seen = ([f"{len(surprises)} readings (seq {', '.join(map(str, surprises))}) were confirmed "
+             "by their retake far outside its band"] if surprises else []) + (
+        [f"the reading of seq {', '.join(map(str, off_stroke))} left the probe's usable stroke "
+         "where that belief put it mid-stroke (no contact, or the stroke's end: the next touch "
+         "could overrun it)"] if off_stroke else [])
     return (f"the plate is not where the earlier run's belief puts it in the frame assumed "
             f"({carried['assumed']}: rx {fixed(c['rx'], 4, '+')} deg, ry "
             f"{fixed(c['ry'], 4, '+')} deg): "  # never "-0.0000"
-            f"{len(surprises)} readings (seq {', '.join(map(str, surprises))}) were confirmed by "
-            "their retake far outside its band. Not a result: give the correction that was "
+            + "; ".join(seen) + ". Not a result: give the correction that was "
             "really applied (--correction-applied proposed | none | RX,RY), or map from scratch "
             "without --prior-from")

@@ -189,20 +189,23 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         hooks.append(lambda step: _update(bar, cell, step.status, floor))
 
     surprises = []  # seqs of readings confirmed by their retake far from the belief
+    off_stroke = []  # seqs of touches whose reading left the usable stroke (rejected)
 
     def record(row: Row) -> None:
         writer.append(seq=row.seq + seq_offset, t_s=row.t_s, x_mm=row.x_mm, y_mm=row.y_mm, z_mm=row.z_mm,
                       reading_mm=row.reading_mm, flags=row.flags, round=0)
         if "surprise" in row.flags:
             surprises.append(row.seq + seq_offset)
+        if "stroke_end" in row.flags:
+            off_stroke.append(row.seq + seq_offset)
 
     stopped, error = None, None
     with _deferred_interrupt() as flag:
         held = {"n": 0, "at": 0}  # surprises seen, touches at the last
 
         def stop(state, status):
-            if carried is not None and len(surprises) >= PRIOR_SURPRISES:
-                return PRIOR_DISAGREES
+            if carried is not None and (len(surprises) >= PRIOR_SURPRISES or off_stroke):
+                return PRIOR_DISAGREES  # one reading off the stroke: the next may overrun it
             if len(surprises) > held["n"]:
                 held.update(n=len(surprises), at=state.touches)
             why = plan.stop(status)
@@ -239,7 +242,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         result = None
         if error is None or state.touches:
             if carried is not None and stopped == PRIOR_DISAGREES:
-                carried = {**carried, "disagreement": disagreement(carried, surprises)}
+                carried = {**carried,
+                           "disagreement": disagreement(carried, surprises, off_stroke)}
             try:
                 result = write_results(
                     cell, plan, state, paths.out, stopped or "interrupted",
