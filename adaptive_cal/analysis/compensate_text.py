@@ -6,8 +6,8 @@ from __future__ import annotations
 from adaptive_cal.gaussian.belief import Z95
 
 
-def under_text(u: Under, keep_outs) -> str:
-    """``keep_outs[i] (x a..b, y c..d mm)`` of a cut over it."""
+def under_text(u, keep_outs) -> str:
+    """``keep_outs[i] (x a..b, y c..d mm)`` of a cut over it (``u``: an ``Under``)."""
     (x0, x1), (y0, y1) = keep_outs[u.index]
     return f"keep_outs[{u.index}] (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm)"
 
