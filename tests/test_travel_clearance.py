@@ -13,27 +13,11 @@ import yaml
 
 from adaptive_cal.cell.schema import load_yaml
 from adaptive_cal.cli import main
-from adaptive_cal.hardware.base import CLEARANCE_MM, ProbeCycle, Sample, UnsafeTarget
+from adaptive_cal.hardware.base import CLEARANCE_MM, ProbeCycle, UnsafeTarget
 from adaptive_cal.simulation.cell import SimulatedCell
 
 from helpers import SIM_CELL
-
-
-class Motion:
-    def __init__(self, pose=(0.0, 0.0, 15.0)):
-        self.pose, self.sent = pose, []
-
-    def position(self):
-        return self.pose
-
-    def move_to(self, *p):
-        self.sent.append(p)
-        self.pose = p
-
-
-class Probe:
-    def read(self):
-        return Sample(5.0, 0.0)
+from test_adapter_probe_cycle import Motion, Probe  # recording fakes
 
 
 def _cycle(motion, allowed=lambda x, y, z: True):
@@ -42,7 +26,7 @@ def _cycle(motion, allowed=lambda x, y, z: True):
 
 
 def test_the_travel_rises_above_a_plate_the_tip_would_reach():
-    m = Motion()
+    m = Motion((0.0, 0.0, 15.0))
     asked = []
 
     def top(from_xy):
@@ -54,13 +38,13 @@ def test_the_travel_rises_above_a_plate_the_tip_would_reach():
     assert asked == [(0.0, 0.0)]  # from where the probe is
     assert m.sent == [(0.0, 0.0, travel), (100.0, 50.0, travel), (100.0, 50.0, 11.0),
                       (100.0, 50.0, travel)]
-    m2 = Motion()
+    m2 = Motion((0.0, 0.0, 15.0))
     _cycle(m2).touch(100.0, 50.0, 2.0, lambda xy: 3.0)  # a low plate: the safe height as before
     assert [p[2] for p in m2.sent] == [15.0, 2.0, 15.0]
 
 
 def test_a_travel_the_workspace_cannot_hold_sends_nothing_and_names_the_keys():
-    m = Motion()
+    m = Motion((0.0, 0.0, 15.0))
     box = lambda x, y, z: z <= 16.0  # noqa: E731
     with pytest.raises(UnsafeTarget, match=r"robot\.safe_height_mm=15 would drag it over the "
                                            r"plate.*workspace\.z_mm"):
