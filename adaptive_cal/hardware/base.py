@@ -203,7 +203,8 @@ class ProbeCycle:
                     f"robot.safe_height_mm={self.safe_height_mm:g} would drag it over the plate, "
                     f"and the {need:.3f} mm it needs is outside the workspace box; nothing was "
                     "sent. Raise robot.safe_height_mm and workspace.z_mm's top, or level the "
-                    "plate")
+                    "plate (before the first touches only the prior bounds the plate: a probe "
+                    "parked above the workplane's middle travels over less of it)")
             safe = max(safe, need)
         if all(map(math.isfinite, (cx, cy, cz))):
             below = cz < safe - 1e-9  # the tip may be down until this lift is done
