@@ -1,6 +1,8 @@
 """Re-check after a frame correction (issue 17, item 8): the correction's geometry against brute
 force, the simulated plate in a corrected frame, and end to end on the simulated cell: map,
 apply the proposed correction to the simulated plate, re-check with --prior-from."""
+import contextlib
+import io
 import json
 
 import numpy as np
@@ -326,3 +328,18 @@ def test_a_recheck_stops_at_the_first_reading_off_the_stroke(tmp_path):
     assert len(off) == 1 and off[0] is rows[-1]  # the first one off the stroke was the last
     why = r["prior_from"]["disagreement"]
     assert "(proposed: rx" in why and "left the probe's usable stroke" in why
+    # the command asks first: the proposed correction moves this plate by about 8 mm, more than
+    # the 4.5 mm either side of mid-stroke, and a second audit's plate 525 mm from the origin
+    # had gone 13 mm past the stroke's end on its first touch; saying it goes on
+    cell_file = tmp_path / "steep.yaml"
+    data = load_yaml(SIM_CELL)
+    data["simulation"].update(steep)
+    data["model"]["tilt_std_deg"], data["robot"]["safe_height_mm"] = 3.0, 30.0
+    cell_file.write_text(yaml.safe_dump(data))
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        rc = main(["run", "--robot", str(cell_file), "--out", str(tmp_path / "asked"),
+                   "--prior-from", str(first), "--no-progress"])
+    assert rc == 2 and not (tmp_path / "asked").exists()
+    assert "moves the plate by up to" in err.getvalue()
+    assert "--correction-applied proposed (the new user frame is loaded)" in err.getvalue()

@@ -94,3 +94,40 @@ def test_a_large_tilted_plate_is_never_dragged_over(tmp_path, monkeypatch):
     # the plate does stand within the tip's reach of the safe height: the test tests something
     assert float(sims[0].surface_mm(np.array([500.0]), np.array([185.0]))[0]) > \
         cell["robot"]["safe_height_mm"] - reach
+
+
+@pytest.mark.parametrize("park", [(-225.0, 0.0, 15.0), (-225.0, -185.0, 15.0)])
+def test_a_probe_parked_beside_the_plate_rises_where_it_stands(park):
+    """A second safety audit (2026-11-29): with the travel raised, a probe parked at the safe
+    height over the edge margin or beside the plate needed a lift where it stood, and the lift
+    -- no new x, y -- was refused by the edge-margin rule, which is about touches: the shipped
+    sim cell could not start from such a home. The lift is checked against the workspace box
+    alone; the travel and the touch against everything as before."""
+    from adaptive_cal.cell.schema import load_cell
+    from adaptive_cal.run.devices import box_check, safety_check
+
+    cell = load_cell(SIM_CELL)
+    m = Motion(park)
+    cycle = ProbeCycle(m, Probe(), safety_check(cell), 15.0, (0.5, 9.5), reach_mm=5.0,
+                       lift_allowed=box_check(cell))
+    cycle.touch(0.0, 0.0, 0.2, lambda xy: 20.0)  # the prior's 1 in 10^6 over the plate's edge
+    assert m.sent[0] == (park[0], park[1], 25.5) and m.sent[1] == (0.0, 0.0, 25.5)
+    for where, top in ((park, 60.0), ((-300.0, 0.0, 15.0), 20.0)):  # the box still holds:
+        m = Motion(where)  # above its top (60 mm), or outside it (x -230..230 mm)
+        with pytest.raises(UnsafeTarget, match="nothing was sent"):
+            ProbeCycle(m, Probe(), safety_check(cell), 15.0, (0.5, 9.5), reach_mm=5.0,
+                       lift_allowed=box_check(cell)).touch(0.0, 0.0, 0.2, lambda xy: top)
+        assert m.sent == []
+
+
+def test_the_operator_of_a_manual_cell_is_told_a_raised_travel():
+    import io
+
+    from adaptive_cal.hardware.manual.adapter import ManualCell
+
+    out = io.StringIO()
+    cell = ManualCell(out=out, inp=io.StringIO("5.0\n"), range_mm=(0.0, 10.0))
+    cell.pose = (0.0, 0.0, 15.0)
+    ProbeCycle(cell, cell, lambda x, y, z: True, 15.0, (0.5, 9.5), reach_mm=5.0,
+               sleep=lambda s: None).touch(100.0, 50.0, 11.0, lambda xy: 12.0)
+    assert "probe reference z=11.000 mm (travel there at z=17.500 mm)" in out.getvalue()

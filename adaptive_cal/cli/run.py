@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from adaptive_cal.cli.common import UserError, check_cell_file
-from adaptive_cal.cli.run_guards import check_prior_from, same_cell
+from adaptive_cal.cli.run_guards import check_prior_from, confirm_shift, same_cell
 
 
 def add_arguments(p) -> None:
@@ -89,6 +89,8 @@ def command(args) -> int:
     correction = _correction(args)
     if args.prior_from and not args.resume:  # a resume keeps its own prior (recheck.saved_prior)
         check_prior_from(Path(args.prior_from), correction)
+        if args.correction_applied is None:  # the default, unsaid: not if it moves the plate far
+            confirm_shift(Path(args.prior_from), cell)
     if args.resume:
         try:
             was, c = recheck.saved_prior(out, True, args.prior_from, correction)

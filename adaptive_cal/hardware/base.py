@@ -166,6 +166,10 @@ class ProbeCycle:
     #: how far below the commanded height the free tip reaches (probe.zero_mm - probe.rest_mm):
     #: a travel clears a plate only where it stands lower than that below it
     reach_mm: float = 0.0
+    #: the check of a lift straight up where the probe stands (no new x, y): the workspace box
+    #: alone, not the workplane's edge margin or keep-outs (places never touched); None: allowed.
+    #: A probe parked beside the plate at the safe height must rise when the travel needs more
+    lift_allowed: Callable[[float, float, float], bool] | None = None
     _same: list = field(default_factory=lambda: [math.nan, 0], init=False, repr=False)
 
     def seed_repeats(self, readings) -> None:
@@ -178,9 +182,9 @@ class ProbeCycle:
             n += 1
         self._same[:] = [values[-1], n] if values else [math.nan, 0]
 
-    def _check(self, path: list[tuple[float, float, float]]) -> None:
+    def _check(self, path: list[tuple[float, float, float]], allowed=None) -> None:
         for x, y, z in path:
-            if not all(map(math.isfinite, (x, y, z))) or not self.allowed(x, y, z):
+            if not all(map(math.isfinite, (x, y, z))) or not (allowed or self.allowed)(x, y, z):
                 raise UnsafeTarget(f"target x={x:.3f} y={y:.3f} z={z:.3f} mm is outside the "
                                    "workplane, a keep-out or the workspace box; nothing was sent")
 
@@ -215,8 +219,11 @@ class ProbeCycle:
                         "goes straight to the safe height z=%.3f mm above x=%.3f y=%.3f mm, "
                         "with no lift first; make sure the probe is clear of the plate",
                         tuple(round(v, 3) for v in (cx, cy, cz)), safe, x_mm, y_mm)
+        lifts = len(path)
         path += [(x_mm, y_mm, safe), (x_mm, y_mm, z_mm)]
-        self._check(path)  # every target of this touch, before the first is sent
+        if lifts and self.lift_allowed is not None:
+            self._check(path[:lifts], self.lift_allowed)
+        self._check(path[lifts if self.lift_allowed is not None else 0:])  # before any is sent
         approached = False
         try:
             for k, target in enumerate(path[:-1]):

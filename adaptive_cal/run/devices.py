@@ -38,6 +38,13 @@ def safety_check(cell: Cell) -> Callable[[float, float, float], bool]:
     return allowed
 
 
+def box_check(cell: Cell) -> Callable[[float, float, float], bool]:
+    """The workspace box alone (every point without one): a lift straight up where the probe
+    stands adds no x, y, so the workplane's margin and keep-outs, about touches, do not apply."""
+    ws = workspace(cell)
+    return lambda x, y, z: ws is None or ws.contains(x, y, z)
+
+
 LINE_KEYS = ("transport", "baudrate", "parity", "bytesize", "stopbits", "timeout_s", "retries")
 
 
@@ -140,7 +147,8 @@ def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
                                       start_arrival=start_arrival)
         cycle = ProbeCycle(sim, sim, allowed, cell.robot.safe_height_mm, p.usable_mm, p.samples,
                            p.samples_tolerance_mm, p.retries, 0.0, clock=lambda: sim.t_s,
-                           sleep=lambda s: None, reach_mm=p.zero_mm - p.rest_mm)
+                           sleep=lambda s: None, reach_mm=p.zero_mm - p.rest_mm,
+                           lift_allowed=box_check(cell))
         return OpenCell(cycle, lambda: sim.t_s, sim.close, sim)
     if "manual" in (cell.robot.adapter, p.adapter) and manual is None:
         from adaptive_cal.hardware.manual.adapter import ManualCell
@@ -172,5 +180,6 @@ def open_cell(cell: Cell, *, start_t_s: float = 0.0, start_touch: int = 0,
     # a device can freeze (the simulated probe cannot: a noise-free one repeats honestly)
     cycle = ProbeCycle(motion, probe, allowed, cell.robot.safe_height_mm, p.usable_mm,
                        p.samples, p.samples_tolerance_mm, p.retries, p.settle_s, clock=clock,
-                       frozen_after=readout_frozen_after(cell), reach_mm=p.zero_mm - p.rest_mm)
+                       frozen_after=readout_frozen_after(cell), reach_mm=p.zero_mm - p.rest_mm,
+                       lift_allowed=box_check(cell))
     return OpenCell(cycle, clock, close, None)

@@ -157,3 +157,20 @@ def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = ()
             + "; ".join(seen) + ". Not a result: give the correction that was "
             "really applied (--correction-applied proposed | none | RX,RY), or map from scratch "
             "without --prior-from")
+
+
+def frame_shift_mm(run_dir: Path, cell: Cell, correction="proposed") -> float:
+    """How far (mm) the correction assumed applied moves the earlier run's plate over the
+    workplane: the largest |moved - unmoved mean| on a 21 x 21 grid, edges included (0 for
+    'none'). Where it passes the usable stroke's half width, a correction assumed but not
+    applied runs the first touches past the stroke's end (``cli.run_guards.confirm_shift``)."""
+    info = applied_correction(run_dir, correction)
+    if info["assumed"] == "none":
+        return 0.0
+    earlier, _ = read_belief(run_dir, cell)
+    model = plan_model(cell)
+    moved = corrected_belief(model, earlier, info["correction_deg"]["rx"],
+                             info["correction_deg"]["ry"])
+    (x0, x1), (y0, y1) = cell.workplane.x_mm, cell.workplane.y_mm
+    x, y = (v.ravel() for v in np.meshgrid(np.linspace(x0, x1, 21), np.linspace(y0, y1, 21)))
+    return float(np.max(np.abs(model.surface.basis(x, y) @ (moved.mean - earlier.mean))))

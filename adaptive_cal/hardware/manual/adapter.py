@@ -29,6 +29,7 @@ class ManualCell:
     attempts: int = 3
     range_mm: tuple[float, float] | None = None
     pose: tuple[float, float, float] = (float("nan"),) * 3
+    before: tuple[float, float, float] = (float("nan"),) * 3  # the move before: the travel
     clock: Callable[[], float] = time.monotonic
 
     def _ask(self, text: str) -> str:
@@ -44,7 +45,7 @@ class ManualCell:
 
     # -- Motion -----------------------------------------------------------------------
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
-        self.pose = (x_mm, y_mm, z_mm)
+        self.before, self.pose = self.pose, (x_mm, y_mm, z_mm)
 
     def position(self) -> tuple[float, float, float]:
         return self.pose
@@ -53,7 +54,10 @@ class ManualCell:
     def read(self) -> Sample:
         x, y, z = self.pose
         extra = f" {self.prompt}" if self.prompt else ""
-        self.out.write(f"next point: x={x:.3f} y={y:.3f} mm, probe reference z={z:.3f} mm{extra}\n")
+        bx, by, bz = self.before  # above the point: the height the probe travelled there at
+        over = f" (travel there at z={bz:.3f} mm)" if (bx, by) == (x, y) and bz > z else ""
+        self.out.write(f"next point: x={x:.3f} y={y:.3f} mm, probe reference z={z:.3f} mm"
+                       f"{over}{extra}\n")
         answers = []
         for _ in range(self.attempts):
             line = self._ask("reading in mm (q to stop): ").strip()
