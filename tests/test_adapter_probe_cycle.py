@@ -57,3 +57,27 @@ def test_unknown_position_sends_nothing_outside_the_workspace():
     with pytest.raises(UnsafeTarget, match="nothing was sent"):
         cycle(m, inside).touch(100.0, 50.0, 2.0)
     assert m.sent == []
+
+
+def test_a_touch_past_the_strokes_top_is_not_sent_again():
+    """A second outside safety audit (2026-11-29): a plate 6 mm higher than its cell file said
+    had the first target touched three times, each 1.5 mm past the stroke's end, before the run
+    stopped on rejected touches. The same approach, or a lower one, is now refused unsent."""
+    from adaptive_cal.hardware.base import TouchRejected
+
+    class High(Probe):
+        def read(self):
+            return Sample(9.9, 0.0)  # past the usable top 9.5: the tip pushed in further
+
+    m = Motion((0.0, 0.0, 15.0))
+    c = ProbeCycle(m, High(), lambda x, y, z: True, safe_height_mm=15.0, usable_mm=(0.5, 9.5))
+    with pytest.raises(TouchRejected, match="outside the usable stroke"):
+        c.touch(40.0, 2.0, 0.0)
+    sent = len(m.sent)
+    for z in (0.0, -1.0):
+        with pytest.raises(UnsafeTarget, match="would run the probe past its stroke's end again"):
+            c.touch(40.0, 2.0, z)
+    assert len(m.sent) == sent  # nothing sent
+    with pytest.raises(TouchRejected):  # elsewhere, or higher up, the cycle touches as before
+        c.touch(40.0, 2.0, 1.0)
+    assert len(m.sent) > sent

@@ -171,6 +171,9 @@ class ProbeCycle:
     #: A probe parked beside the plate at the safe height must rise when the travel needs more
     lift_allowed: Callable[[float, float, float], bool] | None = None
     _same: list = field(default_factory=lambda: [math.nan, 0], init=False, repr=False)
+    #: (x, y, z) of the last touch whose reading passed the usable stroke's top: the plate there
+    #: stands higher than its approach allowed, and the same approach would overrun it again
+    _overran: tuple | None = field(default=None, init=False, repr=False)
 
     def seed_repeats(self, readings) -> None:
         """Count the repeats at the end of ``readings`` (a resumed recording's, in order) as
@@ -194,6 +197,14 @@ class ProbeCycle:
         ``plate_top(from_xy)``: the highest the plate may stand under the travel from where
         the probe is (``planning.clearance``): the lift and travel go at least ``reach_mm`` +
         ``CLEARANCE_MM`` above it, higher than the safe height where need be."""
+        o = self._overran
+        if o is not None and math.hypot(x_mm - o[0], y_mm - o[1]) < 1e-3 and z_mm <= o[2] + 1e-9:
+            raise UnsafeTarget(  # a second audit: the same target three times, 1.5 mm past each
+                f"the last touch at x={o[0]:.3f} y={o[1]:.3f} mm read past the usable stroke's "
+                f"top from z={o[2]:.3f} mm: the plate stands higher there than the belief allowed, "
+                f"and the approach to z={z_mm:.3f} mm would run the probe past its stroke's end "
+                "again; nothing was sent. Check the plate's height in the cell file (workplane, "
+                "model's offset prior) and the probe's zero")
         safe = max(self.safe_height_mm, z_mm)
         cx, cy, cz = self.motion.position()
         if plate_top is not None:
@@ -298,6 +309,7 @@ class ProbeCycle:
         t_s = float(self.clock())
         lo, hi = self.usable_mm
         if not lo <= reading <= hi:
+            self._overran = (x_mm, y_mm, z_mm) if reading > hi else None
             raise TouchRejected(f"reading {reading:.4f} mm outside the usable stroke "
                                 f"[{lo}, {hi}] mm: the approach height is off the plate's "
                                 "height; the touch was not fused", reading,
