@@ -60,21 +60,26 @@ def test_rejections_that_are_not_in_a_row_do_not_end_the_loop():
     assert why == "limit" and state.touches == 12 and state.fused == 6
 
 
-def test_a_plate_6_mm_off_nominal_stops_after_three_touches_with_exit_1(tmp_path):
+def test_a_plate_6_mm_off_nominal_stops_after_one_overrun_not_three(tmp_path):
+    """The plate 6 mm above the cell file's (12 sigma of its offset prior): the first touch runs
+    past the stroke's top, which no prior could foresee. It used to be sent twice more, each
+    1.5 mm past the stroke's end, before 3 rejections in a row ended the run (a second outside
+    safety audit, 2026-11-29); now the same approach is not sent again: the run stops there,
+    saying what to check, the rejected row kept."""
     data = yaml.safe_load(SIM_CELL.read_text())
     data["simulation"]["effects"]["tilt"]["c"] = 6.0  # the plate 6 mm above the cell file's
     cell = tmp_path / "cell.yaml"
     cell.write_text(yaml.safe_dump(data))
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         code = main(["run", "--robot", str(cell), "--out", str(tmp_path / "run"),
                      "--no-progress"])
-    text = out.getvalue()
-    assert code == 1
-    assert "3 touches in a row gave no usable reading" in text and "Not a result" in text
-    assert "where the cell file puts it" in text
+    assert code == 2, err.getvalue()
+    assert "would run the probe past its stroke's end again; nothing was sent" in err.getvalue()
+    assert "Check the plate's height in the cell file" in err.getvalue()
+    assert "INCOMPLETE" in out.getvalue()
     rec = read_recording(tmp_path / "run" / "recording.csv")
-    assert len(rec.reading_mm) == 3
+    assert len(rec.reading_mm) == 1 and rec.flags[0] >= {"rejected", "stroke_end"}
 
 
 def test_a_steep_plate_in_a_shallow_workspace_gets_only_approach_heights_inside_it(tmp_path):
