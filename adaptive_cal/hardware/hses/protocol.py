@@ -65,7 +65,7 @@ ADDED_STATUS = {
 }
 # status byte without an added status (the manual's status codes). 0x01 comes from yrcom's note
 # that a live YRC1000 answers it, added status 0, for most requests it cannot carry out -- but
-# yrcom 0.3.1 reads the status two bytes late (at byte 26, the added status's size), so a
+# yrcom 0.3.1 reads the status a byte late (at byte 26, the added status's size), so a
 # manual-layout refusal 0x1F with one added-status word reads 0x01, added 0, through yrcom (an
 # outside audit, 2026-11-29, against fs100's parser): most likely yrcom's reading, not the
 # controller's; kept as a refusal, with the pendant's status read to say why
