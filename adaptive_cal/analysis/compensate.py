@@ -166,8 +166,9 @@ def compensate(path: Toolpath, height: Height, plate_mm, tolerance_mm: float, *,
     out.cuts, out.rapids = len(cuts), len(rapids)
     if cuts:
         se = np.asarray(ends, float)  # (cuts, 2, 3): start and end
-        for a, b in _chunks(_counts(se[:, 0], se[:, 1], sample_mm)):
-            _cuts(out, cuts[a:b], se[a:b, 0], se[a:b, 1], height, tolerance_mm, sample_mm,
+        counts = _counts(se[:, 0], se[:, 1], sample_mm)
+        for a, b in _chunks(counts):
+            _cuts(out, cuts[a:b], se[a:b, 0], se[a:b, 1], counts[a:b], height, tolerance_mm,
                   reach_mm, keep_outs)
             if progress is not None:
                 progress(b - a)
@@ -215,9 +216,8 @@ def _along(start: np.ndarray, end: np.ndarray, counts: np.ndarray):
     return owner, t, pts, first
 
 
-def _cuts(out: Compensated, moves: list, start: np.ndarray, end: np.ndarray, height: Height,
-          tol: float, sample_mm: float, reach_mm, keep_outs) -> None:
-    counts = _counts(start, end, sample_mm)
+def _cuts(out: Compensated, moves: list, start: np.ndarray, end: np.ndarray,
+          counts: np.ndarray, height: Height, tol: float, reach_mm, keep_outs) -> None:
     owner, t, pts, first = _along(start, end, counts)
     mean, std = (np.asarray(a, float).ravel() for a in height(pts[:, 0], pts[:, 1]))
     band = Z95 * std
@@ -273,10 +273,9 @@ def _rapids(out: Compensated, moves: list, height: Height, top_mm: float,
     moves = [m for m in moves if m.end[2] is not None]  # Z never given: the line as written
     if not moves:
         return
-    known = [p is not None and None not in p[:2] for m in moves for p in (m.start, m.end)]
-    pts = np.array([(p[0], p[1]) if ok else (0.0, 0.0)
-                    for (p, ok) in zip((p for m in moves for p in (m.start, m.end)), known)],
-                   float)
+    ends = [p for m in moves for p in (m.start, m.end)]  # start, end of each rapid in turn
+    known = [p is not None and None not in p[:2] for p in ends]
+    pts = np.array([p[:2] if ok else (0.0, 0.0) for p, ok in zip(ends, known)], float)
     h = np.where(known, np.asarray(height(pts[:, 0], pts[:, 1])[0], float).ravel(), top_mm)
     h0s, h1s = h[0::2], h[1::2]
     travel = []
@@ -299,10 +298,10 @@ def _rapids(out: Compensated, moves: list, height: Height, top_mm: float,
         travel.append((move.start[0], move.start[1], x, y, h0, h1, level))
     if travel:
         tr = np.array(travel, float)
-        for a, b in _chunks(_counts(tr[:, :2], tr[:, 2:4], sample_mm)):
+        counts = _counts(tr[:, :2], tr[:, 2:4], sample_mm)
+        for a, b in _chunks(counts):
             part = tr[a:b]
-            counts = _counts(part[:, :2], part[:, 2:4], sample_mm)
-            owner, t, xy, _ = _along(part[:, :2], part[:, 2:4], counts)
+            owner, t, xy, _ = _along(part[:, :2], part[:, 2:4], counts[a:b])
             mean = np.asarray(height(xy[:, 0], xy[:, 1])[0], float).ravel()
             h0, h1, level = part[owner, 4], part[owner, 5], part[owner, 6] > 0
             ref = np.where(level, np.maximum(h0, h1), h0 + t * (h1 - h0))

@@ -232,9 +232,8 @@ class ProbeCycle:
                         tuple(round(v, 3) for v in (cx, cy, cz)), safe, x_mm, y_mm)
         lifts = len(path)
         path += [(x_mm, y_mm, safe), (x_mm, y_mm, z_mm)]
-        if lifts and self.lift_allowed is not None:
-            self._check(path[:lifts], self.lift_allowed)
-        self._check(path[lifts if self.lift_allowed is not None else 0:])  # before any is sent
+        self._check(path[:lifts], self.lift_allowed)  # every target before any is sent
+        self._check(path[lifts:])
         approached = False
         try:
             for k, target in enumerate(path[:-1]):
