@@ -3,7 +3,8 @@ import io
 
 import pytest
 
-from adaptive_cal.hardware.base import AdapterError, BadSample, ProbeCycle
+from adaptive_cal.hardware.base import AdapterError, BadSample
+from adaptive_cal.hardware.cycle import ProbeCycle
 from adaptive_cal.hardware.manual.adapter import ManualCell
 
 

@@ -5,7 +5,8 @@ import math
 
 import pytest
 
-from adaptive_cal.hardware.base import ProbeCycle, Sample, UnsafeTarget
+from adaptive_cal.hardware.base import Sample, UnsafeTarget
+from adaptive_cal.hardware.cycle import ProbeCycle
 
 
 class Motion:
@@ -38,7 +39,7 @@ def cycle(motion, allowed=lambda x, y, z: True):
 @pytest.mark.parametrize("pose", [(math.nan,) * 3, (math.nan, math.nan, 3.0)])
 def test_unknown_position_is_said_and_the_first_move_is_the_safe_height(pose, caplog):
     m = Motion(pose)
-    with caplog.at_level(logging.WARNING, logger="adaptive_cal.hardware.base"):
+    with caplog.at_level(logging.WARNING, logger="adaptive_cal.hardware.cycle"):
         cycle(m).touch(100.0, 50.0, 2.0)
     assert m.sent == [(100.0, 50.0, 15.0), (100.0, 50.0, 2.0), (100.0, 50.0, 15.0)]
     assert "position is unknown" in caplog.text and "clear of the plate" in caplog.text

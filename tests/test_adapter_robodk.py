@@ -15,10 +15,10 @@ import pytest
 from adaptive_cal.hardware.base import (
     AdapterError,
     BadSample,
-    ProbeCycle,
     Sample,
     UnsafeTarget,
 )
+from adaptive_cal.hardware.cycle import ProbeCycle
 from adaptive_cal.run.devices import open_cell, safety_check
 from adaptive_cal.hardware.manual.adapter import ManualCell
 from adaptive_cal.hardware.robodk.adapter import RobodkMotion

@@ -6,7 +6,8 @@ import time
 import pytest
 
 from adaptive_cal.cell.schema import load_cell
-from adaptive_cal.hardware.base import AdapterError, ProbeCycle, Sample
+from adaptive_cal.hardware.base import AdapterError, Sample
+from adaptive_cal.hardware.cycle import ProbeCycle
 from adaptive_cal.hardware.modbus.adapter import ModbusLink, ModbusMotion
 from adaptive_cal.hardware.modbus.config import ModbusConfig
 from adaptive_cal.simulation.emulator.plc import PlcServer

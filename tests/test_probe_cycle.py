@@ -3,8 +3,9 @@ bad samples retried within the bound, retract always."""
 import numpy as np
 import pytest
 
-from adaptive_cal.hardware.base import (AdapterError, BadSample, ProbeCycle, ProbeLeftDown,
-                                        Sample, TouchRejected, UnsafeTarget)
+from adaptive_cal.hardware.base import (AdapterError, BadSample, ProbeLeftDown, Sample,
+                                        TouchRejected, UnsafeTarget)
+from adaptive_cal.hardware.cycle import ProbeCycle
 
 
 class RecordingMotion:

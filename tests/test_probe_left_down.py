@@ -48,7 +48,7 @@ def test_a_failed_retract_after_a_good_reading_stops_with_the_warning_first_and_
 
 def test_the_cli_prints_the_warning_first(tmp_path, monkeypatch, capsys):
     from adaptive_cal.cli import main
-    from adaptive_cal.hardware import base
+    from adaptive_cal.hardware import cycle as base
 
     real = base.ProbeCycle.touch
 
@@ -105,7 +105,7 @@ def test_a_ctrl_c_during_the_retract_says_the_probe_may_be_down_first_and_exits_
     z -0.8 mm. Now the warning comes first, and the CLI exits 130 (an interrupt, not bad
     input)."""
     from adaptive_cal.cli import main
-    from adaptive_cal.hardware import base
+    from adaptive_cal.hardware import cycle as base
 
     class CtrlCOnRetract(RetractFailsOnce):
         def move_to(self, x, y, z):

@@ -307,12 +307,16 @@ def test_a_recheck_on_another_plate_does_not_stop_on_its_bound_after_one_surpris
     assert r["stopped_because"] == session.PRIOR_DISAGREES, (r["stopped_because"], r["touches"])
 
 
-def test_a_recheck_stops_at_the_first_reading_off_the_stroke(tmp_path):
+def test_a_recheck_on_a_plate_it_misplaces_by_millimetres_approaches_from_above(tmp_path):
     """An outside safety audit (2026-11-29): a 2 deg plate, its correction assumed applied but
     not: the earlier belief, moved by that correction and trusted to 0.01 mm, put the far edges
     7 mm off; one touch missed the plate, the next overran the stroke's end by 1.19 mm and the
-    same target was sent again. Now the first reading off the usable stroke, where that belief
-    promised mid-stroke, stops the re-check, naming the correction assumed."""
+    same target was sent again. Then the first reading off the stroke stopped the re-check; now
+    each touch is approached in steps from above the plate's place in the frame not assumed
+    (``planning.clearance.Guard``): every reading lies inside the usable stroke, the retakes
+    confirm the surprises and the re-check stops as prior_disagrees_with_readings, naming the
+    correction assumed. The command line says first that the frames lie far apart (it asked
+    for --correction-applied before the guard; tests/test_recheck_guard.py: 18 mm and more)."""
     steep = {"effects": {"tilt": {"a": 0.035, "b": 0.0019, "c": 0.2},
                          "form": {"pv_mm": 0.28, "bow_y": 1.0, "twist": 0.4}}}
     first = tmp_path / "first"
@@ -322,24 +326,29 @@ def test_a_recheck_stops_at_the_first_reading_off_the_stroke(tmp_path):
                     robot={"safe_height_mm": 30.0})
     r = session.run(cell, tmp_path / "re", prior_from=first, progress=False)
     assert r["stopped_because"] == session.PRIOR_DISAGREES
-    rows = [line.split(",") for line in (tmp_path / "re" / "recording.csv").read_text()
-            .splitlines() if line[:1].isdigit()]
-    off = [row for row in rows if "stroke_end" in row[6]]
-    assert len(off) == 1 and off[0] is rows[-1]  # the first one off the stroke was the last
+    rec = read_recording(tmp_path / "re" / "recording.csv")
+    assert np.all((rec.reading_mm >= 0.5) & (rec.reading_mm <= 9.5)), rec.reading_mm
+    assert not any("stroke_end" in f for f in rec.flags)
     why = r["prior_from"]["disagreement"]
-    assert "(proposed: rx" in why and "left the probe's usable stroke" in why
-    # the command asks first: the proposed correction moves this plate by about 8 mm, more than
-    # the 4.5 mm either side of mid-stroke, and a second audit's plate 525 mm from the origin
-    # had gone 13 mm past the stroke's end on its first touch; saying it goes on
+    assert "(proposed: rx" in why and "3 readings" in why and "confirmed by their retake" in why
     cell_file = tmp_path / "steep.yaml"
     data = load_yaml(SIM_CELL)
     data["simulation"].update(steep)
     data["model"]["tilt_std_deg"], data["robot"]["safe_height_mm"] = 3.0, 30.0
     cell_file.write_text(yaml.safe_dump(data))
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-        rc = main(["run", "--robot", str(cell_file), "--out", str(tmp_path / "asked"),
+    out = io.StringIO()
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(out):
+        rc = main(["run", "--robot", str(cell_file), "--out", str(tmp_path / "said"),
                    "--prior-from", str(first), "--no-progress"])
-    assert rc == 2 and not (tmp_path / "asked").exists()
-    assert "moves the plate by up to" in err.getvalue()
-    assert "--correction-applied proposed (the new user frame is loaded)" in err.getvalue()
+    assert rc == 1 and "prior_disagrees_with_readings" in out.getvalue()
+    assert out.getvalue().splitlines()[1].startswith(
+        "the correction moves the earlier plate by up to "), out.getvalue()
+
+
+def test_the_first_reading_off_the_stroke_is_named_in_the_disagreement():
+    """Below every frame the guard keeps clear of, the last step misses: the re-check stops at
+    that one reading (the session's off-stroke rule), and the message names its seq."""
+    carried = {"assumed": "proposed", "correction_deg": {"rx": 0.1, "ry": -2.0}}
+    why = recheck.disagreement(carried, [], [4])
+    assert "(proposed: rx +0.1000 deg, ry -2.0000 deg)" in why
+    assert "the reading of seq 4 left the probe's usable stroke" in why

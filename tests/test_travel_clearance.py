@@ -13,7 +13,8 @@ import yaml
 
 from adaptive_cal.cell.schema import load_yaml
 from adaptive_cal.cli import main
-from adaptive_cal.hardware.base import CLEARANCE_MM, ProbeCycle, UnsafeTarget
+from adaptive_cal.hardware.base import CLEARANCE_MM, UnsafeTarget
+from adaptive_cal.hardware.cycle import ProbeCycle
 from adaptive_cal.simulation.cell import SimulatedCell
 
 from helpers import SIM_CELL

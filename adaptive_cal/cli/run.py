@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from adaptive_cal.cli.common import UserError, check_cell_file
-from adaptive_cal.cli.run_guards import check_prior_from, confirm_shift, same_cell
+from adaptive_cal.cli.run_guards import check_prior_from, same_cell, shift_note
 
 
 def add_arguments(p) -> None:
@@ -89,8 +89,6 @@ def command(args) -> int:
     correction = _correction(args)
     if args.prior_from and not args.resume:  # a resume keeps its own prior (recheck.saved_prior)
         check_prior_from(Path(args.prior_from), correction)
-        if args.correction_applied is None:  # the default, unsaid: not if it moves the plate far
-            confirm_shift(Path(args.prior_from), cell)
     if args.resume:
         try:
             was, c = recheck.saved_prior(out, True, args.prior_from, correction)
@@ -108,6 +106,9 @@ def command(args) -> int:
         print(f"re-check from {args.prior_from}: correction assumed applied ({c['assumed']}): "
               f"rx {signed(c['correction_deg']['rx'], 4)} deg, ry "
               f"{signed(c['correction_deg']['ry'], 4)} deg")
+        note = shift_note(Path(args.prior_from), cell, correction)
+        if note:
+            print(note)
     try:
         # the cell file is copied only once the session holds the folder's lock
         result = session.run(cell, out, resume=bool(args.resume), prior_from=args.prior_from,

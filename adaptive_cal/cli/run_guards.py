@@ -127,23 +127,25 @@ def refuse_stale_map(folder: Path, command: str) -> None:
                     f"run --resume {quoted(folder)}")
 
 
-def confirm_shift(run_dir: Path, cell) -> None:
-    """UserError where the correction a re-check assumes by default (the one ``run_dir``
-    proposed) moves the plate by more than the probe's usable stroke leaves either side of
-    mid-stroke: were it not applied yet, the first touches would overrun the stroke's end (an
-    outside safety audit, 2026-11-29: 2 deg about an origin 525 mm away, 18 mm, the first touch
-    13 mm past the end). Saying --correction-applied (proposed, none or RX,RY) goes on."""
+def shift_note(run_dir: Path, cell, correction) -> str | None:
+    """A line for the terminal where the frames a re-check keeps clear of lie far apart: the
+    correction moves the earlier plate by more than the probe's usable stroke leaves either
+    side of mid-stroke, so were the frame assumed the wrong one, a plain approach would run
+    the probe past its stroke's end (an outside safety audit, 2026-11-29: 2 deg about an origin
+    525 mm away, 18 mm, the first touch 13 mm past it). The run then approaches in steps from
+    above the other frame's plate (``planning.clearance.Guard``). None where they lie close."""
     from adaptive_cal.run import recheck
 
     lo, hi = cell.probe.usable_mm
-    shift = recheck.frame_shift_mm(run_dir, cell)
+    try:  # assumed none: the other frame is the proposed one (none proposed: no other frame)
+        shift = recheck.frame_shift_mm(run_dir, cell,
+                                       "proposed" if correction == "none" else correction)
+    except ValueError:
+        return None
     if shift <= 0.5 * (hi - lo):
-        return
-    c = recheck.applied_correction(run_dir)["correction_deg"]
-    raise UserError(
-        f"--prior-from {run_dir}: the correction it proposed (rx {c['rx']:+.4f} deg, ry "
-        f"{c['ry']:+.4f} deg), which a re-check assumes applied unless told, moves the plate by "
-        f"up to {shift:.2f} mm over the workplane, more than the probe's usable stroke leaves "
-        f"either side of mid-stroke ({0.5 * (hi - lo):.2f} mm): were it not applied yet, the "
-        "first touches would run the probe past its stroke's end. Say which is applied: "
-        "--correction-applied proposed (the new user frame is loaded), none, or RX,RY (deg)")
+        return None
+    return (f"the correction moves the earlier plate by up to {shift:.2f} mm, more than the "
+            f"probe's usable stroke leaves either side of mid-stroke ({0.5 * (hi - lo):.2f} mm): "
+            "until the readings tell the frames apart, each touch is approached in steps from "
+            "above where the plate would stand in the other frame (applied or not), and travels "
+            "clear it")

@@ -16,6 +16,7 @@ clearance of a millimetre.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -30,6 +31,11 @@ STEP_MM = 5.0  # samples along a travel at most this far apart
 def plate_top_mm(plan: SurveyPlan, state: SurveyState, from_xy, to_xy) -> float:
     """The highest the plate may stand (mm, the robot's z) on the straight line from
     ``from_xy`` to ``to_xy`` (from the target alone where ``from_xy`` is not known)."""
+    return top_under(plan, state.belief, from_xy, to_xy)
+
+
+def top_under(plan: SurveyPlan, belief: bl.Belief, from_xy, to_xy) -> float:
+    """``plate_top_mm`` under ``belief``."""
     b = np.asarray(to_xy, float)[:2]
     a = np.asarray(from_xy, float)[:2] if from_xy is not None else b
     if not np.all(np.isfinite(a)):
@@ -39,5 +45,67 @@ def plate_top_mm(plan: SurveyPlan, state: SurveyState, from_xy, to_xy) -> float:
     (x0, x1), (y0, y1) = plan.plate_mm
     xy = a + t * (b - a)
     x, y = np.clip(xy[:, 0], x0, x1), np.clip(xy[:, 1], y0, y1)
-    mean, var = bl.predict(state.belief, plan.model.surface.basis(x, y))
+    mean, var = bl.predict(belief, plan.model.surface.basis(x, y))
     return float(np.max(np.asarray(mean) + STROKE_Z * np.sqrt(np.asarray(var))))
+
+
+@dataclass
+class Guard:
+    """Where else the plate may stand: a re-check's earlier belief in the frames it did not
+    assume (``run.recheck.other_frames``: a correction assumed applied but not, or applied but
+    not assumed). The belief alone puts the plate where the frame assumed says, trusted to
+    micrometres; in another frame it can stand millimetres higher (an outside safety audit,
+    2026-11-29: 2 deg about an origin 525 mm away, the first touch 13 mm past the stroke's end).
+
+    Until readings refute a frame, the probe cycle travels clear of it too (``top_mm``) and
+    approaches from above it (``approaches``): the first approach puts that frame's plate
+    mid-stroke, each next one ``STEP`` of the usable stroke lower, down to the belief's own,
+    and the first that reads inside the stroke is the touch. A step reads at most ``STEP`` of
+    the stroke above its bottom: none can overrun. A frame is refuted by ``REFUTE`` readings it
+    would have put off the usable stroke (``seen``); then it costs nothing more."""
+
+    plan: SurveyPlan
+    frames: list  # Beliefs: the earlier run's belief in each frame not assumed
+    said: str = "a frame not assumed"  # for messages: which frame the guard keeps clear of
+    refuted: list = field(default_factory=list)  # per frame: readings it would put off-stroke
+
+    STEP = 0.75  # each step down: this share of the usable stroke
+    REFUTE = 3
+
+    def __post_init__(self):
+        self.refuted = [0] * len(self.frames)
+
+    def live(self) -> list:
+        return [f for f, n in zip(self.frames, self.refuted) if n < self.REFUTE]
+
+    def top_mm(self, from_xy, to_xy) -> float:
+        """The highest a live frame's plate may stand along the travel (-inf: none live)."""
+        return max((top_under(self.plan, f, from_xy, to_xy) for f in self.live()),
+                   default=-math.inf)
+
+    def approaches(self, x_mm: float, y_mm: float, z_mm: float) -> list[float]:
+        """Approach heights, highest first, ending at ``z_mm`` (the belief's): one where no
+        live frame's plate (mean + z* sd) would read past the usable stroke's top from z_mm."""
+        lo, hi = self.plan.usable_mm
+        basis = self.plan.model.surface.basis(np.array([x_mm]), np.array([y_mm]))
+        top, high = -math.inf, -math.inf
+        for f in self.live():
+            mean, var = (float(v[0]) for v in bl.predict(f, basis))
+            top = max(top, mean + STROKE_Z * math.sqrt(max(var, 0.0)))
+            high = max(high, self.plan.approach_height(mean))
+        if top - z_mm + self.plan.zero_mm <= hi or high <= z_mm:
+            return [z_mm]
+        step = self.STEP * (hi - lo)
+        n = int(math.ceil((high - z_mm) / step))
+        return [high - k * step for k in range(n)] + [z_mm]
+
+    def seen(self, x_mm: float, y_mm: float, z_mm: float, reading_mm: float) -> None:
+        """A reading inside the stroke: each frame that would have put it off the usable
+        stroke counts one more towards its refutation."""
+        lo, hi = self.plan.usable_mm
+        height = reading_mm + z_mm - self.plan.zero_mm
+        basis = self.plan.model.surface.basis(np.array([x_mm]), np.array([y_mm]))
+        for k, f in enumerate(self.frames):
+            mean = float(bl.predict(f, basis)[0][0])
+            if abs(height - mean) > 0.5 * (hi - lo):
+                self.refuted[k] += 1

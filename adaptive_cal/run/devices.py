@@ -8,7 +8,8 @@ from typing import Callable
 
 from adaptive_cal.cell.build import readout_frozen_after, workspace
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.hardware.base import AdapterError, Motion, ProbeCycle, ProbeDevice
+from adaptive_cal.hardware.base import AdapterError, Motion, ProbeDevice
+from adaptive_cal.hardware.cycle import ProbeCycle
 
 
 @dataclass

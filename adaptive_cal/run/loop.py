@@ -19,9 +19,8 @@ Each touch:
 
 A batch is cut short after a gated reading (the retake first), at ``interrupt()``, when a met
 bound waits for repeats (``planning.repeats``) or the stop predicate fires: asked before each ask
-and after each touch, so a batch never makes more touches than the budget left. ``loop.state``
-is the latest state even when a device raises. The travel to a touch clears the plate under it
-(``planning.clearance``).
+and after each touch, so a batch never makes more touches than the budget left. ``loop.state`` is
+the latest state even when a device raises. Travels clear the plate (``planning.clearance``).
 
 The closure touch (``plan.closure``, ``planning.closure``): at a stop on a bound the first place
 is touched again (retaken if gated; confirmed if one reading alarms), flagged ``closure``, fused,
@@ -39,7 +38,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from adaptive_cal.formats.recording import surface_height_mm
-from adaptive_cal.hardware.base import ProbeCycle, ProbeLeftDown, Touch, TouchRejected
+from adaptive_cal.hardware.base import ProbeLeftDown, Touch, TouchRejected
+from adaptive_cal.hardware.cycle import ProbeCycle
 from adaptive_cal.planning import closure as cl
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.adequacy import positions_mm
@@ -330,11 +330,11 @@ class SurveyLoop:
 
     def _reject(self, target: Target, e: TouchRejected, extra: tuple[str, ...] = ()) -> None:
         """Record a touch the probe cycle rejected (flagged, never fused; a NaN as 0, flagged
-        ``nonfinite`` as ``_invalid`` does) and count it."""
-        ok, t = math.isfinite(e.reading_mm), target
-        self._record(Row(self.state.touches, self.cycle.clock(), t.x_mm, t.y_mm, t.z_mm,
-                         e.reading_mm if ok else 0.0, tuple(dict.fromkeys(
-                             (*e.flags, *(() if ok else ("nonfinite",)), *extra)))))
+        ``nonfinite`` as ``_invalid`` does; z: the step it was read at) and count it."""
+        ok, t, z = math.isfinite(e.reading_mm), target, e.z_mm
+        self._record(Row(self.state.touches, self.cycle.clock(), t.x_mm, t.y_mm,
+                         t.z_mm if z is None else z, e.reading_mm if ok else 0.0,
+                         tuple(dict.fromkeys((*e.flags, *(() if ok else ("nonfinite",)), *extra)))))
         self.state = sv.skip(self.plan, self.state, target.x_mm, target.y_mm)
 
     def _record(self, row: Row) -> None:

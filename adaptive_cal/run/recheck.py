@@ -118,25 +118,43 @@ def saved_prior(out: Path, resume: bool, prior_from, correction):
 
 
 def load_prior(run_dir: Path, cell: Cell, correction: str | tuple[float, float] = "proposed"
-               ) -> tuple[bl.Belief, Hyper, dict]:
+               ) -> tuple[bl.Belief, Hyper, dict, list[bl.Belief]]:
     """An earlier run's belief, moved into the user frame corrected since (``correction``, see
     ``applied_correction``; default: the correction that run proposed), then widened by the
     drift allowance d = plan.drift_std_mm: the plate may have moved rigidly since (offset std
     d, slopes std d over half the plate diagonal) and its form may have changed by a quarter of
     that (form std d / 4, same length scale). A routine re-check then needs a handful of
-    touches. Returns the belief, the hyper-parameters and the ``applied_correction`` record."""
+    touches. Returns the belief, the hyper-parameters, the ``applied_correction`` record and
+    the same belief in the frames not assumed (unmoved, and moved by the proposed correction
+    where that was not the one assumed), widened alike: a correction assumed but not applied
+    leaves the plate there (``planning.clearance.Guard`` keeps the probe clear of them)."""
     earlier, hyper = read_belief(run_dir, cell)
     info = applied_correction(run_dir, correction)
     model = plan_model(cell)
-    if info["assumed"] != "none":
-        earlier = corrected_belief(model, earlier, info["correction_deg"]["rx"],
-                                   info["correction_deg"]["ry"])
+    frames = {(0.0, 0.0): earlier}
+    said = [info] + ([] if info["assumed"] == "proposed" else _proposed(run_dir))
+    for c in (s["correction_deg"] for s in said):
+        key = (c["rx"], c["ry"])
+        if key not in frames:
+            frames[key] = corrected_belief(model, earlier, *key)
+    c = info["correction_deg"]
     d = cell.plan.drift_std_mm
     wp = cell.workplane
     half = 0.5 * math.hypot(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
     drift = type(model)(model.surface, d / half, d, model.centre_mm, hyper)
     extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
-    return bl.widen(earlier, extra), hyper, info
+    widened = {k: bl.widen(b, extra) for k, b in frames.items()}
+    assumed = widened.pop((c["rx"], c["ry"]))
+    return assumed, hyper, info, list(widened.values())
+
+
+def _proposed(run_dir: Path) -> list[dict]:
+    """The correction ``run_dir`` proposed, as ``applied_correction`` records it; none where
+    its result.json has none."""
+    try:
+        return [applied_correction(run_dir, "proposed")]
+    except ValueError:
+        return []
 
 
 def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = ()) -> str:
@@ -163,7 +181,8 @@ def frame_shift_mm(run_dir: Path, cell: Cell, correction="proposed") -> float:
     """How far (mm) the correction assumed applied moves the earlier run's plate over the
     workplane: the largest |moved - unmoved mean| on a 21 x 21 grid, edges included (0 for
     'none'). Where it passes the usable stroke's half width, a correction assumed but not
-    applied runs the first touches past the stroke's end (``cli.run_guards.confirm_shift``)."""
+    applied would run a plain approach past the stroke's end: the run approaches in steps
+    (``planning.clearance.Guard``) and says so first (``cli.run_guards.shift_note``)."""
     info = applied_correction(run_dir, correction)
     if info["assumed"] == "none":
         return 0.0

@@ -25,6 +25,7 @@ from adaptive_cal.formats.recording import read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
 from adaptive_cal.hardware.base import AdapterError, Interrupted, OperatorStop, ProbeLeftDown
 from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.clearance import Guard
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
@@ -136,8 +137,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     if resume and not paths.recording.exists():
         raise FileNotFoundError(f"{paths.recording}: nothing to resume")
     prior_from, correction_applied = saved_prior(paths.out, resume, prior_from, correction_applied)
-    prior, hyper, carried = (load_prior(Path(prior_from), cell, correction_applied)
-                             if prior_from else (None, None, None))
+    prior, hyper, carried, others = (load_prior(Path(prior_from), cell, correction_applied)
+                                     if prior_from else (None, None, None, []))
     if carried is not None and not resume:  # so --resume continues the re-check without both flags
         write_json(paths.out / PRIOR_RECORD, {"run": str(Path(prior_from).resolve()),
                                               "correction_applied": correction_applied})
@@ -177,6 +178,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch, start_arrival=arrival)
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
         opened.cycle.seed_repeats(rec.reading_mm)
+    if others:  # a re-check: clear of the plate in the frames not assumed too, until refuted
+        opened.cycle.guard = Guard(plan, others, "a frame the re-check did not assume")
     truth = opened.simulated.surface_mm if opened.simulated is not None else None
     history = History(sv.status(plan, state), state.fitted_at)
     hooks = [history]
