@@ -169,6 +169,33 @@ def test_dry_run_gives_the_first_approach_height_and_says_the_rest_are_set_at_ru
     assert "(RMS std bound; at most 120)" in next(x for x in lines if x.startswith("expected"))
 
 
+def test_dry_run_says_how_high_the_travels_go(tmp_path, capsys):
+    """The prior's 1 deg tilt lets the sim plate's corners stand 25 mm high: the first travels
+    rise above the 15 mm safe height (``planning.clearance``), and the dry run says so, with the
+    height an independent product of the prior gives; a tight tilt prior travels at 15 mm."""
+    import numpy as np
+    import yaml
+
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.cell.schema import load_cell, load_yaml
+    from adaptive_cal.planning import survey as sv
+
+    assert main(["run", "--robot", str(SIM_CELL), "--dry-run"]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("travel:"))
+    plan = survey_plan(load_cell(SIM_CELL))
+    b = sv.start(plan).belief
+    h = plan.model.surface.basis(*plan.eval_xy.T)
+    sd = np.sqrt(np.einsum("nk,kl,nl->n", h, b.cov, h))  # the prior's sd, written out
+    top = float(np.max(h @ b.mean + 4.8916 * sd))  # z* for a two-sided 1e-6
+    assert f"stand up to {top:.2f} mm" in line and f"rise to {top + 5.5:.2f} mm" in line, line
+    tight = load_yaml(SIM_CELL)
+    tight["model"]["tilt_std_deg"] = 0.01
+    path = tmp_path / "tight.yaml"
+    path.write_text(yaml.safe_dump(tight))
+    assert main(["run", "--robot", str(path), "--dry-run"]) == 0
+    assert "travel: at robot.safe_height_mm = 15 mm, clear of the plate" in capsys.readouterr().out
+
+
 def _result(**more):
     r = {"stopped_because": "mean_std_bound", "touches": 31, "fused": 31,
          "bound": {"mean_std_mm": 0.004, "max_std_mm": None, "max_touches": 120},

@@ -49,6 +49,13 @@ def top_under(plan: SurveyPlan, belief: bl.Belief, from_xy, to_xy) -> float:
     return float(np.max(np.asarray(mean) + STROKE_Z * np.sqrt(np.asarray(var))))
 
 
+def highest_mm(plan: SurveyPlan, belief: bl.Belief) -> float:
+    """The highest the plate may stand anywhere on it under ``belief`` (mm): mean + z* sd over
+    the plan's evaluation grid (the dry run's travel line)."""
+    mean, var = bl.predict(belief, plan.model.surface.basis(*plan.eval_xy.T))
+    return float(np.max(np.asarray(mean) + STROKE_Z * np.sqrt(np.asarray(var))))
+
+
 @dataclass
 class Guard:
     """Where else the plate may stand: a re-check's earlier belief in the frames it did not
