@@ -67,6 +67,9 @@ def test_no_plate_height_between_the_frames_overruns_the_stroke(plan, offset):
 def test_a_refuted_frame_costs_nothing_more(plan):
     guard = Guard(plan, [_frame(plan, 13.0)])
     assert len(guard.approaches(0.0, 0.0, 0.0)) == 3 and guard.top_mm((0, 0), (50, 50)) > 12.0
+    for k in range(5):  # no contact, or the stroke's end: not a reading of the plate's height
+        guard.seen(10.0 * k, 0.0, 0.0, (0.0, 10.0)[k % 2])
+    assert guard.refuted == [0]
     for k in range(Guard.REFUTE):  # readings where the belief put the plate: 13 mm below it
         assert guard.live()
         guard.seen(10.0 * k, 0.0, 0.0, 5.0)

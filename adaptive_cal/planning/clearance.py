@@ -107,9 +107,11 @@ class Guard:
         return [high - k * step for k in range(n)] + [z_mm]
 
     def seen(self, x_mm: float, y_mm: float, z_mm: float, reading_mm: float) -> None:
-        """A reading inside the stroke: each frame that would have put it off the usable
-        stroke counts one more towards its refutation."""
+        """A reading inside the stroke (others are ignored): each frame that would have put
+        it off the usable stroke counts one more towards its refutation."""
         lo, hi = self.plan.usable_mm
+        if not lo <= reading_mm <= hi:
+            return
         height = reading_mm + z_mm - self.plan.zero_mm
         basis = self.plan.model.surface.basis(np.array([x_mm]), np.array([y_mm]))
         for k, f in enumerate(self.frames):

@@ -179,7 +179,9 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
         opened.cycle.seed_repeats(rec.reading_mm)
     if others:  # a re-check: clear of the plate in the frames not assumed too, until refuted
-        opened.cycle.guard = Guard(plan, others, "a frame the re-check did not assume")
+        opened.cycle.guard = guard = Guard(plan, others, "a frame the re-check did not assume")
+        for row in zip(rec.x_mm, rec.y_mm, rec.z_mm, rec.reading_mm) if resume else ():
+            guard.seen(*map(float, row))  # resumed: what the readings refuted stays refuted
     truth = opened.simulated.surface_mm if opened.simulated is not None else None
     history = History(sv.status(plan, state), state.fitted_at)
     hooks = [history]
