@@ -7,6 +7,7 @@ from pathlib import Path
 
 from adaptive_cal.cli.common import UserError, check_cell_file
 from adaptive_cal.cli.run_guards import check_prior_from, same_cell, shift_note
+from adaptive_cal.report.status import quoted
 
 
 def add_arguments(p) -> None:
@@ -53,8 +54,11 @@ def command(args) -> int:
                             "folder (give the folder an interrupted 'adaptive-cal run --out DIR' "
                             "wrote)")
         if not (out / "recording.csv").exists():  # before its cell.yaml is looked for
+            again = (f"; a run stopped there before it recorded anything starts again with "
+                     f"adaptive-cal run --robot {quoted(out / 'cell.yaml')} --out {quoted(out)}"
+                     if (out / "cell.yaml").is_file() else "")
             raise UserError(f"--resume {out}: no recording.csv there, nothing to resume (give "
-                            "the folder an interrupted 'adaptive-cal run --out DIR' wrote)")
+                            f"the folder an interrupted 'adaptive-cal run --out DIR' wrote){again}")
         cell_path = Path(args.robot) if args.robot else out / "cell.yaml"
         if args.robot and (out / "cell.yaml").exists():
             same_cell(out, cell_path)
@@ -81,7 +85,7 @@ def command(args) -> int:
         if held:  # another run's results, its recording moved away: never overwritten
             raise UserError(f"{out} holds {' and '.join(held)} of another run: another --out")
         theirs = [n for n in RUN_FILES if (out / n).exists()
-                  and not (n == "cell.yaml" and (out / n).resolve() == cell_path.resolve())]
+                  and not (n == "cell.yaml" and _ours(out / n, cell_path))]
         if theirs:  # a run writes these names: a user's own files of that name are never lost
             raise UserError(f"{out} holds {', '.join(theirs)}, which a run writes: choose "
                             "another --out, or move them away")
@@ -185,24 +189,37 @@ def _correction(args):
 RUN_FILES = ("cell.yaml", "surface.png", "convergence.png")
 
 
-def _copy_cell(out: Path, cell_path: Path) -> None:
-    """Copy the cell file into --out (the run folder keeps the cell it was run with). A height
-    map named relative to the cell file (simulation.surface_file) is written as an absolute path
-    in the copy, so --resume and report find it from the run folder."""
-    if cell_path.resolve() == (out / "cell.yaml").resolve():
-        return
+def _ours(copy: Path, cell_path: Path) -> bool:
+    """Whether the cell.yaml in a folder is the cell file itself, or the very copy a run with
+    it writes (a start killed before its first touch left it: the same command goes on)."""
+    if copy.resolve() == cell_path.resolve():
+        return True
+    try:
+        return copy.read_bytes() == _copy_text(cell_path).encode("utf-8")
+    except (OSError, ValueError):
+        return False
+
+
+def _copy_text(cell_path: Path) -> str:
+    """The text ``_copy_cell`` writes."""
     import yaml
 
     from adaptive_cal.cell.schema import load_yaml, resolve_files
 
     data = load_yaml(cell_path)
     resolved = resolve_files(data, cell_path)  # the map named relative to the cell file
-    if resolved is not data:
-        text = (f"# copied from {cell_path} by adaptive-cal run; simulation.surface_file made "
-                "absolute\n" + yaml.safe_dump(resolved, sort_keys=False, allow_unicode=True))
-        (out / "cell.yaml").write_text(text, encoding="utf-8")
-        return
-    shutil.copyfile(cell_path, out / "cell.yaml")
+    if resolved is data:
+        return cell_path.read_bytes().decode("utf-8")
+    return (f"# copied from {cell_path} by adaptive-cal run; simulation.surface_file made "
+            "absolute\n" + yaml.safe_dump(resolved, sort_keys=False, allow_unicode=True))
+
+
+def _copy_cell(out: Path, cell_path: Path) -> None:
+    """Copy the cell file into --out (the run folder keeps the cell it was run with). A height
+    map named relative to the cell file (simulation.surface_file) is written as an absolute path
+    in the copy, so --resume and report find it from the run folder."""
+    if cell_path.resolve() != (out / "cell.yaml").resolve():
+        (out / "cell.yaml").write_bytes(_copy_text(cell_path).encode("utf-8"))
 
 
 def _undo_if_empty(out: Path, created: tuple[list[Path], set[str]]) -> bool:

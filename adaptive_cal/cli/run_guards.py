@@ -101,30 +101,49 @@ def check_prior_from(prior: Path, correction) -> None:
 
 
 def refuse_stale_map(folder: Path, command: str) -> None:
-    """UserError where the run folder's recording holds more touches than the map saved beside
-    it (result.json, belief.npz): a resumed run stopped by a kill before it wrote them again.
-    The page or the flatness would show the older, smaller map beside the newer touches (an
-    outside audit: 20-touch figures under a 104-touch recording, exit 0). The message names
-    both counts and the replay that uses every touch."""
+    """UserError where the run folder's map (belief.npz) is not the map of its recording and
+    result.json: the recording holds more touches (a resumed run stopped by a kill before it
+    wrote them again: an outside audit saw 20-touch figures under a 104-touch recording, exit
+    0), fewer, or other rows than the map was made from (a row deleted or edited since: its
+    reading stayed in the map), or result.json is of another count of touches (a kill between
+    the two writes: report showed one, flatness the other). The message names what differs and
+    how to get one consistent answer."""
+    from adaptive_cal.formats.jsonfile import read_json
     from adaptive_cal.formats.npz import read_npz
     from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.formats.writing import rows_digest
 
-    saved = read_npz(folder / "belief.npz", keys=(), optional=("touches",))
+    saved = read_npz(folder / "belief.npz", keys=(), optional=("touches", "recording_sha256"))
     if "touches" not in saved:  # a map saved before the count was: nothing to compare
         return
     map_touches = int(saved["touches"])
-    rows = len(read_recording(folder / "recording.csv"))
-    if rows <= map_touches:
-        return
     rec = folder / "recording.csv"
-    target = (f"adaptive-cal report {quoted(rec)} --robot {quoted(folder / 'cell.yaml')}"
+    data = read_recording(rec)
+    rows = len(data)
+    replay = (f"adaptive-cal report {quoted(rec)} --robot {quoted(folder / 'cell.yaml')}"
               if command == "report" else
               f"adaptive-cal flatness {quoted(rec)} --robot {quoted(folder / 'cell.yaml')}")
-    raise UserError(f"{rec} holds {rows} touches, but the map saved beside it (result.json, "
-                    f"belief.npz) is of the first {map_touches}: the run went on after it was "
-                    f"saved (a resume) and was stopped before it saved again. To use every "
-                    f"touch, replay the recording: {target}; or finish the run: adaptive-cal "
-                    f"run --resume {quoted(folder)}")
+    if rows > map_touches:
+        raise UserError(f"{rec} holds {rows} touches, but the map saved beside it (result.json, "
+                        f"belief.npz) is of the first {map_touches}: the run went on after it "
+                        f"was saved (a resume) and was stopped before it saved again. To use "
+                        f"every touch, replay the recording: {replay}; or finish the run: "
+                        f"adaptive-cal run --resume {quoted(folder)}")
+    digest = str(saved["recording_sha256"]) if "recording_sha256" in saved else None
+    if rows < map_touches or (digest is not None and rows_digest(data, rows) != digest):
+        raise UserError(f"{rec} is not the recording the map saved beside it (belief.npz, "
+                        f"result.json) was made from: it holds {rows} rows, the map "
+                        f"{map_touches}{'' if rows < map_touches else ', with other values'} "
+                        "(a row deleted or edited since?), and the map still holds what the "
+                        f"recording no longer does. Replay the recording as it is: {replay}")
+    try:
+        said = read_json(folder / "result.json").get("touches")
+    except (OSError, ValueError, AttributeError):
+        return  # no result.json (a kill before it): the commands that need it say so
+    if said != map_touches:
+        raise UserError(f"{folder / 'result.json'} is of {said} touches, belief.npz of "
+                        f"{map_touches}: the run was stopped while it saved its results. "
+                        f"adaptive-cal run --resume {quoted(folder)} saves them again whole")
 
 
 def shift_note(run_dir: Path, cell, correction) -> str | None:

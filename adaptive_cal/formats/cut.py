@@ -79,7 +79,7 @@ def _completed(header: str, line: str) -> tuple[str | None, str, str]:
     try:
         names = split_cells(header, "header")
     except (_OpenQuote, RecordingError):
-        return None, line, f"dropped, the header is not a CSV row ({line[:80]!r})"
+        return None, line, f"dropped, the header is not a CSV row ({_shown(line)})"
     if '"' in line:  # another tool's quoted row (the writer quotes nothing): kept only if whole
         try:
             quoted = split_cells(line, "row")
@@ -92,16 +92,16 @@ def _completed(header: str, line: str) -> tuple[str | None, str, str]:
                 return line, "", "whole"
             except RecordingError:
                 pass
-        return None, line, f"dropped, a quoted row cut mid-write ({line[:80]!r})"
+        return None, line, f"dropped, a quoted row cut mid-write ({_shown(line)})"
     cells = line.split(",")
     if (line.startswith("#") or len(cells) > len(names) or not all(c in names for c in REQUIRED)
             or any(names.index(c) >= len(cells) for c in REQUIRED)):
-        return None, line, f"dropped, a required number is missing ({line[:80]!r})"
+        return None, line, f"dropped, a required number is missing ({_shown(line)})"
     try:
         for c in REQUIRED:
             _number(cells[names.index(c)], where=c, blank_ok=(c == "t_s"))
     except RecordingError:
-        return None, line, f"dropped, a required field is not a number ({line[:80]!r})"
+        return None, line, f"dropped, a required field is not a number ({_shown(line)})"
     if len(cells) == len(names):
         return line, "", "whole"
     last = len(cells) - 1  # the field the crash cut
@@ -150,3 +150,12 @@ def _completed(header: str, line: str) -> tuple[str | None, str, str]:
     what = "kept, its required fields whole" + ("; " + "; ".join(said) if said else
                                                  "; the fields after them left blank")
     return ",".join(out), dropped, what
+
+
+def _shown(line: str) -> str:
+    """The start of a dropped line for a message, a run of NUL bytes (a power loss pads a file
+    with them) said as its count, not as dozens of escapes."""
+    import re
+
+    text = re.sub("\x00+", lambda m: f"<{len(m.group())} NUL bytes>", line)
+    return repr(text[:80])

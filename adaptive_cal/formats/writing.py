@@ -14,6 +14,8 @@ import os
 from pathlib import Path
 from typing import Iterable, Mapping
 
+import numpy as np
+
 from adaptive_cal.formats.recording import (MAGIC, REQUIRED, RecordingError, _number, _OpenQuote,
                                             split_cells)
 from adaptive_cal.formats.cut import _completed, _header_line, cut_last_row  # noqa: F401
@@ -174,3 +176,18 @@ class RecordingWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def rows_digest(rec, n: int) -> str:
+    """SHA-256 of a recording's first ``n`` rows as read (seq, t_s, x, y, z, reading, flags;
+    not the text: a CRLF or a BOM changes nothing): belief.npz keeps the digest of the rows its
+    map was made from, so a row deleted or edited since is seen (an outside audit: a deleted
+    row's reading stayed in the map, and report and flatness said nothing)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for a in (rec.seq, rec.t_s, rec.x_mm, rec.y_mm, rec.z_mm, rec.reading_mm):
+        h.update(np.ascontiguousarray(np.asarray(a, float)[:n]).tobytes())
+    for f in rec.flags[:n]:
+        h.update((";".join(sorted(f)) + "\n").encode())
+    return h.hexdigest()

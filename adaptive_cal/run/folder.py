@@ -14,12 +14,28 @@ import fcntl
 import json
 import math
 import os
+import re
 import secrets
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
 LOCK_NAME = ".run.lock"
+
+
+#: ``replace_atomically``'s temporary files: ".NAME.PID.HEX8.tmp"
+TMP_NAME = re.compile(r"\..+\.([0-9]+)\.[0-9a-f]{8}\.tmp")
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists (a report writing beside a run keeps its file)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return pid < 2**31  # another user's process (an impossible pid: not alive)
+    return True
 
 
 class RunFolderBusy(FileExistsError):
@@ -40,9 +56,13 @@ def run_lock(folder: str | os.PathLike) -> Iterator[Path]:
         except BlockingIOError:
             holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
             raise RunFolderBusy(f"{folder} is in use by another run (pid {holder}): wait for it "
-                                "to end, or choose another --out") from None
+                                "to end (or give a new run another --out)") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        for left in folder.glob(".*.tmp"):  # a kill mid-write left them (an outside audit)
+            m = TMP_NAME.fullmatch(left.name)
+            if m and not _alive(int(m.group(1))):
+                left.unlink(missing_ok=True)
         try:
             yield path
         finally:

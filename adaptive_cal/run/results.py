@@ -16,6 +16,7 @@ from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2, wei
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.npz import broken_belief, broken_text, read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
+from adaptive_cal.formats.writing import rows_digest
 from adaptive_cal.formats.writing import provenance
 from adaptive_cal.formats.numbers import count
 from adaptive_cal.planning.gap import largest_gap as gap_radius
@@ -154,10 +155,12 @@ def write_results(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, out: Path
     result.json (a re-check's "prior_from"), in the one write that marks the results complete."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    result = {**result_of(cell, plan, state, out / "recording.csv", stopped_because, rng=rng,
-                          truth=truth), **(extra or {})}
+    rec = read_recording(out / "recording.csv") if (out / "recording.csv").exists() else None
+    result = {**result_of(cell, plan, state, rec if rec is not None else out / "recording.csv",
+                          stopped_because, rng=rng, truth=truth), **(extra or {})}
     features = result.get("local_features") or ()
-    save_belief(plan, state, out / "belief.npz", features)
+    save_belief(plan, state, out / "belief.npz", features,
+                None if rec is None else rows_digest(rec, state.touches))
     status = sv.status(plan, state)
     # the belief and the figures first: result.json, written last, marks the results complete
     # (a kill while drawing leaves the old result.json, so --resume does not take the run as
@@ -296,16 +299,18 @@ def unresolved_grid(plan: SurveyPlan, state: sv.SurveyState, features=()) -> dic
     return {"unresolved_x_mm": gx, "unresolved_y_mm": gy, "unresolved_var_mm2": u}
 
 
-def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path, features=()) -> None:
+def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path, features=(),
+                digest: str | None = None) -> None:
     """The belief and its spline, for ``--prior-from`` in a later run (replaced whole), with
-    the touches and fused readings it holds (never more than the recording's rows), and the
-    variance of structure finer than the knots and of confirmed local ``features`` on a grid
-    (``unresolved_grid``)."""
+    the touches and fused readings it holds (never more than the recording's rows), the
+    ``digest`` of those rows (``formats.writing.rows_digest``), and the variance of structure
+    finer than the knots and of confirmed local ``features`` on a grid (``unresolved_grid``)."""
     s = plan.model.surface
     arrays = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
               "knots_y": s.sy.knots, "hyper": np.array(state.hyper),
               "touches": np.array(state.touches), "fused": np.array(state.fused),
-              **unresolved_grid(plan, state, features)}
+              **unresolved_grid(plan, state, features),
+              **({} if digest is None else {"recording_sha256": np.array(digest)})}
     replace_atomically(path, lambda f: np.savez(f, **arrays), binary=True)
 
 

@@ -21,7 +21,7 @@ from adaptive_cal.cell.build import survey_plan, touch_floor
 from adaptive_cal.cell.consistency import no_admissible_point
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
-from adaptive_cal.formats.recording import read_recording, say
+from adaptive_cal.formats.recording import Recording, read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
 from adaptive_cal.hardware.base import AdapterError, Interrupted, OperatorStop, ProbeLeftDown
 from adaptive_cal.planning import survey as sv
@@ -149,7 +149,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         said = repair_cut_row_said(paths.recording)  # a message line, not a Python warning
         if said is not None:
             say([said])
-        rec = read_recording(paths.recording)
+        rec = (read_recording(paths.recording) if paths.recording.stat().st_size else
+               Recording(*[np.zeros(0)] * 6))  # a start killed before its header: no touch
         state, start_t, next_seq, fused_t_s, closed_at = replay(plan, state, rec)
         done = plan.stop(sv.status(plan, state))
         saved = _saved_result(paths.out)
