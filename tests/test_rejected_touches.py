@@ -77,9 +77,16 @@ def test_a_plate_6_mm_off_nominal_stops_after_one_overrun_not_three(tmp_path):
     assert code == 2, err.getvalue()
     assert "would run the probe past its stroke's end again; nothing was sent" in err.getvalue()
     assert "Check the plate's height in the cell file" in err.getvalue()
-    assert "INCOMPLETE" in out.getvalue()
+    assert "INCOMPLETE" in out.getvalue() and "--resume" not in out.getvalue()
+    assert "then map again in a new folder" in out.getvalue()
     rec = read_recording(tmp_path / "run" / "recording.csv")
     assert len(rec.reading_mm) == 1 and rec.flags[0] >= {"rejected", "stroke_end"}
+    saved = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert saved["stopped_because"] == "touches_rejected" and "stroke's end" in saved["error"]
+    # a --resume sends that approach no more (an outside audit: each one overran once more)
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["run", "--resume", str(tmp_path / "run"), "--no-progress"]) == 2
+    assert len(read_recording(tmp_path / "run" / "recording.csv")) == 1
 
 
 def test_a_steep_plate_in_a_shallow_workspace_gets_only_approach_heights_inside_it(tmp_path):

@@ -40,6 +40,13 @@ class UnsafeTarget(AdapterError):
     """A target outside the workplane, a keep-out or the workspace box; it was not sent."""
 
 
+class StrokeOverrun(UnsafeTarget):
+    """The approach at a place where the last touch read past the usable stroke's top: the
+    plate stands higher than the approach allows, and it was not sent again. The run stops as
+    ``touches_rejected`` (the plate is not where the cell file puts it): --resume would only
+    ask the same approach again."""
+
+
 class ProbeLeftDown(AdapterError):
     """The retract after a touch failed: the tip may still be down. The message says so first,
     then what to do, then what went wrong (``__cause__``). ``touch`` is the reading taken before

@@ -19,8 +19,8 @@ from typing import Callable
 import numpy as np
 
 from adaptive_cal.hardware.base import (CLEARANCE_MM, BadSample, Motion, ProbeDevice, Sample,
-                                        Touch, TouchRejected, UnsafeTarget, _left_down,
-                                        interrupted_by)
+                                        StrokeOverrun, Touch, TouchRejected, UnsafeTarget,
+                                        _left_down, interrupted_by)
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +73,13 @@ class ProbeCycle:
             n += 1
         self._same[:] = [values[-1], n] if values else [math.nan, 0]
 
+    def seed_overrun(self, rec) -> None:
+        """A resumed recording whose last row read past the usable stroke's top: that approach
+        is not sent again after the resume either (an outside audit: each --resume the stop
+        advised overran the stroke once more)."""
+        if len(rec) and "stroke_end" in rec.flags[-1] and rec.reading_mm[-1] > self.usable_mm[1]:
+            self._overran = (float(rec.x_mm[-1]), float(rec.y_mm[-1]), float(rec.z_mm[-1]))
+
     def _check(self, path: list[tuple[float, float, float]], allowed=None) -> None:
         for x, y, z in path:
             if not all(map(math.isfinite, (x, y, z))) or not (allowed or self.allowed)(x, y, z):
@@ -88,7 +95,7 @@ class ProbeCycle:
         zs = self.guard.approaches(x_mm, y_mm, z_mm) if self.guard is not None else [z_mm]
         o = self._overran
         if o is not None and math.hypot(x_mm - o[0], y_mm - o[1]) < 1e-3 and zs[0] <= o[2] + 1e-9:
-            raise UnsafeTarget(  # a second audit: the same target three times, 1.5 mm past each
+            raise StrokeOverrun(  # a second audit: the same target three times, 1.5 mm past each
                 f"the last touch at x={o[0]:.3f} y={o[1]:.3f} mm read past the usable stroke's "
                 f"top from z={o[2]:.3f} mm: the plate stands higher there than the belief allowed, "
                 f"and the approach to z={z_mm:.3f} mm would run the probe past its stroke's end "

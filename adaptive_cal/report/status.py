@@ -13,8 +13,9 @@ WHY = {
     "touch_budget": "touch budget spent",
     "no_admissible_point": "stopped: no admissible point",
     "invalid_readings": "stopped: 3 invalid readings in a row (NaN, infinite or off the plate)",
-    "touches_rejected": "stopped: 3 touches in a row gave no usable reading (the probe at its "
-                        "stroke's end, or its samples spread)",
+    "touches_rejected": "stopped: the touches gave no usable reading (3 in a row at the probe's "
+                        "stroke's end or with their samples spread, or one past the stroke's top "
+                        "whose approach would overrun it again)",
     "readout_frozen": "stopped: the probe read the very same value touch after touch (a "
                       "frozen readout)",
     "prior_disagrees_with_readings": "stopped: the readings contradict the earlier belief "

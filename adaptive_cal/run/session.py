@@ -23,14 +23,16 @@ from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import Recording, read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
-from adaptive_cal.hardware.base import AdapterError, Interrupted, OperatorStop, ProbeLeftDown
+from adaptive_cal.hardware.base import (AdapterError, Interrupted, OperatorStop, ProbeLeftDown,
+                                        StrokeOverrun)
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.clearance import Guard
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock, write_json
-from adaptive_cal.run.loop import CLOSING, DRIFT, NO_ADMISSIBLE_POINT, Row, Step, SurveyLoop
+from adaptive_cal.run.loop import (CLOSING, DRIFT, NO_ADMISSIBLE_POINT, TOUCHES_REJECTED, Row,
+                                   Step, SurveyLoop)
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_HOLD, PRIOR_RECORD, PRIOR_SURPRISES,
                                       disagreement, load_prior, saved_prior)
 from adaptive_cal.run.results import write_results
@@ -179,6 +181,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
     opened = open_cell(cell, start_t_s=start_t, start_touch=start_touch, start_arrival=arrival)
     if resume:  # a readout frozen before the stop is still frozen: its repeats count on
         opened.cycle.seed_repeats(rec.reading_mm)
+        opened.cycle.seed_overrun(rec)  # and an approach that overran is not sent again
     if others:  # a re-check: clear of the plate in the frames not assumed too, until refuted
         opened.cycle.guard = guard = Guard(plan, others, "a frame the re-check did not assume")
         for row in zip(rec.x_mm, rec.y_mm, rec.z_mm, rec.reading_mm) if resume else ():
@@ -237,7 +240,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         except (KeyboardInterrupt, OperatorStop):  # Ctrl-C, the manual adapter's q
             stopped = "interrupted"
         except AdapterError as e:  # a device stopped the run: report what was measured, then raise
-            stopped, error = "interrupted", e
+            stopped = TOUCHES_REJECTED if isinstance(e, StrokeOverrun) else "interrupted"
+            error = e
         finally:
             flag["shield"] = True  # no touch is left to stop: the results are written whole
             writer.close()
