@@ -149,3 +149,20 @@ def test_a_temporary_file_a_kill_left_is_removed_by_the_next_run(finished, tmp_p
         f.write_bytes(b"x")
     _cli("run", "--resume", str(out), "--no-progress")
     assert not dead.exists() and live.exists() and mine.exists()
+
+
+def test_a_recording_read_with_another_cell_says_so(finished, tmp_path):
+    """An outside audit: a run's recording read with the Cheng cell gave other figures, exit 0,
+    without a word. The recording names its cell and probe zero: another one is said."""
+    from helpers import ROOT
+
+    rec = tmp_path / "recording.csv"  # outside its folder: no cell.yaml beside it to compare
+    shutil.copyfile(finished / "run" / "recording.csv", rec)
+    rc, _, err = _cli("flatness", str(rec), "--robot", str(ROOT / "configs" / "cheng2025-cell.yaml"))
+    assert "recorded on the cell 'simulated reference cell'" in err, err
+    assert "recorded with probe_zero_mm 5, read with" in err
+    rc, _, err = _cli("flatness", str(rec), "--robot", str(finished / "cell.yaml"))
+    assert "recorded on the cell" not in err and "probe_zero_mm" not in err, err
+    cheng = ROOT / "adaptive_cal" / "data" / "cheng2025" / "round0_initial.csv"  # its own words
+    rc, _, err = _cli("flatness", str(cheng), "--robot", str(ROOT / "configs" / "cheng2025-cell.yaml"))
+    assert rc == 0 and "recorded on the cell" not in err, err

@@ -12,6 +12,7 @@ recording's closure touch (rows flagged ``closure``) again, for the report's dri
 """
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -58,6 +59,7 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
     workplane; a warning naming the first touch inside a keep-out (used: a real reading, but
     a run of this cell never touches there)."""
     where = rec.path or "the recording"
+    _another_cell(rec, cell, cell_file, where)
     used = rec.fused
     off = cell.workplane.first_outside(rec.x_mm[used], rec.y_mm[used])
     if off is not None:
@@ -104,6 +106,26 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
     for i in idx:
         flags[i] = flags[i] | STROKE_END
     return replace(rec, flags=tuple(flags))
+
+
+def _another_cell(rec: Recording, cell: Cell, cell_file, where: str) -> None:
+    """Say where a recording adaptive-cal wrote names another cell than ``cell``, or another
+    probe zero: its heights are then computed with this cell's zero and judged against its
+    stroke (an outside audit: a run's recording read with the Cheng cell gave 282.5 um for
+    275.8, exit 0, without a word). A recording from elsewhere (no ``# software:`` line) names
+    its cell in its own words: not compared."""
+    named = rec.meta.get("cell")
+    if named is not None and "software" in rec.meta and named.strip() != cell.name.strip():
+        say([f"{where}: recorded on the cell '{named}', read with {cell_file} ('{cell.name}'): "
+             f"is the recording of this cell? Its workplane, probe zero and stroke are "
+             f"{cell_file}'s"])
+    try:
+        zero = float(rec.meta.get("probe_zero_mm", "nan"))
+    except ValueError:
+        return
+    if math.isfinite(zero) and abs(zero - cell.probe.zero_mm) > 1e-9:
+        say([f"{where}: recorded with probe_zero_mm {zero:g}, read with {cell_file}'s "
+             f"probe.zero_mm {cell.probe.zero_mm:g}: the heights follow the cell file's"])
 
 
 def last_closure(flags) -> list[int]:
