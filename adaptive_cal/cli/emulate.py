@@ -34,12 +34,13 @@ def command(args: argparse.Namespace) -> int:
         raise UserError(f"{args.robot}: cannot serve its devices on 127.0.0.1 ({e.strerror or e}"
                         "): another emulator or program holds a port the cell file names; stop "
                         "it, or give the cell other ports") from None
+    ports = ", ".join(f"{k} 127.0.0.1:{v}" for k, v in emu.ports().items())
+    if not ports:  # said alone: no "emulator stopped" line before it
+        emu.close()
+        raise UserError(f"{args.robot}: nothing to serve -- its robot and probe are "
+                        "simulated (adapter sim); emulate serves hses, modbus and serial "
+                        "cells (e.g. configs/cell-hses-emulated.yaml)")
     try:
-        ports = ", ".join(f"{k} 127.0.0.1:{v}" for k, v in emu.ports().items())
-        if not ports:
-            raise UserError(f"{args.robot}: nothing to serve -- its robot and probe are "
-                            "simulated (adapter sim); emulate serves hses, modbus and serial "
-                            "cells (e.g. configs/cell-hses-emulated.yaml)")
         print(f"emulating '{cell.name}': {ports} (plate seed {emu.robot.sim.sim.seed}); "
               "Ctrl-C stops", flush=True)
         end = None if args.seconds is None else time.monotonic() + args.seconds

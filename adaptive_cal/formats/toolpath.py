@@ -97,8 +97,8 @@ def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
                                 "its own (a Fanuc ends the record there, and readers drop the "
                                 "words after it)")
         if gap:
-            raise ToolpathError(f"{where}: cannot read {gap[:30]!r} (expressions, parameters and "
-                                "block delete are not supported)")
+            raise ToolpathError(f"{where}: cannot read {_token(code, pos, gap)[:30]!r} (expressions, "
+                                "parameters and block delete are not supported)")
         if _EXPONENT.match(code, m.end()):
             word = code[m.start():_EXPONENT.match(code, m.end()).end()]
             raise ToolpathError(f"{where}: {word.strip()!r} is exponent notation, not a G-code "
@@ -112,8 +112,19 @@ def _words(line: str, where: str) -> list[tuple[str, float, tuple[int, int]]]:
     if gap:
         hint = ("; a point table (CSV) needs the header line x_mm,y_mm,z_mm first"
                 if "," in line and re.fullmatch(r"[\s\w.,+-]*", line) else "")
-        raise ToolpathError(f"{where}: cannot read {gap[:30]!r}{hint}")
+        raise ToolpathError(f"{where}: cannot read {_token(code, pos, gap)[:30]!r}{hint}")
     return out
+
+
+def _token(code: str, pos: int, gap: str) -> str:
+    """What cannot be read, with the word it is stuck to ('X1.0.5', not '.5')."""
+    start = pos + (len(code[pos:]) - len(code[pos:].lstrip(" \t")))
+    if start != pos or pos == 0 or code[pos - 1] in " \t":
+        return gap
+    while start > 0 and code[start - 1] not in " \t":
+        start -= 1
+    end = pos + len(code[pos:].split(None, 1)[0]) if code[pos:].strip() else pos
+    return code[start:end]
 
 
 def _lines(text: str) -> list[str]:
