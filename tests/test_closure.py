@@ -244,10 +244,13 @@ def test_the_run_says_drift_in_result_json_the_summary_and_its_exit_status(tmp_p
     assert again["stopped_because"] == "drift" and again["touches"] == result["touches"]
     assert again["closure"]["passed"] is False
     assert again["closure"]["repeat_touches"] == result["closure"]["repeat_touches"]
-    # the run judged on the noise relearned without the drift, the replay on the map before
-    # the closure (report.replay.closure_of): the same reading, a map a little apart
+    # the replay judges as the run did (report.replay.closure_of: the map with the repeat
+    # fused, the noise relearned without the drift), on a replayed map a little apart from the
+    # run's; an outside audit found noise_h0 lost across a resume, the test on another noise
     assert again["closure"]["difference_mm"] == pytest.approx(
         result["closure"]["difference_mm"], abs=0.5 * result["closure"]["sd_mm"])
+    assert again["closure"]["noise_h0_mm"] == pytest.approx(
+        result["closure"]["noise_h0_mm"], rel=0.15)
 
 
 def test_studies_charge_the_closure_to_bound_stops_only():

@@ -142,14 +142,14 @@ def last_closure(flags) -> list[int]:
 
 
 def closure_of(plan, rec: Recording):
-    """The (last) closure touch of a recording judged again (``planning.closure``) against the
-    map of the readings before it, as the run judged it -- except that the run also relearns the noise
-    without the drift the closure reads; so the figures can differ a little from its
-    result.json. None when the recording has no closure touch."""
+    """The (last) closure touch of a recording judged again (``planning.closure``) as the run
+    judged it: the map with the repeat fused, the noise relearned without the drift it reads
+    (``planning.closure_noise``). None when the recording has no closure touch."""
     from types import SimpleNamespace
 
     from adaptive_cal.formats.recording import surface_height_mm
     from adaptive_cal.planning import closure as cl
+    from adaptive_cal.planning import closure_noise
     from adaptive_cal.planning import survey as sv
 
     flags = list(rec.flags) if rec.flags else []
@@ -183,13 +183,13 @@ def closure_of(plan, rec: Recording):
         used += [part[k] for k in keep]
         u = np.array(used)
         heights = surface_height_mm(rec.reading_mm[u], rec.z_mm[u], plan.zero_mm)
-        dof = cl.residual_dof(before.rows, before.fused_weights, before.belief.cov,
-                              before.noise_var)
+        upto = np.arange(len(rec)) <= part[-1]  # the run judged with the repeat fused
+        now = sv.replay(plan, sv.start(plan), rec.select(upto))
         elapsed = float(rec.t_s[u[-1]] - rec.t_s[rows_at[i]])
-        verdict = cl.judge(before.rows[start], before.heights_mm[start],
-                           plan.model.surface.basis(rec.x_mm[u], rec.y_mm[u]), heights,
-                           before.belief.mean, before.belief.cov, before.noise_var, dof,
-                           repeat_touches=tuple(int(rec.seq[j]) for j in used),
-                           elapsed_s=elapsed if np.isfinite(elapsed) else None, **where)
+        verdict = closure_noise.judged(
+            plan, now, rec.t_s[rec.fused & upto], start, before.rows[start],
+            before.heights_mm[start], plan.model.surface.basis(rec.x_mm[u], rec.y_mm[u]),
+            heights, rec.t_s[u], repeat_touches=tuple(int(rec.seq[j]) for j in used),
+            elapsed_s=elapsed if np.isfinite(elapsed) else None, **where)
     return verdict
 

@@ -41,6 +41,7 @@ from adaptive_cal.formats.recording import surface_height_mm
 from adaptive_cal.hardware.base import ProbeLeftDown, Touch, TouchRejected
 from adaptive_cal.hardware.cycle import ProbeCycle
 from adaptive_cal.planning import closure as cl
+from adaptive_cal.planning import closure_noise
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.adequacy import positions_mm
 from adaptive_cal.planning.ask import Target, ask, target as target_at
@@ -225,39 +226,13 @@ class SurveyLoop:
 
     def _judge(self, kept, start, first_rows, first_mm, first_t, x, y, first) -> cl.Closure:
         """``planning.closure.judge`` of the kept repeat readings against the start, on the
-        noise relearned without the drift they read where it can be (``_noise_without_drift``)."""
+        noise relearned without the drift they read where it can be (``closure_noise``)."""
         rows, heights, seqs, times = ([k[i] for k in kept] for i in range(4))
         elapsed = times[-1] - first_t if math.isfinite(times[-1] - first_t) else None
-        belief, r = self.state.belief, self.state.noise_var
-        where = dict(x_mm=x, y_mm=y, first_touch=first, repeat_touches=tuple(seqs),
-                     elapsed_s=elapsed)
-        n = cl.residual_dof(self.state.rows, self.state.fused_weights, belief.cov, r)
-        h0 = cl.judge(first_rows, first_mm, rows, heights, belief.mean, belief.cov, r, n, **where)
-        refit = self._noise_without_drift(h0.difference_mm, start, times)
-        if refit is None:
-            return h0
-        r1 = refit.noise_var
-        n1 = cl.residual_dof(refit.rows, refit.fused_weights, refit.belief.cov, r1)
-        return cl.judge(first_rows, first_mm, rows, heights, belief.mean, belief.cov, r1, n1,
-                        noise_h0_mm=math.sqrt(self.state.noise_var), **where)
-
-    def _noise_without_drift(self, d_mm: float, start: list[int], times: list[float]
-                             ) -> sv.SurveyState | None:
-        """The refit with the drift the closure reads taken out of every fused reading, as a
-        drift linear in time from the start to the repeat (``planning.closure``: a drift the
-        map could not hold went into the learned noise and would hide itself): its noise and
-        residual degrees of freedom serve the test. None where the noise is not learned or a
-        time is unknown."""
-        t = np.asarray(self.fused_t_s, float)
-        if not sv.learns(self.plan, self.state) or len(t) != self.state.fused or \
-                not np.isfinite(t).all() or not times:
-            return None
-        t0 = float(t[start].mean())
-        span = float(np.mean(times)) - t0
-        if span <= 0:
-            return None
-        corrected = self.state.heights_mm - d_mm / span * (t - t0)
-        return sv.refit(self.plan, replace(self.state, heights_mm=corrected))
+        return closure_noise.judged(self.plan, self.state, self.fused_t_s, start, first_rows,
+                                    first_mm, rows, heights, times, x_mm=x, y_mm=y,
+                                    first_touch=first, repeat_touches=tuple(seqs),
+                                    elapsed_s=elapsed)
 
     def _closed(self, closure: cl.Closure) -> cl.Closure:
         self.state = replace(self.state, closure=closure)
