@@ -81,6 +81,42 @@ def test_a_refuted_frame_costs_nothing_more(plan):
     assert near.live()
 
 
+def test_readings_where_no_frame_puts_the_plate_refute_none(plan):
+    """An outside audit: the truth a third frame, its readings 9 mm from both the frame assumed
+    and the other: they had refuted the other and ended the guard, and the next touch overran.
+    Only readings where the assumed frame puts the plate count."""
+    guard = Guard(plan, [_frame(plan, 13.0)], assumed=_frame(plan, 0.0))
+    for k in range(5):  # 6.5 mm from either (a reading of 6.5 from z = 5: height 6.5)
+        guard.seen(10.0 * k, 0.0, 6.5, 5.0)
+    assert guard.refuted == [0] and guard.live()
+    for k in range(Guard.REFUTE):  # where the assumed frame puts it: 13 mm below the other
+        guard.seen(10.0 * k, 0.0, 0.0, 5.0)
+    assert not guard.live()
+
+
+def test_a_stop_during_a_guarded_approach_names_the_height_sent(plan):
+    """An outside audit: 'THE PROBE MAY BE DOWN' named the belief's approach height, 13 mm below
+    the step the probe had been sent to."""
+    from adaptive_cal.hardware.base import ProbeLeftDown
+
+    class Stuck(Motion):
+        def move_to(self, *p):
+            if self.sent and self.sent[-1][2] == pytest.approx(13.0):
+                raise KeyboardInterrupt  # the retract after the first step
+            super().move_to(*p)
+
+    m = Stuck((0.0, 0.0, 15.0))
+
+    class NoContact(Plate):
+        def read(self):
+            raise TouchRejected("samples spread", 5.0, ("rejected", "spread"))
+
+    cycle = ProbeCycle(m, NoContact(m, 13.0), lambda x, y, z: True, 15.0, (LO, HI),
+                       reach_mm=5.0, guard=Guard(plan, [_frame(plan, 13.0)]))
+    with pytest.raises(ProbeLeftDown, match=r"approach z=13\.000 mm"):
+        cycle.touch(0.0, 0.0, 0.0, lambda xy: 15.0)
+
+
 class Plate:
     """A probe over a flat plate at ``height`` (mm): reads what the tip would, clipped to its
     10 mm stroke."""
@@ -165,6 +201,12 @@ def test_a_correction_assumed_but_not_applied_never_overruns_far_from_the_origin
     pushed = surface(x, y) - z + ZERO  # the indication each target would give, true plate
     assert pushed.max() <= HI + 0.05, f"an approach pushed the probe {pushed.max():.2f} mm in"
     assert pushed.max() >= LO  # the plate was touched: the test tests something
+    # its --resume makes no touch: the verdict stands (an outside audit: a resume after such a
+    # stop overran the stroke again, 1.9 mm from the first)
+    rows = (tmp_path / "re" / "recording.csv").read_text()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["run", "--resume", str(tmp_path / "re"), "--no-progress"]) == 1
+    assert (tmp_path / "re" / "recording.csv").read_text() == rows
     travels = [(a, b) for a, b in zip(sent, sent[1:]) if a[:2] != b[:2]]
     for a, b in travels:  # every travel: the free tip (5 mm below) clears the true plate
         t = np.linspace(0.0, 1.0, 200)

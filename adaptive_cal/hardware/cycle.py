@@ -62,6 +62,7 @@ class ProbeCycle:
     #: (x, y, z) of the last touch whose reading passed the usable stroke's top: the plate there
     #: stands higher than its approach allowed, and the same approach would overrun it again
     _overran: tuple | None = field(default=None, init=False, repr=False)
+    _sent_z: float = field(default=math.nan, init=False, repr=False)  # the last approach sent
 
     def seed_repeats(self, readings) -> None:
         """Count the repeats at the end of ``readings`` (a resumed recording's, in order) as
@@ -153,14 +154,14 @@ class ProbeCycle:
                 except BaseException as lift:  # the danger first (a Ctrl-C too), then the cause
                     why = (interrupted_by(err) if isinstance(err, KeyboardInterrupt)
                            else f"{type(err).__name__}: {err}")
-                    raise _left_down(x_mm, y_mm, z_mm, safe, lift,
+                    raise _left_down(x_mm, y_mm, self._sent_z, safe, lift,  # the step sent
                                      f"What stopped the touch: {why}", err=err) from err
             raise
         try:
             self.motion.move_to(x_mm, y_mm, safe)  # retract
         except BaseException as lift:  # a Ctrl-C during the retract too: the warning first
-            raise _left_down(x_mm, y_mm, z_mm, safe, lift, f"The reading {touch.reading_mm:.4f} "
-                             "mm was taken and is kept", touch) from lift
+            raise _left_down(x_mm, y_mm, touch.z_mm, safe, lift, f"The reading "
+                             f"{touch.reading_mm:.4f} mm was taken and is kept", touch) from lift
         return touch
 
     def _where(self, mine: float, other: float) -> str:
@@ -173,6 +174,7 @@ class ProbeCycle:
         """Approach down ``zs`` (one height; a guard's steps, highest first) and read; a step
         that reads below the usable stroke (no contact yet) goes on to the next, a lower one."""
         for k, z in enumerate(zs):
+            self._sent_z = z  # a stop from here on names the height sent, not the target's
             self.motion.move_to(x_mm, y_mm, z)
             try:
                 touch = self._read(x_mm, y_mm, z)

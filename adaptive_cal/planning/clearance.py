@@ -69,11 +69,19 @@ class Guard:
     mid-stroke, each next one ``STEP`` of the usable stroke lower, down to the belief's own,
     and the first that reads inside the stroke is the touch. A step reads at most ``STEP`` of
     the stroke above its bottom: none can overrun. A frame is refuted by ``REFUTE`` readings it
-    would have put off the usable stroke (``seen``); then it costs nothing more."""
+    would have put off the usable stroke and that lie where the frame assumed puts the plate
+    (within a quarter of the usable stroke of ``assumed``: readings that agree with no frame
+    refute none, an outside audit) (``seen``); then it costs nothing more.
+
+    It keeps clear of the frames it is given, not of every plate: a correction applied with
+    another value than the frames' (a sign flipped, an angle mistyped) can still overrun the
+    stroke on the first touches (the same audit); the re-check then stops at the first reading
+    off the stroke, and its --resume at once."""
 
     plan: SurveyPlan
     frames: list  # Beliefs: the earlier run's belief in each frame not assumed
     said: str = "a frame not assumed"  # for messages: which frame the guard keeps clear of
+    assumed: object = None  # the Belief of the frame assumed (None: every reading counts)
     refuted: list = field(default_factory=list)  # per frame: readings it would put off-stroke
 
     STEP = 0.75  # each step down: this share of the usable stroke
@@ -114,6 +122,9 @@ class Guard:
             return
         height = reading_mm + z_mm - self.plan.zero_mm
         basis = self.plan.model.surface.basis(np.array([x_mm]), np.array([y_mm]))
+        if self.assumed is not None and \
+                abs(height - float(bl.predict(self.assumed, basis)[0][0])) > 0.25 * (hi - lo):
+            return  # where no frame puts the plate: it refutes none
         for k, f in enumerate(self.frames):
             mean = float(bl.predict(f, basis)[0][0])
             if abs(height - mean) > 0.5 * (hi - lo):

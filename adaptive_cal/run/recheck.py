@@ -16,6 +16,7 @@ from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.numbers import fixed
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
+from adaptive_cal.planning.clearance import Guard
 from adaptive_cal.run.results import read_belief
 
 PRIOR_RECORD = "prior_from.json"  # a re-check's --prior-from and correction, for --resume
@@ -157,6 +158,16 @@ def _proposed(run_dir: Path) -> list[dict]:
         return []
 
 
+def recheck_guard(plan, others: list[bl.Belief], assumed: bl.Belief, rec=None) -> Guard:
+    """The guard of a re-check (``planning.clearance.Guard``): clear of the plate in the frames
+    not assumed (``others``, from ``load_prior``) until readings where ``assumed`` puts the
+    plate refute them; a resumed one (``rec``: its recording) counts the readings taken."""
+    guard = Guard(plan, others, "a frame the re-check did not assume", assumed)
+    for row in zip(rec.x_mm, rec.y_mm, rec.z_mm, rec.reading_mm) if rec is not None else ():
+        guard.seen(*map(float, row))
+    return guard
+
+
 def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = ()) -> str:
     """Why a re-check stopped early, and what to do, in one sentence for the terminal.
     ``off_stroke``: seqs of touches whose reading left the probe's usable stroke where the
@@ -167,8 +178,9 @@ def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = ()
     seen = ([f"{len(surprises)} readings (seq {', '.join(map(str, surprises))}) were confirmed "
              "by their retake far outside its band"] if surprises else []) + (
         [f"the reading of seq {', '.join(map(str, off_stroke))} left the probe's usable stroke "
-         "where that belief put it mid-stroke (no contact, or the stroke's end: the next touch "
-         "could overrun it)"] if off_stroke else [])
+         "where that belief put it mid-stroke (below it: no contact; above it: the probe was "
+         "pushed past its stroke's top, so check that it moves freely; the next touch could "
+         "overrun it)"] if off_stroke else [])
     return (f"the plate is not where the earlier run's belief puts it in the frame assumed "
             f"({carried['assumed']}: rx {fixed(c['rx'], 4, '+')} deg, ry "
             f"{fixed(c['ry'], 4, '+')} deg): "  # never "-0.0000"

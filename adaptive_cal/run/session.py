@@ -26,7 +26,6 @@ from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut
 from adaptive_cal.hardware.base import (AdapterError, Interrupted, OperatorStop, ProbeLeftDown,
                                         StrokeOverrun)
 from adaptive_cal.planning import survey as sv
-from adaptive_cal.planning.clearance import Guard
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.devices import open_cell
@@ -34,7 +33,7 @@ from adaptive_cal.run.folder import run_lock, write_json
 from adaptive_cal.run.loop import (CLOSING, DRIFT, NO_ADMISSIBLE_POINT, TOUCHES_REJECTED, Row,
                                    Step, SurveyLoop)
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_HOLD, PRIOR_RECORD, PRIOR_SURPRISES,
-                                      disagreement, load_prior, saved_prior)
+                                      disagreement, load_prior, recheck_guard, saved_prior)
 from adaptive_cal.run.results import write_results
 from adaptive_cal.run.truth import TrueError
 
@@ -183,9 +182,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         opened.cycle.seed_repeats(rec.reading_mm)
         opened.cycle.seed_overrun(rec)  # and an approach that overran is not sent again
     if others:  # a re-check: clear of the plate in the frames not assumed too, until refuted
-        opened.cycle.guard = guard = Guard(plan, others, "a frame the re-check did not assume")
-        for row in zip(rec.x_mm, rec.y_mm, rec.z_mm, rec.reading_mm) if resume else ():
-            guard.seen(*map(float, row))  # resumed: what the readings refuted stays refuted
+        opened.cycle.guard = recheck_guard(plan, others, prior, rec if resume else None)
     truth = opened.simulated.surface_mm if opened.simulated is not None else None
     history = History(sv.status(plan, state), state.fitted_at)
     hooks = [history]
@@ -197,8 +194,9 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         floor = touch_floor(cell, plan.model.form_surface.size, informed_prior=prior is not None)
         hooks.append(lambda step: _update(bar, cell, step.status, floor))
 
-    surprises = []  # seqs of readings confirmed by their retake far from the belief
-    off_stroke = []  # seqs of touches whose reading left the usable stroke (rejected)
+    seen = list(zip(rec.seq, rec.flags)) if resume else []  # a resumed re-check's verdicts stand
+    surprises = [int(s) for s, f in seen if "surprise" in f]  # confirmed far from the belief
+    off_stroke = [int(s) for s, f in seen if "stroke_end" in f]  # left the usable stroke
 
     def record(row: Row) -> None:
         writer.append(seq=row.seq + seq_offset, t_s=row.t_s, x_mm=row.x_mm, y_mm=row.y_mm, z_mm=row.z_mm,
