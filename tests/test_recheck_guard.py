@@ -179,6 +179,11 @@ def test_a_correction_assumed_but_not_applied_never_overruns_far_from_the_origin
     the probe past its usable stroke on the TRUE plate, nor dragged it over the plate."""
     assert main(["run", "--robot", str(_far_cell(tmp_path, 1)), "--out", str(tmp_path / "first"),
                  "--no-progress"]) == 0
+    from adaptive_cal.run.recheck import frame_shift_mm
+
+    far = load_cell(_far_cell(tmp_path, 2))  # the other frame lies as far whatever is assumed
+    shifts = [frame_shift_mm(tmp_path / "first", far, c) for c in ("proposed", "none", (0.0, 0.1))]
+    assert min(shifts) > 18.0, shifts  # (an outside audit: a measured one said nothing)
     sent, sims = [], []
     original = SimulatedCell.move_to
 

@@ -156,15 +156,14 @@ def shift_note(run_dir: Path, cell, correction) -> str | None:
     from adaptive_cal.run import recheck
 
     lo, hi = cell.probe.usable_mm
-    try:  # assumed none: the other frame is the proposed one (none proposed: no other frame)
-        shift = recheck.frame_shift_mm(run_dir, cell,
-                                       "proposed" if correction == "none" else correction)
-    except ValueError:
+    try:
+        shift = recheck.frame_shift_mm(run_dir, cell, correction)
+    except (OSError, ValueError):  # the run itself says what is wrong with the earlier run
         return None
     if shift <= 0.5 * (hi - lo):
         return None
     return (f"the correction moves the earlier plate by up to {shift:.2f} mm, more than the "
             f"probe's usable stroke leaves either side of mid-stroke ({0.5 * (hi - lo):.2f} mm): "
             "until the readings tell the frames apart, each touch is approached in steps from "
-            "above where the plate would stand in the other frame (applied or not), and travels "
-            "clear it")
+            "above where the plate would stand in the other frame (none applied, or the "
+            "proposed one), and travels clear it")

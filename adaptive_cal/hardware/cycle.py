@@ -168,7 +168,8 @@ class ProbeCycle:
         """Why the plate may stand that high, where a guard's frame is the higher."""
         if other <= mine:
             return ""
-        return f" (the plate as it stands in {self.guard.said})"
+        return (f" (the plate as it stands in {self.guard.said}; a map from scratch, without "
+                "--prior-from, does not keep clear of it)")
 
     def _approach(self, x_mm: float, y_mm: float, zs: list[float]) -> Touch:
         """Approach down ``zs`` (one height; a guard's steps, highest first) and read; a step

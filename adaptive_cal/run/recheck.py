@@ -190,18 +190,18 @@ def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = ()
 
 
 def frame_shift_mm(run_dir: Path, cell: Cell, correction="proposed") -> float:
-    """How far (mm) the correction assumed applied moves the earlier run's plate over the
-    workplane: the largest |moved - unmoved mean| on a 21 x 21 grid, edges included (0 for
-    'none'). Where it passes the usable stroke's half width, a correction assumed but not
-    applied would run a plain approach past the stroke's end: the run approaches in steps
-    (``planning.clearance.Guard``) and says so first (``cli.run_guards.shift_note``)."""
-    info = applied_correction(run_dir, correction)
-    if info["assumed"] == "none":
+    """How far apart (mm) the earlier run's plate stands in the frame assumed and in the others
+    a re-check keeps clear of (``load_prior``: unmoved, and moved by the proposed correction
+    where that is not the one assumed): the largest |difference of the means| on a 21 x 21 grid,
+    edges included; 0 where there is no other. Where it passes the usable stroke's half width,
+    a plain approach could run past the stroke's end were the frame assumed the wrong one: the
+    run approaches in steps (``planning.clearance.Guard``) and says so first
+    (``cli.run_guards.shift_note``)."""
+    assumed, _, _, others = load_prior(run_dir, cell, correction)
+    if not others:
         return 0.0
-    earlier, _ = read_belief(run_dir, cell)
     model = plan_model(cell)
-    moved = corrected_belief(model, earlier, info["correction_deg"]["rx"],
-                             info["correction_deg"]["ry"])
     (x0, x1), (y0, y1) = cell.workplane.x_mm, cell.workplane.y_mm
     x, y = (v.ravel() for v in np.meshgrid(np.linspace(x0, x1, 21), np.linspace(y0, y1, 21)))
-    return float(np.max(np.abs(model.surface.basis(x, y) @ (moved.mean - earlier.mean))))
+    rows = model.surface.basis(x, y)
+    return max(float(np.max(np.abs(rows @ (o.mean - assumed.mean)))) for o in others)
