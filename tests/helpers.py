@@ -61,3 +61,20 @@ def wait_listening(port: int, host: str = "127.0.0.1", timeout_s: float = 10.0) 
             return
         except OSError:
             time.sleep(0.02)
+
+
+def record_moves(monkeypatch) -> tuple[list, list]:
+    """Every target SimulatedCell.move_to is sent, in order, and the simulated cells that were
+    sent them (their ``surface_mm`` is the true plate): (sent, sims)."""
+    from adaptive_cal.simulation.cell import SimulatedCell
+
+    sent, sims = [], []
+    original = SimulatedCell.move_to
+
+    def move_to(self, x, y, z):
+        sims.append(self)
+        sent.append((x, y, z))
+        original(self, x, y, z)
+
+    monkeypatch.setattr(SimulatedCell, "move_to", move_to)
+    return sent, sims

@@ -21,10 +21,8 @@ from adaptive_cal.hardware.base import Sample, TouchRejected
 from adaptive_cal.hardware.cycle import ProbeCycle
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.clearance import Guard
-from adaptive_cal.run import session
-from adaptive_cal.simulation.cell import SimulatedCell
 
-from helpers import SIM_CELL
+from helpers import SIM_CELL, record_moves
 from test_adapter_probe_cycle import Motion
 
 LO, HI, ZERO = 0.5, 9.5, 5.0  # the sim cell's usable stroke and zero (mm)
@@ -184,15 +182,7 @@ def test_a_correction_assumed_but_not_applied_never_overruns_far_from_the_origin
     far = load_cell(_far_cell(tmp_path, 2))  # the other frame lies as far whatever is assumed
     shifts = [frame_shift_mm(tmp_path / "first", far, c) for c in ("proposed", "none", (0.0, 0.1))]
     assert min(shifts) > 18.0, shifts  # (an outside audit: a measured one said nothing)
-    sent, sims = [], []
-    original = SimulatedCell.move_to
-
-    def move_to(self, x, y, z):
-        sims.append(self)
-        sent.append((x, y, z))
-        original(self, x, y, z)
-
-    monkeypatch.setattr(SimulatedCell, "move_to", move_to)
+    sent, sims = record_moves(monkeypatch)
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
         rc = main(["run", "--robot", str(_far_cell(tmp_path, 2)), "--out", str(tmp_path / "re"),

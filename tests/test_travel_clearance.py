@@ -15,9 +15,8 @@ from adaptive_cal.cell.schema import load_yaml
 from adaptive_cal.cli import main
 from adaptive_cal.hardware.base import CLEARANCE_MM, UnsafeTarget
 from adaptive_cal.hardware.cycle import ProbeCycle
-from adaptive_cal.simulation.cell import SimulatedCell
 
-from helpers import SIM_CELL
+from helpers import SIM_CELL, record_moves
 from test_adapter_probe_cycle import Motion, Probe  # recording fakes
 
 
@@ -78,15 +77,7 @@ def test_a_large_tilted_plate_is_never_dragged_over(tmp_path, monkeypatch):
     cell["simulation"]["effects"]["tilt"] = {"a": 0.021, "b": 0.0019, "c": 0.2}
     path = tmp_path / "big.yaml"
     path.write_text(yaml.safe_dump(cell))
-    sent, sims = [], []
-    original = SimulatedCell.move_to
-
-    def move_to(self, x, y, z):
-        sims.append(self)
-        sent.append((x, y, z))
-        original(self, x, y, z)
-
-    monkeypatch.setattr(SimulatedCell, "move_to", move_to)
+    sent, sims = record_moves(monkeypatch)
     assert main(["run", "--robot", str(path), "--out", str(tmp_path / "run"),
                  "--no-progress"]) == 0
     reach = cell["probe"].get("zero_mm", 5.0) - cell["probe"].get("rest_mm", 0.0)
