@@ -110,6 +110,7 @@ def test_csv_round_trip_keeps_other_columns_and_inserted_rows_copy_them():
     ("G0 X0 Y0 Z1\nG3 X10 Y0 R5\n", ["line 2", "G3", "arc"]),
     ("G0 X0 Y0 Z1\nG1 X10 A90\n", ["line 2", "A"]),
     ("G0 X0 Y0 Z1\nG1 X#1\n", ["line 2", "cannot read"]),
+    ("G0 X0 Y0 Z1\nG1 X1.0.5 Y2\n", ["line 2", "cannot read 'X1.0.5'"]),  # the word, not '.5'
     ("G0 X0 Y0 Z1 (open\n", ["line 1", "parenthesis"]),
     ("X0 Y0 Z1\n", ["line 1", "before any G0 or G1"]),
     ("G0 X0 Y0 Z1\nG33 X1\n", ["line 2", "G33", "not supported"]),

@@ -123,7 +123,9 @@ def _token(code: str, pos: int, gap: str) -> str:
         return gap
     while start > 0 and code[start - 1] not in " \t":
         start -= 1
-    end = pos + len(code[pos:].split(None, 1)[0]) if code[pos:].strip() else pos
+    end = pos
+    while end < len(code) and code[end] not in " \t":
+        end += 1
     return code[start:end]
 
 
