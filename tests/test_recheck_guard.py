@@ -12,6 +12,7 @@ import re
 import numpy as np
 import pytest
 import yaml
+from scipy.stats import norm
 
 from adaptive_cal.cell.build import survey_plan
 from adaptive_cal.cell.schema import load_cell, load_yaml
@@ -90,6 +91,26 @@ def test_readings_where_no_frame_puts_the_plate_refute_none(plan):
     for k in range(Guard.REFUTE):  # where the assumed frame puts it: 13 mm below the other
         guard.seen(10.0 * k, 0.0, 0.0, 5.0)
     assert not guard.live()
+
+
+def test_the_cells_own_prior_is_cleared_until_readings_bound_the_plate(plan):
+    """A third frame the guard was not told of (an outside audit: a sign flipped, 13 mm past the
+    stroke's end): the cell's own prior, told every reading, bounds where the plate may stand.
+    At a corner, before any reading, it lets the plate stand far above the belief's approach:
+    the touch is approached in steps from its top, which reads mid-stroke at the first. Three
+    readings spread over a level plate bound it: one plain approach there after them."""
+    safety = sv.start(plan).belief
+    guard = Guard(plan, [], safety=safety)
+    h = plan.model.surface.basis(np.array([215.0]), np.array([175.0]))
+    mean, var = (float(v[0]) for v in bl.predict(safety, h))
+    top = mean + norm.isf(0.5e-6) * var ** 0.5  # the two-sided 1-in-10^6 top, written out
+    zs = guard.approaches(215.0, 175.0, 0.0)
+    assert len(zs) > 2 and zs[0] == pytest.approx(top + ZERO - 0.5 * (LO + HI), abs=1e-6)
+    assert guard.top_mm((0.0, 0.0), (215.0, 175.0)) == pytest.approx(top, abs=1e-6)
+    for x, y in ((-200.0, -160.0), (200.0, -160.0), (0.0, 160.0)):
+        guard.seen(x, y, 0.0, ZERO)  # the plate at height 0 there
+    assert guard.approaches(215.0, 175.0, 0.0) == [0.0]
+    assert guard.top_mm((0.0, 0.0), (215.0, 175.0)) < 0.5  # the form prior alone: 4.9 x 0.05 mm
 
 
 def test_a_stop_during_a_guarded_approach_names_the_height_sent(plan):

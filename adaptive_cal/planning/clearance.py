@@ -73,15 +73,20 @@ class Guard:
     (within a quarter of the usable stroke of ``assumed``: readings that agree with no frame
     refute none, an outside audit) (``seen``); then it costs nothing more.
 
-    It keeps clear of the frames it is given, not of every plate: a correction applied with
-    another value than the frames' (a sign flipped, an angle mistyped) can still overrun the
-    stroke on the first touches (the same audit); the re-check then stops at the first reading
-    off the stroke, and its --resume at once."""
+    Beside the frames, ``safety``: the cell's own prior, told every reading inside the stroke
+    -- where the plate may stand whatever was applied (a sign flipped, an angle mistyped: the
+    same audit overran by 13 mm on the first touch of such a re-check). It is what keeps a run
+    from scratch inside the stroke: its touches are chosen where that prior promises the stroke
+    (``scoring.stroke_ok``), a re-check's where the earlier map does. Its top (mean + z* sd)
+    is cleared and approached from above like a frame's; after a few readings spread over the
+    plate it lies within micrometres of the plate and costs nothing more."""
 
     plan: SurveyPlan
     frames: list  # Beliefs: the earlier run's belief in each frame not assumed
     said: str = "a frame not assumed"  # for messages: which frame the guard keeps clear of
     assumed: object = None  # the Belief of the frame assumed (None: every reading counts)
+    safety: object = None  # the cell's own prior, told each reading (None: frames alone)
+    noise_var_mm2: float = 1e-4  # the safety belief's reading variance: (10 um)^2 at least
     refuted: list = field(default_factory=list)  # per frame: readings it would put off-stroke
 
     STEP = 0.75  # each step down: this share of the usable stroke
@@ -93,21 +98,29 @@ class Guard:
     def live(self) -> list:
         return [f for f, n in zip(self.frames, self.refuted) if n < self.REFUTE]
 
+    def bounds(self) -> list:
+        """The live frames, and the safety belief."""
+        return self.live() + ([self.safety] if self.safety is not None else [])
+
     def top_mm(self, from_xy, to_xy) -> float:
-        """The highest a live frame's plate may stand along the travel (-inf: none live)."""
-        return max((top_under(self.plan, f, from_xy, to_xy) for f in self.live()),
+        """The highest the plate may stand along the travel under a live frame or the safety
+        belief (-inf: none)."""
+        return max((top_under(self.plan, f, from_xy, to_xy) for f in self.bounds()),
                    default=-math.inf)
 
     def approaches(self, x_mm: float, y_mm: float, z_mm: float) -> list[float]:
         """Approach heights, highest first, ending at ``z_mm`` (the belief's): one where no
-        live frame's plate (mean + z* sd) would read past the usable stroke's top from z_mm."""
+        live frame's plate nor the safety belief's (mean + z* sd) would read past the usable
+        stroke's top from z_mm. The first puts a frame's plate mid-stroke, or the safety
+        belief's top."""
         lo, hi = self.plan.usable_mm
         basis = self.plan.model.surface.basis(np.array([x_mm]), np.array([y_mm]))
         top, high = -math.inf, -math.inf
-        for f in self.live():
+        for f in self.bounds():
             mean, var = (float(v[0]) for v in bl.predict(f, basis))
-            top = max(top, mean + STROKE_Z * math.sqrt(max(var, 0.0)))
-            high = max(high, self.plan.approach_height(mean))
+            here = mean + STROKE_Z * math.sqrt(max(var, 0.0))
+            top = max(top, here)
+            high = max(high, self.plan.approach_height(here if f is self.safety else mean))
         if top - z_mm + self.plan.zero_mm <= hi or high <= z_mm:
             return [z_mm]
         step = self.STEP * (hi - lo)
@@ -122,6 +135,8 @@ class Guard:
             return
         height = reading_mm + z_mm - self.plan.zero_mm
         basis = self.plan.model.surface.basis(np.array([x_mm]), np.array([y_mm]))
+        if self.safety is not None:
+            self.safety = bl.fuse_step(self.safety, basis[0], height, self.noise_var_mm2)
         if self.assumed is not None and \
                 abs(height - float(bl.predict(self.assumed, basis)[0][0])) > 0.25 * (hi - lo):
             return  # where no frame puts the plate: it refutes none

@@ -161,8 +161,13 @@ def _proposed(run_dir: Path) -> list[dict]:
 def recheck_guard(plan, others: list[bl.Belief], assumed: bl.Belief, rec=None) -> Guard:
     """The guard of a re-check (``planning.clearance.Guard``): clear of the plate in the frames
     not assumed (``others``, from ``load_prior``) until readings where ``assumed`` puts the
-    plate refute them; a resumed one (``rec``: its recording) counts the readings taken."""
-    guard = Guard(plan, others, "a frame the re-check did not assume", assumed)
+    plate refute them, and of the plate the cell's own prior allows, told every reading; a
+    resumed one (``rec``: its recording) counts the readings taken."""
+    from adaptive_cal.planning.survey import start
+
+    guard = Guard(plan, others, "a frame the re-check did not assume, or where the cell's own "
+                  "prior lets it stand before readings bound it", assumed,
+                  safety=start(plan).belief)
     for row in zip(rec.x_mm, rec.y_mm, rec.z_mm, rec.reading_mm) if rec is not None else ():
         guard.seen(*map(float, row))
     return guard
