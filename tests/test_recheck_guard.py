@@ -106,11 +106,27 @@ def test_the_cells_own_prior_is_cleared_until_readings_bound_the_plate(plan):
     top = mean + norm.isf(0.5e-6) * var ** 0.5  # the two-sided 1-in-10^6 top, written out
     zs = guard.approaches(215.0, 175.0, 0.0)
     assert len(zs) > 2 and zs[0] == pytest.approx(top + ZERO - 0.5 * (LO + HI), abs=1e-6)
-    assert guard.top_mm((0.0, 0.0), (215.0, 175.0)) == pytest.approx(top, abs=1e-6)
+    assert guard.soft_top_mm((0.0, 0.0), (215.0, 175.0)) == pytest.approx(top, abs=1e-6)
     for x, y in ((-200.0, -160.0), (200.0, -160.0), (0.0, 160.0)):
         guard.seen(x, y, 0.0, ZERO)  # the plate at height 0 there
     assert guard.approaches(215.0, 175.0, 0.0) == [0.0]
-    assert guard.top_mm((0.0, 0.0), (215.0, 175.0)) < 0.5  # the form prior alone: 4.9 x 0.05 mm
+    assert guard.soft_top_mm((0.0, 0.0), (215.0, 175.0)) < 0.5  # the form prior alone: 4.9 x 0.05 mm
+
+
+def test_the_cells_own_prior_is_cleared_as_far_as_the_workspace_box_reaches(plan):
+    """The box is where the user lets the probe work: the prior's plate above it is not a reason
+    to refuse a re-check (the Cheng cell's box ends 19 mm up, its prior's plate 18 mm at a
+    corner), as a frame's is; its steps and travels stop at the box's top."""
+    from dataclasses import replace
+
+    boxed = replace(plan, z_range_mm=(-20.0, 18.0))
+    guard = Guard(boxed, [], safety=sv.start(plan).belief)
+    assert guard.approaches(215.0, 175.0, 0.0)[0] == pytest.approx(18.0)
+    m = Motion((0.0, 0.0, 15.0))
+    cycle = ProbeCycle(m, Plate(m, 0.0), lambda x, y, z: z <= 18.0, 15.0, (LO, HI),
+                       reach_mm=5.0, guard=guard)
+    touch = cycle.touch(215.0, 175.0, 0.0, lambda xy: 0.2)
+    assert max(p[2] for p in m.sent) == pytest.approx(18.0) and LO <= touch.reading_mm <= HI
 
 
 def test_a_stop_during_a_guarded_approach_names_the_height_sent(plan):

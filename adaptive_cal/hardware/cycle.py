@@ -121,6 +121,9 @@ class ProbeCycle:
                     "plate (before the first touches only the prior bounds the plate: a probe "
                     "parked above the workplane's middle travels over less of it)")
             safe = max(safe, need)
+        if self.guard is not None:  # the cell's own prior: cleared as far as the box reaches
+            soft = self.guard.soft_top_mm((cx, cy), (x_mm, y_mm)) + self.reach_mm + CLEARANCE_MM
+            safe = max(safe, min(soft, self.guard.z_cap_mm))
         if all(map(math.isfinite, (cx, cy, cz))):
             below = cz < safe - 1e-9  # the tip may be down until this lift is done
             path = [(cx, cy, safe)] if below else []  # lift before travelling

@@ -78,8 +78,10 @@ class Guard:
     same audit overran by 13 mm on the first touch of such a re-check). It is what keeps a run
     from scratch inside the stroke: its touches are chosen where that prior promises the stroke
     (``scoring.stroke_ok``), a re-check's where the earlier map does. Its top (mean + z* sd)
-    is cleared and approached from above like a frame's; after a few readings spread over the
-    plate it lies within micrometres of the plate and costs nothing more."""
+    is cleared and approached from above like a frame's, as far as the workspace box reaches
+    (``soft_top_mm``, ``approaches``: the box is where the user lets the probe work; a frame's
+    plate above it is refused, the prior's is not); after a few readings spread over the plate
+    it lies within micrometres of the plate and costs nothing more."""
 
     plan: SurveyPlan
     frames: list  # Beliefs: the earlier run's belief in each frame not assumed
@@ -102,11 +104,21 @@ class Guard:
         """The live frames, and the safety belief."""
         return self.live() + ([self.safety] if self.safety is not None else [])
 
+    @property
+    def z_cap_mm(self) -> float:
+        """The workspace box's top (inf without a box)."""
+        return self.plan.z_range_mm[1] if self.plan.z_range_mm is not None else math.inf
+
     def top_mm(self, from_xy, to_xy) -> float:
-        """The highest the plate may stand along the travel under a live frame or the safety
-        belief (-inf: none)."""
-        return max((top_under(self.plan, f, from_xy, to_xy) for f in self.bounds()),
+        """The highest the plate may stand along the travel under a live frame (-inf: none)."""
+        return max((top_under(self.plan, f, from_xy, to_xy) for f in self.live()),
                    default=-math.inf)
+
+    def soft_top_mm(self, from_xy, to_xy) -> float:
+        """The same under the safety belief (-inf: none); the travel clears it as far as the
+        workspace box reaches."""
+        return (top_under(self.plan, self.safety, from_xy, to_xy) if self.safety is not None
+                else -math.inf)
 
     def approaches(self, x_mm: float, y_mm: float, z_mm: float) -> list[float]:
         """Approach heights, highest first, ending at ``z_mm`` (the belief's): one where no
@@ -119,6 +131,8 @@ class Guard:
         for f in self.bounds():
             mean, var = (float(v[0]) for v in bl.predict(f, basis))
             here = mean + STROKE_Z * math.sqrt(max(var, 0.0))
+            if f is self.safety:  # no higher than a step the box lets the probe make
+                here = min(here, self.z_cap_mm - self.plan.zero_mm + 0.5 * (lo + hi))
             top = max(top, here)
             high = max(high, self.plan.approach_height(here if f is self.safety else mean))
         if top - z_mm + self.plan.zero_mm <= hi or high <= z_mm:
