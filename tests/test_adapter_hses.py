@@ -369,7 +369,7 @@ def test_without_check_position_the_first_touch_lifts_from_where_the_robot_stand
     run's first touch (every start, every --resume) went sideways at the safe height with no
     lift first while the tip could still be down. The position is read whenever it can be
     converted, with or without the check."""
-    from adaptive_cal.hardware.base import ProbeCycle
+    from adaptive_cal.hardware.cycle import ProbeCycle
     m = connect(controller)
     m.move_to(100.0, 50.0, 2.0)  # a run stopped with the tip down
     m.close()

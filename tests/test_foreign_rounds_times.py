@@ -11,7 +11,7 @@ from adaptive_cal.formats.recording import read_recording
 
 from helpers import ROOT, sim_cell
 
-CHENG = ROOT.parent / "shared" / "data" / "cheng2025"
+CHENG = ROOT / "adaptive_cal" / "data" / "cheng2025"  # the published readings, as shipped
 
 
 def _write(path, rows, extra_header=""):

@@ -53,12 +53,15 @@ def command(args) -> int:
             raise UserError(f"--resume {out}: {'a file, not a' if out.exists() else 'no such'} "
                             "folder (give the folder an interrupted 'adaptive-cal run --out DIR' "
                             "wrote)")
-        if not (out / "recording.csv").exists():  # before its cell.yaml is looked for
+        rec = out / "recording.csv"
+        if not rec.exists() or rec.stat().st_size == 0:  # before its cell.yaml is looked for
             again = (f"; a run stopped there before it recorded anything starts again with "
                      f"adaptive-cal run --robot {quoted(out / 'cell.yaml')} --out {quoted(out)}"
                      if (out / "cell.yaml").is_file() else "")
-            raise UserError(f"--resume {out}: no recording.csv there, nothing to resume (give "
-                            f"the folder an interrupted 'adaptive-cal run --out DIR' wrote){again}")
+            raise UserError(f"--resume {out}: " + ("no recording.csv there" if not rec.exists()
+                                                   else "recording.csv:1: an empty file")
+                            + ", nothing to resume (give the folder an interrupted "
+                            f"'adaptive-cal run --out DIR' wrote){again}")
         cell_path = Path(args.robot) if args.robot else out / "cell.yaml"
         if args.robot and (out / "cell.yaml").exists():
             same_cell(out, cell_path)
@@ -78,9 +81,9 @@ def command(args) -> int:
             return 1
     created = None  # (folders this run made, names --out held before)
     if not args.resume:
-        if (out / "recording.csv").exists():
+        if (out / "recording.csv").exists() and (out / "recording.csv").stat().st_size:
             raise UserError(f"{out}/recording.csv exists: continue it with --resume {out}, or "
-                            "choose another --out")
+                            "choose another --out")  # (empty: a start killed before its header)
         held = [n for n in ("result.json", "belief.npz") if (out / n).exists()]
         if held:  # another run's results, its recording moved away: never overwritten
             raise UserError(f"{out} holds {' and '.join(held)} of another run: another --out")

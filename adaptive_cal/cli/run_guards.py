@@ -140,7 +140,7 @@ def refuse_stale_map(folder: Path, command: str) -> None:
         said = read_json(folder / "result.json").get("touches")
     except (OSError, ValueError, AttributeError):
         return  # no result.json (a kill before it): the commands that need it say so
-    if said != map_touches:
+    if type(said) is int and said != map_touches:  # another type: the reader names the key
         raise UserError(f"{folder / 'result.json'} is of {said} touches, belief.npz of "
                         f"{map_touches}: the run was stopped while it saved its results. "
                         f"adaptive-cal run --resume {quoted(folder)} saves them again whole")

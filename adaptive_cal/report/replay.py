@@ -109,16 +109,11 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
 
 
 def _another_cell(rec: Recording, cell: Cell, cell_file, where: str) -> None:
-    """Say where a recording adaptive-cal wrote names another cell than ``cell``, or another
-    probe zero: its heights are then computed with this cell's zero and judged against its
-    stroke (an outside audit: a run's recording read with the Cheng cell gave 282.5 um for
-    275.8, exit 0, without a word). A recording from elsewhere (no ``# software:`` line) names
-    its cell in its own words: not compared."""
-    named = rec.meta.get("cell")
-    if named is not None and "software" in rec.meta and named.strip() != cell.name.strip():
-        say([f"{where}: recorded on the cell '{named}', read with {cell_file} ('{cell.name}'): "
-             f"is the recording of this cell? Its workplane, probe zero and stroke are "
-             f"{cell_file}'s"])
+    """Say where a recording was taken with another probe zero than ``cell``'s: its heights
+    are then computed with this cell's zero and judged against its stroke (an outside audit:
+    a run's recording read with the Cheng cell gave 282.5 um for 275.8, exit 0; beside its run
+    folder the folder's cell.yaml is compared in full, ``cli.common``; a name is a label: a
+    renamed cell that maps the same says nothing)."""
     try:
         zero = float(rec.meta.get("probe_zero_mm", "nan"))
     except ValueError:

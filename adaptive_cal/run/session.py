@@ -21,7 +21,7 @@ from adaptive_cal.cell.build import survey_plan, touch_floor
 from adaptive_cal.cell.consistency import no_admissible_point
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
-from adaptive_cal.formats.recording import Recording, read_recording, say
+from adaptive_cal.formats.recording import read_recording, say
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
 from adaptive_cal.hardware.base import (AdapterError, Interrupted, OperatorStop, ProbeLeftDown,
                                         StrokeOverrun)
@@ -132,7 +132,7 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
 
 def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_applied,
          progress: bool, max_new_touches: int | None) -> dict:
-    if paths.recording.exists() and not resume:
+    if paths.recording.exists() and paths.recording.stat().st_size and not resume:
         raise FileExistsError(f"{paths.recording} exists: continue it with --resume, or choose "
                               "another --out")
     if resume and not paths.recording.exists():
@@ -150,8 +150,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         said = repair_cut_row_said(paths.recording)  # a message line, not a Python warning
         if said is not None:
             say([said])
-        rec = (read_recording(paths.recording) if paths.recording.stat().st_size else
-               Recording(*[np.zeros(0)] * 6))  # a start killed before its header: no touch
+        rec = read_recording(paths.recording)
         state, start_t, next_seq, fused_t_s, closed_at = replay(plan, state, rec)
         done = plan.stop(sv.status(plan, state))
         saved = _saved_result(paths.out)
