@@ -1,7 +1,9 @@
 """The probe cycle that owns the touch sequence above a Motion and a ProbeDevice.
 
-The cycle: check every target -> lift to the safe height -> travel -> approach -> settle -> read N
-samples -> median -> reject when the spread exceeds the tolerance (bounded retries) -> retract.
+The cycle: check every target -> lift to the safe height (higher where the plate may stand within
+the free tip's reach, ``planning.clearance``) -> travel -> approach (in steps from above where a
+re-check's guard says the plate may stand higher) -> settle -> read N samples -> median -> reject
+when the spread exceeds the tolerance (bounded retries) -> retract.
 Readings near the ends of the usable stroke are rejected. Each ``Sample`` carries its timestamp
 and the raw bytes the device sent; they stay in memory on the ``Touch`` (and a bad sample's bytes
 go to the log) -- the recording keeps the reading and its time, not the bytes. A sample the device
@@ -56,7 +58,8 @@ class ProbeCycle:
     #: A probe parked beside the plate at the safe height must rise when the travel needs more
     lift_allowed: Callable[[float, float, float], bool] | None = None
     #: where else the plate may stand (``planning.clearance.Guard``: a re-check's frames not
-    #: assumed): travels clear it too and approaches step down from above it; None: no other
+    #: assumed, and the cell's own prior): travels clear it too and approaches step down from
+    #: above it; None: no other
     guard: object | None = None
     _same: list = field(default_factory=lambda: [math.nan, 0], init=False, repr=False)
     #: (x, y, z) of the last touch whose reading passed the usable stroke's top: the plate there

@@ -59,8 +59,8 @@ def highest_mm(plan: SurveyPlan, belief: bl.Belief) -> float:
 @dataclass
 class Guard:
     """Where else the plate may stand: a re-check's earlier belief in the frames it did not
-    assume (``run.recheck.other_frames``: a correction assumed applied but not, or applied but
-    not assumed). The belief alone puts the plate where the frame assumed says, trusted to
+    assume (``run.recheck.load_prior``, ``recheck_guard``: a correction assumed applied but
+    not, or applied but not assumed). The belief alone puts the plate where the frame assumed says, trusted to
     micrometres; in another frame it can stand millimetres higher (an outside safety audit,
     2026-11-29: 2 deg about an origin 525 mm away, the first touch 13 mm past the stroke's end).
 
@@ -74,8 +74,10 @@ class Guard:
     refute none, an outside audit) (``seen``); then it costs nothing more.
 
     Beside the frames, ``safety``: the cell's own prior, told every reading inside the stroke
-    -- where the plate may stand whatever was applied (a sign flipped, an angle mistyped: the
-    same audit overran by 13 mm on the first touch of such a re-check). It is what keeps a run
+    -- where the plate may stand whatever was applied, as far as the cell file says (a third
+    frame: a guard audit's re-check overran the stroke there). A plate outside it too (a sign
+    flipped on a plate 525 mm from the origin: 18 mm off at its centre, against an offset prior
+    of 0.5 mm) is not covered, as a run from scratch is not. It is what keeps a run
     from scratch inside the stroke: its touches are chosen where that prior promises the stroke
     (``scoring.stroke_ok``), a re-check's where the earlier map does. Its top (mean + z* sd)
     is cleared and approached from above like a frame's, as far as the workspace box reaches
@@ -88,7 +90,7 @@ class Guard:
     said: str = "a frame not assumed"  # for messages: which frame the guard keeps clear of
     assumed: object = None  # the Belief of the frame assumed (None: every reading counts)
     safety: object = None  # the cell's own prior, told each reading (None: frames alone)
-    noise_var_mm2: float = 1e-4  # the safety belief's reading variance: (10 um)^2 at least
+    noise_var_mm2: float = 1e-4  # the safety belief's reading variance, (10 um)^2: ample
     refuted: list = field(default_factory=list)  # per frame: readings it would put off-stroke
 
     STEP = 0.75  # each step down: this share of the usable stroke
