@@ -327,10 +327,10 @@ def test_a_recheck_on_a_plate_it_misplaces_by_millimetres_approaches_from_above(
     r = session.run(cell, tmp_path / "re", prior_from=first, progress=False)
     assert r["stopped_because"] == session.PRIOR_DISAGREES
     rec = read_recording(tmp_path / "re" / "recording.csv")
-    assert np.all((rec.reading_mm >= 0.5) & (rec.reading_mm <= 9.5)), rec.reading_mm
-    assert not any("stroke_end" in f for f in rec.flags)
-    why = r["prior_from"]["disagreement"]
-    assert "(proposed: rx" in why and "3 readings" in why and "confirmed by their retake" in why
+    assert np.all(rec.reading_mm <= 9.5), rec.reading_mm  # none past the stroke's top
+    why = r["prior_from"]["disagreement"]  # confirmed surprises, or a step below every frame
+    assert "(proposed: rx" in why and ("confirmed by their retake" in why
+                                       or "left the probe's usable stroke" in why)
     cell_file = tmp_path / "steep.yaml"
     data = load_yaml(SIM_CELL)
     data["simulation"].update(steep)

@@ -114,8 +114,8 @@ def _sim_cell(tmp_path, **edits):
 
 
 def test_a_probe_at_its_spans_top_is_read_again_then_the_bound_stops(tmp_path):
-    """The quick start's cell states a noise span of 3-6 um and its probe reads 6 um, the
-    span's top: the learned noise sits there, so before its bound stops the run it reads places
+    """A cell states a noise span of 3-5 um and its probe reads 6 um, above the span's top: the
+    learned noise sits at the top, so before its bound stops the run it reads places
     again -- 12 repeat readings, at most 4 readings a place, no travel -- the repeats find the
     probe as noisy as learned (nothing hides in the noise), and the bound stops the run; the
     summary gives both noises."""
@@ -123,7 +123,10 @@ def test_a_probe_at_its_spans_top_is_read_again_then_the_bound_stops(tmp_path):
     from adaptive_cal.formats.recording import read_recording
     from adaptive_cal.run.session import run
 
-    cell = _sim_cell(tmp_path, probe={"noise_range_mm": [0.003, 0.006]},
+    # (a span of 3-6 um, the probe at its very top, left the learned noise at 4.8 or 5.6 um as
+    # the jax release moved the hyper-parameters' MAP between two local optima: the fit is
+    # multimodal, and this test is about the repeats, not about that)
+    cell = _sim_cell(tmp_path, probe={"noise_range_mm": [0.003, 0.005]},
                      simulation={"noise_std_mm": 0.006, "repeatability_mm": 0.0},
                      plan={"stop": {"mean_std_mm": 0.006, "max_touches": 120}})
     result = run(load_cell(cell), tmp_path / "run", progress=False)
