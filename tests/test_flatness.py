@@ -397,3 +397,58 @@ def test_many_points_zone_by_constraint_generation_equals_the_hull_lp(noise, mon
     hull = fl.minimum_zone_mm(x, y, z)
     assert many.value_mm == pytest.approx(hull.value_mm, rel=1e-9, abs=2e-7)
     assert _encloses(many, x, y, z, tol=2e-7)
+
+
+def _zone_by_lp(x, y, z):
+    """The zone by the vertical LP alone (the iteration ``minimum_zone_mm`` falls back to)."""
+    p = np.column_stack([x, y, z])
+    centre = p.mean(axis=0)
+    p = p - centre
+    a, b, _ = fl._plane_coefficients(*p.T)
+    normal = np.array([-a, -b, 1.0]) / np.sqrt(1 + a * a + b * b)
+    return fl._zone_along(fl._zone_lp_normal(p, normal, 10), p, centre)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_narrowest_slab_of_a_working_set_is_the_lp_zone(seed):
+    """The solver-free zone (``zone.narrowest_normal``: every facet-vertex and edge-edge
+    direction of a working set grown by the points left outside) against the LP oracle, on
+    scattered touches and a 41 x 41 map grid, tilted up to 27 deg, bowed, twisted, rippled and
+    read with Student-t noise: never wider than the LP's zone, and narrower by no more than
+    the LP solver's feasibility tolerance (1e-7 mm on a constraint) can leave it; and never the
+    LP's fallback on these."""
+    from adaptive_cal.analysis import zone as zn
+
+    rng = np.random.default_rng(100 + seed)
+    if seed % 3 == 0:
+        g = np.linspace(-200, 200, 41)
+        x, y = (v.ravel() for v in np.meshgrid(g, g))
+    else:
+        n = int(rng.integers(4, 80))
+        x, y = rng.uniform(-200, 200, n), rng.uniform(-150, 150, n)
+    t = rng.uniform(-0.5, 0.5, 2)
+    z = (t[0] * x + t[1] * y + rng.uniform(1e-3, 0.3) * np.sin(x / rng.uniform(20, 200))
+         * np.cos(y / rng.uniform(20, 200)) + rng.uniform(0, 0.2) * x * y / 4e4
+         + rng.standard_t(3, x.size) * rng.uniform(1e-4, 0.05))
+    c = np.column_stack([x, y, z]) - [x.mean(), y.mean(), z.mean()]
+    a, b, _ = fl._plane_coefficients(*c.T)
+    rotation = zn.rotation_onto_z(np.array([-a, -b, 1.0]) / np.sqrt(1 + a * a + b * b))
+    assert zn.narrowest_normal(c @ rotation.T) is not None
+    fast, slow = fl.minimum_zone_mm(x, y, z), _zone_by_lp(x, y, z)
+    assert fast.value_mm <= slow.value_mm * (1 + 1e-12) + 1e-15
+    assert slow.value_mm - fast.value_mm <= 1e-7
+    assert _encloses(fast, x, y, z, tol=1e-9)
+
+
+def test_a_working_set_that_would_grow_too_large_hands_over_to_the_lp(monkeypatch):
+    """``MAX_WORK`` below the starting set: ``narrowest_normal`` answers None and the LP
+    gives the zone (the LP oracle's width: the same computation, to the centring's round-off)."""
+    from adaptive_cal.analysis import zone as zn
+
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-200, 200, 40), rng.uniform(-150, 150, 40)
+    z = 0.01 * x + rng.normal(0, 0.02, 40)
+    monkeypatch.setattr(zn, "MAX_WORK", 4)
+    assert zn.narrowest_normal(np.column_stack([x, y, z - 0.01 * x])) is None
+    assert fl.minimum_zone_mm(x, y, z).value_mm == pytest.approx(_zone_by_lp(x, y, z).value_mm,
+                                                                 rel=1e-12)
