@@ -228,7 +228,9 @@ def test_stop_reason_says_no_admissible_point_where_ask_has_nothing_and_ask_is_n
     """Heights told in place of readings put the plate millimetres off the stroke: ask() then
     offers nothing. The documented loop ``while not survey.stop_reason(): survey.ask()[0]`` had
     raised IndexError there (an outside audit, 2026-11-29); stop_reason now ends it as the run's
-    loop does. The ask() after stop_reason() reuses its answer (same state, same question)."""
+    loop does. The ask() after stop_reason() reuses its answer (same state, same question).
+    A height past the stroke is told as the probe would read it, at the stroke's end (tell
+    refuses the height itself; under one JAX release the planner's path reached one)."""
     import numpy as np
 
     from adaptive_cal.planning import shell
@@ -250,6 +252,7 @@ def test_stop_reason_says_no_admissible_point_where_ask_has_nothing_and_ask_is_n
         if reasons[-1] is not None:
             break
         t = survey.ask()[0]  # the documented loop: never an IndexError
-        survey.tell(t.x_mm, t.y_mm, t.z_mm,
-                    0.012 * t.x_mm - 0.006 * t.y_mm + 1.0 + rng.normal(0, 0.005))
+        height = 0.012 * t.x_mm - 0.006 * t.y_mm + 1.0 + rng.normal(0, 0.005)
+        end = abs(rng.normal(0, 0.002))  # past the stroke: read at its end, noisily
+        survey.tell(t.x_mm, t.y_mm, t.z_mm, min(max(height, 0.5 + end), 9.5 - end))
     assert reasons[-1] == shell.NO_ADMISSIBLE_POINT and survey.ask() == []
