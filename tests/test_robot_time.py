@@ -221,6 +221,9 @@ def test_result_json_terminal_and_report_give_touches_and_robot_time_side_by_sid
     text = capsys.readouterr().out
     assert (f"estimated robot time: about {s / 60:.1f} min for 12 touches ({travel / 1000:.1f} m "
             "of travel at 150 mm/s, plus 3 s per touch)") in text
+    # beside it the cell's own clock, which counts what the estimate leaves out
+    assert (f"; the cell's own clock read {rec.t_s[-1] / 60:.1f} min at the last reading (the "
+            "estimate leaves out vertical moves and a guarded approach's extra steps)") in text
     assert f"about {s / 60:.1f} min for 12 touches" in run_section(r)
 
 
