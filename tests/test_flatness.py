@@ -452,3 +452,33 @@ def test_a_working_set_that_would_grow_too_large_hands_over_to_the_lp(monkeypatc
     assert zn.narrowest_normal(np.column_stack([x, y, z - 0.01 * x])) is None
     assert fl.minimum_zone_mm(x, y, z).value_mm == pytest.approx(_zone_by_lp(x, y, z).value_mm,
                                                                  rel=1e-12)
+
+
+@pytest.mark.parametrize("x,y,z", [
+    ([0, 1, 0, 0.3], [0, 0, 1, 0.3], [0, 0, 0, 5.0]),
+    ([-0.61, 0.19, -0.77, 0.71, -0.23, -0.42, 0.78, 0.41, 0.2, 0.81],
+     [0.61, -0.98, 0.82, -0.6, 0.46, -0.4, -0.41, -0.15, -0.99, 0.69],
+     [0.12, 0.12, -1.05, 0.35, -0.67, -0.23, 1.42, -0.75, 0.07, 0.18])])
+def test_a_set_narrowest_across_rather_than_through_is_not_given_a_wider_zone(x, y, z):
+    """An outside audit's sets (2026-11-30): the working set's search bounded to slopes +-0.5
+    returned 5.0 for the first (the LP: 0.706; least squares: 4.62) and 1.280 for the second
+    (the LP: 1.064), since the least within a bound can lie between the candidates. Now the
+    search is over every direction, and a narrowest one beyond the bound hands over to the LP."""
+    x, y, z = (np.asarray(v, float) for v in (x, y, z))
+    lp = _zone_by_lp(x, y, z).value_mm
+    assert fl.minimum_zone_mm(x, y, z).value_mm <= lp + 1e-12
+    assert fl.minimum_zone_mm(x, y, z).value_mm <= fl.ls_flatness_mm(x, y, z) + 1e-12
+
+
+def test_very_rough_small_sets_are_never_given_a_wider_zone_than_the_lp_or_least_squares():
+    """300 sets of 4-40 points whose scatter is comparable to their extent (where the
+    narrowest slab may lie across the set): the zone is never wider than the LP route's or
+    eq. 5's (the audit had found it wider in 78-174 of 300 per class before the fix)."""
+    rng = np.random.default_rng(40)
+    for _ in range(300):
+        n = int(rng.integers(4, 41))
+        x, y = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+        z = rng.uniform(0.05, 1.0) * rng.standard_t(3, n)
+        got = fl.minimum_zone_mm(x, y, z).value_mm
+        assert got <= _zone_by_lp(x, y, z).value_mm * (1 + 1e-9) + 1e-12
+        assert got <= fl.ls_flatness_mm(x, y, z) * (1 + 1e-9) + 1e-12

@@ -128,15 +128,16 @@ def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
 
     The width along n = (-a, -b, 1)/sqrt(1 + a^2 + b^2) is V(a, b)/sqrt(1 + a^2 + b^2), with
     V(a, b) = max_i (z_i - a x_i - b y_i) - min_i (...). Exactly, without a solver, where the
-    narrowest slab lies within 27 deg of the least-squares plane (``zone.narrowest_normal``: every
-    facet-vertex and edge-edge direction of a working set grown by the points left outside; a
-    plate's zone always does), so value_mm <= eq. 5 flatness. Otherwise the vertical width is
-    minimised by an LP in a frame whose z axis is the current normal, starting from the
-    least-squares plane's: each step cannot increase the normal width, and at the fixed point
-    (slopes < 1e-12 in the rotated frame) n is a local minimum of the normal width. The first is
-    never wider than the LP's zone, which its solver's tolerance can leave up to 3e-8 of the
-    width wider (tests/test_flatness.py), and is 4 x faster on 200 draws of a 41 x 41 map, 8 x
-    on 31 touched points (benchmarks/bench_zone.py).
+    narrowest slab's slopes lie within +-0.5 of the least-squares plane (26.6 deg along x or y;
+    ``zone.narrowest_normal``: every facet-vertex and edge-edge direction of a working set grown
+    by the points left outside; every plate tested did): the global minimum, so value_mm <= eq. 5
+    flatness and no wider than the LP's zone. Otherwise the vertical width is minimised by an LP
+    in a frame whose z axis is the current normal, starting from the least-squares plane's: each
+    step cannot increase the normal width, and at the fixed point (slopes < 1e-12 in the rotated
+    frame) n is a local minimum of the normal width. The LP's zone can be wider than the exact
+    one by its solver's tolerance (1e-7 mm on a constraint: 3e-8 of the width on 41 x 41 map
+    draws). The exact route is 4 x faster on 200 such draws, 8 x on 31 touched points
+    (benchmarks/bench_zone.py).
     """
     x_mm, y_mm, z_mm = _as_arrays(x_mm, y_mm, z_mm)
     centre = np.array([x_mm.mean(), y_mm.mean(), z_mm.mean()])
