@@ -5,6 +5,7 @@ one travelled with the probe pushed 5 mm into its stroke; every run ended on its
 Now the travel to each touch goes high enough to clear the plate under it, as the belief bounds
 it (``planning.clearance``), or nothing is sent. Checked against the simulated plate's TRUE
 surface, by this file's own arithmetic."""
+import json
 import math
 
 import numpy as np
@@ -123,3 +124,32 @@ def test_the_operator_of_a_manual_cell_is_told_a_raised_travel():
     ProbeCycle(cell, cell, lambda x, y, z: True, 15.0, (0.5, 9.5), reach_mm=5.0,
                sleep=lambda s: None).touch(100.0, 50.0, 11.0, lambda xy: 12.0)
     assert "probe reference z=11.000 mm (travel there at z=17.500 mm)" in out.getvalue()
+
+
+def test_a_refused_travel_says_what_to_raise_and_a_resume_with_it_goes_on(tmp_path, capsys):
+    """The audit's plate in a box too low for its travel: the run stops before that travel with
+    its touches kept. --resume alone would ask the same travel and be refused again (it had
+    advised exactly that); the advice names the cell keys to raise, and a resume with a copy
+    that raises them (the box's height may differ on a resume) goes on from the next seq."""
+    cell = load_yaml(SIM_CELL)
+    cell["workplane"]["x_mm"] = [-500.0, 500.0]
+    cell["workspace"] = {**cell["workspace"], "x_mm": [-505.0, 505.0], "z_mm": [-20.0, 15.5]}
+    cell["simulation"]["effects"]["tilt"] = {"a": 0.021, "b": 0.0019, "c": 0.2}
+    low, out = tmp_path / "low.yaml", tmp_path / "run"
+    low.write_text(yaml.safe_dump(cell))
+    assert main(["run", "--robot", str(low), "--out", str(out), "--no-progress"]) == 2
+    said = capsys.readouterr()
+    assert "would drag it over the plate" in said.err and "nothing was sent" in said.err
+    assert (f"Continue with adaptive-cal run --resume {out} --robot HIGHER.yaml, a copy of the "
+            "run's cell.yaml with robot.safe_height_mm and workspace.z_mm's top raised") in said.out
+    touched = len((out / "recording.csv").read_text().splitlines())
+    cell["workspace"]["z_mm"] = [-20.0, 30.0]
+    cell["robot"]["safe_height_mm"] = 20.0
+    cell["plan"]["stop"] = {**cell["plan"]["stop"], "max_touches": touched + 2}
+    higher = tmp_path / "higher.yaml"
+    higher.write_text(yaml.safe_dump(cell))
+    assert main(["run", "--resume", str(out), "--robot", str(higher), "--no-progress"]) == 1
+    said = capsys.readouterr().out  # exit 1: the small budget given here is spent
+    assert "differs from" in said and "workspace.z_mm" in said
+    assert json.loads((out / "result.json").read_text())["stopped_because"] == "touch_budget"
+    assert len((out / "recording.csv").read_text().splitlines()) > touched

@@ -12,7 +12,8 @@ from adaptive_cal.report.status import quoted
 #: run's name, how long it goes on, how the robot and probe are reached and timed)
 RESUME_MAY_DIFFER = ("name", "plan.stop.", "robot.speed_mm_per_s", "robot.touch_time_s",
                      "robot.safe_height_mm", "robot.manual.", "robot.hses.", "robot.modbus.",
-                     "robot.robodk.", "probe.serial.", "probe.modbus.", "probe.settle_s")
+                     "robot.robodk.", "probe.serial.", "probe.modbus.", "probe.settle_s",
+                     "workspace.z_mm")  # the box's height: what a refused travel asks raised
 
 
 def _flat(value, prefix: str = "") -> dict:

@@ -258,7 +258,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                     refits=history.refits, truth=truth,
                     true_rms_mm=true_rms.rms_mm if true_rms else None,
                     extra={**({} if carried is None else {"prior_from": carried}),
-                           **({} if error is None else {"error": str(error)})})
+                           **({} if error is None else {"error": str(error),
+                                                        "error_is": type(error).__name__})})
             except OSError as e:  # a full disk: the recording is whole, the results are not
                 stop = f"; the run had stopped on: {error}" if error is not None else ""
                 raise OSError(e.errno, f"the results could not be written ({e.strerror or e}); "
