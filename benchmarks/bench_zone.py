@@ -20,12 +20,7 @@ from adaptive_cal.analysis import flatness as fl  # noqa: E402
 
 
 def by_lp(x, y, z):
-    p = np.column_stack([x, y, z])
-    centre = p.mean(axis=0)
-    p = p - centre
-    a, b, _ = fl._plane_coefficients(*p.T)
-    normal = np.array([-a, -b, 1.0]) / np.sqrt(1 + a * a + b * b)
-    return fl._zone_along(fl._zone_lp_normal(p, normal, 10), p, centre)
+    return fl.minimum_zone_mm(x, y, z, lp_only=True)
 
 
 def draws_of(x, y, rng, draws):

@@ -401,12 +401,7 @@ def test_many_points_zone_by_constraint_generation_equals_the_hull_lp(noise, mon
 
 def _zone_by_lp(x, y, z):
     """The zone by the vertical LP alone (the iteration ``minimum_zone_mm`` falls back to)."""
-    p = np.column_stack([x, y, z])
-    centre = p.mean(axis=0)
-    p = p - centre
-    a, b, _ = fl._plane_coefficients(*p.T)
-    normal = np.array([-a, -b, 1.0]) / np.sqrt(1 + a * a + b * b)
-    return fl._zone_along(fl._zone_lp_normal(p, normal, 10), p, centre)
+    return fl.minimum_zone_mm(x, y, z, lp_only=True)
 
 
 @pytest.mark.parametrize("seed", range(12))

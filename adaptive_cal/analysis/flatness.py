@@ -123,7 +123,7 @@ def average_ranges_mm(x_mm, y_mm, z_mm) -> tuple[float, float]:
     return float(_average_range(y_mm, z_mm)), float(_average_range(x_mm, z_mm))
 
 
-def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
+def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10, lp_only: bool = False) -> MinZone:
     """ISO 1101 minimum zone: min over unit normals n of max_i n.p_i - min_i n.p_i.
 
     The width along n = (-a, -b, 1)/sqrt(1 + a^2 + b^2) is V(a, b)/sqrt(1 + a^2 + b^2), with
@@ -137,7 +137,7 @@ def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
     frame) n is a local minimum of the normal width. The LP's zone can be wider than the exact
     one by its solver's tolerance (1e-7 mm on a constraint: 3e-8 of the width on 41 x 41 map
     draws). The exact route is 4 x faster on 200 such draws, 8 x on 31 touched points
-    (benchmarks/bench_zone.py).
+    (benchmarks/bench_zone.py). ``lp_only``: the LP route alone (the exact route's oracle).
     """
     x_mm, y_mm, z_mm = _as_arrays(x_mm, y_mm, z_mm)
     centre = np.array([x_mm.mean(), y_mm.mean(), z_mm.mean()])
@@ -150,7 +150,7 @@ def minimum_zone_mm(x_mm, y_mm, z_mm, max_iter: int = 10) -> MinZone:
     a, b, _ = _plane_coefficients(*points.T)
     normal = np.array([-a, -b, 1.0]) / np.sqrt(1.0 + a**2 + b**2)
     rotation = zone.rotation_onto_z(normal)
-    narrowest = zone.narrowest_normal(points @ rotation.T)
+    narrowest = None if lp_only else zone.narrowest_normal(points @ rotation.T)
     if narrowest is not None:
         return _zone_along(rotation.T @ narrowest, points, centre)
     return _zone_along(_zone_lp_normal(points, normal, max_iter), points, centre)
