@@ -140,8 +140,10 @@ def test_a_refused_travel_says_what_to_raise_and_a_resume_with_it_goes_on(tmp_pa
     assert main(["run", "--robot", str(low), "--out", str(out), "--no-progress"]) == 2
     said = capsys.readouterr()
     assert "would drag it over the plate" in said.err and "nothing was sent" in said.err
-    assert (f"Continue with adaptive-cal run --resume {out} --robot HIGHER.yaml, a copy of the "
-            "run's cell.yaml with robot.safe_height_mm and workspace.z_mm's top raised") in said.out
+    assert (f"Continue with adaptive-cal run --resume {out} --robot CHANGED.yaml, a copy of the "
+            "run's cell.yaml changed as the error says (robot.safe_height_mm and workspace.z_mm "
+            "may differ on a resume") in said.out
+    assert "Raise robot.safe_height_mm and workspace.z_mm's top" in said.err  # what to change
     touched = len((out / "recording.csv").read_text().splitlines())
     cell["workspace"]["z_mm"] = [-20.0, 30.0]
     cell["robot"]["safe_height_mm"] = 20.0

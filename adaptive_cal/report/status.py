@@ -100,9 +100,9 @@ def next_step(result: dict, resume: str | None) -> str:
     if instead:
         return instead[0].upper() + instead[1:]
     if resume and result.get("error_is") == "UnsafeTarget":  # the same travel, refused again
-        return (f"Continue with {resume} --robot HIGHER.yaml, a copy of the run's cell.yaml with "
-                "robot.safe_height_mm and workspace.z_mm's top raised as the error says (--resume "
-                "alone asks the same travel and is refused again)")
+        return (f"Continue with {resume} --robot CHANGED.yaml, a copy of the run's cell.yaml "
+                "changed as the error says (robot.safe_height_mm and workspace.z_mm may differ on "
+                "a resume; --resume alone asks the same move and is refused again)")
     if resume and result.get("stopped_because") == "touch_budget":  # --resume alone stops again
         return (f"Continue with {resume} --robot MORE.yaml, a copy of the run's cell.yaml with a "
                 "larger plan.stop.max_touches")
