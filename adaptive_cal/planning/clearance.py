@@ -60,9 +60,10 @@ def highest_mm(plan: SurveyPlan, belief: bl.Belief) -> float:
 class Guard:
     """Where else the plate may stand: a re-check's earlier belief in the frames it did not
     assume (``run.recheck.load_prior``, ``recheck_guard``: a correction assumed applied but
-    not, or applied but not assumed). The belief alone puts the plate where the frame assumed says, trusted to
-    micrometres; in another frame it can stand millimetres higher (an outside safety audit,
-    2026-11-29: 2 deg about an origin 525 mm away, the first touch 13 mm past the stroke's end).
+    not, or applied but not assumed). The belief alone puts the plate where the frame assumed
+    says, trusted to micrometres; in another frame it can stand millimetres higher (an outside
+    safety audit, 2026-11-29: 2 deg about an origin 525 mm away, the first touch 13 mm past the
+    stroke's end).
 
     Until readings refute a frame, the probe cycle travels clear of it too (``top_mm``) and
     approaches from above it (``approaches``): the first approach puts that frame's plate
