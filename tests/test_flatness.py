@@ -477,3 +477,21 @@ def test_very_rough_small_sets_are_never_given_a_wider_zone_than_the_lp_or_least
         got = fl.minimum_zone_mm(x, y, z).value_mm
         assert got <= _zone_by_lp(x, y, z).value_mm * (1 + 1e-9) + 1e-12
         assert got <= fl.ls_flatness_mm(x, y, z) * (1 + 1e-9) + 1e-12
+
+
+@pytest.mark.parametrize("lp_only", [False, True])
+def test_a_zone_whose_normal_came_out_downward_still_puts_c_low_below_c_high(lp_only):
+    """Points far rougher than they are wide (z spread 1 m over a 400 mm plate): the narrowest
+    slab's normal can come out pointing down; the planes are still named lower and upper, and
+    every point lies between them."""
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        n = int(rng.integers(4, 40))
+        x, y = rng.uniform(-200, 200, n), rng.uniform(-150, 150, n)
+        z = rng.normal(0, 10 ** rng.uniform(-3, 3), n) + rng.uniform(-1, 1) * x
+        m = fl.minimum_zone_mm(x, y, z, lp_only=lp_only)
+        assert m.c_low <= m.c_high
+        r = z - m.a * x - m.b * y
+        span = m.c_high - m.c_low
+        assert np.all(r >= m.c_low - 1e-9 * span) and np.all(r <= m.c_high + 1e-9 * span)
+        assert m.value_mm == pytest.approx(span / np.sqrt(1 + m.a**2 + m.b**2), rel=1e-9)

@@ -172,7 +172,9 @@ def _zone_lp_normal(points, normal, max_iter: int) -> np.ndarray:
 
 
 def _zone_along(normal, points, centre) -> MinZone:
-    """The zone of the centred ``points`` between the planes of ``normal`` that hold them."""
+    """The zone of the centred ``points`` between the planes of ``normal`` that hold them
+    (``normal`` taken upward: the lower plane's c is c_low)."""
+    normal = normal if normal[2] >= 0 else -normal
     distance = points @ normal
     a, b, scale = -normal[0] / normal[2], -normal[1] / normal[2], 1.0 / normal[2]
     c0 = centre[2] - a * centre[0] - b * centre[1]
