@@ -108,7 +108,7 @@ def test_quoting_faults_are_refused_naming_the_line(tmp_path):
     rows = _rows()
     rows[5][6] = '"a, b"'  # the comma inside quotes is no field separator
     rows[6] = rows[6][:6]  # a field missing: its line is named as before
-    with pytest.raises(RecordingError, match=r"s\.csv:10: 6 fields, the header has 7"):
+    with pytest.raises(RecordingError, match=r"s\.csv:10: 6 fields, the header \(line 3\) has 7$"):
         read_recording(_write(tmp_path / "s.csv", HEAD, rows))
 
 

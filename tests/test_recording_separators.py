@@ -63,5 +63,8 @@ def test_a_header_without_t_s_is_read_with_unknown_times_either_way(tmp_path, ca
         np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
     assert "a.csv:2: the header has no t_s column" in capsys.readouterr().err
     with_magic.write_text("# adaptive-cal recording v1\nseq,x_mm,y_mm,z_mm,reading_mm\n0,1,2,0\n")
-    with pytest.raises(RecordingError, match=r"a.csv:3: 4 fields, the header has 5$"):
+    # the first row already disagrees: the header may be the line edited, and the message says so
+    with pytest.raises(RecordingError, match=r"a.csv:3: 4 fields, the header \(line 2\) has 5 "
+                       r"\(seq,x_mm,y_mm,z_mm,reading_mm\): the first row already disagrees, so "
+                       "the header or the rows were edited"):
         read_recording(with_magic)

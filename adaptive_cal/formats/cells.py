@@ -70,3 +70,15 @@ def _header(cells: list[str], where: str) -> list[str]:
     if twice:
         raise RecordingError(f"{where}: header names column(s) {', '.join(twice)} more than once")
     return cells
+
+
+def field_count_error(where: str, fields: int, header: list[str], header_line: int,
+                      rows_read: int) -> RecordingError:
+    """A row whose field count is not the header's. On the first row the header may be the one
+    edited (a column added or removed by hand): the message says so and names the header's
+    line instead of blaming the row alone."""
+    said = f"{where}: {fields} fields, the header (line {header_line}) has {len(header)}"
+    if rows_read == 0:
+        said += (f" ({','.join(header)}): the first row already disagrees, so the header or "
+                 "the rows were edited -- a column added to or removed from one of them")
+    return RecordingError(said)

@@ -41,7 +41,7 @@ import numpy as np
 
 from adaptive_cal.formats.cells import (MAGIC, OPTIONAL, REQUIRED, RecordingError,  # noqa: F401
                                         _header, _number, _OpenQuote,  # (re-exported: writing,
-                                        split_cells)  # callers)
+                                        field_count_error, split_cells)  # callers)
 from adaptive_cal.formats.table import (MAX_ROWS, NOT_FUSED, not_read, parse_flags,
                                         read_table, strict_float, unknown_flag_note)
 from adaptive_cal.formats.cut import cut_last_row
@@ -253,7 +253,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
                         timeless, cells = True, cells + ["t_s"]  # DESIGN.md: t_s may be blank
                         notes.append(f"{where}: the header has no t_s column: every touch's time "
                                      "is read as unknown, as a blank t_s")
-                    header = _header(cells, where)
+                    header, header_line = _header(cells, where), first
                     col = {name: i for i, name in enumerate(header)}
                     numeric_extra = [c for c in header if c not in REQUIRED and c != "flags"
                                      and header.count(c) == 1]  # a name given twice: ignored
@@ -262,8 +262,8 @@ def read_recording(path: str | os.PathLike) -> Recording:
                 if timeless:
                     cells = cells + [""]
                 if len(cells) != len(header):
-                    raise RecordingError(f"{where}: {len(cells) - timeless} fields, the "
-                                         f"header has {len(header) - timeless}")
+                    raise field_count_error(where, len(cells) - timeless, header[:len(header)
+                                            - timeless], header_line, len(row_lines))
                 if len(flags if "flags" in col else data["seq"]) >= MAX_ROWS:
                     raise RecordingError(f"{where}: more than {MAX_ROWS} rows; a recording "
                                          "this tool reads holds at most that many: split it by round")
