@@ -47,8 +47,19 @@ def _panel(fig, label):
 
 
 def _mesh_um(ax):
+    """The map's values at its grid nodes. The mesh is drawn ``plots.FINER`` x finer, bilinear
+    between the nodes: checked here, each finer value inside the range of its cell's corners."""
     mesh = next(c for c in ax.collections if isinstance(c, QuadMesh))
-    return np.asarray(mesh.get_array()), mesh
+    fine, k = np.asarray(mesh.get_array()), plots.FINER
+    nodes = fine[::k, ::k]
+    corners = np.stack([nodes[:-1, :-1], nodes[1:, :-1], nodes[:-1, 1:], nodes[1:, 1:]])
+    lo, hi = corners.min(0), corners.max(0)
+    tol = 1e-9 * max(1.0, np.abs(nodes).max())
+    for i in range(k):
+        for j in range(k):  # the finer values at offset (i, j) inside each cell
+            inside = fine[i::k, j::k][: lo.shape[0], : lo.shape[1]]
+            assert np.all(inside >= lo - tol) and np.all(inside <= hi + tol)
+    return nodes, mesh
 
 
 def test_surface_figure_saves_and_labels(tmp_path):

@@ -16,6 +16,7 @@ from adaptive_cal.analysis.flatness import least_squares_plane
 
 UM_PER_MM = 1000.0
 MAX_NUMBERED_TOUCHES = 80
+FINER = 3  # the maps drawn on a grid this many times finer than their nodes (``_finer``)
 
 Range = tuple[float, float]
 
@@ -94,6 +95,16 @@ def _detrend_grid(x_grid_mm, y_grid_mm, mean_mm) -> np.ndarray:
     return fit.residuals_mm.reshape(mean_mm.shape)
 
 
+def _finer(x_grid, y_grid, values, factor: int = FINER):
+    """The grid's values interpolated bilinearly onto a grid ``factor`` x finer, for a mesh drawn
+    cell by cell: it looks as Gouraud shading does, at a third of the drawing time (Agg draws a
+    Gouraud mesh triangle by triangle). Returns x, y and the values transposed for pcolormesh."""
+    fx = np.linspace(x_grid[0], x_grid[-1], factor * (len(x_grid) - 1) + 1)
+    fy = np.linspace(y_grid[0], y_grid[-1], factor * (len(y_grid) - 1) + 1)
+    along_x = np.array([np.interp(fx, x_grid, column) for column in values.T])  # (ny, fx)
+    return fx, fy, np.array([np.interp(fy, y_grid, row) for row in along_x.T]).T
+
+
 def surface_figure(x_grid_mm, y_grid_mm, mean_mm, std_mm, touches_xy_mm,
                    workplane_x_mm: Range, workplane_y_mm: Range,
                    keep_outs: Sequence[tuple[Range, Range]] = (), next_xy_mm=None,
@@ -130,8 +141,8 @@ def surface_figure(x_grid_mm, y_grid_mm, mean_mm, std_mm, touches_xy_mm,
         (ax_std, std_mm, "magma", "posterior std (um)", "posterior std"),
     ]
     for ax, values_mm, cmap, bar_label, panel_title in panels:
-        mesh = ax.pcolormesh(x_grid_mm, y_grid_mm, values_mm.T * UM_PER_MM, cmap=cmap,
-                             shading="gouraud", zorder=1)
+        mesh = ax.pcolormesh(*_finer(x_grid_mm, y_grid_mm, values_mm * UM_PER_MM), cmap=cmap,
+                             shading="nearest", zorder=1)
         fig.colorbar(mesh, ax=ax, shrink=0.9).set_label(bar_label)
         _plate_axes(ax, workplane_x_mm, workplane_y_mm)
         _keep_outs(ax, keep_outs)
