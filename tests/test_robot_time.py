@@ -225,6 +225,10 @@ def test_result_json_terminal_and_report_give_touches_and_robot_time_side_by_sid
     assert (f"; the cell's own clock read {rec.t_s[-1] / 60:.1f} min at the last reading (the "
             "estimate leaves out vertical moves and a guarded approach's extra steps)") in text
     assert f"about {s / 60:.1f} min for 12 touches" in run_section(r)
+    # result.json keeps that clock (the recording's last t_s), and the report shows it too
+    assert r["clock_s"] == pytest.approx(rec.t_s[-1]) and r["clock_s"] > s
+    assert f"the cell's own clock read {rec.t_s[-1] / 60:.1f} min at the last reading" \
+        in run_section(r)
 
 
 def test_study_summary_puts_touches_and_robot_time_side_by_side():

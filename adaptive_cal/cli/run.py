@@ -282,7 +282,7 @@ def _summary(r: dict, out: Path, cell=None) -> None:
         # an estimate from the travel and the touch time, not the recording's clock (t_s)
         how = (f" at {cell.robot.speed_mm_per_s:g} mm/s, plus {cell.robot.touch_time_s:g} s per "
                "touch" if cell is not None else "")
-        clock = _clock_s(out)
+        clock = r.get("clock_s")
         lines.append(f"estimated robot time: about {r['robot_time_s'] / 60:.1f} min for "
                      f"{r['touches']} touches ({r['travel_mm'] / 1000:.1f} m of travel{how})"
                      + (f"; the cell's own clock read {clock / 60:.1f} min at the last reading "
@@ -291,18 +291,3 @@ def _summary(r: dict, out: Path, cell=None) -> None:
     lines.append(f"wrote {out}/recording.csv, result.json, surface.png, convergence.png, "
                  "belief.npz, cell.yaml")
     print("\n".join(lines))
-
-
-def _clock_s(out: Path) -> float | None:
-    """The recording's last time (t_s: the cell's own clock since the run's start, across
-    resumes), or None where it has none or cannot be read."""
-    import numpy as np
-
-    from adaptive_cal.formats.recording import RecordingError, read_recording
-
-    try:
-        t = read_recording(Path(out) / "recording.csv").t_s
-    except (OSError, RecordingError, ValueError):
-        return None
-    t = t[np.isfinite(t)]
-    return float(t[-1]) if len(t) else None

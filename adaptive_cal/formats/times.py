@@ -21,3 +21,11 @@ def time_backwards(path, t_s: np.ndarray, rounds, lines: list[int]) -> str | Non
             f"runs backwards ({len(found)} time{'s' * (len(found) > 1)}); t_s is the time since "
             "the start of the run, rows in touch order -- a drift read from these times has "
             "its sign turned")
+
+
+def last_time_s(recording) -> float | None:
+    """The recording's last known t_s (the cell's own clock since the run's start, resumes
+    included): None where it has no rows or no times."""
+    t = np.asarray(recording.t_s, float) if recording is not None else np.zeros(0)
+    t = t[np.isfinite(t)]
+    return float(t[-1]) if t.size else None

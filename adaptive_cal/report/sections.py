@@ -110,10 +110,11 @@ def _robot_time(result: dict) -> str:
     """Touches and robot time side by side (result.json before robot time was written: '-')."""
     if result.get("robot_time_s") is None:
         return "-"
-    how = result.get("robot_time_is")
+    how, clock = result.get("robot_time_is"), result.get("clock_s")
     return (f"about {result['robot_time_s'] / 60:.1f} min for {result['touches']} touches "
             f"({result['travel_mm'] / 1000:.1f} m of travel)"
-            + (f"; {escape(how)}" if how else ""))
+            + (f"; the cell's own clock read {clock / 60:.1f} min at the last reading"
+               if clock is not None else "") + (f"; {escape(how)}" if how else ""))
 
 
 def run_section(result: dict) -> str:

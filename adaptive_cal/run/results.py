@@ -16,8 +16,8 @@ from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2, wei
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.npz import broken_belief, broken_text, read_npz
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
-from adaptive_cal.formats.writing import rows_digest
-from adaptive_cal.formats.writing import provenance
+from adaptive_cal.formats.times import last_time_s
+from adaptive_cal.formats.writing import provenance, rows_digest
 from adaptive_cal.formats.numbers import count
 from adaptive_cal.planning.gap import largest_gap as gap_radius
 from adaptive_cal.planning.gate import flagged_weight
@@ -100,6 +100,7 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
     rec = (_recording(recording)
            if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
     xyz = touched_heights(plan, rec) if rec is not None else None
+    result["clock_s"] = last_time_s(rec)  # the cell's own clock at the last reading (its t_s)
     # a dent or burr a retake confirmed and the spline cannot follow (analysis.local_features)
     result["local_features"] = (confirmed(plan.model.surface, state.belief,
                                           state.hyper.noise_std_mm, rec, plan.zero_mm)
