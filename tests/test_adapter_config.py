@@ -52,6 +52,10 @@ def test_bad_input_names_the_key(base, path, value, expect):
     ({"start": "D7"}, "registers.start='D7' must be a bit"),
     ({"target_x": "M5"}, "registers.target_x='M5' must be a register"),
     ({"start": "X7"}, "is an input (read-only)"),
+    # the PC clears done before each start: on an input that write lands on the coil of the
+    # same number, another output (an outside audit, 2026-11-30)
+    ({"done": "X7"}, "registers.done='X7' is an input (read-only)"),
+    ({"done": "di:3"}, "registers.done='di:3' is an input (read-only)"),
     ({"done": "X18"}, "octal"),
     ({"watchdog": "Q5"}, "'Q5' is not a PLC address"),
 ])

@@ -318,15 +318,19 @@ def test_every_move_keeps_the_arms_configuration_it_stood_in():
                                                 speed_mm_per_s=50, tool=0, user_frame=1,
                                                 form=5))[13] == 5
     cell = load_cell(ROOT / "configs" / "cell-hses-emulated.yaml")
-    for form, expect in (("current", 4), (1, 1)):
+    # "current": the answer's expanded form (word 4: an axis turned past 180 deg) goes back in
+    # the move's expanded type (word 14) too -- it was always 0 (an outside audit, 2026-11-30)
+    for form, expect in (("current", (4, 3)), (1, (1, 0))):
         server = HsesServer(EmulatedRobot.from_cell(cell, move_s=0.01), offset_mm=(100, 0, 300),
                             user_frame=UFRAME).start()
-        server.form = 4  # no flip (bit 2), front, upper arm
+        server.form, server.expanded_form = 4, 3  # no flip (bit 2), front, upper arm; 2 axes
         try:
             m = connect(server, form=form)
             m.move_to(10.0, 20.0, 5.0)
             move = [r for r in server.requests if r.command == P.CMD_MOVE][-1]
-            assert P.unpack_move(move.payload)["form"] == expect
+            sent = P.unpack_move(move.payload)
+            assert (sent["form"], sent["expanded_form"]) == expect
+            assert struct.unpack("<26i", move.payload)[14] == expect[1]
             m.close()
         finally:
             server.close()

@@ -48,7 +48,10 @@ class HsesMotion:
         if not d1 & P.REMOTE:
             raise AdapterError(f"{self.where}: command remote is off; set the pendant to REMOTE "
                                "and enable command remote")
-        self.form = cfg.form if cfg.form != "current" else self._current_form()
+        # the arm's configuration as it stands ("current"; the expanded form with it), or
+        # the number robot.hses.form gives (expanded form 0)
+        self.form, self.expanded_form = ((cfg.form, 0) if cfg.form != "current"
+                                         else self._current_form())
         self.servo_on()
 
     # -- transport --------------------------------------------------------------------
@@ -135,8 +138,9 @@ class HsesMotion:
         """0x82 instance 2: cancel an error (the manual; fs100's RESET_ALARM_TYPE_ERROR)."""
         self.call(P.CMD_ALARM_RESET, P.ERROR_CANCEL, 1, P.SET_ONE, struct.pack("<I", 1))
 
-    def _current_form(self) -> int:
-        """The form (configuration bits) of the robot's pose now, from a 0x75 answer."""
+    def _current_form(self) -> tuple[int, int]:
+        """The form (configuration bits) and expanded form of the robot's pose now, from a 0x75
+        answer."""
         try:
             return P.unpack_form(self.call(P.CMD_POSITION, P.POSITION_INSTANCE, 0, P.GET_ALL))
         except ValueError as e:
@@ -202,7 +206,7 @@ class HsesMotion:
         payload = P.move_payload(target, c.orientation_deg, coord=P.COORD[c.frame],
                                  speed_mm_per_s=c.speed_mm_per_s, tool=c.tool,
                                  user_frame=c.user_frame if c.frame == "user" else 0,
-                                 form=self.form)
+                                 form=self.form, expanded_form=self.expanded_form)
         before, self.pose = self.pose, None  # unknown while moving: ask the controller
         reset = c.reset_alarms
         # busy (0x2010: an earlier move still running, e.g. one whose wait a Ctrl-C cut short)

@@ -154,14 +154,15 @@ def decode_answer(data: bytes, command: int | None = None,
 
 
 def move_payload(xyz_mm, rxyz_deg, *, coord: int, speed_mm_per_s: float, tool: int,
-                 user_frame: int, form: int = 0) -> bytes:
+                 user_frame: int, form: int = 0, expanded_form: int = 0) -> bytes:
     """26 x i32: group, station, speed class 1 (V, 0.1 mm/s), speed, coordinate system,
     X Y Z (um), Rx Ry Rz (0.0001 deg), 2 reserved, type (``form``: the arm's configuration
     bits, front / back, upper / lower arm, flip -- as a position answer gives them), expanded
-    type, tool, user frame, 3 base-axis and 6 station-axis words."""
+    type (``expanded_form``: the answer's word 4, axes turned past 180 deg), tool, user frame,
+    3 base-axis and 6 station-axis words."""
     words = [1, 0, 1, round(speed_mm_per_s * 10), coord,
              *(round(v * 1000) for v in xyz_mm), *(round(a * 10000) for a in rxyz_deg),
-             0, 0, form, 0, tool, user_frame] + [0] * 9
+             0, 0, form, expanded_form, tool, user_frame] + [0] * 9
     return struct.pack("<26i", *words)
 
 
@@ -169,14 +170,16 @@ def unpack_move(payload: bytes) -> dict:
     w = struct.unpack("<26i", payload)
     return {"group": w[0], "speed_class": w[2], "speed_mm_per_s": w[3] / 10, "coord": w[4],
             "xyz_mm": tuple(v / 1000 for v in w[5:8]),
-            "rxyz_deg": tuple(v / 10000 for v in w[8:11]), "form": w[13], "tool": w[15],
+            "rxyz_deg": tuple(v / 10000 for v in w[8:11]), "form": w[13],
+            "expanded_form": w[14], "tool": w[15],
             "user_frame": w[16]}
 
 
-def position_payload(xyz_mm, rxyz_deg, tool: int = 0, form: int = 0) -> bytes:
+def position_payload(xyz_mm, rxyz_deg, tool: int = 0, form: int = 0,
+                     expanded_form: int = 0) -> bytes:
     """13 x i32: data type (16, base frame: the only one 0x75 answers in), form, tool, user
     frame (0), expanded form, X Y Z (um), Rx Ry Rz (0.0001 deg), 7th and 8th axis."""
-    return struct.pack("<13i", COORD["base"], form, tool, 0, 0,
+    return struct.pack("<13i", COORD["base"], form, tool, 0, expanded_form,
                        *(round(v * 1000) for v in xyz_mm),
                        *(round(a * 10000) for a in rxyz_deg), 0, 0)
 
@@ -197,11 +200,14 @@ def unpack_position(payload: bytes, tool: int | None = None) -> tuple[float, flo
     return w[5] / 1000, w[6] / 1000, w[7] / 1000
 
 
-def unpack_form(payload: bytes) -> int:
-    """The form (word 1: the arm's configuration bits) of a 0x75 position answer."""
+def unpack_form(payload: bytes) -> tuple[int, int]:
+    """The form (word 1: the arm's configuration bits) and the expanded form (word 4: axes
+    turned past 180 deg) of a 0x75 position answer: a move that keeps the arm as it stands
+    sends both back (``move_payload``'s type and expanded type)."""
     if len(payload) < 52:
         raise ValueError(f"position answer of {len(payload)} bytes, expected 52")
-    return struct.unpack_from("<13i", payload)[1]
+    w = struct.unpack_from("<13i", payload)
+    return w[1], w[4]
 
 
 ALARM_DATA = struct.Struct("<III16s32s")  # code, data, type, time 'YYYY/MM/DD HH:MM', name

@@ -16,7 +16,7 @@ from typing import NamedTuple
 TABLES = ("coil", "di", "hr", "ir")  # coils, discrete inputs, holding and input registers
 BIT_TABLES = ("coil", "di")
 FLAG_ROLES = ("start", "done", "fault", "probe_trigger")  # bits; the others are words
-WRITTEN_FLAGS = ("start", "probe_trigger")  # bits the PC writes
+WRITTEN_FLAGS = ("start", "done", "probe_trigger")  # bits the PC writes (it clears done)
 VALUE_ROLES = ("target_x", "target_y", "target_z", "probe_value", "actual_x", "actual_y",
                "actual_z")  # numbers in mm (``value_words`` registers each); the others 1 word
 

@@ -61,6 +61,7 @@ class HsesServer:
         self._servo_at = 0.0  # monotonic time from which a switched-on servo power shows
         self.tool = 0  # the tool of the last move: the position answer is of it
         self.form = 0  # the arm's configuration bits the position answer gives (word 1)
+        self.expanded_form = 0  # and its expanded form (word 4: axes past 180 deg)
         self.requests: list[P.Request] = []
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
@@ -201,7 +202,8 @@ class HsesServer:
                 return self._status(req, 0x28)
             x, y, z = self.to_base(r.pose())
             x += self.faults.report_error_mm
-            return ok(P.position_payload((x, y, z), (180.0, 0.0, 0.0), self.tool, self.form))
+            return ok(P.position_payload((x, y, z), (180.0, 0.0, 0.0), self.tool, self.form,
+                                         self.expanded_form))
         if req.command == P.CMD_ALARM_RESET:
             return self._reset(req)
         if req.command == P.CMD_SERVO:
