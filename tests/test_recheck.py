@@ -160,7 +160,8 @@ def test_recheck_after_the_proposed_correction(first_map, tmp_path):
     assert r["truth"]["coverage95"] >= 0.9
     saved = json.loads((tmp_path / "recheck" / "result.json").read_text())["prior_from"]
     assert saved == {"run": str(out), "assumed": "proposed",
-                     "correction_deg": {"rx": t0["rx_deg"], "ry": t0["ry_deg"]}}
+                     "correction_deg": {"rx": t0["rx_deg"], "ry": t0["ry_deg"]},
+                     "not_assumed": ["none"]}  # the frame kept clear of until refuted
     assert abs(t0["rx_deg"]) > 50 * t["rx_std_deg"]  # the first map's tilt was far from zero
 
 
@@ -177,6 +178,9 @@ def test_recheck_assuming_no_correction_on_a_corrected_plate_stops_and_says_why(
     assert r["truth"]["rms_error_mm"] > 0.05  # the map it would have given is wrong
     why = r["prior_from"]["disagreement"]
     assert "none" in why and "--correction-applied" in why and "3 readings" in why
+    # and which frame the readings agree with: the one the correction moved them to
+    assert "inside the probe's stroke agree with --correction-applied proposed, not the frame " \
+        "assumed" in why, why
     assert r["prior_from"]["assumed"] == "none"
 
 
@@ -188,6 +192,8 @@ def test_recheck_assuming_the_proposed_correction_on_an_uncorrected_plate_stops(
                     progress=False)
     assert r["stopped_because"] == session.PRIOR_DISAGREES and r["touches"] <= 10
     assert "(proposed: rx +0.1" in r["prior_from"]["disagreement"]
+    assert "agree with --correction-applied none, not the frame assumed" \
+        in r["prior_from"]["disagreement"]
 
 
 def test_cli_measured_correction_printed_first_and_recorded(first_map, tmp_path, capsys):
@@ -331,6 +337,7 @@ def test_a_recheck_on_a_plate_it_misplaces_by_millimetres_approaches_from_above(
     why = r["prior_from"]["disagreement"]  # confirmed surprises, or a step below every frame
     assert "(proposed: rx" in why and ("confirmed by their retake" in why
                                        or "left the probe's usable stroke" in why)
+    assert "agree with --correction-applied none, not the frame assumed" in why, why
     cell_file = tmp_path / "steep.yaml"
     data = load_yaml(SIM_CELL)
     data["simulation"].update(steep)

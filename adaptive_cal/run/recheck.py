@@ -146,6 +146,11 @@ def load_prior(run_dir: Path, cell: Cell, correction: str | tuple[float, float] 
     extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
     widened = {k: bl.widen(b, extra) for k, b in frames.items()}
     assumed = widened.pop((c["rx"], c["ry"]))
+    # each frame not assumed as --correction-applied would name it (a stop says which one the
+    # readings agree with: ``matching_frame``)
+    named = {(0.0, 0.0): "none", **{(s["correction_deg"]["rx"], s["correction_deg"]["ry"]):
+                                    "proposed" for s in said[1:]}}
+    info = {**info, "not_assumed": [named.get(k, f"{k[0]:g},{k[1]:g}") for k in widened]}
     return assumed, hyper, info, list(widened.values())
 
 
@@ -173,7 +178,41 @@ def recheck_guard(plan, others: list[bl.Belief], assumed: bl.Belief, rec=None) -
     return guard
 
 
-def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = ()) -> str:
+MATCH_Z = 4.0  # a frame agrees with the readings where none lies beyond this many sd of it
+
+
+def matching_frame(plan, rec, assumed: bl.Belief, others: list[bl.Belief], carried: dict
+                   ) -> str:
+    """Which frame the readings inside the usable stroke agree with (each within ``MATCH_Z``
+    predictive sd of the frame's belief, the probe's noise at the cell's guess in), named as
+    --correction-applied takes it: the one assumed, one of the others, or none of them (the
+    plate moved by more than a correction). '' where no reading lies inside the stroke."""
+    lo, hi = plan.usable_mm
+    inside = (rec.reading_mm >= lo) & (rec.reading_mm <= hi)
+    if not inside.any():
+        return ""
+    height = rec.reading_mm[inside] + rec.z_mm[inside] - plan.zero_mm
+    basis = plan.model.surface.basis(rec.x_mm[inside], rec.y_mm[inside])
+    noise = plan.model.hyper0.noise_std_mm ** 2
+    c = carried["correction_deg"]
+    names = [carried["assumed"] if carried["assumed"] != "measured" else f"{c['rx']:g},{c['ry']:g}",
+             *carried.get("not_assumed", [])]
+    worst = []
+    for frame in [assumed, *others]:
+        mean, var = bl.predict(frame, basis)
+        worst.append(float(np.max(np.abs(height - mean) / np.sqrt(var + noise))))
+    best = int(np.argmin(worst))
+    n = f"the {int(inside.sum())} readings inside the probe's stroke"
+    if worst[best] > MATCH_Z or best >= len(names):
+        return (f"{n} agree with none of the frames (--correction-applied "
+                f"{' | '.join(names)}): the plate moved, so map it from scratch")
+    if best == 0:
+        return f"{n} agree with the frame assumed"
+    return f"{n} agree with --correction-applied {names[best]}, not the frame assumed"
+
+
+def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = (),
+                 match: str = "") -> str:
     """Why a re-check stopped early, and what to do, in one sentence for the terminal.
     ``off_stroke``: seqs of touches whose reading left the probe's usable stroke where the
     belief put it mid-stroke (1 in 10^6): one is enough, and the next could overrun the
@@ -189,7 +228,8 @@ def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = ()
     return (f"the plate is not where the earlier run's belief puts it in the frame assumed "
             f"({carried['assumed']}: rx {fixed(c['rx'], 4, '+')} deg, ry "
             f"{fixed(c['ry'], 4, '+')} deg): "  # never "-0.0000"
-            + "; ".join(seen) + ". Not a result: give the correction that was "
+            + "; ".join(seen) + (f"; {match}" if match else "") + ". Not a result: give "
+            "the correction that was "
             "really applied (--correction-applied proposed | none | RX,RY), or map from scratch "
             "without --prior-from")
 

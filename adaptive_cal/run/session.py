@@ -33,7 +33,8 @@ from adaptive_cal.run.folder import run_lock, write_json
 from adaptive_cal.run.loop import (CLOSING, DRIFT, NO_ADMISSIBLE_POINT, TOUCHES_REJECTED, Row,
                                    Step, SurveyLoop)
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_HOLD, PRIOR_RECORD, PRIOR_SURPRISES,
-                                      disagreement, load_prior, recheck_guard, saved_prior)
+                                      disagreement, load_prior, matching_frame, recheck_guard,
+                                      saved_prior)
 from adaptive_cal.run.results import write_results
 from adaptive_cal.run.truth import TrueError
 
@@ -249,8 +250,9 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         result = None
         if error is None or state.touches:
             if carried is not None and stopped == PRIOR_DISAGREES:
-                carried = {**carried,
-                           "disagreement": disagreement(carried, surprises, off_stroke)}
+                carried = {**carried, "disagreement": disagreement(carried, surprises, off_stroke,
+                           matching_frame(plan, read_recording(paths.recording), prior, others,
+                                          carried))}
             try:
                 result = write_results(
                     cell, plan, state, paths.out, stopped or "interrupted",
