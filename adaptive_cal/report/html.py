@@ -39,11 +39,13 @@ from adaptive_cal.report.sections import (cards, cell_section, escape,
 
 
 # -- figures ---------------------------------------------------------------------------------
-def _png(fig: Figure) -> str:
+def _png(fig: Figure, tight: bool = True) -> str:
     buf = io.BytesIO()
     # "tight": the canvas grows to hold what lies outside the axes (the touches figure's
-    # legend on the right; constrained layout with an equal aspect cut it and the y label)
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight", pad_inches=0.1)
+    # legend on the right; constrained layout with an equal aspect cut it and the y label).
+    # It draws the figure twice: the maps, whose legend lies inside, are drawn once.
+    fig.savefig(buf, format="png", dpi=100,
+                **({"bbox_inches": "tight", "pad_inches": 0.1} if tight else {}))
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
@@ -116,7 +118,7 @@ def belief_png(data, cell: Cell, rec, result: dict) -> str:
                                np.c_[rec.x_mm, rec.y_mm], wp.x_mm, wp.y_mm,
                                keep_outs=[(k.x_mm, k.y_mm) for k in wp.keep_outs], title=cell.name,
                                incomplete=missing(result))
-    return _png(fig)
+    return _png(fig, tight=False)
 
 
 CSS = """
