@@ -335,3 +335,69 @@ def test_study_glob_double_star_matches_every_depth_and_records_name_their_map(t
     out = _Reported(seen.append, {"surface_file": "maps/a/p.csv"})
     out.append({"strategy": "adaptive"})
     assert out[0]["surface_file"] == seen[0]["surface_file"] == "maps/a/p.csv"
+
+
+@pytest.mark.parametrize("height, words", [
+    # the map's plane 8 mm up (sim-cell's tilt effect adds c = 0.2): past the +-4.5 mm stroke
+    (lambda x, y: 8.0 + 0 * x, ["+8.200 mm at the plate centre (with the tilt effect's c)",
+                                "+-4.5 mm", "(heights in um? a map's are mm)"]),
+    # a map in um read as mm: 15 um of offset and +-50 um of form
+    (lambda x, y: 15.0 + 50.0 * np.sin(x / 40.0), ["+15.", "heights in um?"]),
+    # one node 999 mm high: its form is far past 20 x the stroke's half
+    (lambda x, y: np.where((x == XS[4]) & (y == YS[3]), 999.0, 0.0), ["form 9", "heights in um?"]),
+])
+def test_a_simulated_map_out_of_the_probes_reach_is_refused_before_a_touch(tmp_path, height, words):
+    """An outside audit (2026-11-30): a map in um by mistake made one touch past the stroke, then
+    a message that never named the map; a 999 mm spike ran to a 'true error' of 34 mm."""
+    write_map(tmp_path / "plate.csv", f=height)
+    with pytest.raises(ConfigError) as e:
+        load_cell(cell_with_map(tmp_path))
+    msg = str(e.value)
+    assert "simulation.surface_file: " in msg and "plate.csv" in msg
+    for w in words:
+        assert w in msg, msg
+
+
+def test_a_map_a_few_mm_off_that_the_probe_still_reaches_is_taken(tmp_path):
+    write_map(tmp_path / "plate.csv", f=lambda x, y: 3.0 + 1e-3 * x)
+    assert load_cell(cell_with_map(tmp_path)).simulation.surface_file.endswith("plate.csv")
+
+
+def test_gross_errors_of_no_size_are_refused_naming_both_keys():
+    with pytest.raises(ConfigError, match="outlier_mm: 0 with outlier_rate 0.1"):
+        sim_cell(simulation={"outlier_rate": 0.1, "outlier_mm": 0.0})
+    assert sim_cell(simulation={"outlier_rate": 0.0, "outlier_mm": 0.0}).simulation.outlier_mm == 0
+
+
+@pytest.mark.parametrize("header, hint", [
+    ("x_mm;y_mm;height_mm", "separated by ';'"),
+    ("x_mm\ty_mm\theight_mm", "separated by tabs"),
+    ("X_MM,Y_MM,HEIGHT_MM", "lower case and the heights mm"),
+    ("x_mm,y_mm,height_um", "lower case and the heights mm"),
+    ("x_mm,y_mm,height_mm,", "the comma at its end makes an empty fourth column"),
+])
+def test_a_wrong_header_says_what_is_wrong_with_it(header, hint):
+    with pytest.raises(HeightMapError, match="line 1: expected the header") as e:
+        parse_heightmap(header + "\n0,0,1\n", "g.csv")
+    assert hint in str(e.value)
+
+
+def test_what_reads_a_run_leaves_out_a_map_edited_past_use_and_says_so(tmp_path, capsys):
+    """report, flatness and compensate read the run's belief, not the simulated truth: a map
+    gone since the run was left out with a note, but one edited past use stopped them."""
+    from adaptive_cal.cell.run_cell import load_run_cell
+
+    lines = write_map(tmp_path / "plate.csv").read_text().splitlines()
+    path = cell_with_map(tmp_path)
+    assert load_run_cell(path).simulation.surface_file.endswith("plate.csv")
+    (tmp_path / "plate.csv").write_text("\n".join(lines[:5] + ["-225,-132.857143,abc"]
+                                                  + lines[6:]) + "\n")
+    with pytest.raises(ConfigError, match="line 6"):
+        load_cell(path)  # --resume simulates on: it needs the map
+    cell = load_run_cell(path)
+    assert cell.simulation.surface_file is None
+    err = capsys.readouterr().err
+    assert "plate.csv cannot be used now" in err and "line 6" in err and "left out" in err
+    (tmp_path / "plate.csv").unlink()
+    assert load_run_cell(path).simulation.surface_file is None
+    assert "plate.csv is gone; left out" in capsys.readouterr().err

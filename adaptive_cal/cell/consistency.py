@@ -61,6 +61,12 @@ def check_cell(cell) -> None:
         if same and a != b:
             raise ValueError("robot.modbus and probe.modbus name the same PLC with different "
                              "settings; make the two blocks identical")
+    sim = cell.simulation
+    if sim is not None and sim.surface_file is not None:  # loads, covers, within the stroke
+        from adaptive_cal.formats.heightmap import check_map
+
+        check_map(sim.surface_file, wp, "simulation.surface_file", p.usable_mm,
+                  sim.effects.get("tilt", {}).get("c", 0.0))
 
 
 def um_as_mm(value_mm: float, usable_span_mm: float) -> bool:

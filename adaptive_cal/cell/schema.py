@@ -18,7 +18,7 @@ from adaptive_cal.cell.plate import (REACH_MM, Interval, Rect, Workplane,  # noq
                                      _interval)  # (re-exported)
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
 from adaptive_cal.cell.simulation import FrameCorrection, Simulation  # noqa: F401 (re-exported)
-from adaptive_cal.formats.heightmap import beside, check_map
+from adaptive_cal.formats.heightmap import beside
 from adaptive_cal.hardware.hses.config import HsesConfig
 from adaptive_cal.hardware.manual.config import ManualConfig
 from adaptive_cal.hardware.modbus.config import ModbusConfig
@@ -290,9 +290,7 @@ class Cell(Block):
 
     @model_validator(mode="after")
     def _consistent(self):
-        check_cell(self)
-        if self.simulation is not None and self.simulation.surface_file is not None:
-            check_map(self.simulation.surface_file, self.workplane, "simulation.surface_file")
+        check_cell(self)  # the simulated plate's height map too
         return self
 
     @property
@@ -331,20 +329,3 @@ def as_cell(cell, name: str = "cell") -> Cell:
         return parse_cell(cell)
     raise TypeError(f"{name} = {cell!r:.60}: give a Cell (adaptive_cal.load_cell), a cell file's "
                     "path or a dict of its keys")
-
-
-def load_run_cell(path: str | Path) -> Cell:
-    """A run folder's cell.yaml, for what reads the run (report, flatness, compensate): a
-    simulated plate's height map gone since the run (the folder copied elsewhere, the map moved)
-    is said and left out -- they read the run's belief, never the simulated truth. ``--resume``
-    loads with ``load_cell``: it simulates on, and needs the map."""
-    data = resolve_files(load_yaml(path), path)
-    sim = data.get("simulation") if isinstance(data, dict) else None
-    if isinstance(sim, dict) and isinstance(sim.get("surface_file"), str) \
-            and not Path(sim["surface_file"]).is_file():
-        from adaptive_cal.formats.recording import say
-
-        say([f"{path}: the simulated plate's height map {sim['surface_file']} is gone; left out "
-             "(what reads a run needs its map, not the simulated truth)"])
-        data = {**data, "simulation": {k: v for k, v in sim.items() if k != "surface_file"}}
-    return parse_cell(data, str(path))

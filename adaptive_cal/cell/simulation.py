@@ -2,7 +2,7 @@
 a height map, a user-frame correction applied to the simulated robot)."""
 from __future__ import annotations
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from adaptive_cal import effects as effect_library
 from adaptive_cal.cell.block import Block
@@ -33,12 +33,18 @@ class Simulation(Block):
         None, description="the tilt correction applied to the robot's user frame (e.g. the one a "
         "run proposed, result.json tilt): the robot then moves and probes in the rotated frame, "
         "about the frame's origin; see run --correction-applied")
-    surface_file: str | None = Field(None, min_length=1,
-                                     description="true plate from a height map (DESIGN.md; "
-                                     "relative to the cell file); effects add on top")
+    surface_file: str | None = Field(
+        None, min_length=1, description="true plate from a height map, relative to the cell file; "
+        "effects add on top. The map: UTF-8 CSV, header x_mm,y_mm,height_mm, one row per node of "
+        "a regular grid covering the workplane, any row order (a writer's round-off, quoted "
+        "fields, a BOM, CRLF taken); heights in mm, bilinear between nodes (DESIGN.md 'Height "
+        "maps'). Refused at load, naming the file, line and value: a map that is not that, or "
+        "whose plane at the plate centre (the tilt effect's c added) stands beyond half "
+        "probe.usable_mm from 0, or whose form exceeds 20 times that (heights in um?)")
     outlier_rate: float = Field(0.0, ge=0, lt=0.5, description="share of readings replaced by a "
                                 "gross error, 0 to below 0.5")
-    outlier_mm: float = Field(0.1, ge=0, description="standard deviation of that gross error")
+    outlier_mm: float = Field(0.1, ge=0, description="standard deviation of that gross error; "
+                              "above 0 where outlier_rate is")
 
     @field_validator("effects")
     @classmethod
@@ -58,3 +64,11 @@ class Simulation(Block):
         if bad:
             raise ValueError(f"unknown effect(s) {bad}; known: {', '.join(names)}")
         return v
+
+    @model_validator(mode="after")
+    def _outliers(self):
+        if self.outlier_rate > 0 and self.outlier_mm <= 0:
+            raise ValueError(f"outlier_mm: {self.outlier_mm:g} with outlier_rate "
+                             f"{self.outlier_rate:g}: a gross error of standard deviation 0 is "
+                             "no error; give outlier_mm > 0 (mm), or outlier_rate 0")
+        return self

@@ -122,7 +122,8 @@ def map_flatness(args, picked=None) -> dict | None:
     from adaptive_cal.analysis.flatness_intervals import spans_area
     from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2, weighted_out
     from adaptive_cal.cell.build import survey_plan
-    from adaptive_cal.cell.schema import load_cell, load_run_cell
+    from adaptive_cal.cell.run_cell import load_run_cell
+    from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.formats.recording import read_recording
     from adaptive_cal.gaussian.belief import Belief
     from adaptive_cal.gaussian.prior import Hyper
@@ -156,8 +157,7 @@ def map_flatness(args, picked=None) -> dict | None:
         weights = ([flagged_weight(f) for f, k in zip(rec.flags, rec.fused) if k]
                    if rec.flags else None)
     xyz = touched_heights(plan, rec)
-    if len(xyz[2]) < 4:
-        n = len(xyz[2])
+    if (n := len(xyz[2])) < 4:
         raise UserError(f"{rec_path}: {n} usable touch{'es' * (n != 1)}; flatness needs at "
                         "least 4")
     spans_area(xyz[0], xyz[1], rec_path)

@@ -92,7 +92,7 @@ def _check_belief(run_dir: Path) -> None:
     if not ((run_dir / "cell.yaml").is_file() and (run_dir / "belief.npz").is_file()):
         return
     from adaptive_cal.cell.build import plan_model
-    from adaptive_cal.cell.schema import load_run_cell
+    from adaptive_cal.cell.run_cell import load_run_cell
     from adaptive_cal.cli.flatness import check_belief
     from adaptive_cal.formats.npz import read_npz
 

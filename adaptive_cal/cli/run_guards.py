@@ -50,7 +50,7 @@ def replay_cell_warning(recording: Path, given: Path) -> str | None:
     if not (folder / "cell.yaml").is_file() or \
             (folder / "cell.yaml").resolve() == Path(given).resolve():
         return None
-    from adaptive_cal.cell.schema import load_run_cell
+    from adaptive_cal.cell.run_cell import load_run_cell
 
     bad, _ = _differ(*_cells(folder / "cell.yaml", Path(given), load_run_cell))
     if not bad:

@@ -1,12 +1,10 @@
 """Height maps (DESIGN.md "Height maps", a stable format): a plate's true height on a regular
 grid, for the simulated cell (``simulation.surface_file``) and studies (``plate.surface_files``).
-
 UTF-8 CSV, first line ``x_mm,y_mm,height_mm``, then one row per node of a regular grid (every x
 of the grid with every y, in any order). Heights between nodes are bilinear. A file that is not
 that is refused with a HeightMapError naming the file, the line and the value. As CSV, the header
 may have spaces after its commas (``x_mm, y_mm, height_mm``) and any field may be quoted
-(``"-225"``, R's ``write.csv``); node coordinates may carry a writer's round-off (``_axis``).
-"""
+(``"-225"``, R's ``write.csv``); node coordinates may carry a writer's round-off (``_axis``)."""
 from __future__ import annotations
 
 import io
@@ -22,7 +20,7 @@ import numpy as np
 
 from adaptive_cal.formats.cells import RecordingError, _OpenQuote, split_cells
 from adaptive_cal.formats.table import strict_float
-from adaptive_cal.formats.text import not_utf8
+from adaptive_cal.formats.text import not_utf8, separated_hint
 
 HEADER = "x_mm,y_mm,height_mm"
 MAX_NODES = 4_000_000  # 2000 x 2000 nodes: far finer than any plate needs
@@ -219,10 +217,14 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     first = io.StringIO(text, newline=None).readline().strip().lstrip("\ufeff")
     names = _cells(first, 1, source)
     if names != HEADER.split(","):
-        hint = ""
-        if names[:3] == HEADER.split(",") and len(names) > 3:  # compensate --grid's std_mm
+        hint = separated_hint(first).replace("recording format", "height maps")
+        if names[:3] == HEADER.split(",") and any(names[3:]):  # compensate --grid's std_mm
             hint = ("; a height map has exactly these three columns (DESIGN.md): drop the others, "
                     "or write the map with 'adaptive-cal compensate --grid OUT.csv --heights-only'")
+        elif names[:3] == HEADER.split(","):  # 'x_mm,y_mm,height_mm,'
+            hint = "; the comma at its end makes an empty fourth column: drop it"
+        elif [n.lower().replace("_um", "_mm") for n in names] == HEADER.split(","):
+            hint = "; the names are lower case and the heights mm (height_mm), as DESIGN.md has them"
         raise HeightMapError(f"{source}, line 1: expected the header {HEADER!r}, got "
                              f"{first[:80]!r}{hint}")
     a = _fast_numbers(text)
@@ -315,10 +317,33 @@ def beside(name: str, file: str | Path) -> str:
     return str(p if p.is_absolute() else Path(file).resolve().parent / p)
 
 
-def check_map(path: str | Path, workplane, key: str) -> HeightMap:
-    """The map at ``path`` if it loads and covers ``workplane`` (x_mm, y_mm); else
-    HeightMapError whose message starts with the config ``key``."""
+def plane_of(hm: HeightMap, x_mm, y_mm) -> tuple[float, float, float, float]:
+    """a, b, c, form: the plane z = a (x - xc) + b (y - yc) + c of least squares through the map's
+    nodes on x_mm x y_mm (centre xc, yc) and the largest departure from it (mm)."""
+    X, Y = np.meshgrid(hm.x_mm, hm.y_mm, indexing="ij")
+    on = ((X >= x_mm[0]) & (X <= x_mm[1]) & (Y >= y_mm[0]) & (Y <= y_mm[1])).ravel()
+    A = np.c_[X.ravel() - 0.5 * sum(x_mm), Y.ravel() - 0.5 * sum(y_mm), np.ones(X.size)][on]
+    a, b, c = np.linalg.lstsq(A, z := hm.z_mm.ravel()[on], rcond=None)[0]
+    return float(a), float(b), float(c), float(np.abs(z - A @ np.array([a, b, c])).max())
+
+
+def check_map(path: str | Path, workplane, key: str, usable_mm=None, offset_mm: float = 0.0
+              ) -> HeightMap:
+    """The map at ``path`` if it loads and covers ``workplane``, else HeightMapError opening with
+    ``key``; with the probe's ``usable_mm`` also refused: a plane at the plate centre (plus
+    ``offset_mm``, the tilt effect's c) beyond half the usable stroke from the prior's 0, or a
+    form 20 times that (a map in um read as mm: a 999 mm spike ran to a 34 mm 'true error')."""
     try:
-        return load_heightmap(path).check_covers(workplane.x_mm, workplane.y_mm)
+        hm = load_heightmap(path).check_covers(workplane.x_mm, workplane.y_mm)
     except HeightMapError as e:
         raise HeightMapError(f"{key}: {e}") from None
+    if usable_mm is None:  # a study's map: study.config.map_in_reach holds it to its prior
+        return hm
+    c, form = np.array(plane_of(hm, workplane.x_mm, workplane.y_mm)[2:]) + (offset_mm, 0)
+    half, tilt = 0.5 * (usable_mm[1] - usable_mm[0]), " (with the tilt effect's c)"
+    if abs(c) > half or form > 20 * half:
+        raise HeightMapError(
+            f"{key}: {path}: its plane stands {c:+.3f} mm at the plate centre"
+            f"{tilt * bool(offset_mm)}, its form {form:.3f} mm: past the +-{half:g} mm of the "
+            "probe's usable stroke about the prior's 0 (heights in um? a map's are mm)")
+    return hm

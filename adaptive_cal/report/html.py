@@ -24,7 +24,8 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
 from adaptive_cal import __version__
-from adaptive_cal.cell.schema import Cell, load_run_cell
+from adaptive_cal.cell.run_cell import load_run_cell
+from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.recording import read_recording
 from adaptive_cal.formats.jsonfile import read_result
 from adaptive_cal.formats.npz import read_npz, unresolved_at

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptive_cal.cell.build import plan_model
-from adaptive_cal.cell.schema import load_run_cell
+from adaptive_cal.cell.run_cell import load_run_cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.npz import read_npz, unresolved_at
 from adaptive_cal.gaussian import belief as bl

@@ -201,18 +201,10 @@ def map_in_reach(path: str, cell: Cell, source: str) -> None:
     workplane) no steeper than the planner serves, its height at the plate centre within the
     prior's reach, and its form within half the usable stroke -- else every touch lands at the
     stroke's end and the study measures nothing (a map 6 mm high ran its whole budget)."""
-    import numpy as np
+    from adaptive_cal.formats.heightmap import load_heightmap, plane_of
 
-    from adaptive_cal.formats.heightmap import load_heightmap
-
-    hm, wp, probe = load_heightmap(path), cell.workplane, cell.probe
-    X, Y = np.meshgrid(hm.x_mm, hm.y_mm, indexing="ij")
-    on = ((X >= wp.x_mm[0]) & (X <= wp.x_mm[1]) & (Y >= wp.y_mm[0]) & (Y <= wp.y_mm[1])).ravel()
-    cx, cy = 0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)
-    A = np.c_[X.ravel() - cx, Y.ravel() - cy, np.ones(X.size)][on]
-    z = hm.z_mm.ravel()[on]
-    a, b, c = np.linalg.lstsq(A, z, rcond=None)[0]
-    form = float(np.abs(z - A @ np.array([a, b, c])).max())
+    wp, probe = cell.workplane, cell.probe
+    a, b, c, form = plane_of(load_heightmap(path), wp.x_mm, wp.y_mm)
     allowed, offset, half = reach(cell)
     if math.hypot(a, b) > allowed or abs(c) > offset or abs(c) + form > half:
         raise ConfigError(
