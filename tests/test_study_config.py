@@ -111,7 +111,11 @@ def test_overrides_set_keys_strategies_and_plates_and_name_bad_keys():
                         ("bound.mean_std_mm=-1", "bound.mean_std_mm"),
                         ("bound.mean_std_mm=1e-9", "noise floor"),
                         ("bound.max_touches=[1,", r"--set bound.max_touches=\[1,: the value is "
-                         "not YAML")):
+                         "not YAML"),
+                        # a shell variable left unset ($MAPS): it had become null, and the
+                        # study quietly ran on drawn plates (an outside audit, 2026-11-30)
+                        ("plate.surface_files=", r"--set plate.surface_files=: no value"),
+                        ("plate.surface_files= ", "null clears the key")):
         with pytest.raises(ConfigError, match=words):
             apply_overrides(study, base, settings=[item])
     for empty in ("", " , "):  # an empty list is refused, not taken for "the file's"

@@ -18,6 +18,8 @@ def set_key(data: dict, item: str) -> dict:
     key, sep, value = item.partition("=")
     if not sep:
         raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
+    if not value.strip():  # a shell variable left unset: not a silent null
+        raise ConfigError(f"--set {key}=: no value; give one (null clears the key)")
     *path, leaf = key.split(".")
     out = dict(data)
     node = out
