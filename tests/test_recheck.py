@@ -359,3 +359,38 @@ def test_the_first_reading_off_the_stroke_is_named_in_the_disagreement():
     why = recheck.disagreement(carried, [], [4])
     assert "(proposed: rx +0.1000 deg, ry -2.0000 deg)" in why
     assert "the reading of seq 4 left the probe's usable stroke" in why
+
+
+def test_the_stop_names_the_frame_the_readings_agree_with_or_none_or_both():
+    """``matching_frame`` on beliefs whose plate stands at known heights: each reading within
+    4 predictive sd of a frame agrees with it; the text names it as --correction-applied
+    takes it, says where two agree alike, and where none does."""
+    from types import SimpleNamespace
+
+    from adaptive_cal.cell.build import survey_plan
+    from adaptive_cal.gaussian import belief as bl
+    from adaptive_cal.run.recheck import matching_frame
+
+    plan = survey_plan(sim_cell())
+    xy = np.random.default_rng(0).uniform(-200, 200, (50, 2))
+    basis = plan.model.surface.basis(xy[:, 0], xy[:, 1])
+    cov = plan.model.belief(plan.model.hyper0).cov * 1e-6
+
+    def at(height_mm):  # a belief that puts the plate at this height everywhere, tightly
+        return bl.Belief(np.linalg.lstsq(basis, np.full(50, height_mm), rcond=None)[0], cov)
+
+    # three readings of a plate at height 0 (reading = height + zero - z, z = 0)
+    rec = SimpleNamespace(x_mm=np.array([0.0, 50, -50]), y_mm=np.array([0.0, 20, -20]),
+                          z_mm=np.zeros(3), reading_mm=np.full(3, plan.zero_mm))
+    carried = {"assumed": "proposed", "correction_deg": {"rx": 0.1, "ry": -0.8},
+               "not_assumed": ["none"]}
+    said = {hs: matching_frame(plan, rec, at(hs[0]), [at(hs[1])], carried)
+            for hs in ((0.0, 1.0), (1.0, 0.0), (0.0, 0.0), (1.0, 2.0))}
+    assert said[0.0, 1.0].endswith("agree with the frame assumed")
+    assert said[1.0, 0.0].endswith("agree with --correction-applied none, not the frame assumed")
+    assert "proposed (assumed) and --correction-applied none alike" in said[0.0, 0.0]
+    assert "agree with none of the frames (--correction-applied proposed | none)" \
+        in said[1.0, 2.0]
+    assert said[0.0, 1.0].startswith("the 3 readings inside the probe's stroke")
+    off = SimpleNamespace(**{**vars(rec), "reading_mm": np.full(3, 9.9)})  # past the stroke
+    assert matching_frame(plan, off, at(0.0), [at(1.0)], carried) == ""

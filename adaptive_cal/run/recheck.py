@@ -201,14 +201,18 @@ def matching_frame(plan, rec, assumed: bl.Belief, others: list[bl.Belief], carri
     for frame in [assumed, *others]:
         mean, var = bl.predict(frame, basis)
         worst.append(float(np.max(np.abs(height - mean) / np.sqrt(var + noise))))
-    best = int(np.argmin(worst))
+    agree = [names[i] for i, w in enumerate(worst) if w <= MATCH_Z]
     n = f"the {int(inside.sum())} readings inside the probe's stroke"
-    if worst[best] > MATCH_Z or best >= len(names):
+    if not agree:
         return (f"{n} agree with none of the frames (--correction-applied "
                 f"{' | '.join(names)}): the plate moved, so map it from scratch")
-    if best == 0:
+    if len(agree) > 1:
+        both = " and ".join(f"--correction-applied {a}" + " (assumed)" * (a == names[0])
+                            for a in agree)
+        return f"{n} agree with {both} alike (they cannot tell those apart)"
+    if agree[0] == names[0]:
         return f"{n} agree with the frame assumed"
-    return f"{n} agree with --correction-applied {names[best]}, not the frame assumed"
+    return f"{n} agree with --correction-applied {agree[0]}, not the frame assumed"
 
 
 def disagreement(carried: dict, surprises: list[int], off_stroke: list[int] = (),
