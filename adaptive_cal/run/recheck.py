@@ -201,7 +201,7 @@ def matching_frame(plan, rec, assumed: bl.Belief, others: list[bl.Belief], carri
     for frame in [assumed, *others]:
         mean, var = bl.predict(frame, basis)
         worst.append(float(np.max(np.abs(height - mean) / np.sqrt(var + noise))))
-    agree = [names[i] for i, w in enumerate(worst) if w <= MATCH_Z]
+    agree = [name for name, w in zip(names, worst) if w <= MATCH_Z]
     n = f"the {int(inside.sum())} readings inside the probe's stroke"
     if not agree:
         return (f"{n} agree with none of the frames (--correction-applied "
