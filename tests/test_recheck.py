@@ -279,7 +279,8 @@ def test_a_resumed_recheck_continues_from_the_recorded_prior(first_map, tmp_path
     done = session.run(cell, run_dir, resume=True, progress=False)
     assert done["stopped_because"] == "mean_std_bound" and 2 < done["touches"] <= 10
     assert done["prior_from"] == {"run": str(out.resolve()), "assumed": "measured",
-                                  "correction_deg": {"rx": measured[0], "ry": measured[1]}}
+                                  "correction_deg": {"rx": measured[0], "ry": measured[1]},
+                                  "not_assumed": ["none"]}
 
 
 def test_cli_resume_of_a_recheck_says_what_it_continues(first_map, tmp_path, capsys):
