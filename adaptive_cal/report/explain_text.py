@@ -225,8 +225,10 @@ def rounds_lines(r: dict) -> list[str]:
     if "flatness_mm" not in r:
         return []
     a, b = (1e3 * v for v in r["flatness_mm"])
+    # the change of the figures as printed, as flatness --compare prints it (541.7 -> 596.0
+    # had read "+54.4 um" here and "+54.3" there)
     out = [f"rounds: flatness (least squares) {a:.1f} -> {b:.1f} um, change "
-           f"{fixed(1e3 * r['change_mm'], 1, '+')} um"]
+           f"{fixed(round(b, 1) - round(a, 1), 1, '+')} um"]
     if "p_value" not in r:
         return out + ([f"  {r['note']}"] if r.get("note") else [])
     lo, hi = r["null_change_95_mm"]
