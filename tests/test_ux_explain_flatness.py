@@ -132,4 +132,4 @@ def test_bare_recording_spread_and_average_range_in_um(cheng_round0, capsys):
     out = capsys.readouterr().out
     spread = next(line for line in out.splitlines() if "height spread" in line)
     assert spread.endswith(" um)") and "6431.1 um (95 % " in spread and " mm" not in spread
-    assert "average range (Cheng Table 8, tilt included) x 5661.6 um, y 687.6 um" in out
+    assert "average range (Cheng Table 8, tilt included) along x 5661.6 um, along y 687.6 um" in out

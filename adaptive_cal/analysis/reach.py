@@ -52,5 +52,5 @@ def largest_gap(plan, touched_xy) -> dict | None:
 
 def gap_line(gap: dict) -> str:
     return (f"largest gap between touches: {gap['radius_mm']:.0f} mm radius around "
-            f"({gap['x_mm']:.0f}, {gap['y_mm']:.0f}) mm; a dent or bump narrower than that can lie "
-            "there unseen, and the flatness intervals do not include one")
+            f"({gap['x_mm']:.0f}, {gap['y_mm']:.0f}) mm; a dent or bump of smaller radius can "
+            "lie there unseen, and the flatness intervals do not include one")

@@ -58,7 +58,8 @@ def _travel_line(plan, cell) -> str:
         return f"travel: at robot.safe_height_mm = {safe:g} mm, clear of the plate"
     return (f"travel: at robot.safe_height_mm = {safe:g} mm; before readings bound it, the prior "
             f"lets the plate stand up to {top:.2f} mm (1 in 10^6), so the first travels may rise "
-            f"to {top + reach + CLEARANCE_MM:.2f} mm (the free tip hangs {reach:g} mm below)")
+            f"to {top + reach + CLEARANCE_MM:.2f} mm (the free tip hangs {reach:g} mm below, "
+            f"plus {CLEARANCE_MM:g} mm of clearance)")
 
 
 def _forecast(plan, cell) -> tuple[int, float, str, list]:

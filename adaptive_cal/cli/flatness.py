@@ -287,7 +287,7 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
                  f"flatness): {value_text(r['flatness_mm']['range'])}")
     a = r["average_range_mm"]
     lines.append("  average range (Cheng Table 8, tilt included) " + ", ".join(
-        f"{k} {a[k] * 1e3:.1f} um" if a[k] is not None
+        f"along {k} {a[k] * 1e3:.1f} um" if a[k] is not None
         else f"{k} n/a (touches not on a grid along {k})" for k in ("x", "y")))
     return lines
 

@@ -54,6 +54,13 @@ def quantity(name: str, value: float, std: float | None, unit: str) -> str:
     return f"{label} {_pm(value, std, '+', 4)}" + (f" {unit}" if unit and unit != "-" else "")
 
 
+def _held(name: str, value: float, unit: str) -> str:
+    """A parameter held at a value, not fitted: "rate held at 0 um/s" (no sign, no sd)."""
+    label = LABELS.get(name, re.sub(r"_(mm|s|deg|mm_per_s)$", "", name).replace("_", " "))
+    said = quantity(name, value, None, unit).removeprefix(label).strip().removeprefix("+")
+    return f"{label} held at {said}"
+
+
 def _notes(summary: str) -> list[str]:
     """The notes of an effect's summary line (between its parameters and its evidence)."""
     parts = [p.strip() for p in summary.split(";")][1:]
@@ -73,8 +80,12 @@ def left_out_line(e: dict, units: dict, verdict: str | None = None) -> str:
         params, stds = given["params"], given["params_std"]
     else:
         params, stds = e.get("params", {}), e.get("params_std", {})
-    values = ", ".join(quantity(k, v, stds.get(k), units.get(k, "")) for k, v in params.items())
-    notes = "; ".join(_notes(e.get("summary", "")) if not (given and given["left_out"]) else [])
+    held = set(e.get("held") or ())  # fixed, not fitted: "rate held at 0 um/s", not "+0 um/s"
+    values = ", ".join(_held(k, v, units.get(k, "")) if k in held
+                       else quantity(k, v, stds.get(k), units.get(k, ""))
+                       for k, v in params.items())
+    notes = "; ".join(_notes(e.get("summary", "")) if not (given and given["left_out"]) else
+                      [n for n in _notes(e.get("summary", "")) if n.startswith("t_s ")])
     alone = e.get("log_bayes_factor")
     against = ("log Bayes factor " + ("-" if alone is None else fixed(alone, 1)) + " against none")
     if not given:
@@ -85,8 +96,9 @@ def left_out_line(e: dict, units: dict, verdict: str | None = None) -> str:
         why = (f"clearer with {verdict} in the model" if alone is None
                or alone < given["log_bayes_factor"]
                else f"where it takes up part of what {verdict} explains")
-        return (f"  left out as well, beside {verdict}: {e['effect']}: {values}; evidence: "
-                f"log Bayes factor {beside} ({against} alone, {why})")
+        return (f"  left out as well, beside {verdict}: {e['effect']}: {values}"
+                + (f"; {notes}" if notes else "") + f"; evidence: log Bayes factor {beside} "
+                f"({against} alone, {why})")
     return (f"  instead of {verdict}, not beside it: {e['effect']}: {values}"
             + (f"; {notes}" if notes else "") + f"; evidence: {against}, {beside}")
 

@@ -258,8 +258,8 @@ def not_identifiable(ctx: Context, sigma_mm: float | None, dz_mm: float = 2.0, *
         # rounding, or 0 where every reading is the nominal)
         size = float(np.linalg.norm(projected[name], axis=0).max()) * prior_scale(
             effect, _shown(effect))
-        left = (f"; an effect of typical prior size leaves {size / sigma_mm:.2f} sigma after "
-                "the tilt" if sigma_mm else "")
+        left = (f"; an effect of typical prior size leaves {size / sigma_mm:.2f} reading-noise "
+                "sd after the tilt" if sigma_mm else "")
         cc_t = canonical_correlations(_centred(offsets, E), offsets(T))
         if cc_t.min() > ALIAS_CC and name != verdict:  # a verdict passed the tilt: shown
             why = (f"the tilt absorbs {100 * cc_t.min() ** 2:.2f} % of the regressor's variation "

@@ -73,7 +73,8 @@ def summary(cand: Candidate, params: dict, stds: dict, design: Design) -> str:
     if cand.fixed:
         text += " at " + ", ".join(f"{k} = {v:g} (+- {cand.nonlinear_std.get(k, 0):.2g})"
                                    for k, v in cand.fixed.items())
-        text += f"; look-elsewhere penalty {cand.look_elsewhere:.2f} over {cand.searched} values"
+        text += (f"; look-elsewhere penalty {cand.look_elsewhere:.2f} (log Bayes factor) over "
+                 f"{cand.searched} values")
     if kept:
         text += "; " + ", ".join(f"{k} held at {v:g}" for k, v in kept.items())
     if design.rounds > 1 and cand.log_bf_shared_vs_per_round is not None:
