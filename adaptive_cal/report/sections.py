@@ -149,8 +149,10 @@ def model_section(result: dict) -> str:
     if not m:
         return ""
     rows = [("verdict", escape(m.get("summary", "")))]
-    rows += [(escape(k), f"{'passed' if c['passed'] else 'FAILED'}: {c['value']:.3g} "
-              f"(bound {c['bound']:.3g}; {escape(c.get('is', ''))})")
+    rows += [(escape(k), f"{'passed' if c['passed'] else 'FAILED'}: "
+              + (f"{c['value'] * 1e3:.3g} um (bound {c['bound'] * 1e3:.3g} um; "  # heights in um
+                 if "(mm)" in c.get("is", "") else f"{c['value']:.3g} (bound {c['bound']:.3g}; ")
+              + f"{escape(c.get('is', '').replace('(mm) ', ''))})")
              for k, c in m.get("checks", {}).items()]
     rows += [(f"x {w['x_mm'][0]:.0f}..{w['x_mm'][1]:.0f} mm, y {w['y_mm'][0]:.0f}.."
               f"{w['y_mm'][1]:.0f} mm", f"about {_um(w['unresolved_rms_mm'])} RMS unresolved "
