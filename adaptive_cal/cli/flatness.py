@@ -5,8 +5,7 @@ zone), so they compare with published numbers. In a run folder (beside cell.yaml
 or with ``--robot CELL.yaml`` (the recording replayed to a map) also of the whole plate, from the
 map: ``analysis.flatness_answer``, the same lines and digits as ``run`` and the report. A bare
 recording's interval comes from its own prior (``analysis.flatness_intervals``). ``--compare``
-gives the probability that a later round's flatness is larger.
-"""
+gives the probability that a later round's flatness is larger."""
 from __future__ import annotations
 
 import json
@@ -273,14 +272,15 @@ def _one(r: dict, say_no_plate: bool = True) -> list[str]:
                    if gap else [])
                 + [f"  tilt correction (whole plate): {tilt_angles(t)}"
                    + (" (provisional)" if gap else "")
-                   + f"; a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm"]
+                   + f"; a {t['a']:+.6f}, b {t['b']:+.6f} mm/mm, c {t['c']:+.4f} mm"]
                 + ["  " + line for line in answer_lines(r, provisional=bool(gap))]
                 + _weighted_out(r))
     touched = {**r["flatness_mm"], "points": r["touches"]}
     lines = [f"{r['recording']}: {r['touches']} touches, reading noise {r['noise_std_mm'] * 1e3:.1f} um",
              f"  tilt correction (touched points): rx {t['rx_deg']:+.4f}{_sd(t, 'rx_std_deg')} deg, "
-             f"ry {t['ry_deg']:+.4f}{_sd(t, 'ry_std_deg')} deg (a {t['a']:+.6f}, b {t['b']:+.6f} "
-             f"mm/mm{'; 1 sd over repeats at these touches' if 'rx_std_deg' in t else ''})"]
+             f"ry {t['ry_deg']:+.4f}{_sd(t, 'ry_std_deg')} deg"
+             + " (1 sd over repeats at these touches)" * ("rx_std_deg" in t) + f"; a {t['a']:+.6f}, "
+             f"b {t['b']:+.6f} mm/mm" + (f", c {t['c']:+.4f} mm" if "c" in t else "")]
     lines += ["  " + line for line in answer_lines({"touched_flatness_mm": touched},
                                                       no_plate=NO_PLATE if say_no_plate else None)]
     lines.append(f"  height spread of the touched points, max - min with the tilt included (not "
