@@ -37,7 +37,8 @@ def dry_run(cell) -> int:
     robot_s = touches * r.touch_time_s + travel_mm / r.speed_mm_per_s
     print(f"expected: about {touches} touches ({reason_text(why)}; at most "
           f"{cell.plan.stop.max_touches}), robot time about {robot_s / 60:.1f} min "
-          f"({r.touch_time_s:g} s per touch, {travel_mm / 1000:.1f} m of travel at "
+          f"({r.touch_time_s:g} s per touch, {travel_mm / 1000:.1f} m of travel from the plate "
+          f"centre at "
           f"{r.speed_mm_per_s:g} mm/s); with the prior's hyper-parameters and no gated reading")
     print(_travel_line(plan, cell))
     if plan.closure:
@@ -76,7 +77,8 @@ def _forecast(plan, cell) -> tuple[int, float, str, list]:
 
     fixed = replace(plan, learn=False)
     quick = replace(fixed, refine=0)
-    state, travel, last, made = sv.start(quick), 0.0, None, []
+    # travel counted from the plate centre, as the run's estimate counts it (result.json)
+    state, travel, last, made = sv.start(quick), 0.0, tuple(plan.start_xy_mm), []
     while True:
         why = quick.stop(sv.status(quick, state))
         if why:
@@ -86,7 +88,6 @@ def _forecast(plan, cell) -> tuple[int, float, str, list]:
             return state.touches, travel, "no_admissible_point", made
         t = targets[0]
         made.append(t)
-        if last is not None:
-            travel += math.dist(last, (t.x_mm, t.y_mm))
+        travel += math.dist(last, (t.x_mm, t.y_mm))
         last = (t.x_mm, t.y_mm)
         state, _ = sv.tell(quick, state, t.x_mm, t.y_mm, t.z_mm, t.expected_reading_mm)
