@@ -11,7 +11,8 @@ import textwrap
 from adaptive_cal.formats.numbers import fixed
 
 LATERAL = {"x_mm", "y_mm", "radius_mm"}  # positions and sizes on the plate stay in mm
-LABELS = {"pv_mm": "peak-to-valley", "bow_x": "bow in x", "bow_y": "bow in y"}
+LABELS = {"pv_mm": "peak-to-valley over the workplane", "bow_x": "bow in x",
+          "bow_y": "bow in y"}
 
 
 def _pm(value: float, std: float | None, sign: str = "", alone: int = 3) -> str:
