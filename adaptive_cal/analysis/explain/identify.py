@@ -221,7 +221,9 @@ def _gap_touches(ctx: Context, count: int = 4) -> dict:
         touches.append({"x_mm": float(gx[i]), "y_mm": float(gy[i]), "z_mm": round(z_mm, 4),
                         "order": n0 + k})
         dist = np.minimum(dist, np.hypot(gx - gx[i], gy - gy[i]))  # the new touch is a point too
-    return {"description": f"fill distance {fill0:.0f} mm: a defect of smaller radius between "
+    return {"description": f"fill distance {fill0:.0f} mm over the whole workplane (its edge "
+            "margin and keep-outs included: where a defect may sit; run's 'largest gap' is of "
+            "the reachable plate alone): a defect of smaller radius between "
             "touches reaches no touch; touches at the centres of the largest gaps a run could "
             "touch (inside the edge margin, outside the keep-outs), each approached at the "
             "height of a plane fitted to the last round's touches (z_mm + reading_mm), where "
@@ -299,6 +301,7 @@ def not_identifiable(ctx: Context, sigma_mm: float | None, dz_mm: float = 2.0, *
         if gap["fill_distance_mm"] > min(40.0, 0.5 * max(np.ptp(d.geometry.x_range_mm), 1.0)):
             out.append({"effect": name, "aliased_with": [],
                         "why": f"coverage: a defect of radius below {gap['fill_distance_mm']:.0f} "
-                        "mm can sit between touches and reach none of them",
+                        "mm can sit between touches, anywhere on the workplane, and reach none "
+                        "of them",
                         "suggested_design": gap})
     return out
