@@ -217,7 +217,7 @@ def parse_heightmap(text: str, source: str = "height map") -> HeightMap:
     first = io.StringIO(text, newline=None).readline().strip().lstrip("\ufeff")
     names = _cells(first, 1, source)
     if names != HEADER.split(","):
-        hint = separated_hint(first).replace("recording format", "height maps")
+        hint = separated_hint(first, "height maps")
         if names[:3] == HEADER.split(",") and any(names[3:]):  # compensate --grid's std_mm
             hint = ("; a height map has exactly these three columns (DESIGN.md): drop the others, "
                     "or write the map with 'adaptive-cal compensate --grid OUT.csv --heights-only'")

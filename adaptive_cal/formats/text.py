@@ -20,12 +20,12 @@ def not_utf8(path, data: bytes | None = None) -> str:
     return f"{path}: not UTF-8 text"
 
 
-def separated_hint(line: str) -> str:
+def separated_hint(line: str, what: str = "recording format") -> str:
     """": it looks separated by ';': save it comma separated (DESIGN.md recording format)" where
     a header line is split by ';' (a European spreadsheet's export) or by tabs rather than by
-    commas -- more of those than commas; "" otherwise. For the readers' header errors."""
+    commas -- more of those than commas; "" otherwise. For the readers' header errors; ``what``:
+    the DESIGN.md section the file's format is in."""
     for sep, name in ((";", "';'"), ("\t", "tabs")):
         if line.count(sep) >= 2 and line.count(sep) > line.count(","):
-            return (f": it looks separated by {name}: save it comma separated (DESIGN.md "
-                    "recording format)")
+            return f": it looks separated by {name}: save it comma separated (DESIGN.md {what})"
     return ""

@@ -34,9 +34,14 @@ def effect_units() -> dict[str, dict[str, str]]:
     return {name: {p.name: p.unit for p in e.params} for name, e in EFFECTS.items()}
 
 
+def _label(name: str) -> str:
+    """A parameter's name as the text prints it (LABELS, else its key without the unit)."""
+    return LABELS.get(name, re.sub(r"_(mm|s|deg|mm_per_s)$", "", name).replace("_", " "))
+
+
 def quantity(name: str, value: float, std: float | None, unit: str) -> str:
     """One fitted parameter in the unit an engineer reads: heights in um, positions in mm."""
-    label = LABELS.get(name, re.sub(r"_(mm|s|deg|mm_per_s)$", "", name).replace("_", " "))
+    label = _label(name)
     if isinstance(value, (list, tuple)):  # fitted per round: each round's value in turn
         stds = std if isinstance(std, (list, tuple)) else [std] * len(value)
         return f"{label} per round " + ", ".join(
@@ -57,7 +62,7 @@ def quantity(name: str, value: float, std: float | None, unit: str) -> str:
 
 def _held(name: str, value: float, unit: str) -> str:
     """A parameter held at a value, not fitted: "rate held at 0 um/s" (no sign, no sd)."""
-    label = LABELS.get(name, re.sub(r"_(mm|s|deg|mm_per_s)$", "", name).replace("_", " "))
+    label = _label(name)
     said = quantity(name, value, None, unit).removeprefix(label).strip().removeprefix("+")
     return f"{label} held at {said}"
 

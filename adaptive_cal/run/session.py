@@ -22,6 +22,7 @@ from adaptive_cal.cell.consistency import no_admissible_point
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import read_recording, say
+from adaptive_cal.formats.times import last_time_s
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
 from adaptive_cal.hardware.base import (AdapterError, Interrupted, OperatorStop, ProbeLeftDown,
                                         StrokeOverrun)
@@ -66,13 +67,12 @@ def replay(plan: SurveyPlan, state: sv.SurveyState, rec
     the first place again nor loses what the closure found."""
     from adaptive_cal.report.replay import closure_of, last_closure
 
-    t = rec.t_s[np.isfinite(rec.t_s)]
     next_seq = int(rec.seq[-1]) + 1 if len(rec) else 0
     state = sv.replay(plan, state, rec)
     at = last_closure(rec.flags)
     if at:
         state = replace(state, closure=closure_of(plan, rec))
-    return (state, float(t[-1]) if len(t) else 0.0, next_seq, rec.t_s[rec.fused],
+    return (state, last_time_s(rec) or 0.0, next_seq, rec.t_s[rec.fused],
             at[0] if at else None)
 
 
