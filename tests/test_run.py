@@ -52,7 +52,7 @@ def test_cli_run_stops_at_the_bound_and_writes_everything(tmp_path, capsys):
     # the simulated plate: tilt a = 0.0140, b = 0.0019 (configs/sim-cell.yaml)
     assert r["tilt"]["a"] == pytest.approx(0.0140, abs=5e-5)
     assert r["tilt"]["b"] == pytest.approx(0.0019, abs=5e-5)
-    assert "stopped: mean_std_bound" in capsys.readouterr().out
+    assert "stopped: RMS std bound met (mean_std_bound)" in capsys.readouterr().out
 
 
 def test_no_reading_lands_outside_the_stroke_and_first_touches_wait_for_the_belief(tmp_path):
@@ -269,7 +269,7 @@ def test_a_frozen_readout_stops_the_run_with_its_name_and_the_repeats_not_fused(
     assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 1
     said = capsys.readouterr().out
     assert said.startswith("INCOMPLETE: stopped: the probe read the very same value")
-    assert "stopped: readout_frozen after 13 touches (10 fused)" in said
+    assert "stopped: readout frozen after 13 touches (10 fused)" in said
     rec = read_recording(out / "recording.csv")
     # the 8th reading and its first two repeats were fused (nothing was seen yet); the next
     # three are kept, flagged and not fused

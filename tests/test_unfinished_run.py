@@ -64,7 +64,7 @@ def test_terminal_summary_of_a_finished_run_is_unchanged(capsys):
                          for k in ("least_squares", "minimum_zone")}}
     _summary(r, "runs/x")
     text = capsys.readouterr().out
-    assert text.startswith("stopped: mean_std_bound after 30 touches (29 fused)\n")
+    assert text.startswith("stopped: RMS std bound met (mean_std_bound) after 30 touches (29 fused)\n")
     assert "INCOMPLETE" not in text and "provisional" not in text
     assert "tilt correction: rx +0.1000 deg, ry -0.8000 deg" in text
 
@@ -140,4 +140,4 @@ def test_a_spent_budget_is_continued_with_a_larger_one_as_the_advice_says(tmp_pa
     assert "--robot MORE.yaml, a copy of the run's cell.yaml" in capsys.readouterr().out
     assert main(["run", "--resume", str(run), "--robot", str(tmp_path / "more.yaml"),
                  "--no-progress"]) == 1
-    assert "stopped: touch_budget after 9 touches" in capsys.readouterr().out
+    assert "stopped: touch budget spent after 9 touches" in capsys.readouterr().out

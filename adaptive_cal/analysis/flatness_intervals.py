@@ -151,7 +151,14 @@ def tilt_with_std(x, y, z, noise_std_mm: float) -> dict:
     return {**tilt, "a_std": float(np.sqrt(cov[0, 0])), "b_std": float(np.sqrt(cov[1, 1])),
             "rx_std_deg": float(np.sqrt(angles[0, 0])), "ry_std_deg": float(np.sqrt(angles[1, 1])),
             "std_is": "1 sd of the touched points' plane over repeats at the same touches (the "
-                      "learned reading noise)"}
+                      "learned reading noise)", "plane_is": TOUCHED_PLANE_IS}
+
+
+#: a bare recording's tilt.plane_is (result.json's tilt says the same of the map)
+TOUCHED_PLANE_IS = ("least-squares plane z = a x + b y + c of the touched points as recorded, in "
+                    "the recording's frame: a and b slopes along x and y (mm/mm), c the height at "
+                    "x = y = 0 (mm); rx_deg, ry_deg the correction rotx(rx) roty(ry) (deg), "
+                    "a_std, b_std (mm/mm) and *_std_deg (deg) their 1 sd (std_is)")
 
 
 def touches_differ(first: Recording, second: Recording) -> dict | None:

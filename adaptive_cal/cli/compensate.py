@@ -167,7 +167,7 @@ def _grid(hmap, args) -> int:
             cells += [] if args.heights_only else [np.char.mod("%.6f", s)]
             f.write("".join(",".join(r) + "\n" for r in zip(*cells)))
     print(f"wrote {args.grid}: {len(xs) * len(ys)} nodes, frame {args.frame}, height "
-          f"{lo:+.4f} .. {hi:+.4f} mm, std at most {worst * 1e3:.1f} um"
+          f"{lo:+.4f} .. {hi:+.4f} mm, std at most {worst * 1e3:.2f} um"
           + (" (heights only: the height-map format)" if args.heights_only else ""))
     gap = _between_nodes(height, xs, ys)
     print(f"read bilinearly between its nodes (DESIGN.md), the grid departs from the map by up "

@@ -76,12 +76,23 @@ def percent(share: float) -> str:
 
 #: stop reasons in words where they differ from the name with spaces (the names are result.json's
 #: stable interface; "mean_std_bound" is the bound on the RMS std over the plate)
-REASON_WORDS = {"mean_std_bound": "RMS std bound"}
+REASON_WORDS = {"mean_std_bound": "RMS std bound", "max_std_bound": "max std bound",
+                "gap_bound": "largest-gap bound", "at_least": "touch floor"}
+#: what happened, for the summary's "stopped:" line (a bound is met, a budget spent)
+REASON_DONE = {"mean_std_bound": "met", "max_std_bound": "met", "gap_bound": "met",
+               "touch_budget": "spent", "at_least": "reached"}
 
 
 def reason_text(why: str) -> str:
     """A stop reason in words: "RMS std bound", "touch budget", ..."""
     return REASON_WORDS.get(why, why.replace("_", " "))
+
+
+def stopped_text(why: str) -> str:
+    """The run summary's reason: the words, what happened, then result.json's name where it
+    differs from the words -- "RMS std bound met (mean_std_bound)", "touch budget spent"."""
+    words = " ".join(filter(None, (reason_text(why), REASON_DONE.get(why))))
+    return words if why.replace("_", " ") == reason_text(why) else f"{words} ({why})"
 
 
 def cell_section(cell: Cell, result: dict) -> str:
