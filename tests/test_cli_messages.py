@@ -249,7 +249,7 @@ def test_a_check_across_a_block_is_not_echoed_whole(tmp_path, capsys):
     (tmp_path / "cell.yaml").write_text(text, encoding="utf-8")
     assert main(["run", "--robot", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert ("  probe: noise_range_mm must be [low, high] with low < high, got [0.004, 0.001]\n"
+    assert ("  probe.noise_range_mm: must be [low, high] with low < high, got [0.004, 0.001] mm\n"
             in err), err
     assert "(got {" not in err and "'adapter'" not in err
 

@@ -162,7 +162,7 @@ def test_a_yes_no_is_no_number_but_yaml_exponents_without_a_dot_are():
 
     assert yaml.safe_load("v: 4e-3")["v"] == "4e-3"  # the YAML quirk itself
     for value in (True, False):
-        with pytest.raises(ConfigError, match=r"plan\.stop: max_touches: a yes/no, not a "
+        with pytest.raises(ConfigError, match=r"plan\.stop\.max_touches: a yes/no, not a "
                                               r"number \(YAML reads yes, no, on, off, true and "
                                               r"false as one: here (True|False)\)"):
             sim_cell(plan={"stop": {"max_touches": value}})

@@ -56,10 +56,16 @@ def _format(err: ValidationError, source: str) -> str:
             msg = "unknown key (check the spelling; unknown keys are refused)"
         if (isinstance(e.get("input"), dict) or ", got " in msg) and e["type"] != "missing":
             # a check across a block's keys names them and the values in its message; an
-            # echo of the whole block says nothing more ("probe: noise_range_mm must be [low,
-            # high] with low < high, got [0.004, 0.001]", not "... (got {'adapter': ..."), nor
-            # one of a value the message already gives ("..., got [0.02, 0.005]")
-            lines.append(f"  {key}: {msg.removeprefix(key.rsplit('.', 1)[-1] + ' ')}")
+            # echo of the whole block says nothing more ("probe.noise_range_mm: must be [low,
+            # high] with low < high, got [0.004, 0.001] mm", not "... (got {'adapter': ..."),
+            # nor one of a value the message already gives ("..., got [0.02, 0.005] mm"); a
+            # message that opens with one of the block's keys is that key's ("probe: ..." was
+            # printed, an outside audit: every other refusal names the whole key)
+            first = re.match(r"([a-z_]\w*)(?==| must|: )", msg)  # not "transport 'tcp' needs host"
+            if first and isinstance(e.get("input"), dict) and first.group(1) in e["input"]:
+                key = f"{key}.{first.group(1)}" if e["loc"] else first.group(1)
+            field = key.rsplit(".", 1)[-1]
+            lines.append(f"  {key}: {msg.removeprefix(field + ' ').removeprefix(field + ': ')}")
             continue
         lines.append(f"  {key}: {msg} (got {echo(e.get('input'))})" if e["type"] != "missing"
                      else f"  {key}: missing")

@@ -16,7 +16,7 @@ REACH_MM = 1e5  # no coordinate of a cell lies farther than 100 m from the workp
 def _interval(v: Interval, what: str) -> Interval:
     lo, hi = v
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
-        raise ValueError(f"{what} must be [low, high] with low < high, got [{lo}, {hi}]")
+        raise ValueError(f"{what} must be [low, high] with low < high, got [{lo}, {hi}] mm")
     if max(abs(lo), abs(hi)) > REACH_MM:
         raise ValueError(f"{what}=[{lo}, {hi}] mm lies beyond +-{REACH_MM:.0f} mm (100 m): "
                          "not a robot cell")
@@ -70,8 +70,8 @@ class Workplane(Block):
     def _usable(self):
         m = self.edge_margin_mm
         if 2 * m >= self.x_mm[1] - self.x_mm[0] or 2 * m >= self.y_mm[1] - self.y_mm[0]:
-            raise ValueError(f"edge_margin_mm={m} leaves no plate to touch inside "
-                             f"x_mm={list(self.x_mm)}, y_mm={list(self.y_mm)}")
+            raise ValueError(f"edge_margin_mm={m} mm leaves no plate to touch inside "
+                             f"x_mm={list(self.x_mm)}, y_mm={list(self.y_mm)} mm")
         inner = Rect(x_mm=(self.x_mm[0] + m, self.x_mm[1] - m),
                      y_mm=(self.y_mm[0] + m, self.y_mm[1] - m))
         for i, k in enumerate(self.keep_outs):
