@@ -44,7 +44,9 @@ def command(args) -> int:
                             "--dry-run out to run it)")
         from adaptive_cal.cli.dry_run import dry_run
 
-        return dry_run(_doubted(load_cell(args.robot)))
+        cell = _doubted(load_cell(args.robot))
+        _warn_unreachable(cell)
+        return dry_run(cell)
     if args.resume:
         if args.out:  # a resumed run goes on in its own folder
             raise UserError(f"--resume {args.resume} goes on in that folder: leave --out out")
@@ -80,6 +82,8 @@ def command(args) -> int:
             print("nothing moved", file=sys.stderr)
             return 1
     created = None  # (folders this run made, names --out held before)
+    if not args.resume and not args.prior_from:
+        _warn_unreachable(cell)
     if not args.resume:
         if (out / "recording.csv").exists() and (out / "recording.csv").stat().st_size:
             raise UserError(f"{out}/recording.csv exists: continue it with --resume {out}, or "
@@ -250,6 +254,15 @@ def _has_touches(rec: Path) -> bool:
     with rec.open(encoding="utf-8", errors="replace") as f:
         rows = [line for line in f if line.strip() and not line.startswith("#")]
     return len(rows) > 1  # the header, then one row per touch
+
+
+def _warn_unreachable(cell) -> None:
+    """Say before anything moves where the bound is out of the budget's reach."""
+    from adaptive_cal.cli.run_guards import unreachable_bound
+
+    said = unreachable_bound(cell)
+    if said:
+        print(said, file=sys.stderr)
 
 
 def _summary(r: dict, out: Path, cell=None) -> None:

@@ -168,3 +168,41 @@ def shift_note(run_dir: Path, cell, correction) -> str | None:
             "until the readings tell the frames apart, each touch is approached in steps from "
             "above where the plate would stand in the other frame (none applied, or the "
             "proposed one), and travels clear it")
+
+
+def unreachable_bound(cell) -> str | None:
+    """A warning where the cell's RMS std bound (``plan.stop.mean_std_mm``) lies below what its
+    touch budget can reach: the relaxed optimal design of ``plan.stop.max_touches`` touches at
+    the least noise the cell allows (``probe.noise_range_mm``'s low end, else
+    ``probe.noise_std_mm``) has a larger RMS posterior std, so no design meets the bound and the
+    run spends its whole budget (an outside audit: a 0.2 um bound with a 3-8 um probe ran 150
+    touches, 8 min of robot time, to end INCOMPLETE at 1.4 um). None where it is reachable.
+    The design is solved only where the bound is below sigma sqrt(K / n) (K spline
+    coefficients, n touches): above that the G-optimal design's largest variance, K sigma^2 / n
+    (Kiefer-Wolfowitz), already meets it, and so does the RMS of the best design."""
+    import math
+
+    from adaptive_cal.cell.build import prior_model
+    from adaptive_cal.gaussian.belief import rms_std_from_integrated_variance
+    from adaptive_cal.study.bound import design_problem, relaxed_integrated_variance
+
+    stop, probe = cell.plan.stop, cell.probe
+    bound, n = stop.mean_std_mm, stop.max_touches
+    sigma = probe.noise_range_mm[0] if probe.noise_range_mm else probe.noise_std_mm
+    if bound is None or not sigma or sigma <= 0:
+        return None
+    model = prior_model(cell)
+    if bound >= sigma * math.sqrt(model.surface.size / n):
+        return None
+    prob = design_problem(cell, model, model.hyper0._replace(noise_std_mm=sigma), candidates=400)
+    floor = float(rms_std_from_integrated_variance(
+        relaxed_integrated_variance(prob, n, iterations=60), prob.area_mm2))
+    if bound >= floor:
+        return None
+    said = ("probe.noise_range_mm's low end" if probe.noise_range_mm else "probe.noise_std_mm")
+    return (f"warning: plan.stop.mean_std_mm={bound:g} mm is out of reach of "
+            f"plan.stop.max_touches={n}: with reading noise of {sigma * 1e3:g} um ({said}) no "
+            f"design of {n} touches brings the RMS posterior std below {floor * 1e3:.2f} um "
+            f"(relaxed optimal design), so the run will spend its whole budget (at least "
+            f"{n * cell.robot.touch_time_s / 60:.0f} min of touching) and end incomplete; "
+            "raise the bound or the budget")
