@@ -12,7 +12,7 @@ from adaptive_cal.formats.numbers import fixed
 
 LATERAL = {"x_mm", "y_mm", "radius_mm"}  # positions and sizes on the plate stay in mm
 LABELS = {"pv_mm": "peak-to-valley over the workplane", "bow_x": "bow in x",
-          "bow_y": "bow in y"}
+          "bow_y": "bow in y", "sag_mm_at_1m": "sag at 1 m reach"}
 
 
 def _pm(value: float, std: float | None, sign: str = "", alone: int = 3) -> str:
