@@ -308,7 +308,9 @@ def value_text(f: dict) -> str:
         return "n/a"
     lo, hi = f.get("ci95", [None, None])
     ci = f" (95 % {lo * 1e3:.1f} .. {hi * 1e3:.1f} um)" if lo is not None else ""
-    return f"{f['value'] * 1e3:.1f} um{star}{ci}"
+    # a figure of millimetres read in um ("7009.8 um") is said in mm too (an outside audit)
+    mm = f" = {f['value']:.2f} mm" if abs(f["value"]) >= 1.0 else ""
+    return f"{f['value'] * 1e3:.1f} um{mm}{star}{ci}"
 
 
 def answer_line(what: str, figures: dict) -> str:
