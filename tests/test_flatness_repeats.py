@@ -130,3 +130,20 @@ def test_the_touched_points_tilt_sd_is_the_spread_of_repeats_monte_carlo():
         spread = np.std([d[key] for d in draws])
         sd = t[key.replace("_deg", "") + ("_std_deg" if key.endswith("_deg") else "_std")]
         assert abs(sd / spread - 1) < 0.05, (key, sd, spread)
+
+
+def test_a_bare_recordings_json_tilt_says_what_its_plane_is(capsys):
+    """flatness --json on a recording: the touched points' tilt says what a, b, c and the angles
+    are, with units (result.json's tilt does; an outside audit found this one without)."""
+    import json
+
+    from adaptive_cal.cli import main
+
+    from pathlib import Path
+
+    rec = (Path(__file__).resolve().parents[1] / "adaptive_cal" / "data" / "cheng2025"
+           / "round0_initial.csv")
+    assert main(["flatness", str(rec), "--json", "--samples", "8"]) == 0
+    tilt = json.loads(capsys.readouterr().out)["tilt"]
+    assert "touched points" in tilt["plane_is"] and "(mm/mm)" in tilt["plane_is"]
+    assert {"a", "b", "c", "rx_deg", "ry_deg", "a_std", "rx_std_deg"} <= set(tilt)
