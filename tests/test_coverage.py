@@ -1,10 +1,10 @@
 """Honest uncertainty: over 20 random plates (tilt up to +-1 deg, form 0.02-0.3 mm of random
 shape, reading noise 4-12 um) each run stops at the bound, and the share of the plate inside
 the 95 % band, averaged over the plates, lies in [0.90, 0.99]. Seeds are fixed: the figure is
-reproducible (measured 0.964, 69.4 touches on average on 2026-11-29 -- 0.963 and 59.6 before
-runs whose learned noise is 1.5 x the 5 um guess took repeat touches, planning.repeats; single
-plates range 0.88-1.0 on 2026-11-30, 0.78-1.0 before, because map errors are spatially
-correlated)."""
+reproducible (measured 0.966, 69.5 touches on average on 2026-11-30 with the refit near the
+bound, 0.964 and 69.4 before it -- 0.963 and 59.6 before runs whose learned noise is 1.5 x the
+5 um guess took repeat touches, planning.repeats; single plates range 0.89-1.0 on 2026-11-30,
+0.78-1.0 before, because map errors are spatially correlated)."""
 import numpy as np
 import pytest
 

@@ -42,7 +42,7 @@ from adaptive_cal.planning.robust import (W_MIN, InvalidReading, check_touch, se
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.gap import largest_gap
 from adaptive_cal.planning import repeats
-from adaptive_cal.planning.stopping import Status
+from adaptive_cal.planning.stopping import Status, near
 
 
 @dataclass(frozen=True, eq=False)
@@ -212,8 +212,8 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
     state = batch_posterior(plan, state) if w is not None else replace(state, belief=bl.fuse(
         state.belief, h, told.height_mm, state.noise_var / told.weight)[0])
     # a stop rests on checks of every fused reading, not on the last refit's (a bump a retake
-    # confirmed between two refits read 1.1 um RMS std there, 11 um refitted)
-    return refit(plan, state) if learning and plan.stop(status(plan, state)) else state
+    # confirmed between two refits read 1.1 um RMS std there, 11 um refitted); near a bound too
+    return refit(plan, state) if learning and near(plan.stop, status(plan, state)) else state
 
 
 def batch_posterior(plan: SurveyPlan, state: SurveyState) -> SurveyState:
