@@ -120,11 +120,29 @@ def suspect_probability(models, y, weights, floor_mm: float):
 
     ``models``: (D, penalty) per model; ``weights``: their posterior probabilities. Each pass
     refits every model without the readings the last pass judged suspect, so a gross error
-    neither inflates the noise nor tilts the fit the others are judged against.
+    neither inflates the noise nor tilts the fit the others are judged against. Started with
+    every reading good, and again from a robust fit's outliers where it has any
+    (``masking``: two gross errors hid each other); the start of larger joint posterior wins.
     """
+    from adaptive_cal.analysis.explain import masking
+
     w = np.asarray(weights, float)
     logw = np.log(np.maximum(w / w.sum(), 1e-300))[:, None]
-    suspect = np.zeros(y.size, bool)
+    p, loo = _judged(models, y, logw, floor_mm, np.zeros(y.size, bool))
+    most = int(np.ceil(MAX_SUSPECT_SHARE * y.size))
+    start = masking.robust_start(models[0][0], y, floor_mm, most)
+    if np.any(start & (p < SUSPECT)):  # the robust fit sees a gross error the screen did not
+        p2, loo2 = _judged(models, y, logw, floor_mm, start)
+        joint = [masking.log_joint(models, y, logw, s, floor_mm, RATE, _gross_logpdf, SCALE)
+                 for s in (p >= SUSPECT, p2 >= SUSPECT)]
+        if joint[1] > joint[0]:
+            p, loo = p2, loo2
+    return p, loo[int(np.argmax(w))]
+
+
+def _judged(models, y, logw, floor_mm: float, suspect: np.ndarray):
+    """The passes of ``suspect_probability`` from the suspects ``suspect``: P(gross error) per
+    reading and each model's leave-one-out residuals, of the last pass."""
     for _ in range(ITERATIONS):
         logb, loos = [], []
         for D, pen in models:
@@ -140,7 +158,7 @@ def suspect_probability(models, y, weights, floor_mm: float):
         if np.array_equal(new, suspect) or np.count_nonzero(~new) <= models[0][0].shape[1] + 1:
             break
         suspect = new
-    return p, loos[int(np.argmax(w))]
+    return p, loos
 
 
 def model_terms(nuisance: np.ndarray, candidates) -> list[tuple[np.ndarray, np.ndarray]]:
