@@ -348,7 +348,7 @@ def test_a_recheck_on_a_plate_it_misplaces_by_millimetres_approaches_from_above(
     with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(out):
         rc = main(["run", "--robot", str(cell_file), "--out", str(tmp_path / "said"),
                    "--prior-from", str(first), "--no-progress"])
-    assert rc == 1 and "prior_disagrees_with_readings" in out.getvalue()
+    assert rc == 1 and "stopped: prior disagrees with readings" in out.getvalue()
     assert out.getvalue().splitlines()[1].startswith(
         "the correction moves the earlier plate by up to "), out.getvalue()
 

@@ -225,7 +225,7 @@ def test_a_correction_assumed_but_not_applied_never_overruns_far_from_the_origin
         rc = main(["run", "--robot", str(_far_cell(tmp_path, 2)), "--out", str(tmp_path / "re"),
                    "--prior-from", str(tmp_path / "first"), "--no-progress"])
     lines = out.getvalue().splitlines()
-    assert rc == 1 and "prior_disagrees_with_readings" in out.getvalue(), out.getvalue()
+    assert rc == 1 and "stopped: prior disagrees with readings" in out.getvalue(), out.getvalue()
     said = re.match(r"the correction moves the earlier plate by up to ([0-9.]+) mm", lines[1])
     assert said and float(said.group(1)) > 18.0, lines[:3]  # 2 deg at 525 mm and more
     surface = sims[0].surface_mm

@@ -221,7 +221,7 @@ def test_entry_falls_back_to_the_posterior_median_outside_the_interval():
     below = entry(0.5, samples, "figure")
     assert below["value"] == pytest.approx(1.5) and below["value_is"] == MEDIAN
     lines = answer_lines({"flatness_mm": {"least_squares": below, "minimum_zone": inside}})
-    assert "least squares 1500.0 um* (95 % 1025.0 .. 1975.0 um)" in lines[0]
+    assert "least squares 1500.0 um* = 1.50 mm (95 % 1025.0 .. 1975.0 um)" in lines[0]
     assert any(line.startswith("* posterior median") for line in lines)
 
 

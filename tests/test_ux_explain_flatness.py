@@ -131,5 +131,6 @@ def test_bare_recording_spread_and_average_range_in_um(cheng_round0, capsys):
     assert main(["flatness", str(cheng_round0), "--samples", "40"]) == 0
     out = capsys.readouterr().out
     spread = next(line for line in out.splitlines() if "height spread" in line)
-    assert spread.endswith(" um)") and "6431.1 um (95 % " in spread and " mm" not in spread
+    # um, as every flatness figure, and a figure of millimetres in mm beside it
+    assert spread.endswith(" um)") and "6431.1 um = 6.43 mm (95 % " in spread
     assert "average range (Cheng Table 8, tilt included) along x 5661.6 um, along y 687.6 um" in out

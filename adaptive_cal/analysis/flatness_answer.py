@@ -17,10 +17,8 @@ report, with the same words and numbers in all three:
   where the widest untouched disc is;
 - within reach of the touches (where the workplane has an edge margin no touch enters): the
   same figures and coefficient draws on a grid spanning the reachable box (``analysis.reach``).
-  Beyond
-  it the map is an extrapolation no reading tested: on plates whose edges roll off, the whole
-  plate's minimum-zone interval held the truth on 12 of 20, within reach on 18
-  (docs/flatness.md).
+  Beyond it the map is an extrapolation no reading tested: on plates whose edges roll off, the
+  whole plate's minimum-zone interval held the truth on 12 of 20, within reach on 18.
 
 Both figures remove the tilt (the least-squares or minimum-zone plane); the raw height spread
 (max - min, tilt included) is kept as ``range`` and labelled as such, never called flatness.
@@ -302,15 +300,15 @@ def _in_box(xy, box) -> np.ndarray:
 
 # -- the words, shared by the terminal (run, flatness) and the report ---------------------------
 def value_text(f: dict) -> str:
-    """e.g. "276.4 um (95 % 268.6 .. 293.6 um)"; a posterior median is marked with "*"."""
+    """e.g. "276.4 um (95 % 268.6 .. 293.6 um)", "7009.8 um = 7.01 mm (...)"; a posterior
+    median is marked with "*"."""
     star = {MEDIAN: "*", OUTSIDE: OUTSIDE_MARK}.get(f.get("value_is"), "")
     if f.get("value") is None:
         return "n/a"
     lo, hi = f.get("ci95", [None, None])
     ci = f" (95 % {lo * 1e3:.1f} .. {hi * 1e3:.1f} um)" if lo is not None else ""
-    # a figure of millimetres read in um ("7009.8 um") is said in mm too (an outside audit)
-    mm = f" = {f['value']:.2f} mm" if abs(f["value"]) >= 1.0 else ""
-    return f"{f['value'] * 1e3:.1f} um{mm}{star}{ci}"
+    mm = f" = {f['value']:.2f} mm" if abs(f["value"]) >= 1.0 else ""  # not 7009.8 um alone
+    return f"{f['value'] * 1e3:.1f} um{star}{mm}{ci}"
 
 
 def answer_line(what: str, figures: dict) -> str:
