@@ -1,7 +1,7 @@
 """A learning survey refits before its schedule once its stds come near a bound
-(``stopping.near``): stale hyper-parameters, learned from fewer readings, held the stds up and a
-run on with them (a dent plate of benchmarks/plates read 4.51 um against its 4 um bound where a
-refit of the same readings read 3.80 um, and made two touches more)."""
+(``stopping.near``): stale hyper-parameters, learned from fewer readings, held the stds up and
+a run went on with them (a dent plate of benchmarks/plates read 4.51 um against its 4 um bound
+where a refit of the same readings read 3.80 um, and made two touches more)."""
 from dataclasses import replace
 
 from adaptive_cal.cell.build import survey_plan
