@@ -13,6 +13,7 @@ covariance S = H C0 H^T + r I; never Monte Carlo).
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -103,8 +104,13 @@ class Projection(NamedTuple):
     mean: float
 
 
+@lru_cache(maxsize=4)
+def _gauss_legendre(nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.polynomial.legendre.leggauss(nodes)
+
+
 def _axis_projection(spline, t, length_mm: float, nodes: int = 12) -> Projection:
-    g_nodes, g_weights = np.polynomial.legendre.leggauss(nodes)
+    g_nodes, g_weights = _gauss_legendre(nodes)
     lo, hi = spline.knots[:-1, None], spline.knots[1:, None]
     q = (0.5 * (hi - lo) * g_nodes + 0.5 * (hi + lo)).ravel()
     w = (0.5 * (hi - lo) * g_weights).ravel()
@@ -113,13 +119,15 @@ def _axis_projection(spline, t, length_mm: float, nodes: int = 12) -> Projection
     kqq = np.exp(-0.5 * ((q[:, None] - q[None, :]) / length_mm) ** 2)
     mw = m * w[:, None]
     big_b = mw.T @ kqq @ mw  # integral integral m(s) k(s, u) m(u)^T
-    t = np.asarray(t, float)
+    # a grid's points share few coordinates along an axis (41 of 1,681 on the plate's grid)
+    t, back = np.unique(np.asarray(t, float).ravel(), return_inverse=True)
     b_t = mw.T @ np.exp(-0.5 * ((q[:, None] - t[None, :]) / length_mm) ** 2)  # (K, nt)
     m_t = spline.basis(t)  # (nt, K)
     g_inv_m = np.linalg.solve(gram, m_t.T)  # (K, nt)
     a = np.einsum("kn,kn->n", g_inv_m, b_t)
     c = np.einsum("kn,kn->n", g_inv_m, big_b @ g_inv_m)
-    return Projection(a, c, float(np.trace(np.linalg.solve(gram, big_b)) / spline.period))
+    return Projection(a[back], c[back],
+                      float(np.trace(np.linalg.solve(gram, big_b)) / spline.period))
 
 
 def unresolved_form_var(surface, form_std_mm: float, length_scale_mm: float, x_mm, y_mm

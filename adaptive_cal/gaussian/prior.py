@@ -252,7 +252,7 @@ def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     args = padded + _model_args(model, extra) + (_padded_weights(padded[2].shape[0], weights),)
 
     def fun(x):
-        v, g = _value_and_grad(jnp.asarray(x), *args)
+        v, g = _value_and_grad(np.asarray(x, np.float64), *args)  # numpy: jit's fast path
         return float(v), np.asarray(g, float)
 
     h0 = model.hyper0

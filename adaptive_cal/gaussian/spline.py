@@ -130,13 +130,19 @@ class Spline1D:
 
     def gram(self) -> np.ndarray:
         """Q = integral over [t_1, t_n] of m(t) m(t)^T dt, exact (4-point Gauss-Legendre per
-        interval integrates the degree-6 integrand exactly)."""
-        nodes, weights = np.polynomial.legendre.leggauss(4)
-        lo, hi = self.knots[:-1, None], self.knots[1:, None]
-        t = 0.5 * (hi - lo) * nodes + 0.5 * (hi + lo)  # (n-1, 4)
-        w = 0.5 * (hi - lo) * weights
-        m = self.basis(t.ravel()).reshape(-1, self.size)
-        return (m * w.ravel()[:, None]).T @ m
+        interval integrates the degree-6 integrand exactly). Computed once per spline (its
+        knots never change) and returned read-only."""
+        q = self.__dict__.get("_gram")
+        if q is None:
+            nodes, weights = np.polynomial.legendre.leggauss(4)
+            lo, hi = self.knots[:-1, None], self.knots[1:, None]
+            t = 0.5 * (hi - lo) * nodes + 0.5 * (hi + lo)  # (n-1, 4)
+            w = 0.5 * (hi - lo) * weights
+            m = self.basis(t.ravel()).reshape(-1, self.size)
+            q = (m * w.ravel()[:, None]).T @ m
+            q.setflags(write=False)
+            self.__dict__["_gram"] = q  # frozen dataclass: set past __setattr__
+        return q
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: identity equality and hash

@@ -130,7 +130,7 @@ def refine(surface: Surface, start_xy: np.ndarray, cov, gram, noise_var, bounds,
     cov_j, gram_j = jnp.asarray(cov), jnp.asarray(gram)
 
     def fun(p):
-        v, g = f(jnp.asarray(p), cov_j, gram_j, noise_var)
+        v, g = f(np.asarray(p, np.float64), cov_j, gram_j, noise_var)
         return -float(v), -np.asarray(g, float)
 
     start_val = -fun(start_xy)[0]
