@@ -169,6 +169,7 @@ def test_a_warm_up_during_the_run_ends_it_with_drift_and_wide_bands(tmp_path):
     assert "closure" in rows[-1].flags
 
 
+@pytest.mark.slow
 def test_runs_on_a_cell_that_does_not_drift_rarely_say_drift():
     """Monte Carlo over whole runs (the noise relearned with the closure's drift taken out is
     what the test uses): 30 seeds of the simulated cell without drift, at most 2 false alarms
@@ -197,6 +198,7 @@ def test_no_closure_when_turned_off_or_the_budget_is_spent(tmp_path):
     assert [r.seq for r in rows if "closure" in r.flags] == [29] and state.closure.passed
 
 
+@pytest.mark.slow
 def test_the_run_says_drift_in_result_json_the_summary_and_its_exit_status(tmp_path, capsys,
                                                                            monkeypatch):
     import json

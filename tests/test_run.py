@@ -102,6 +102,7 @@ def test_interrupted_run_resumes_without_repeating_or_losing_a_touch(tmp_path):
         session.run(cell, out, progress=False)
 
 
+@pytest.mark.slow
 def test_ctrl_c_leaves_a_recording_that_resume_continues(tmp_path):
     cell_file = tmp_path / "cell.yaml"
     data = load_yaml(SIM_CELL)

@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from adaptive_cal.formats.npz import read_npz, unresolved_at
 from adaptive_cal.gaussian import belief as bl
@@ -23,6 +24,7 @@ def test_unresolved_grid_is_interpolated_bilinearly_and_absent_is_zero():
     assert np.array_equal(unresolved_at({}, x, y), np.zeros(4))
 
 
+@pytest.mark.slow
 def test_a_run_folder_map_carries_the_saved_unresolved_variance(tmp_path):
     out = tmp_path / "run"
     subprocess.run([sys.executable, "-m", "adaptive_cal.cli", "run", "--robot", str(SIM_CELL),

@@ -32,6 +32,7 @@ def _strip(records):
     return sorted(((r["plate"], r["strategy"]), {k: v for k, v in r.items()}) for r in records)
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_equals_in_process(tmp_path):
     study, base = _small()
     calls = []
