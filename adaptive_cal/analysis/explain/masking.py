@@ -45,6 +45,21 @@ def robust_start(D: np.ndarray, y: np.ndarray, floor_mm: float, most: int) -> np
     return out
 
 
+def penalised_fit(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, keep: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The penalised least-squares fit y ~ D coef on the rows ``keep`` (``penalty``: k x k, zero
+    rows for the flat-prior nuisance): (residual e of every reading, q_i = d_i^T A^-1 d_i of
+    every row), A = D_k^T D_k + penalty, symmetrised, with a ridge of 1e-12 of its mean
+    diagonal. Shared by ``suspects.predictive`` and ``log_joint``."""
+    Dk = D[keep]
+    A = Dk.T @ Dk + penalty
+    A = 0.5 * (A + A.T) + 1e-12 * np.trace(A) / A.shape[0] * np.eye(A.shape[0])
+    L = np.linalg.cholesky(A)
+    W = np.linalg.solve(L, D.T)
+    e = y - D @ np.linalg.solve(L.T, np.linalg.solve(L, Dk.T @ y[keep]))
+    return e, np.einsum("ij,ij->j", W, W)
+
+
 def log_joint(models, y: np.ndarray, logw: np.ndarray, suspect: np.ndarray, floor_mm: float,
               rate: float, gross_logpdf, scale: float) -> float:
     """log p(y, these suspects) averaged over the models (weights exp(``logw``)): per model the
@@ -59,18 +74,12 @@ def log_joint(models, y: np.ndarray, logw: np.ndarray, suspect: np.ndarray, floo
     for D, pen in models:
         if n_k <= D.shape[1] + 1:
             return -np.inf
-        Dk = D[keep]
-        A = Dk.T @ Dk + pen
-        A = 0.5 * (A + A.T) + 1e-12 * np.trace(A) / A.shape[0] * np.eye(A.shape[0])
-        coef = np.linalg.solve(A, Dk.T @ y[keep])
-        e = y - D @ coef
+        e, q = penalised_fit(D, y, pen, keep)
         rss = float(np.sum(e[keep] ** 2))
         v = max(rss / n_k, floor_mm ** 2, 1e-30)
         ll = -0.5 * (n_k * np.log(2.0 * np.pi * v) + rss / v) + n_k * np.log1p(-rate)
         if suspect.any():
-            Ds = D[suspect]
-            q = np.einsum("ij,ij->i", Ds, np.linalg.solve(A, Ds.T).T)
             ll += float(np.sum(np.log(rate) + gross_logpdf(
-                e[suspect], np.sqrt((1.0 + q) * v + scale ** 2 * v))))
+                e[suspect], np.sqrt((1.0 + q[suspect]) * v + scale ** 2 * v))))
         out.append(ll)
     return float(special.logsumexp(np.asarray(out) + np.ravel(logw)))

@@ -39,6 +39,7 @@ from dataclasses import replace
 import numpy as np
 from scipy import special
 
+from adaptive_cal.analysis.explain import masking
 from adaptive_cal.analysis.explain.candidates import Candidate, Context, score_candidates
 from adaptive_cal.analysis.explain.design import MIN_ROWS_PER_ROUND, Design
 from adaptive_cal.analysis.explain.evidence import prior_precision
@@ -78,13 +79,7 @@ def predictive(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, keep: np.ndarr
     1 + q_i. Returns (residual, variance factor, noise variance of the other kept readings,
     their degrees of freedom).
     """
-    Dk = D[keep]
-    A = Dk.T @ Dk + penalty
-    A = 0.5 * (A + A.T) + 1e-12 * np.trace(A) / A.shape[0] * np.eye(A.shape[0])
-    L = np.linalg.cholesky(A)
-    W = np.linalg.solve(L, D.T)
-    q = np.einsum("ij,ij->j", W, W)
-    e = y - D @ np.linalg.solve(L.T, np.linalg.solve(L, Dk.T @ y[keep]))
+    e, q = masking.penalised_fit(D, y, penalty, keep)
     q_in = np.clip(q, 0.0, 1.0 - 1e-9)
     loo = np.where(keep, e / (1.0 - q_in), e)
     factor = np.where(keep, 1.0 / (1.0 - q_in), 1.0 + q)
@@ -124,8 +119,6 @@ def suspect_probability(models, y, weights, floor_mm: float):
     every reading good, and again from a robust fit's outliers where it has any
     (``masking``: two gross errors hid each other); the start of larger joint posterior wins.
     """
-    from adaptive_cal.analysis.explain import masking
-
     w = np.asarray(weights, float)
     logw = np.log(np.maximum(w / w.sum(), 1e-300))[:, None]
     p, loo = _judged(models, y, logw, floor_mm, np.zeros(y.size, bool))
