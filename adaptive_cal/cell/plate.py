@@ -123,6 +123,16 @@ class Workplane(Block):
                   and self.y_mm[0] + m <= y <= self.y_mm[1] - m)
         return inside and not self.kept_out(x, y)
 
+    def allowed(self, x, y) -> np.ndarray:
+        """``allows`` of many points at once: a boolean array of the shape of x and y."""
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        m = self.edge_margin_mm
+        ok = ((self.x_mm[0] + m <= x) & (x <= self.x_mm[1] - m)
+              & (self.y_mm[0] + m <= y) & (y <= self.y_mm[1] - m))
+        for k in self.keep_outs:
+            ok &= ~((k.x_mm[0] <= x) & (x <= k.x_mm[1]) & (k.y_mm[0] <= y) & (y <= k.y_mm[1]))
+        return ok
+
     def kept_out(self, x: float, y: float) -> bool:
         """True if (x, y) lies inside a keep-out (the edge margin aside: a clamp at the edge
         lies in it)."""

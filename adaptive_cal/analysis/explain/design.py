@@ -43,10 +43,10 @@ class Design:
     readout_mm: float = 0.0  # the probe's readout step (probe.resolution_mm)
     # how the times of rows with t_s blank were taken (``time_note``), "" where none is blank
     time_blank: str = ""
-    # the cell's rule for a point a run may touch (workplane.allows: inside the edge margin,
-    # outside every keep-out), the one the planner's candidate grid is built with; None: any
-    # point of the workplane
-    allows: Callable[[float, float], bool] | None = None
+    # the cell's rule for the points a run may touch, as arrays x, y -> bool array
+    # (workplane.allowed: inside the edge margin, outside every keep-out), the one the planner's
+    # candidate grid is built with; None: any point of the workplane
+    allows: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
 
     @property
     def n(self) -> int:
@@ -262,7 +262,7 @@ def build_design(recordings: list[Recording], cell: Cell) -> Design:
                   tuple(r.path or f"recording {i}" for i, r in enumerate(recordings)),
                   stated_noise_mm(cell), stated_noise_mm(cell, high=True),
                   float(cell.probe.resolution_mm), time_note(blank_rows, none_known),
-                  cell.workplane.allows)
+                  cell.workplane.allowed)
 
 
 def time_note(blank_rows: list[int], none_known: list[bool]) -> str:

@@ -210,7 +210,7 @@ def _gap_touches(ctx: Context, count: int = 4) -> dict:
     dist = nearest_distance(gx, gy, d.features.x_mm, d.features.y_mm)
     fill0 = float(dist.max())  # over the whole workplane: where a defect may sit
     if d.allows is not None:
-        ok = np.fromiter((d.allows(float(x), float(y)) for x, y in zip(gx, gy)), bool, gx.size)
+        ok = d.allows(gx, gy)
         gx, gy, dist = gx[ok], gy[ok], dist[ok]
     n0 = int((d.round_index == d.rounds - 1).sum())
     (a, b, c), indication = _approach_plane(d)
