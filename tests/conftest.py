@@ -3,6 +3,24 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: see adaptive_cal/cli.py
 
+
+def _shared_jax_cache() -> None:
+    """One JAX compilation cache for this run's workers and the commands the tests start in
+    subprocesses (``adaptive_cal/cli/jax_cache.py``), in a folder of this user's under the
+    temporary directory: each compiles the same programs otherwise. Set before JAX loads."""
+    import tempfile
+
+    from adaptive_cal.cli import jax_cache
+
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    # a JAX_COMPILATION_CACHE_DIR or ADAPTIVE_CAL_JAX_CACHE (off included) of the caller wins
+    os.environ.setdefault("ADAPTIVE_CAL_JAX_CACHE", os.path.join(
+        tempfile.gettempdir(), f"adaptive-cal-tests-jax-{uid}"))
+    jax_cache.enable()
+
+
+_shared_jax_cache()
+
 from pathlib import Path  # noqa: E402
 
 import matplotlib  # noqa: E402

@@ -140,8 +140,12 @@ def _main(argv: list[str] | None) -> int:
     from adaptive_cal.cell.schema import ConfigError
     from adaptive_cal.formats.recording import RecordingError
 
-    if args.subcommand in JAX_COMMANDS and "jax" not in sys.modules:
-        _import_ctrl_c_held("jax")
+    if args.subcommand in JAX_COMMANDS:
+        from adaptive_cal.cli import jax_cache
+
+        jax_cache.enable()  # what an earlier command compiled is loaded, not compiled again
+        if "jax" not in sys.modules:
+            _import_ctrl_c_held("jax")
     kept = _KeptCtrlC()
     try:
         with kept:
