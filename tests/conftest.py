@@ -56,8 +56,8 @@ def cheng_cell():
 
 
 def pytest_collection_modifyitems(config, items):
-    """Tests marked slow run first (the order is otherwise kept): pytest-xdist hands the first
-    quarter of the tests out in turn and the rest to whichever worker is free, so the long tests
-    start early on both workers and the run ends on short ones instead of one worker waiting
+    """Tests marked slow run first (the order is otherwise kept): with pytest-xdist's
+    work stealing (pyproject's --dist worksteal) they start at once, the other worker and the
+    thieves take the short ones, and the run ends on short tests instead of one worker idle
     while the other finishes a two-minute test."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
