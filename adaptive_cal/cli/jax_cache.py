@@ -2,8 +2,9 @@
 
 A command that loads JAX (``run``, ``study``, ``flatness``, ``report``, ``compensate``)
 jit-compiles the planner's scores, the hyper-parameter objective and their kin again in every
-new process: 2-4 s of a 12 s simulated ``run`` on the 2-core development machine. With the
-cache, a later command loads what an earlier one compiled (JAX keys each entry by the program,
+new process: about 1-2 s of a 12 s simulated ``run`` on the 2-core development machine
+(three runs each way, 2026-11-30: 12.6-12.9 s without, 11.1-12.2 s with). With the cache, a
+later command loads what an earlier one compiled (JAX keys each entry by the program,
 its shapes, the JAX and jaxlib versions and the machine, so a stale entry is never used).
 
 Where: ``$ADAPTIVE_CAL_JAX_CACHE`` (a folder, or ``off``), else ``$XDG_CACHE_HOME/adaptive-cal/
