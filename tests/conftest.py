@@ -57,7 +57,19 @@ def cheng_cell():
 
 def pytest_collection_modifyitems(config, items):
     """Tests marked slow run first (the order is otherwise kept): with pytest-xdist's
-    work stealing (pyproject's --dist worksteal) they start at once, the other worker and the
-    thieves take the short ones, and the run ends on short tests instead of one worker idle
-    while the other finishes a two-minute test."""
+    work stealing (below) they start at once, the other worker and the thieves take the short
+    ones, and the run ends on short tests instead of one worker idle while the other finishes a
+    two-minute test."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
+@pytest.hookimpl(optionalhook=True)  # only where pytest-xdist is installed
+def pytest_xdist_make_scheduler(config, log):
+    """``-n N`` with the default ``--dist load``: work stealing instead (a worker that runs out
+    of tests takes half of another's queue; under load scheduling a worker's first chunk of
+    about 233 tests stays its own to the end). Any other --dist is left as asked."""
+    if config.getoption("dist") != "load":
+        return None
+    from xdist.scheduler import WorkStealingScheduling
+
+    return WorkStealingScheduling(config, log)
