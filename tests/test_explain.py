@@ -105,6 +105,26 @@ def test_gain_on_constant_heights_is_aliased_with_tilt():
                for x in e.findings["not_identifiable"])
 
 
+@pytest.mark.parametrize("name,partners", [("probe_gain", ["tilt"]),
+                                            ("thermal_drift", ["tilt"]),
+                                            ("reversal", ["tilt", "form"])])
+def test_suggested_touches_score_from_the_designs_r_factor(name, partners):
+    """The greedy search scores each try from R of the design's columns and the extra rows
+    (``_alias_cc_adding``): the same canonical correlation as the whole matrix, to round-off."""
+    from adaptive_cal.analysis.explain import identify
+
+    c = concealed_recording("probe_gain", np.random.default_rng(6), varied_z=False,
+                            nonabsorbed_sigma=0.0)
+    ctx = Context.of(build_design([c.recording], c.cell))
+    menu = identify._menu(ctx, name, 2.0)
+    assert menu
+    adding = identify._alias_cc_adding(ctx, name, partners)
+    for extra in [[], menu[0], menu[-1], menu[0] + menu[len(menu) // 2]]:
+        whole = identify._alias_cc(ctx, name, partners, *identify._augment(ctx, extra))
+        assert adding(extra) == pytest.approx(whole, abs=1e-12)
+    assert len({round(adding(item), 6) for item in menu}) > 1  # the tries differ
+
+
 def test_arm_sag_without_base_is_not_testable():
     cell = load_cell(ROOT / "configs" / "cheng2025-cell.yaml")
     rec = read_recording(ROOT / "adaptive_cal/data/cheng2025/round0_initial.csv")

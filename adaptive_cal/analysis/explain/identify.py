@@ -85,13 +85,58 @@ def _augment(ctx: Context, extra: list[dict]) -> tuple[effects.Features, np.ndar
     return feats, cat(ctx.design.round_index.astype(float), "round").astype(int)
 
 
-def _alias_cc(ctx, name, partners, feats, ridx) -> float:
+def _touch_features(extra: list[dict]) -> tuple[effects.Features, np.ndarray]:
+    """``_augment``'s features and rounds of the extra touches alone."""
+    col = lambda k: np.array([e[k] for e in extra], float)
+    feats = effects.Features(col("x_mm"), col("y_mm"), col("t_s"), col("direction"), col("ideal"))
+    return feats, col("round").astype(int)
+
+
+def _alias_columns(ctx, name, partners, feats, ridx) -> tuple[np.ndarray, tuple]:
+    """[tilt per round | the effect | each partner] on these touches, and the blocks' widths."""
     d = ctx.design
-    T = _tilt(feats, ridx, d.rounds, d.geometry)
+    blocks = [_tilt(feats, ridx, d.rounds, d.geometry), representative(ctx, name, feats)]
+    blocks += [representative(ctx, p, feats) for p in partners if p != "tilt"]
+    return np.hstack(blocks), tuple(b.shape[1] for b in blocks)
+
+
+def _alias_cc_of(W: np.ndarray, widths: tuple) -> float:
+    """The smallest canonical correlation of the effect with the tilt and the partners, each
+    about each round's mean, from ``_alias_columns``. It depends on W only through W^T W
+    (norms and angles of its columns), so any rows with the same Gram matrix give it."""
+    T, E, *P = np.split(W, np.cumsum(widths)[:-1], axis=1)
     off = Projector.of(T[:, 2::3])
-    E = _centred(off, representative(ctx, name, feats))
-    F = [off(T)] + [_centred(off, representative(ctx, p, feats)) for p in partners if p != "tilt"]
-    return float(canonical_correlations(E, np.hstack(F)).min())
+    F = [off(T)] + [_centred(off, B) for B in P]
+    return float(canonical_correlations(_centred(off, E), np.hstack(F)).min())
+
+
+def _alias_cc(ctx, name, partners, feats, ridx) -> float:
+    return _alias_cc_of(*_alias_columns(ctx, name, partners, feats, ridx))
+
+
+def _alias_cc_adding(ctx, name, partners):
+    """``_alias_cc`` of the design plus extra touches, as a function of the extra touches. The
+    design's columns W enter once, as R of W = QR (K x K, K columns): [R; the extra rows] has
+    the Gram matrix of [W; the extra rows], so each try costs the extra rows, not the design's
+    thousands. The extra rows are computed from the extra touches alone once the first try has
+    shown that every column is a function of each touch's own features (else whole, each time)."""
+    W0, widths = _alias_columns(ctx, name, partners, *_augment(ctx, []))
+    R0 = np.linalg.qr(W0, mode="r")
+    n0 = W0.shape[0]
+    own = lambda extra: _alias_columns(ctx, name, partners, *_touch_features(extra))[0]
+    rowwise: list[bool] = []
+
+    def cc(extra: list[dict]) -> float:
+        if extra and rowwise == [True]:
+            return _alias_cc_of(np.vstack([R0, own(extra)]), widths)
+        W, _ = _alias_columns(ctx, name, partners, *_augment(ctx, extra))
+        if not np.array_equal(W[:n0], W0):
+            rowwise[:] = [False]
+            return _alias_cc_of(W, widths)
+        if extra and not rowwise:
+            rowwise.append(bool(np.array_equal(W[n0:], own(extra))))
+        return _alias_cc_of(np.vstack([R0, W[n0:]]), widths)
+    return cc
 
 
 def _last_round(ctx: Context) -> np.ndarray:
@@ -148,8 +193,9 @@ def suggest_touches(ctx: Context, name: str, partners: list[str], dz_mm: float =
     menu = _menu(ctx, name, dz_mm)
     chosen: list[dict] = []
     cc = _alias_cc(ctx, name, partners, *_augment(ctx, []))
+    adding = _alias_cc_adding(ctx, name, partners) if menu and cc > TARGET_CC else None
     while cc > TARGET_CC and menu and len(chosen) < MAX_EXTRA:
-        scores = [_alias_cc(ctx, name, partners, *_augment(ctx, chosen + item)) for item in menu]
+        scores = [adding(chosen + item) for item in menu]
         best = int(np.argmin(scores))
         chosen += menu.pop(best)
         cc = scores[best]
