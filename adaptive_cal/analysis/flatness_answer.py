@@ -32,8 +32,8 @@ plate draws first, then touched ones: the same seed, the same digits wherever co
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import norm
-from scipy.stats import t as student_t
+from scipy import special  # ndtr, stdtrit: scipy.stats's norm.cdf and t.ppf, bit for bit,
+# without loading scipy.stats (about 1-3 s of `report` and `flatness` start-up)
 
 from adaptive_cal.analysis import flatness as fl
 from adaptive_cal.analysis.reach import (GAP_MEANS, gap_line, largest_gap,  # noqa: F401
@@ -221,7 +221,7 @@ def noise_dof(rows, belief: bl.Belief, noise_std_mm: float) -> float:
     return residual_dof(rows, np.ones(len(rows)), belief.cov, noise_std_mm**2)
 
 
-TWO_SD = float(norm.cdf(2.0))  # the upper end of a 2-sd interval's share, 0.97725
+TWO_SD = float(special.ndtr(2.0))  # the upper end of a 2-sd interval's share, 0.97725
 
 
 def t_std_factor(nu: float) -> float:
@@ -235,7 +235,7 @@ def t_std_factor(nu: float) -> float:
     RMS 1.25 in runs under 15 touches, 1.10 at 15-21 (benchmarks/bench_flatness.py)."""
     if not np.isfinite(nu) or nu <= 0:
         return 1.0
-    return float(student_t.ppf(TWO_SD, nu) / 2.0)
+    return float(special.stdtrit(nu, TWO_SD) / 2.0)  # t_nu's quantile
 
 
 def flatness_answer(plan, belief: bl.Belief, noise_std_mm: float, touched_xyz=None,

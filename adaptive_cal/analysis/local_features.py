@@ -28,7 +28,7 @@ the retake is a feature of the plate too.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import norm
+from scipy import special  # -ndtri(a): scipy.stats's norm.isf(a), without loading scipy.stats
 
 from adaptive_cal.formats.recording import Recording, surface_height_mm
 from adaptive_cal.gaussian import belief as bl
@@ -65,7 +65,7 @@ def confirmed(surface, belief: bl.Belief, noise_std_mm: float, rec: Recording,
     pairs = retake_pairs(rec)
     if not pairs or not noise_std_mm > 0:
         return []
-    zc = float(norm.isf(ALPHA / (2 * len(pairs))))
+    zc = float(-special.ndtri(ALPHA / (2 * len(pairs))))
     sigma2 = float(noise_std_mm) ** 2
     fused = np.flatnonzero(rec.fused)
     out = []

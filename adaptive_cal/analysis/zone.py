@@ -8,7 +8,6 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, QhullError
 
 #: points above which the zone's LP is solved on a working set grown by its violators instead
@@ -43,6 +42,10 @@ def vertical_zone_slopes(points: np.ndarray) -> tuple[float, float]:
 
 def _zone_lp(points: np.ndarray) -> tuple[float, float, float, float]:
     """(a, b, c_lo, c_hi) of the vertical zone's LP on ``points``."""
+    # here, not at the top: the LP is the fallback of ``narrowest_normal``, and loading
+    # scipy.optimize is about a second of `flatness`'s start-up
+    from scipy.optimize import linprog
+
     x, y, z = points.T
     ones, zeros = np.ones_like(x), np.zeros_like(x)
     upper = np.column_stack([-x, -y, zeros, -ones])  # z_i - a x_i - b y_i <= c_hi

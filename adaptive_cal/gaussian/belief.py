@@ -19,7 +19,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 from scipy.linalg import cho_factor, cho_solve, cholesky
 
 
@@ -60,6 +59,10 @@ def fuse(belief: Belief, row: np.ndarray, reading: float, noise_var: float) -> t
     The Joseph form keeps C' symmetric positive semi-definite under round-off, and stays valid
     for a sub-optimal gain; it costs two K x K products per reading.
     """
+    # here, not at the top: filterpy loads scipy.stats (1.5-3 s), which the commands that only
+    # condition and sample a belief (flatness, report, compensate) do not need
+    from filterpy.kalman import KalmanFilter
+
     k = belief.mean.shape[0]
     _check_reading(row, reading, noise_var, k)
     kf = KalmanFilter(dim_x=k, dim_z=1)

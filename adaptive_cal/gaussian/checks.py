@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
-from scipy.stats import chi2
+from scipy import special  # gammaincinv, chdtri: scipy.stats.chi2's ppf and isf, without loading it
 
 from adaptive_cal.gaussian.belief import coefficient_form, woodbury
 
@@ -87,12 +87,13 @@ def leave_one_out(rows, readings, prior_mean, prior_cov, noise_var) -> LeaveOneO
 
 def mean_square_interval(n: int, alpha: float) -> tuple[float, float]:
     """Two-sided (1 - alpha) interval of the mean of n squared N(0, 1): chi2(n) / n."""
-    return (float(chi2.ppf(0.5 * alpha, n) / n), float(chi2.isf(0.5 * alpha, n) / n))
+    return (float(2.0 * special.gammaincinv(0.5 * n, 0.5 * alpha) / n),  # chi2.ppf
+            float(special.chdtri(n, 0.5 * alpha) / n))  # chi2.isf
 
 
 def mean_square_upper(n: int, alpha: float) -> float:
     """One-sided (1 - alpha) upper bound of the mean of n squared N(0, 1)."""
-    return float(chi2.isf(alpha, n) / n)
+    return float(special.chdtri(n, alpha) / n)
 
 
 class Projection(NamedTuple):

@@ -55,7 +55,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import f as f_dist, norm
+from scipy import special  # fdtri, ndtri: scipy.stats's f.isf and norm.isf, without loading it
 
 from adaptive_cal.gaussian import checks
 
@@ -254,7 +254,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     xy = positions_mm(surface, rows)
     rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w) if repeats else (0, np.nan)
     rep_dof = rep_dof if repeats and rep_dof >= repeats[1] else 0
-    rep_bound = float(f_dist.isf(repeats[0], n, rep_dof)) if rep_dof else np.inf
+    rep_bound = float(special.fdtri(n, rep_dof, 1.0 - repeats[0])) if rep_dof else np.inf
     # a repeat reading's own resolution floor: identical readings are not a noise of 0
     rep_ratio = noise_std_mm**2 / max(rep_var, 1e-14) if rep_dof else 0.0
     if rep_ratio > rep_bound:  # the learned noise holds structure: measure beyond the probe's
@@ -281,7 +281,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     }
     if noise_range_mm is not None:
         # sigma_n from n readings has a relative std of about 1 / sqrt(2 n)
-        slack = 1.0 + float(norm.isf(a_glob)) / np.sqrt(2.0 * n)
+        slack = 1.0 + float(-special.ndtri(a_glob)) / np.sqrt(2.0 * n)
         result["noise_span"] = {"value": noise_std_mm, "bound": float(noise_range_mm[1]) * slack,
                                 "is": "learned noise std (mm) against the probe's stated high, "
                                       "with its sampling error"}

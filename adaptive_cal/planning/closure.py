@@ -54,7 +54,7 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.stats import t as student_t
+from scipy import special  # stdtr, stdtrit: scipy.stats.t's sf and isf, without loading it
 
 from adaptive_cal.formats.numbers import fixed
 
@@ -104,7 +104,7 @@ class Closure:
         of freedom are not given)."""
         if not self.made or self.dof < 1.0:
             return float("nan")
-        return float(student_t.isf(ALPHA / 2, self.dof) * self.sd_mm)
+        return float(-special.stdtrit(self.dof, ALPHA / 2) * self.sd_mm)
 
     def text(self) -> str:
         """One line for the terminal and the report."""
@@ -221,6 +221,6 @@ def judge(first_rows, first_mm, repeat_rows, repeat_mm, mean, cov, noise_var_mm2
     d = float(repeat_mm.mean() - first_mm.mean() - a @ np.asarray(mean, float))
     sd = math.sqrt(noise_var_mm2 * (1.0 / m + 1.0 / k) + max(float(a @ cov @ a), 0.0))
     dof = max(float(dof), 1.0)
-    p = float(2.0 * student_t.sf(abs(d) / sd, dof)) if sd > 0 else (0.0 if d else 1.0)
+    p = float(2.0 * special.stdtr(dof, -abs(d) / sd)) if sd > 0 else (0.0 if d else 1.0)
     return Closure(True, difference_mm=d, sd_mm=sd, dof=dof, p=p, passed=p >= ALPHA,
                    first_readings=k, **where)

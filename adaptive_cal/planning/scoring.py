@@ -23,11 +23,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import minimize
-from scipy.stats import norm
+from scipy import special  # ndtri: scipy.stats.norm.isf, without loading scipy.stats
 
 from adaptive_cal.gaussian.spline import Spline1D, Surface
 
-STROKE_Z = float(norm.isf(0.5e-6))  # two-sided 1e-6
+STROKE_Z = float(-special.ndtri(0.5e-6))  # two-sided 1e-6
 
 
 @dataclass(frozen=True)
