@@ -7,6 +7,7 @@ import pytest
 from scipy import integrate
 
 from adaptive_cal.analysis.explain import evidence as E
+from adaptive_cal.analysis.explain import quadrature as quadrature_rules
 
 
 def _reference(lam, c2, yy, m):
@@ -93,7 +94,7 @@ def test_rule_by_residual_degrees_of_freedom():
     assert E.quadrature(19)[0].size == 73 and E.quadrature(20)[0].size == 49
     assert E.quadrature(99)[0].size == 49 and E.quadrature(100)[0].size == 25
     for n in (25, 49, 73):  # the trapezoid over +-9 sds: the weights sum to its width
-        t, lw = E._RULES[n]
+        t, lw = quadrature_rules._RULES[n]
         assert t[0] == -9.0 and t[-1] == 9.0 and np.exp(lw).sum() * (n - 1) / n == pytest.approx(18.0)
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from adaptive_cal.analysis.explain import evidence
+from adaptive_cal.analysis.explain import evidence, evidence1
 from adaptive_cal.analysis.explain.evidence import (log_evidence_columns_mixture,
                                                     log_evidence_spectral, log_evidence_spectral1)
 
@@ -39,7 +39,7 @@ def test_spectral1_chunks_change_nothing(monkeypatch):
     rng = np.random.default_rng(3)
     lam, c2 = _models(rng, 90)
     whole = log_evidence_spectral1(lam, c2, 20.0, 500)
-    monkeypatch.setattr(evidence, "CHUNK", 7)  # 1170 models in 168 chunks, the last one short
+    monkeypatch.setattr(evidence1, "CHUNK", 7)  # 1170 models in 168 chunks, the last one short
     parts = log_evidence_spectral1(lam, c2, 20.0, 500)
     for a, b in zip(whole, parts):
         np.testing.assert_array_equal(a, b)
@@ -81,15 +81,15 @@ def test_coarse_window_finds_the_whole_grids_argmax(m):
     g = evidence._spectral(lam[:, None], c2[:, None], yy, m,
                            np.broadcast_to(coarse, (L, coarse.size)))
     want = coarse[np.argmax(g, axis=-1)]
-    got = evidence._start1(lam, c2, rest, m, coarse, np.exp(coarse))
+    got = evidence1._start1(lam, c2, rest, m, coarse, np.exp(coarse))
     w_lo, w_hi = np.log(rest / m), np.log((rest + c2) / (m - 1))
-    tight = w_hi - w_lo < evidence.TIGHT
+    tight = w_hi - w_lo < evidence1.TIGHT
     # never at a handful of rows: the bounds are log(m / (m - 1)) apart even where c2 = 0
     assert np.count_nonzero(tight) < L and (np.any(tight) if m >= 20 else not np.any(tight))
     np.testing.assert_array_equal(got[~tight], want[~tight])
-    mode, _ = evidence._newton1(lam, c2, rest, m, want)  # from the grid's best point
-    assert np.all(np.abs(got[tight] - mode[tight]) <= 0.5 * evidence.TIGHT)
-    np.testing.assert_allclose(evidence._newton1(lam, c2, rest, m, got)[0], mode, rtol=0,
+    mode, _ = evidence1._newton1(lam, c2, rest, m, want)  # from the grid's best point
+    assert np.all(np.abs(got[tight] - mode[tight]) <= 0.5 * evidence1.TIGHT)
+    np.testing.assert_allclose(evidence1._newton1(lam, c2, rest, m, got)[0], mode, rtol=0,
                                atol=1e-7)  # the same mode from either start
     assert len(np.unique(np.argmax(g, axis=-1))) > 3  # the argmax moves about the grid
 

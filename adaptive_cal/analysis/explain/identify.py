@@ -8,8 +8,8 @@ Between two effects this is directional (``spans``): A inside B's span is not B 
 
 ``suggest_touches`` adds touches from a menu that fits the residual axis the effect shows on
 (time: repeats of reference points at a later time; direction: a reversed pass; indication: a
-second approach height; position, for a bump: touches in the largest gaps) greedily, one at a time, until the canonical correlation
-falls to ``TARGET_CC`` (0.9), and returns them as (x_mm, y_mm, z_mm, order) rows for the planner.
+second approach height; position, for a bump: touches in the largest gaps) greedily, one at a
+time, until the canonical correlation falls to ``TARGET_CC`` (0.9), as (x_mm, y_mm, z_mm, order).
 """
 from __future__ import annotations
 
@@ -76,20 +76,19 @@ def _tilt(features, round_index, rounds, geometry) -> np.ndarray:
     return out
 
 
-def _augment(ctx: Context, extra: list[dict]) -> tuple[effects.Features, np.ndarray]:
-    """Features of the design plus extra touches (dicts with x, y, z, t, direction, ideal, round)."""
-    f = ctx.design.features
-    cat = lambda a, k: np.concatenate([a, np.array([e[k] for e in extra], float)])
-    feats = effects.Features(cat(f.x_mm, "x_mm"), cat(f.y_mm, "y_mm"), cat(f.t_s, "t_s"),
-                             cat(f.direction, "direction"), cat(f.ideal_reading_mm, "ideal"))
-    return feats, cat(ctx.design.round_index.astype(float), "round").astype(int)
-
-
 def _touch_features(extra: list[dict]) -> tuple[effects.Features, np.ndarray]:
-    """``_augment``'s features and rounds of the extra touches alone."""
+    """Features and rounds of extra touches (dicts with x, y, z, t, direction, ideal, round)."""
     col = lambda k: np.array([e[k] for e in extra], float)
     feats = effects.Features(col("x_mm"), col("y_mm"), col("t_s"), col("direction"), col("ideal"))
     return feats, col("round").astype(int)
+
+
+def _augment(ctx: Context, extra: list[dict]) -> tuple[effects.Features, np.ndarray]:
+    """Features and rounds of the design plus extra touches (``_touch_features``)."""
+    f, (g, s) = ctx.design.features, _touch_features(extra)
+    cat = lambda k: np.concatenate([getattr(f, k), getattr(g, k)])
+    return (effects.Features(*map(cat, ("x_mm", "y_mm", "t_s", "direction", "ideal_reading_mm"))),
+            np.concatenate([ctx.design.round_index, s]).astype(int))
 
 
 def _alias_columns(ctx, name, partners, feats, ridx) -> tuple[np.ndarray, tuple]:
@@ -121,8 +120,7 @@ def _alias_cc_adding(ctx, name, partners):
     thousands. The extra rows are computed from the extra touches alone once the first try has
     shown that every column is a function of each touch's own features (else whole, each time)."""
     W0, widths = _alias_columns(ctx, name, partners, *_augment(ctx, []))
-    R0 = np.linalg.qr(W0, mode="r")
-    n0 = W0.shape[0]
+    R0, n0 = np.linalg.qr(W0, mode="r"), W0.shape[0]
     own = lambda extra: _alias_columns(ctx, name, partners, *_touch_features(extra))[0]
     rowwise: list[bool] = []
 
@@ -139,15 +137,11 @@ def _alias_cc_adding(ctx, name, partners):
     return cc
 
 
-def _last_round(ctx: Context) -> np.ndarray:
-    return _last_round_of(ctx.design)
-
-
 def _menu(ctx: Context, name: str, dz_mm: float) -> list[list[dict]]:
     """Candidate additions (each a short list of touches, in order) along the effect's axis."""
     d = ctx.design
     f = d.features
-    idx = _last_round(ctx)
+    idx = _last_round_of(ctx.design)
     t_end = float(f.t_s[idx].max())
     dt = float(np.median(np.diff(f.t_s[idx]))) if idx.size > 1 else 1.0
     pick = idx[np.linspace(0, idx.size - 1, min(idx.size, 40)).astype(int)]
