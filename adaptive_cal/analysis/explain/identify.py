@@ -141,7 +141,7 @@ def _menu(ctx: Context, name: str, dz_mm: float) -> list[list[dict]]:
     """Candidate additions (each a short list of touches, in order) along the effect's axis."""
     d = ctx.design
     f = d.features
-    idx = _last_round_of(ctx.design)
+    idx = _last_round_of(d)
     t_end = float(f.t_s[idx].max())
     dt = float(np.median(np.diff(f.t_s[idx]))) if idx.size > 1 else 1.0
     pick = idx[np.linspace(0, idx.size - 1, min(idx.size, 40)).astype(int)]
