@@ -117,14 +117,12 @@ class Workplane(Block):
         return None
 
     def allows(self, x: float, y: float) -> bool:
-        """True if (x, y) lies inside the margin and outside every keep-out."""
-        m = self.edge_margin_mm
-        inside = (self.x_mm[0] + m <= x <= self.x_mm[1] - m
-                  and self.y_mm[0] + m <= y <= self.y_mm[1] - m)
-        return inside and not self.kept_out(x, y)
+        """True if (x, y) lies inside the margin and outside every keep-out (``allowed``)."""
+        return bool(self.allowed(x, y))
 
     def allowed(self, x, y) -> np.ndarray:
-        """``allows`` of many points at once: a boolean array of the shape of x and y."""
+        """Of the points (x, y) (arrays, or numbers), which lie inside the margin and outside
+        every keep-out (edges included in both): a boolean array of the shape of x and y."""
         x, y = np.asarray(x, float), np.asarray(y, float)
         m = self.edge_margin_mm
         ok = ((self.x_mm[0] + m <= x) & (x <= self.x_mm[1] - m)

@@ -111,8 +111,8 @@ def log_evidence_spectral(lam, c2, yy, m) -> tuple[np.ndarray, np.ndarray]:
     count = int(np.prod(lead, dtype=int))
     flat = lambda a, tail=(): np.broadcast_to(a, lead + tail).reshape((count,) + tail)
     L, C, W, SD = flat(lam, (k,)), flat(c2, (k,)), flat(w), flat(sd)
-    rest = np.maximum(yy - C.sum(-1), 1e-12 * yy)
-    gauss = near_gaussian(m - k, rest, C.sum(-1))
+    c2_sum = C.sum(-1)
+    gauss = near_gaussian(m - k, np.maximum(yy - c2_sum, 1e-12 * yy), c2_sum)
     log_z = np.empty(W.size)
     for on, (t, log_weight) in ((~gauss, quadrature(m - k)), (gauss, GAUSS_HERMITE)):
         if on.any():
