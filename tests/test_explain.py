@@ -108,21 +108,91 @@ def test_gain_on_constant_heights_is_aliased_with_tilt():
 @pytest.mark.parametrize("name,partners", [("probe_gain", ["tilt"]),
                                             ("thermal_drift", ["tilt"]),
                                             ("reversal", ["tilt", "form"])])
-def test_suggested_touches_score_from_the_designs_r_factor(name, partners):
-    """The greedy search scores each try from R of the design's columns and the extra rows
-    (``_alias_cc_adding``): the same canonical correlation as the whole matrix, to round-off."""
-    from adaptive_cal.analysis.explain import identify
+def test_suggested_touches_batched_scores_match_the_whole_matrix(name, partners):
+    """The greedy search scores its tries in batches (``greedy.min_cc``) from R of the design's
+    columns and each try's own rows: the same canonical correlation as the whole matrix, one
+    try at a time (``identify._alias_cc``), to round-off; and the search picks what a plain
+    loop over whole matrices picks."""
+    from adaptive_cal.analysis.explain import greedy, identify
 
     c = concealed_recording("probe_gain", np.random.default_rng(6), varied_z=False,
                             nonabsorbed_sigma=0.0)
     ctx = Context.of(build_design([c.recording], c.cell))
     menu = identify._menu(ctx, name, 2.0)
     assert menu
-    adding = identify._alias_cc_adding(ctx, name, partners)
-    for extra in [[], menu[0], menu[-1], menu[0] + menu[len(menu) // 2]]:
-        whole = identify._alias_cc(ctx, name, partners, *identify._augment(ctx, extra))
-        assert adding(extra) == pytest.approx(whole, abs=1e-12)
-    assert len({round(adding(item), 6) for item in menu}) > 1  # the tries differ
+    W0, widths = identify._alias_columns(ctx, name, partners, *identify._augment(ctx, []))
+    R0 = np.linalg.qr(W0, mode="r")
+    tries = [menu[0], menu[-1], menu[0] + menu[len(menu) // 2]] + menu[1:6]
+    rows = [identify._alias_columns(ctx, name, partners, *identify._touch_features(t))[0]
+            for t in tries]
+    stack = np.zeros((len(tries), R0.shape[0] + max(map(len, rows)), R0.shape[1]))
+    stack[:, :R0.shape[0]] = R0
+    for i, r in enumerate(rows):
+        stack[i, R0.shape[0]:R0.shape[0] + len(r)] = r  # zero rows pad: the same Gram matrix
+    got = greedy.min_cc(stack, widths)
+    whole = [identify._alias_cc(ctx, name, partners, *identify._augment(ctx, t)) for t in tries]
+    np.testing.assert_allclose(got, whole, rtol=0, atol=1e-12)
+    assert np.ptp(whole) > 1e-6  # the tries differ
+
+    # each step's pick is a best try by the whole matrix (symmetric places tie to round-off)
+    cc0 = identify._alias_cc(ctx, name, partners, *identify._augment(ctx, []))
+    chosen, cc = identify._greedy(ctx, name, partners, menu, cc0)
+    left, done = list(menu), []
+    while cc0 > identify.TARGET_CC and left and len(done) < identify.MAX_EXTRA:
+        scores = [identify._alias_cc(ctx, name, partners, *identify._augment(ctx, done + i))
+                  for i in left]
+        pick = next(k for k, i in enumerate(left) if chosen[len(done):len(done) + len(i)] == i)
+        assert scores[pick] <= min(scores) + 1e-12
+        done, cc0 = done + left.pop(pick), scores[pick]
+    assert done == chosen and cc == pytest.approx(cc0, abs=1e-12)
+
+
+def test_suggested_touches_fall_back_to_whole_matrices(monkeypatch):
+    """Where the extra rows are not those of the touches alone (here: the extra touches' time
+    shifted in the design), the search scores whole matrices one try at a
+    time, and still lowers the canonical correlation below its target."""
+    from adaptive_cal.analysis.explain import greedy, identify
+
+    c = concealed_recording("probe_gain", np.random.default_rng(6), varied_z=False,
+                            nonabsorbed_sigma=0.0)
+    ctx = Context.of(build_design([c.recording], c.cell))
+    menu = identify._menu(ctx, "thermal_drift", 2.0)
+    cc0 = identify._alias_cc(ctx, "thermal_drift", ["tilt"], *identify._augment(ctx, []))
+    whole = identify._augment
+    n0 = len(ctx.design.features.t_s)
+
+    def later(ctx_, extra):  # the extra touches 1 s later in the design than alone
+        f, r = whole(ctx_, extra)
+        return type(f)(f.x_mm, f.y_mm, np.where(np.arange(len(f.t_s)) >= n0, f.t_s + 1.0, f.t_s),
+                       f.direction, f.ideal_reading_mm), r
+
+    monkeypatch.setattr(identify, "_augment", later)
+    monkeypatch.setattr(greedy, "search", lambda *a, **k: pytest.fail("batched path taken"))
+    chosen, cc = identify._greedy(ctx, "thermal_drift", ["tilt"], menu, cc0)
+    assert chosen and cc <= identify.TARGET_CC < cc0
+    assert cc == pytest.approx(identify._alias_cc(ctx, "thermal_drift", ["tilt"],
+                                                  *identify._augment(ctx, chosen)), abs=1e-15)
+
+
+def test_batched_canonical_correlation_edge_cases():
+    """``greedy.min_cc`` where a span is empty: an effect constant over each round is invisible
+    (1, as ``canonical_correlations`` says), an effect beside nothing but the offsets is 0 away
+    from them; against ``identify._alias_cc_of`` one matrix at a time."""
+    from adaptive_cal.analysis.explain import greedy, identify
+
+    rng = np.random.default_rng(3)
+    n = 30
+    x, y = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    tilt = np.stack([x, y, np.ones(n)], 1)
+    cases = [(np.hstack([tilt, np.full((n, 1), 2.0)]), (3, 1)),  # constant effect
+             (np.hstack([tilt, (x * y)[:, None]]), (3, 1)),
+             (np.hstack([tilt, (x * y)[:, None], np.ones((n, 1)), (x * y + 1e-3 * x)[:, None]]),
+              (3, 1, 2)),
+             (np.hstack([np.zeros((n, 2)), np.ones((n, 1)), x[:, None]]), (3, 1))]  # no slopes
+    for W, widths in cases:
+        want = identify._alias_cc_of(W, widths)
+        assert greedy.min_cc(W[None], widths)[0] == pytest.approx(want, abs=1e-12)
+    assert greedy.min_cc(cases[0][0][None], (3, 1))[0] == 1.0
 
 
 def test_arm_sag_without_base_is_not_testable():

@@ -17,7 +17,7 @@ import numpy as np
 
 from adaptive_cal import effects
 from adaptive_cal.analysis.explain.candidates import CANDIDATES, Context, prior_scale
-from adaptive_cal.analysis.explain import spans
+from adaptive_cal.analysis.explain import greedy, spans
 from adaptive_cal.analysis.explain.evidence import Projector
 
 ALIAS_CC = spans.ALIAS_CC
@@ -113,28 +113,25 @@ def _alias_cc(ctx, name, partners, feats, ridx) -> float:
     return _alias_cc_of(*_alias_columns(ctx, name, partners, feats, ridx))
 
 
-def _alias_cc_adding(ctx, name, partners):
-    """``_alias_cc`` of the design plus extra touches, as a function of the extra touches. The
-    design's columns W enter once, as R of W = QR (K x K, K columns): [R; the extra rows] has
-    the Gram matrix of [W; the extra rows], so each try costs the extra rows, not the design's
-    thousands. The extra rows are computed from the extra touches alone once the first try has
-    shown that every column is a function of each touch's own features (else whole, each time)."""
+def _greedy(ctx, name, partners, menu, cc) -> tuple[list[dict], float]:
+    """The greedy search over ``menu`` (``greedy.search``, batched). It scores from R of the
+    design's columns and each item's own rows, so it first checks that every column is a function
+    of each touch's own features (the design's rows unchanged by extra touches, the extra rows
+    those of the touches alone); where not, each try is the whole matrix, one at a time."""
+    every = [t for item in menu for t in item]
     W0, widths = _alias_columns(ctx, name, partners, *_augment(ctx, []))
-    R0, n0 = np.linalg.qr(W0, mode="r"), W0.shape[0]
-    own = lambda extra: _alias_columns(ctx, name, partners, *_touch_features(extra))[0]
-    rowwise: list[bool] = []
-
-    def cc(extra: list[dict]) -> float:
-        if extra and rowwise == [True]:
-            return _alias_cc_of(np.vstack([R0, own(extra)]), widths)
-        W, _ = _alias_columns(ctx, name, partners, *_augment(ctx, extra))
-        if not np.array_equal(W[:n0], W0):
-            rowwise[:] = [False]
-            return _alias_cc_of(W, widths)
-        if extra and not rowwise:
-            rowwise.append(bool(np.array_equal(W[n0:], own(extra))))
-        return _alias_cc_of(np.vstack([R0, W[n0:]]), widths)
-    return cc
+    W, _ = _alias_columns(ctx, name, partners, *_augment(ctx, every))
+    own = _alias_columns(ctx, name, partners, *_touch_features(every))[0]
+    n0 = W0.shape[0]
+    if np.array_equal(W[:n0], W0) and np.array_equal(W[n0:], own):
+        blocks = np.split(own, np.cumsum([len(item) for item in menu])[:-1])
+        return greedy.search(W0, widths, blocks, menu, cc, TARGET_CC, MAX_EXTRA)
+    menu, chosen = list(menu), []
+    while cc > TARGET_CC and menu and len(chosen) < MAX_EXTRA:
+        scores = [_alias_cc(ctx, name, partners, *_augment(ctx, chosen + i)) for i in menu]
+        best = int(np.argmin(scores))
+        chosen, cc = chosen + menu.pop(best), scores[best]
+    return chosen, cc
 
 
 def _menu(ctx: Context, name: str, dz_mm: float) -> list[list[dict]]:
@@ -187,12 +184,8 @@ def suggest_touches(ctx: Context, name: str, partners: list[str], dz_mm: float =
     menu = _menu(ctx, name, dz_mm)
     chosen: list[dict] = []
     cc = _alias_cc(ctx, name, partners, *_augment(ctx, []))
-    adding = _alias_cc_adding(ctx, name, partners) if menu and cc > TARGET_CC else None
-    while cc > TARGET_CC and menu and len(chosen) < MAX_EXTRA:
-        scores = [adding(chosen + item) for item in menu]
-        best = int(np.argmin(scores))
-        chosen += menu.pop(best)
-        cc = scores[best]
+    if menu and cc > TARGET_CC:
+        chosen, cc = _greedy(ctx, name, partners, menu, cc)
     what = {"time": "repeat reference point(s) at the end of the run",
             "direction": "a reversed pass (same points, arriving from the other side)",
             "indication": f"second approach height (z + {dz_mm:g} mm) at some points"}.get(
