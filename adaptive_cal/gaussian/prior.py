@@ -301,9 +301,38 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     so the belief carries the hyper-parameter uncertainty. Returns it and the points (the MAP
     first: its noise serves the fusions until the next refit). ``weights`` w_i: reading i's
     noise variance is sigma_n^2 / w_i in the fit and the posterior (robust: outliers out).
-    ``extra``: a fixed covariance added to the prior (a grown model's finer structure)."""
-    w = np.ones(len(readings)) if weights is None else np.asarray(weights, float)
+    ``extra``: a fixed covariance added to the prior (a grown model's finer structure).
+
+    Readings at one place (identical basis rows: repeats, retakes) enter as their weighted mean
+    with the summed weight (``pooled``). The posterior is the same -- for one row that pair is a
+    sufficient statistic -- but the learned noise is fitted to the places alone: sigma_n is a
+    nugget, the probe's noise plus the plate's structure finer than the spline, and readings at
+    one place differ by the probe alone, so their scatter pulled sigma_n toward the probe's and
+    narrowed the bands by the structure it left out (docs/plates.md, repeat touches). That
+    scatter measures the probe (``checks.repeats``)."""
+    rows, readings, w = pooled(rows, readings, weights)
     points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra)
     belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)
                       for h, _ in points], [wt for _, wt in points])
     return belief, points
+
+
+def pooled(rows, readings, weights=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Readings with identical basis rows as one: their weighted mean, with the sum of their
+    weights w (noise sigma_n^2 / w: the same information about the surface). Places in the
+    order first read; rows and weights as given where no row repeats."""
+    rows = np.asarray(rows, float)
+    y = np.asarray(readings, float)
+    w = np.ones(len(y)) if weights is None else np.asarray(weights, float)
+    if len(y) < 2:
+        return rows, y, w
+    _, first, label = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(y):
+        return rows, y, w
+    order = np.argsort(first)  # places in the order first read
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    label = rank[label.ravel()]
+    wsum = np.bincount(label, w)
+    return (rows[first[order]], np.bincount(label, w * y) / np.maximum(wsum, 1e-300), wsum)
+
