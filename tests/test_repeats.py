@@ -135,6 +135,42 @@ def test_the_learned_noise_is_fitted_to_places_not_to_their_repeats():
     assert 0.75 * 0.0078 < np.mean(per_place) < 1.25 * 0.0078, per_place
 
 
+def test_the_survey_pools_its_own_repeats_live_and_replayed_alike():
+    """Repeats go to a position rebuilt from the first reading's basis row (``repeats.place``),
+    about 1e-10 mm off it, and a recording keeps 4 decimals: either way they are one place
+    (``checks.row_places``), as ``checks.repeats`` counts them, and the residual degrees of
+    freedom count the place once (an outside audit: bit-equal rows only had left a live run's
+    repeats unpooled, so its learned noise differed from its replay's)."""
+    from adaptive_cal.gaussian.checks import row_places
+    from adaptive_cal.planning import repeats as rp
+    from adaptive_cal.planning import survey
+    from adaptive_cal.planning.adequacy import positions_mm
+    from adaptive_cal.planning.ask import target
+    from adaptive_cal.planning.closure import residual_dof
+
+    plan = _plan()
+    state = survey.start(plan)
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(-150, 150, (8, 2))
+    for x, y in xy:
+        t = target(plan, state, float(x), float(y))
+        state, _ = survey.tell(plan, state, t.x_mm, t.y_mm, t.z_mm,
+                               t.expected_reading_mm + 0.005 * rng.standard_normal())
+        for _ in range(2):
+            t = target(plan, state, *rp.place(plan, state))
+            assert (t.x_mm, t.y_mm) != (float(x), float(y))  # not bit-equal
+            state, _ = survey.tell(plan, state, t.x_mm, t.y_mm, t.z_mm,
+                                   t.expected_reading_mm + 0.005 * rng.standard_normal())
+    pos = positions_mm(plan.model.surface, state.rows)
+    assert row_places(state.rows)[1] == 8
+    assert repeats(pos, state.heights_mm)[0] == len(state.heights_mm) - 8
+    replayed = plan.model.surface.basis(np.round(pos[:, 0], 4), np.round(pos[:, 1], 4))
+    assert np.array_equal(row_places(replayed)[0], row_places(state.rows)[0])
+    cov = state.belief.cov
+    assert residual_dof(state.rows, state.fused_weights, cov, 0.005**2) == pytest.approx(
+        residual_dof(state.rows[::3], np.full(8, 3.0), cov, 0.005**2), rel=1e-9)
+
+
 def test_without_suspicion_a_place_read_twice_asks_no_question():
     """The check is judged only where the learned noise is suspect (and 6 repeats are in): a
     run's natural repeats (a corner picked twice, the closure touch) are no test of the probe."""

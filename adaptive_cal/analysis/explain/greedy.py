@@ -23,6 +23,7 @@ import numpy as np
 ORTH_RTOL = 1e-9  # identify._orth
 OFFSET_RTOL = 1e-10  # evidence.Projector.of
 CONSTANT_RTOL = 1e-9  # identify._centred
+TIE = 1e-12  # canonical correlations this close are equal
 
 
 def _basis(X: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -58,6 +59,13 @@ def min_cc(W: np.ndarray, widths: tuple) -> np.ndarray:
     return np.where(rE == 0, 1.0, out)  # an all-zero regressor is invisible: fully aliased
 
 
+def first_best(scores) -> int:
+    """The first try whose score is the least to round-off (1e-12): mirror-image places tie,
+    and the pick then follows the menu's order, not the last bits of an SVD."""
+    scores = np.asarray(scores, float)
+    return int(np.flatnonzero(scores <= scores.min() + TIE)[0])
+
+
 def search(W0: np.ndarray, widths: tuple, blocks: list[np.ndarray], menu: list[list[dict]],
            cc: float, target: float, max_extra: int) -> tuple[list[dict], float]:
     """Greedy: add the menu item that lowers the canonical correlation most, until it is at most
@@ -75,7 +83,7 @@ def search(W0: np.ndarray, widths: tuple, blocks: list[np.ndarray], menu: list[l
         for i, b in enumerate(blocks):
             stack[i, R.shape[0]:R.shape[0] + len(b)] = b
         scores = min_cc(stack, widths)
-        best = int(np.argmin(scores))
+        best = first_best(scores)
         chosen += menu.pop(best)
         R = np.linalg.qr(np.vstack([R, blocks.pop(best)]), mode="r")
         cc = float(scores[best])

@@ -129,7 +129,7 @@ def _greedy(ctx, name, partners, menu, cc) -> tuple[list[dict], float]:
     menu, chosen = list(menu), []
     while cc > TARGET_CC and menu and len(chosen) < MAX_EXTRA:
         scores = [_alias_cc(ctx, name, partners, *_augment(ctx, chosen + i)) for i in menu]
-        best = int(np.argmin(scores))
+        best = greedy.first_best(scores)
         chosen, cc = chosen + menu.pop(best), scores[best]
     return chosen, cc
 
