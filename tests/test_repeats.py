@@ -1,8 +1,7 @@
 """Repeat touches tell the probe's noise from the plate (planning.repeats): the pooled variance
 against a direct sum, the repeats check's false-alarm rate and power by Monte Carlo against the
-F distribution it is built on, readings at one place pooled for the learned noise (the same
-posterior as one by one; the noise no longer pulled toward the probe's by the repeats), and
-the loop on a simulated cell that owes repeats before its bound may stop it."""
+F distribution it is built on, and the loop on a simulated cell that owes repeats before its
+bound may stop it."""
 import numpy as np
 import pytest
 import yaml
@@ -78,97 +77,6 @@ def test_the_repeats_check_fires_as_its_f_test_says(structure_mm, lo, hi):
     assert lo <= fails / 60 <= hi, fails
     if structure_mm:
         assert 0.5 * structure_mm < np.median(unresolved) < 1.5 * structure_mm
-
-
-def test_pooled_readings_give_the_same_posterior():
-    """``prior.pooled``: readings at one place become their weighted mean with the summed
-    weight; oracle: the posterior of every reading, one by one, at its own noise sigma^2 / w."""
-    from adaptive_cal.gaussian.prior import pooled
-
-    plan = _plan()
-    prior = plan.model.belief(plan.model.hyper0)
-    rng = np.random.default_rng(4)
-    xy = rng.uniform(-150, 150, (20, 2))
-    xy = np.vstack([xy, xy[[3, 3, 7, 12]], xy[:1]])
-    rows = plan.model.surface.basis(xy[:, 0], xy[:, 1])
-    y = rng.normal(0, 0.01, len(xy))
-    w = rng.uniform(0.2, 1.0, len(xy))
-    r = 0.005**2
-    prow, py, pw = pooled(rows, y, w)
-    assert len(py) == 20 and np.array_equal(prow, rows[:20])  # places in the order first read
-    assert pw[3] == pytest.approx(w[3] + w[20] + w[21]) and pw[5] == w[5]
-    assert py[3] == pytest.approx(np.average(y[[3, 20, 21]], weights=w[[3, 20, 21]]))
-    want = prior
-    for i in range(len(y)):
-        want = bl.fuse(want, rows[i], y[i], r / w[i])[0]
-    got = bl.condition(prior, prow, py, r / pw)
-    scale = np.sqrt(np.diag(want.cov))
-    np.testing.assert_allclose(got.mean / scale, want.mean / scale, atol=1e-8)
-    np.testing.assert_allclose(got.cov / np.outer(scale, scale), want.cov / np.outer(scale, scale),
-                               atol=1e-8)
-    untouched = pooled(rows[:20], y[:20], w[:20])
-    assert untouched[0] is not None and np.array_equal(untouched[1], y[:20])
-
-
-def test_the_learned_noise_is_fitted_to_places_not_to_their_repeats():
-    """A plate with white structure of 6 um at each of 40 places (finer than the touches'
-    spacing), a 5 um probe, 4 places read 4 times. The nugget is probe and structure, about 7.8
-    um; the 12 repeats scatter by the probe alone. Fitted to every reading, the noise is pulled
-    toward the probe's (about 7.3 um, by the counts); fitted to the places (``learned_belief``)
-    it is not: higher on each of 6 plates, and within 25 % of 7.8 um on average."""
-    from adaptive_cal.gaussian.prior import hyper_posterior, learned_belief
-
-    plan = _plan()
-    prior = plan.model.belief(plan.model.hyper0)
-    rng = np.random.default_rng(8)
-    (x0, x1), (y0, y1) = plan.bounds_mm
-    per_place, per_reading = [], []
-    for _ in range(6):
-        a = bl.sample(prior, rng, 1)[0]
-        xy = np.stack([rng.uniform(x0, x1, 40), rng.uniform(y0, y1, 40)], 1)
-        which = np.concatenate([np.arange(40), np.repeat(np.arange(4), 3)])
-        rows = plan.model.surface.basis(xy[which, 0], xy[which, 1])
-        y = rows @ a + 0.006 * rng.standard_normal(40)[which] + 0.005 * rng.standard_normal(52)
-        per_place.append(learned_belief(plan.model, rows, y)[1][0][0].noise_std_mm)
-        per_reading.append(hyper_posterior(plan.model, rows, y, points=False)[0][0].noise_std_mm)
-    assert all(p > q for p, q in zip(per_place, per_reading)), (per_place, per_reading)
-    assert 0.75 * 0.0078 < np.mean(per_place) < 1.25 * 0.0078, per_place
-
-
-def test_the_survey_pools_its_own_repeats_live_and_replayed_alike():
-    """Repeats go to a position rebuilt from the first reading's basis row (``repeats.place``),
-    about 1e-10 mm off it, and a recording keeps 4 decimals: either way they are one place
-    (``checks.row_places``), as ``checks.repeats`` counts them, and the residual degrees of
-    freedom count the place once (an outside audit: bit-equal rows only had left a live run's
-    repeats unpooled, so its learned noise differed from its replay's)."""
-    from adaptive_cal.gaussian.checks import row_places
-    from adaptive_cal.planning import repeats as rp
-    from adaptive_cal.planning import survey
-    from adaptive_cal.planning.adequacy import positions_mm
-    from adaptive_cal.planning.ask import target
-    from adaptive_cal.planning.closure import residual_dof
-
-    plan = _plan()
-    state = survey.start(plan)
-    rng = np.random.default_rng(1)
-    xy = rng.uniform(-150, 150, (8, 2))
-    for x, y in xy:
-        t = target(plan, state, float(x), float(y))
-        state, _ = survey.tell(plan, state, t.x_mm, t.y_mm, t.z_mm,
-                               t.expected_reading_mm + 0.005 * rng.standard_normal())
-        for _ in range(2):
-            t = target(plan, state, *rp.place(plan, state))
-            assert (t.x_mm, t.y_mm) != (float(x), float(y))  # not bit-equal
-            state, _ = survey.tell(plan, state, t.x_mm, t.y_mm, t.z_mm,
-                                   t.expected_reading_mm + 0.005 * rng.standard_normal())
-    pos = positions_mm(plan.model.surface, state.rows)
-    assert row_places(state.rows)[1] == 8
-    assert repeats(pos, state.heights_mm)[0] == len(state.heights_mm) - 8
-    replayed = plan.model.surface.basis(np.round(pos[:, 0], 4), np.round(pos[:, 1], 4))
-    assert np.array_equal(row_places(replayed)[0], row_places(state.rows)[0])
-    cov = state.belief.cov
-    assert residual_dof(state.rows, state.fused_weights, cov, 0.005**2) == pytest.approx(
-        residual_dof(state.rows[::3], np.full(8, 3.0), cov, 0.005**2), rel=1e-9)
 
 
 def test_without_suspicion_a_place_read_twice_asks_no_question():
@@ -264,7 +172,7 @@ def test_without_a_span_a_noise_well_above_the_first_guess_is_suspect_and_judged
             from scipy.stats import f
 
             bound = v.checks["repeats"]["bound"]
-            assert bound == pytest.approx(f.isf(0.01, len(y) - 12, 12), rel=1e-12)  # places
+            assert bound == pytest.approx(f.isf(0.01, len(y), 12), rel=1e-12)
             assert v.unseen_rms_mm == pytest.approx(np.sqrt((bound - 1) * v.repeat_std_mm**2),
                                                     rel=1e-12)
             assert "its repeats leave room for it" in v.summary() or not v.adequate

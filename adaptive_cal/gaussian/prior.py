@@ -28,7 +28,6 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 
 from adaptive_cal.gaussian.belief import Belief, coefficient_form, condition, mixture
-from adaptive_cal.gaussian.checks import row_places
 from adaptive_cal.gaussian.spline import Surface
 
 JITTER_MM2 = 1e-10
@@ -162,8 +161,7 @@ def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, l
                   embed, extra, weights=1.0):
     """-(log N(y; 0, H C0(theta) H^T + sigma_n^2 W^-1) + log hyper-prior); padded rows masked.
     C0 = C_tilt + E C_form E^T + extra (E = I and extra = 0 unless the model grew).
-    ``weights`` w_i > 0: a reading judged an outlier with probability p has w = 1 - p; a place
-    read several times, the sum of its readings' (``pooled``).
+    ``weights`` w_i in (0, 1]: a reading judged an outlier with probability p has w = 1 - p.
     The hyper-prior in log theta is flat on [lo, hi] with Gaussian shoulders of ``sd`` beyond
     (lo = hi: the log-normal about it)."""
     sf, ls, sn = jnp.exp(log_theta)
@@ -247,9 +245,8 @@ def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     """Hyper-parameters with weights: the MAP, and with ``points`` also 2 x 3 sigma points of
     the Laplace approximation in log theta (at +-2 sd along each principal axis, unscented
     weights with kappa = 1, corrected by the true posterior density). Conditioning on each and
-    mixing carries the hyper-parameter uncertainty into the belief. ``weights`` (n,), > 0:
-    reading i has noise variance sigma_n^2 / w_i (outliers weighted out, places read several
-    times summed: ``pooled``; default all 1)."""
+    mixing carries the hyper-parameter uncertainty into the belief. ``weights`` (n,) in (0, 1]:
+    reading i has noise variance sigma_n^2 / w_i (outliers weighted out; default all 1)."""
     require_float64("fit_hyper")
     padded = _padded(rows, readings)
     args = padded + _model_args(model, extra) + (_padded_weights(padded[2].shape[0], weights),)
@@ -304,34 +301,9 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     so the belief carries the hyper-parameter uncertainty. Returns it and the points (the MAP
     first: its noise serves the fusions until the next refit). ``weights`` w_i: reading i's
     noise variance is sigma_n^2 / w_i in the fit and the posterior (robust: outliers out).
-    ``extra``: a fixed covariance added to the prior (a grown model's finer structure).
-
-    Readings at one place (equal basis rows: repeats, retakes) enter as their weighted mean
-    with the summed weight (``pooled``). The posterior is the same -- for one row that pair is a
-    sufficient statistic -- but the learned noise is fitted to the places alone: sigma_n is a
-    nugget, the probe's noise plus the plate's structure finer than the spline, and readings at
-    one place differ by the probe alone, so their scatter pulled sigma_n toward the probe's and
-    narrowed the bands by the structure it left out (docs/plates.md, repeat touches). That
-    scatter measures the probe (``checks.repeats``)."""
-    rows, readings, w = pooled(rows, readings, weights)
+    ``extra``: a fixed covariance added to the prior (a grown model's finer structure)."""
+    w = np.ones(len(readings)) if weights is None else np.asarray(weights, float)
     points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra)
     belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)
                       for h, _ in points], [wt for _, wt in points])
     return belief, points
-
-
-def pooled(rows, readings, weights=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Readings at one place (``checks.row_places``: basis rows equal to round-off) as one:
-    their weighted mean, with the sum of their weights w (noise sigma_n^2 / w: the same
-    information about the surface), at the place's first row. Places in the order first read;
-    rows and weights as given where no place is read twice."""
-    rows = np.asarray(rows, float)
-    y = np.asarray(readings, float)
-    w = np.ones(len(y)) if weights is None else np.asarray(weights, float)
-    label, count = row_places(rows)
-    if count == len(y):
-        return rows, y, w
-    first = np.full(count, len(y))
-    np.minimum.at(first, label, np.arange(len(y)))
-    wsum = np.bincount(label, w, count)
-    return rows[first], np.bincount(label, w * y, count) / np.maximum(wsum, 1e-300), wsum

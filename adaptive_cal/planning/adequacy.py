@@ -16,8 +16,7 @@ plate, which the map's bands must carry. Checks (each at a stated level; ALPHA i
    (``gaussian.checks.unresolved_form_var``); its RMS must stay below half the probe noise;
 6. ``repeats`` (the learned noise suspect and enough readings repeats at their place,
    ``gaussian.checks.repeats``): sigma_n^2 over the repeats' pooled variance s_r^2 (dof d)
-   below the F(p, d) upper alpha point (p places: sigma_n is fitted to them, ``prior.pooled``;
-   ``planning.repeats.judged``: its level, the readings):
+   below the F(n, d) upper alpha point (``planning.repeats.judged``: its level, the readings):
    repeats read the probe alone, so a learned noise well above them is plate structure the
    model missed. Where it fails, the unresolved variance is measured beyond s_r^2 instead.
 
@@ -255,9 +254,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     xy = positions_mm(surface, rows)
     rep_dof, rep_var = checks.repeats(xy, readings, 1.0 / inv_w) if repeats else (0, np.nan)
     rep_dof = rep_dof if repeats and rep_dof >= repeats[1] else 0
-    # the noise is fitted to the places (``prior.pooled``)
-    n_places = checks.row_places(rows)[1]
-    rep_bound = float(special.fdtri(n_places, rep_dof, 1 - repeats[0])) if rep_dof else np.inf
+    rep_bound = float(special.fdtri(n, rep_dof, 1.0 - repeats[0])) if rep_dof else np.inf
     # a repeat reading's own resolution floor: identical readings are not a noise of 0
     rep_ratio = noise_std_mm**2 / max(rep_var, 1e-14) if rep_dof else 0.0
     if rep_ratio > rep_bound:  # the learned noise holds structure: measure beyond the probe's

@@ -193,23 +193,16 @@ def repeats_to_judge(told) -> tuple[list[int], str]:
 
 
 def residual_dof(rows, weights, cov, noise_var_mm2: float) -> float:
-    """The degrees of freedom the learned noise rests on: sum_p min(w_p, 1) (1 - l_p) over the
-    places it is fitted to (``prior.pooled``: readings at one place as one, w_p the sum of
-    their weights), the places less what the map spent fitting them, l_p = w_p h_p C h_p / r
-    the leverage of place p (the map's variance there over the reading's own: the share of its
-    value the fit kept; sum l_p is the map's effective number of parameters, trace of the hat
-    matrix). A reading weighted out as a gross error (w ~ 0) adds nothing; readings repeated at
-    a place add no more than one. At least 1."""
-    from adaptive_cal.gaussian.checks import row_places  # not prior.pooled: JAX stays unloaded
-
+    """The degrees of freedom the learned noise rests on: sum_i w_i (1 - l_i), the readings less
+    what the map spent fitting them, l_i = w_i h_i C h_i / r the leverage of reading i (the
+    map's variance there over the reading's own: the share of its value the fit kept; sum l_i
+    is the map's effective number of parameters, trace of the hat matrix). A reading weighted
+    out as a gross error (w ~ 0) adds nothing. At least 1."""
     rows = np.atleast_2d(np.asarray(rows, float))
-    label, count = row_places(rows)
-    first = np.full(count, len(rows))
-    np.minimum.at(first, label, np.arange(len(rows)))
-    rows, w = rows[first], np.bincount(label, np.asarray(weights, float), count)
+    w = np.clip(np.asarray(weights, float), 0.0, 1.0)
     lev = np.clip(np.einsum("ij,jk,ik->i", rows, np.asarray(cov, float), rows) * w
                   / noise_var_mm2, 0.0, 1.0)
-    return max(float(np.minimum(w, 1.0) @ (1.0 - lev)), 1.0)
+    return max(float(w @ (1.0 - lev)), 1.0)
 
 
 def judge(first_rows, first_mm, repeat_rows, repeat_mm, mean, cov, noise_var_mm2: float,

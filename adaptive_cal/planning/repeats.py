@@ -25,12 +25,6 @@ inadequate, grows and widens its bands by the excess over the probe's measured n
 line with them passes -- the probe is as noisy as learned, and the summary gives both. A bound
 waits for the repeats (``Status.repeats_owed``); the touch budget does not.
 
-The repeat readings are fused like any other, but the learned noise is fitted to each place's
-mean (``prior.pooled``): the scatter at one place is the probe's alone, and fitted with the
-rest it pulled the nugget -- probe and unresolved structure -- toward the probe's and
-narrowed the bands by the structure (docs/plates.md, repeat touches). The check's F then has
-the places' count, n - d, beside the repeats' d.
-
 Without a span the test is stricter (``NO_SPAN_TEST``: 1 %, judged once all ``DOF`` repeats
 are in), as suspicion is common there -- a first guess is often off by 1.5 x -- and a false
 alarm sends a run to its budget. Measured (2026-11-29): on the 20 plates of
