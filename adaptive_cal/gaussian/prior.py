@@ -28,6 +28,7 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 
 from adaptive_cal.gaussian.belief import Belief, coefficient_form, condition, mixture
+from adaptive_cal.gaussian.places import floor_penalty as _floor_penalty, pooled
 from adaptive_cal.gaussian.spline import Surface
 
 JITTER_MM2 = 1e-10
@@ -241,19 +242,26 @@ def require_float64(what: str) -> None:
 
 def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
                     start: Hyper | None = None, *, points: bool = True, weights=None,
-                    extra: np.ndarray | None = None) -> list[tuple[Hyper, float]]:
+                    extra: np.ndarray | None = None, floor: tuple[float, int] | None = None
+                    ) -> list[tuple[Hyper, float]]:
     """Hyper-parameters with weights: the MAP, and with ``points`` also 2 x 3 sigma points of
     the Laplace approximation in log theta (at +-2 sd along each principal axis, unscented
     weights with kappa = 1, corrected by the true posterior density). Conditioning on each and
-    mixing carries the hyper-parameter uncertainty into the belief. ``weights`` (n,) in (0, 1]:
-    reading i has noise variance sigma_n^2 / w_i (outliers weighted out; default all 1)."""
+    mixing carries the hyper-parameter uncertainty into the belief. ``weights`` (n,), > 0:
+    reading i has noise variance sigma_n^2 / w_i (outliers weighted out, a place read several
+    times their sum: ``pooled``; default all 1). ``floor`` (ss, dof): the scatter of readings
+    about their place's mean, which measures the probe alone (``learned_belief``)."""
     require_float64("fit_hyper")
     padded = _padded(rows, readings)
     args = padded + _model_args(model, extra) + (_padded_weights(padded[2].shape[0], weights),)
 
     def fun(x):
         v, g = _value_and_grad(np.asarray(x, np.float64), *args)  # numpy: jit's fast path
-        return float(v), np.asarray(g, float)
+        v, g = float(v), np.array(g, float)
+        if floor is not None:
+            p, dp = _floor_penalty(x[2], *floor)
+            v, g[2] = v + p, g[2] + dp
+        return v, g
 
     h0 = model.hyper0
     x0 = np.log(np.asarray(start or h0, float))
@@ -301,9 +309,23 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     so the belief carries the hyper-parameter uncertainty. Returns it and the points (the MAP
     first: its noise serves the fusions until the next refit). ``weights`` w_i: reading i's
     noise variance is sigma_n^2 / w_i in the fit and the posterior (robust: outliers out).
-    ``extra``: a fixed covariance added to the prior (a grown model's finer structure)."""
+    ``extra``: a fixed covariance added to the prior (a grown model's finer structure).
+
+    The noise sigma_n is a nugget: the probe's noise plus the plate's structure finer than the
+    spline, s^2 + p^2. Readings at one place (``checks.row_places``: repeats, retakes, a place
+    the planner picks again) differ by the probe alone, so fitted like the rest their scatter
+    pulled sigma_n toward p and left the structure out of the bands; ignored, it let sigma_n
+    fall below the probe's own noise where the form took part of a noisy probe's scatter (the
+    study's in-family plates: runs stopped early with a true error above the bound). They enter
+    as their weighted mean with the summed weight (``pooled``; for one basis row the pair is
+    sufficient: the posterior is the same), and their scatter about it as a floor: the
+    likelihood of the scatter, ss ~ p^2 chi2(dof), profiled over p <= sigma_n (s >= 0), is
+    flat where sigma_n >= the scatter's own sd and falls off below (``places.floor_penalty``)."""
     w = np.ones(len(readings)) if weights is None else np.asarray(weights, float)
-    points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra)
+    rows, readings, w, floor = pooled(rows, readings, w)
+    points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra,
+                             floor=floor)
     belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)
                       for h, _ in points], [wt for _, wt in points])
     return belief, points
+

@@ -25,6 +25,11 @@ inadequate, grows and widens its bands by the excess over the probe's measured n
 line with them passes -- the probe is as noisy as learned, and the summary gives both. A bound
 waits for the repeats (``Status.repeats_owed``); the touch budget does not.
 
+The learned noise is fitted to places (``prior.learned_belief``, ``gaussian.places``): readings
+at one place enter as their mean, and their scatter -- the probe's alone -- is a floor under the
+nugget, not a pull toward it; fitted with the rest, repeats had pulled the nugget toward the
+probe's noise and narrowed the bands by the structure it held.
+
 Without a span the test is stricter (``NO_SPAN_TEST``: 1 %, judged once all ``DOF`` repeats
 are in), as suspicion is common there -- a first guess is often off by 1.5 x -- and a false
 alarm sends a run to its budget. Measured (2026-11-29): on the 20 plates of
