@@ -172,8 +172,8 @@ ROW_STEP = 1e-5
 
 def row_places(rows) -> tuple[np.ndarray, int]:
     """(label of each reading's place, places) from the readings' basis rows: rows equal on the
-    ``ROW_STEP`` grid are one place, labelled in the order first read. The places of the
-    learned noise's fit (``prior.pooled``) and of its degrees of freedom."""
+    ``ROW_STEP`` grid are one place, labelled in the order first read: the places of the
+    learned noise's fit (``places.pooled``)."""
     rows = np.asarray(rows, float)
     if len(rows) == 0:
         return np.zeros(0, int), 0

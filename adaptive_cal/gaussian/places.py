@@ -45,4 +45,3 @@ def floor_penalty(log_sigma: float, ss: float, dof: int) -> tuple[float, float]:
         return 0.0, 0.0
     f = lambda u: dof * u + 0.5 * ss * np.exp(-2.0 * u)
     return float(f(log_sigma) - f(u0)), float(dof - ss * np.exp(-2.0 * log_sigma))
-

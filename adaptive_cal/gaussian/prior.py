@@ -320,7 +320,9 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     as their weighted mean with the summed weight (``pooled``; for one basis row the pair is
     sufficient: the posterior is the same), and their scatter about it as a floor: the
     likelihood of the scatter, ss ~ p^2 chi2(dof), profiled over p <= sigma_n (s >= 0), is
-    flat where sigma_n >= the scatter's own sd and falls off below (``places.floor_penalty``)."""
+    flat where sigma_n >= the scatter's own sd and falls off below (``places.floor_penalty``).
+    A place's mean keeps noise sigma_n^2 / sum w: where the nugget holds structure, which its
+    repeats do not average down, a place read many times is trusted a little too much."""
     w = np.ones(len(readings)) if weights is None else np.asarray(weights, float)
     rows, readings, w, floor = pooled(rows, readings, w)
     points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra,
@@ -328,4 +330,3 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)
                       for h, _ in points], [wt for _, wt in points])
     return belief, points
-
