@@ -35,9 +35,11 @@ from scipy import linalg
 from scipy.special import logsumexp
 
 from adaptive_cal.analysis.explain.evidence1 import log_evidence_spectral1
-from adaptive_cal.analysis.explain.quadrature import (GAUSS_HERMITE, LOG2PI, NEWTON_TOL,  # noqa: F401
-                                                      _log_integral, coarse_grid, near_gaussian,
-                                                      quadrature)
+from adaptive_cal.analysis.explain.quadrature import (LOG2PI, NEWTON_TOL, _log_integral,
+                                                      coarse_grid, rules)
+# re-exported for tests/test_explain_quadrature.py, which checks the rules through this module
+from adaptive_cal.analysis.explain.quadrature import (  # noqa: F401
+    GAUSS_HERMITE, near_gaussian, quadrature)
 
 
 @dataclass(frozen=True)
@@ -112,9 +114,8 @@ def log_evidence_spectral(lam, c2, yy, m) -> tuple[np.ndarray, np.ndarray]:
     flat = lambda a, tail=(): np.broadcast_to(a, lead + tail).reshape((count,) + tail)
     L, C, W, SD = flat(lam, (k,)), flat(c2, (k,)), flat(w), flat(sd)
     c2_sum = C.sum(-1)
-    gauss = near_gaussian(m - k, np.maximum(yy - c2_sum, 1e-12 * yy), c2_sum)
     log_z = np.empty(W.size)
-    for on, (t, log_weight) in ((~gauss, quadrature(m - k)), (gauss, GAUSS_HERMITE)):
+    for on, t, log_weight in rules(m - k, np.maximum(yy - c2_sum, 1e-12 * yy), c2_sum):
         if on.any():
             grid = W[on, None] + SD[on, None] * t
             log_z[on] = _log_integral(_spectral(L[on], C[on], yy, m, grid), log_weight)

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from adaptive_cal.analysis.explain.quadrature import (GAUSS_HERMITE, LOG2PI, NEWTON_TOL, TIGHT,
-                                                      _log_integral, coarse_grid, near_gaussian,
-                                                      quadrature)
+from adaptive_cal.analysis.explain.quadrature import (LOG2PI, NEWTON_TOL, TIGHT, _log_integral,
+                                                      coarse_grid, rules)
 
 
 def _spectral1(lam, c2, rest, m, w, v):
@@ -120,8 +119,7 @@ def log_evidence_spectral1(lam, c2, yy, m) -> tuple[np.ndarray, np.ndarray]:
         c = slice(j, j + 8 * CHUNK)
         w[c], sd[c] = _newton1(lam[c], c2[c], rest[c], m, w[c])
     log_z = np.empty(lam.size)
-    gauss = near_gaussian(m - 1, rest, c2)
-    for on, (t, log_weight) in ((~gauss, quadrature(m - 1)), (gauss, GAUSS_HERMITE)):
+    for on, t, log_weight in rules(m - 1, rest, c2):
         idx = np.flatnonzero(on)
         for c in [idx[j:j + CHUNK] for j in range(0, idx.size, CHUNK)]:
             grid = w[c, None] + sd[c, None] * t

@@ -40,6 +40,14 @@ def near_gaussian(dof: int, rest: np.ndarray, c2_sum: np.ndarray) -> np.ndarray:
     return np.log1p(c2_sum / rest) < TIGHT
 
 
+def rules(dof: int, rest: np.ndarray, c2_sum: np.ndarray):
+    """Which rule integrates which model: ((models, nodes, log weights), ...) -- the trapezoid of
+    ``quadrature(dof)`` for the models not ``near_gaussian``, ``GAUSS_HERMITE`` for those that
+    are (``rest``, ``c2_sum`` per model, as there)."""
+    gauss = near_gaussian(dof, rest, c2_sum)
+    return (~gauss, *quadrature(dof)), (gauss, *GAUSS_HERMITE)
+
+
 def coarse_grid(yy: float, m: int, rest_min: float) -> np.ndarray:
     """Newton's start grid in w, 0.3 apart: from 14 below log(yy / m) to 4 above -- and further
     down to 1 below log(rest / m) where a model leaves almost nothing (rest, its smallest
