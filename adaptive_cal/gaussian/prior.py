@@ -323,8 +323,7 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     flat where sigma_n >= the scatter's own sd and falls off below (``places.floor_penalty``).
     A place's mean keeps noise sigma_n^2 / sum w: where the nugget holds structure, which its
     repeats do not average down, a place read many times is trusted a little too much."""
-    w = np.ones(len(readings)) if weights is None else np.asarray(weights, float)
-    rows, readings, w, floor = pooled(rows, readings, w)
+    rows, readings, w, floor = pooled(rows, readings, weights)
     points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra,
                              floor=floor)
     belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)
