@@ -139,7 +139,7 @@ def test_standardized_innovations_equal_the_sequential_filter():
 
 def test_positions_are_recovered_from_basis_rows():
     from adaptive_cal.cell.build import survey_plan
-    from adaptive_cal.planning.adequacy import positions_mm
+    from adaptive_cal.gaussian.places import positions_mm
     from helpers import sim_cell
 
     s = survey_plan(sim_cell(), grow=False).model.surface

@@ -32,7 +32,7 @@ def test_pooled_readings_give_the_same_posterior_and_their_scatter():
     w = rng.uniform(0.6, 1.0, len(xy))
     w[21] = 1e-6  # a gross error weighted out: in the mean at no weight, not in the scatter
     r = 0.005**2
-    prow, py, pw, floor = pooled(rows, y, w)
+    prow, py, pw, floor = pooled(plan.model.surface, rows, y, w)
     assert len(py) == 20 and np.array_equal(prow, rows[:20])  # places in the order first read
     assert pw[3] == pytest.approx(w[3] + w[20] + w[21])
     assert py[3] == pytest.approx(np.average(y[[3, 20, 21]], weights=w[[3, 20, 21]]))
@@ -48,7 +48,7 @@ def test_pooled_readings_give_the_same_posterior_and_their_scatter():
     sd = np.sqrt(np.diag(want.cov))
     np.testing.assert_allclose(got.mean / sd, want.mean / sd, atol=1e-7)
     np.testing.assert_allclose(got.cov / np.outer(sd, sd), want.cov / np.outer(sd, sd), atol=1e-7)
-    assert pooled(rows[:20], y[:20], w[:20])[3] is None
+    assert pooled(plan.model.surface, rows[:20], y[:20], w[:20])[3] is None
 
 
 def test_the_floor_is_the_profiled_scatter_likelihood():
@@ -100,7 +100,7 @@ def test_the_learned_noise_keeps_structure_and_its_probe_floor(structure_mm, pro
         fit = lambda r, v, w=None: hyper_posterior(plan.model, r, v, points=False,
                                                    weights=w)[0][0].noise_std_mm
         every.append(fit(rows, y))
-        prow, py, pw, _ = pooled(rows, y)
+        prow, py, pw, _ = pooled(plan.model.surface, rows, y)
         alone.append(fit(prow, py, pw))
         floored.append(learned_belief(plan.model, rows, y)[1][0][0].noise_std_mm)
     every, alone, floored = map(np.array, (every, alone, floored))
@@ -113,12 +113,12 @@ def test_the_learned_noise_keeps_structure_and_its_probe_floor(structure_mm, pro
 def test_the_survey_pools_its_own_repeats_live_and_replayed_alike():
     """Repeats go to a position rebuilt from the first reading's basis row (``repeats.place``),
     about 1e-10 mm off it, and a recording keeps 4 decimals: either way they are one place
-    (``checks.row_places``), as ``checks.repeats`` counts them (an outside audit: with bit-equal
+    (``places.places``), as ``checks.repeats`` counts them (an outside audit: with bit-equal
     rows a live run's repeats were not pooled, and its replay learned another noise)."""
-    from adaptive_cal.gaussian.checks import repeats, row_places
+    from adaptive_cal.gaussian.checks import repeats
+    from adaptive_cal.gaussian.places import places, positions_mm
     from adaptive_cal.planning import repeats as rp
     from adaptive_cal.planning import survey
-    from adaptive_cal.planning.adequacy import positions_mm
     from adaptive_cal.planning.ask import target
 
     plan = _plan()
@@ -134,8 +134,37 @@ def test_the_survey_pools_its_own_repeats_live_and_replayed_alike():
             state, _ = survey.tell(plan, state, t.x_mm, t.y_mm, t.z_mm,
                                    t.expected_reading_mm + 0.005 * rng.standard_normal())
     pos = positions_mm(plan.model.surface, state.rows)
-    assert row_places(state.rows)[1] == 8
+    assert len(places(pos)[1]) == 8
     assert repeats(pos, state.heights_mm)[0] == len(state.heights_mm) - 8
     replayed = plan.model.surface.basis(np.round(pos[:, 0], 4), np.round(pos[:, 1], 4))
-    assert np.array_equal(row_places(replayed)[0], row_places(state.rows)[0])
-    assert pooled(state.rows, state.heights_mm)[3][1] == 16
+    assert np.array_equal(places(positions_mm(plan.model.surface, replayed))[0],
+                          places(pos)[0])
+    s = plan.model.surface
+    assert pooled(s, state.rows, state.heights_mm)[3][1] == 16
+    assert pooled(s, replayed, state.heights_mm)[3][1] == 16
+
+
+def test_one_definition_of_a_place_for_the_repeats_check_and_the_fit():
+    """``places`` labels in the order first read, with the readings per place; the repeats check
+    (``checks.repeats``) and the fit's pooling (``pooled``) count the same places and the same
+    degrees of freedom, whether the readings come from live rows or 4-decimal positions."""
+    from adaptive_cal.gaussian.checks import repeats
+    from adaptive_cal.gaussian.places import places, positions_mm
+
+    label, counts = places([[5.0, 1.0], [-3.0, 2.0], [5.0 + 4e-5, 1.0], [-3.0, 2.0 - 1e-10],
+                            [100.0, 0.0], [5.0, 1.0]])
+    assert label.tolist() == [0, 1, 0, 1, 2, 0] and counts.tolist() == [3, 2, 1]
+    assert places(np.zeros((0, 2)))[1].size == 0 and places([[1.0, 2.0]])[1].tolist() == [1]
+    # a rounding grid's boundary (0.005 mm) between a live position and its 4-decimal copy
+    assert places([[12.345, 0.0], [12.345 + 3e-5, 0.0], [12.3449, 0.0]])[1].tolist() == [3]
+    assert places([[0.0, 0.0], [0.02, 0.0], [0.0, 0.02]])[1].tolist() == [1, 1, 1]
+    s = _plan().model.surface
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(-200, 180, (30, 2))
+    xy = np.vstack([xy, xy[[2, 2, 9, 17, 17, 17]] + rng.uniform(-3e-5, 3e-5, (6, 2))])
+    y = rng.normal(0, 0.005, len(xy))
+    for rows in (s.basis(xy[:, 0], xy[:, 1]), s.basis(*np.round(xy, 4).T)):
+        assert np.allclose(positions_mm(s, rows), xy, atol=1e-4)
+        _, _, _, (ss, dof) = pooled(s, rows, y)
+        d, var = repeats(positions_mm(s, rows), y)
+        assert dof == d == 6 and ss == pytest.approx(var * d, rel=1e-12)

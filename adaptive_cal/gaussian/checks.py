@@ -21,6 +21,7 @@ from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy import special  # gammaincinv, chdtri: scipy.stats.chi2's ppf and isf, without loading it
 
 from adaptive_cal.gaussian.belief import coefficient_form, woodbury
+from adaptive_cal.gaussian.places import places
 
 
 class LeaveOneOut(NamedTuple):
@@ -148,40 +149,6 @@ def unresolved_form_var(surface, form_std_mm: float, length_scale_mm: float, x_m
     py = _axis_projection(surface.sy, y_mm, length_scale_mm)
     var = form_std_mm**2 * (1 - 2 * px.a * py.a + px.c * py.c)
     return np.maximum(var, 0.0), max(0.0, form_std_mm**2 * (1 - px.mean * py.mean))
-
-
-#: readings closer than this (mm) are taken at one place (a repeat sent to the same x, y)
-SAME_PLACE_MM = 0.01
-
-
-def places(xy_mm) -> tuple[np.ndarray, np.ndarray]:
-    """(label of each point's place, readings per place): points within ``SAME_PLACE_MM`` of
-    one grid node are one place."""
-    xy = np.asarray(xy_mm, float).reshape(-1, 2)
-    _, label, counts = np.unique(np.round(xy / SAME_PLACE_MM).astype(np.int64), axis=0,
-                                 return_inverse=True, return_counts=True)
-    return label.ravel(), counts
-
-
-#: basis rows that agree to this, entry by entry, are readings at one place (``row_places``):
-#: a repeat sent to a position rebuilt from the first reading's row lands about 1e-10 mm off
-#: it (rows 1e-12 apart), a recording keeps 4 decimals (5e-5 mm: rows about 1e-6 apart at
-#: worst on 50 mm knots), and places a millimetre apart differ by about 1e-2
-ROW_STEP = 1e-5
-
-
-def row_places(rows) -> tuple[np.ndarray, int]:
-    """(label of each reading's place, places) from the readings' basis rows: rows equal on the
-    ``ROW_STEP`` grid are one place, labelled in the order first read: the places of the
-    learned noise's fit (``places.pooled``)."""
-    rows = np.asarray(rows, float)
-    if len(rows) == 0:
-        return np.zeros(0, int), 0
-    _, first, label = np.unique(np.round(rows / ROW_STEP).astype(np.int64), axis=0,
-                                return_index=True, return_inverse=True)
-    rank = np.empty(len(first), int)
-    rank[np.argsort(first)] = np.arange(len(first))
-    return rank[label.ravel()], len(first)
 
 
 def repeats(xy_mm, readings, weights=None) -> tuple[int, float]:

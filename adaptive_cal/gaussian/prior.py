@@ -312,7 +312,7 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     ``extra``: a fixed covariance added to the prior (a grown model's finer structure).
 
     The noise sigma_n is a nugget: the probe's noise plus the plate's structure finer than the
-    spline, s^2 + p^2. Readings at one place (``checks.row_places``: repeats, retakes, a place
+    spline, s^2 + p^2. Readings at one place (``places.places``: repeats, retakes, a place
     the planner picks again) differ by the probe alone, so fitted like the rest their scatter
     pulled sigma_n toward p and left the structure out of the bands; ignored, it let sigma_n
     fall below the probe's own noise where the form took part of a noisy probe's scatter (the
@@ -323,7 +323,7 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     flat where sigma_n >= the scatter's own sd and falls off below (``places.floor_penalty``).
     A place's mean keeps noise sigma_n^2 / sum w: where the nugget holds structure, which its
     repeats do not average down, a place read many times is trusted a little too much."""
-    rows, readings, w, floor = pooled(rows, readings, weights)
+    rows, readings, w, floor = pooled(model.surface, rows, readings, weights)
     points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra,
                              floor=floor)
     belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)

@@ -58,6 +58,7 @@ import numpy as np
 from scipy import special  # fdtri, ndtri: scipy.stats's f.isf and norm.isf, without loading it
 
 from adaptive_cal.gaussian import checks
+from adaptive_cal.gaussian.places import positions_mm
 
 ALPHA = 0.01  # false-alarm level of the whole check on an adequate model (split below)
 MIN_READINGS = 3  # a region is tested with at least this many readings
@@ -210,15 +211,6 @@ class Adequacy:
                 "repeats": {"dof": self.repeat_dof, "std_mm": self.repeat_std_mm},
                 "extrapolated": self.extrapolated(),
                 "summary": self.summary()}
-
-
-def positions_mm(surface, rows: np.ndarray) -> np.ndarray:
-    """(x, y) of readings from their basis rows: a row is m_x(x) kron m_y(y) and a spline
-    reproduces constants and straight lines (sum m = 1, m . knots = t), so x = m_x . knots_x.
-    Exact for natural and not-a-knot ends."""
-    r = rows.reshape(len(rows), surface.sx.size, surface.sy.size)
-    mx, my = r.sum(axis=2), r.sum(axis=1)
-    return np.stack([mx @ surface.sx.knots, my @ surface.sy.knots], 1)
 
 
 def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,

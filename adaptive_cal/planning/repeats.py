@@ -45,8 +45,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from adaptive_cal.gaussian.checks import places, repeats
-from adaptive_cal.planning.adequacy import positions_mm
+from adaptive_cal.gaussian.checks import repeats
+from adaptive_cal.gaussian.places import places, positions_mm
 
 #: repeat readings asked for (dof of their variance): with 12 and 40-60 readings, a learned
 #: noise 1.3 x the probe's fails the check 26 % of the time, 1.6 x 58-60 %, 1.88 x (the

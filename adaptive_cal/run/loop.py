@@ -38,12 +38,12 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from adaptive_cal.formats.recording import surface_height_mm
+from adaptive_cal.gaussian.places import positions_mm
 from adaptive_cal.hardware.base import ProbeLeftDown, Touch, TouchRejected
 from adaptive_cal.hardware.cycle import ProbeCycle
 from adaptive_cal.planning import closure as cl
 from adaptive_cal.planning import closure_noise
 from adaptive_cal.planning import survey as sv
-from adaptive_cal.planning.adequacy import positions_mm
 from adaptive_cal.planning.ask import Target, ask, target as target_at
 from adaptive_cal.planning.clearance import plate_top_mm  # the travel's height over the plate
 from adaptive_cal.planning.gate import Told
