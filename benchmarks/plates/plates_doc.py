@@ -166,6 +166,22 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   fails) keeps that plate running, but costs the others (8 plates a family): dent 13.4 -> 22.6
   touches, smooth coverage 0.945 -> 0.906, ripple 0.788 -> 0.763, noisy 0.908 -> 0.848. Not
   adopted.
+* **gentler roughness** (`python benchmarks/bench_rough.py`, 6 plates a variant drawn with the
+  same generator's `fourier_field`, 5.4 min; `benchmarks/results/rough-2026-11-30.json`,
+  2026-11-30): the rough family above is rough enough to keep the bands wide; gentler fields
+  are not. Matern-3/2 10 um at 100 mm: coverage 0.755, 5 of 6 runs stop on the bound at 11-27
+  touches claiming 3.5-3.9 um with a true 5.8-7.1 um; Matern-3/2 15 um at 80 mm: 0.795, 3
+  such stops; Matern-5/2 15 um at 60 mm: 0.831, 2 (13 and 40 touches, true 8.7 and 7.2 um);
+  Matern-3/2 20 um at 40 mm: 0.967, every run to the budget. The form prior correlates the
+  knots squared-exponentially, a spectrum with no power at 30-100 mm; readings 100 mm apart of
+  a field that has it are learned as a smooth form of long length scale, with bands as narrow
+  as on a smooth plate. A Matern correlation between the knots instead (a trial, not in the
+  product; `rough-2026-11-30-matern52-trial.json`, `-matern32-trial.json`): coverage 0.849 /
+  0.861 / 0.852 / 0.965 with Matern-5/2, 0.841 / 0.928 / 0.892 / 0.964 with Matern-3/2, false
+  stops 10 -> 7 -> 3 of 24; the 13-touch stop stays (true 9.4-9.5 um), and the in-family study
+  is refused at load with either (its relaxed-design floor at the config's 20 um noise and 200
+  touches rises above its 5 um bound). Not adopted; a mixture of the two correlations weighed
+  by their evidence is the lead, and a stop after a dozen touches stays a guess on such plates.
 * **touches to target on dent**: the grid meets the 5 um target after 5.7 touches on average;
   0.6 x that is 3.4 touches, fewer than a tilt and the planner's stroke-safe start need.
   That start looks wasteful -- its second and third touches land 4 and 8 mm from the first,
