@@ -180,8 +180,11 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   0.861 / 0.852 / 0.965 with Matern-5/2, 0.841 / 0.928 / 0.892 / 0.964 with Matern-3/2, false
   stops 10 -> 7 -> 3 of 24; the 13-touch stop stays (true 9.4-9.5 um), and the in-family study
   is refused at load with either (its relaxed-design floor at the config's 20 um noise and 200
-  touches rises above its 5 um bound). Not adopted; a mixture of the two correlations weighed
-  by their evidence is the lead, and a stop after a dozen touches stays a guess on such plates.
+  touches rises above its 5 um bound). Not adopted. A mixture of squared-exponential and
+  Matern-5/2 weighed by their evidence (`*-2026-11-30-kernel-mixture-trial.json`): 0.837 /
+  0.848 / 0.862, false stops 6 of 18, in-family 82.3 -> 84.5 touches with coverage 0.944, the
+  other families within 0.024 of their coverage for 1-5 more touches: the lead, not yet landed.
+  A stop after a dozen touches stays a guess on such plates.
 * **touches to target on dent**: the grid meets the 5 um target after 5.7 touches on average;
   0.6 x that is 3.4 touches, fewer than a tilt and the planner's stroke-safe start need.
   That start looks wasteful -- its second and third touches land 4 and 8 mm from the first,
