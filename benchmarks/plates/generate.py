@@ -133,16 +133,24 @@ def reading_noise_mm(spec: dict, rng, n: int) -> np.ndarray:
     return e + hit * spec["outlier_mm"] * rng.standard_normal(n)
 
 
+def backdrop(rng, X, Y) -> tuple[np.ndarray, float, float, float]:
+    """What every plate has under its feature (module docstring), drawn in this order: the tilt
+    (slopes in x and y, within +-1 deg), the offset (+-0.2 mm) and the mild smooth form (3 um,
+    200 mm). Returns (heights mm, slope_x, slope_y, offset_mm)."""
+    ax, ay = np.tan(np.radians(rng.uniform(-1.0, 1.0, 2)))  # about y (slope in x), about x
+    offset = rng.uniform(-0.2, 0.2)
+    base = fourier_field(rng, X, Y, 3 * UM, 200.0, None)
+    return offset + ax * X + ay * Y + base, float(ax), float(ay), float(offset)
+
+
 def plate(family: str, index: int, seed: int, x_mm, y_mm, spacing_mm: float = 5.0):
     """(xs, ys, heights[i, j] mm, description) of plate ``index`` of ``family``."""
     rng = np.random.default_rng([seed, FAMILIES.index(family), index])
     xs, ys = grid(x_mm, y_mm, spacing_mm)
     X, Y = np.meshgrid(xs, ys, indexing="ij")
-    ax, ay = np.tan(np.radians(rng.uniform(-1.0, 1.0, 2)))  # about y (slope in x), about x
-    offset = rng.uniform(-0.2, 0.2)
-    base = fourier_field(rng, X, Y, 3 * UM, 200.0, None)
+    under, ax, ay, offset = backdrop(rng, X, Y)
     h, drawn = feature(family, rng, X, Y, x_mm, y_mm)
-    z = offset + ax * X + ay * Y + base + h
+    z = under + h
     desc = {"family": family, "index": index, "slope_x": ax, "slope_y": ay, "offset_mm": offset,
             "feature": drawn, "noise": noise_spec(family, rng)}
     return xs, ys, z, desc
