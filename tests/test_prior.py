@@ -34,17 +34,17 @@ def test_log_marginal_equals_dense_mvn_and_jax_objective():
     assert pr.log_marginal(m, hyp, rows, y) == pytest.approx(dense, rel=1e-9)
     # the jit objective (padded to 32 rows) = -(log marginal + log hyper-prior)
     args = pr._padded(rows, y) + pr._model_args(m)
-    theta = np.log(np.array(hyp))
-    v, g = pr._value_and_grad(theta, *args)
-    logprior = -0.5 * np.sum(((theta - np.log(np.array(m.hyper0))) / np.array(m.hyper_log_std)) ** 2)
+    theta = np.log(hyp.theta)
+    v, g = pr._value_and_grad("se")(theta, *args)
+    logprior = -0.5 * np.sum(((theta - np.log(m.hyper0.theta)) / np.array(m.hyper_log_std)) ** 2)
     assert float(v) == pytest.approx(-(dense + logprior), rel=1e-9)
     # gradient against central differences. The truncation error is ~eps^2 f''' / 6 and the
     # round-off ~ u |f| / eps with u = 2.2e-16 and |f| ~ 1e3 (plus the solver's own round-off,
     # which is larger): eps = 1e-6 leaves ~1e-5 relative error, eps = 1e-4 balances the two
     # near 1e-8.
     eps = 1e-4
-    fd = [(float(pr._value_and_grad(theta + eps * e, *args)[0])
-           - float(pr._value_and_grad(theta - eps * e, *args)[0])) / (2 * eps) for e in np.eye(3)]
+    fd = [(float(pr._value_and_grad("se")(theta + eps * e, *args)[0])
+           - float(pr._value_and_grad("se")(theta - eps * e, *args)[0])) / (2 * eps) for e in np.eye(3)]
     np.testing.assert_allclose(np.asarray(g), fd, rtol=1e-5, atol=1e-6)
 
 

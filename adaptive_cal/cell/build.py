@@ -70,14 +70,15 @@ def prior_model(cell: Cell) -> PriorModel:
     surface = Surface.create(*knots_for(cell), ends=m.ends)
     span = min(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
     noise, noise_log_std = cell.probe.noise_prior()
-    hyper0 = Hyper(m.form_std_mm, m.length_scale_mm or 0.5 * span, noise)
+    hyper0 = Hyper(m.form_std_mm, m.length_scale_mm or 0.5 * span, noise, m.form_kernels[0])
     log_std = PriorModel.hyper_log_std
     if noise_log_std is not None:
         log_std = log_std[:2] + (noise_log_std,)
     span_mm = cell.probe.noise_range_mm
     return PriorModel(surface, float(np.tan(np.radians(m.tilt_std_deg))), m.offset_std_mm,
                       (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)), hyper0, log_std,
-                      noise_span_mm=tuple(map(float, span_mm)) if span_mm else None)
+                      noise_span_mm=tuple(map(float, span_mm)) if span_mm else None,
+                      kernels=tuple(dict.fromkeys(m.form_kernels)))
 
 
 def grown_model(model: PriorModel, cap: int = GROW_CAP

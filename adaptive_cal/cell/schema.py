@@ -190,6 +190,10 @@ class Model(Block):
     form_tolerance_mm: float = Field(0.1, gt=0, description="S_u - S_l of Brunn eq. 15")
     max_curvature_per_mm: float = Field(5e-5, gt=0, description="k_max of Brunn eq. 15")
     learn_hyper: bool = Field(True, description="refit form amplitude, length scale and noise")
+    form_kernels: list[Literal["se", "m52"]] = Field(
+        ["se", "m52"], min_length=1, description="the form's correlations a refit weighs by "
+        "their evidence: se squared exponential (smooth), m52 Matern-5/2 (rougher); the first "
+        "is the prior's before any refit")
     gate_sigma: float = Field(4.0, gt=0, description="Mahalanobis gate; a failing reading is retaken")
     grow: bool = Field(True, description="plan on knots refined once (every interval halved, up "
                        "to 160 coefficients) whose finer structure the prior takes where the "

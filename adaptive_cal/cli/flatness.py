@@ -125,7 +125,6 @@ def map_flatness(args, picked=None) -> dict | None:
     from adaptive_cal.cell.schema import load_cell
     from adaptive_cal.formats.recording import read_recording
     from adaptive_cal.gaussian.belief import Belief
-    from adaptive_cal.gaussian.prior import Hyper
     from adaptive_cal.planning import survey as sv
     from adaptive_cal.planning.gate import flagged_weight
     from adaptive_cal.run.results import touched_heights
@@ -151,7 +150,7 @@ def map_flatness(args, picked=None) -> dict | None:
         refuse_stale_map(folder, "flatness")
         belief = Belief(data["mean"], data["cov"])
         unresolved = unresolved_at(data, plan.eval_xy[:, 0], plan.eval_xy[:, 1])
-        noise_mm = Hyper(*data["hyper"].tolist()).noise_std_mm
+        noise_mm = float(data["hyper"][2])
         source = f"the map saved in {saved}"
         weights = ([flagged_weight(f) for f, k in zip(rec.flags, rec.fused) if k]
                    if rec.flags else None)

@@ -11,10 +11,12 @@ BELIEF_KEYS = ("mean", "cov", "hyper", "knots_x", "knots_y")
 # the variance of structure finer than the knots on a grid over the workplane (saved since
 # 2026-11-24; an older belief.npz lacks them: its bands are the spline's alone)
 UNRESOLVED_KEYS = ("unresolved_x_mm", "unresolved_y_mm", "unresolved_var_mm2")
+# the form kernel of the hyper-parameters (saved since 2026-12-01; older: squared exponential)
+KERNEL_KEY = "kernel"
 
 
 def read_npz(path: str | os.PathLike, keys=BELIEF_KEYS,
-             optional=UNRESOLVED_KEYS) -> dict[str, np.ndarray]:
+             optional=UNRESOLVED_KEYS + (KERNEL_KEY,)) -> dict[str, np.ndarray]:
     """The arrays ``keys`` of the .npz file at ``path`` (no pickled objects), and those of
     ``optional`` it holds; ValueError naming the file when it is not an .npz numpy wrote or
     lacks one of ``keys``."""
@@ -68,3 +70,12 @@ def broken_text(path, bad: str) -> str:
     """The message naming ``broken_belief``'s array ``bad`` of the file at ``path``."""
     return (f"{path}: array {bad!r} is not a map's (NaN or infinite values, or a covariance "
             "with negative variances): was it edited or cut short?")
+
+
+def saved_hyper(data: dict):
+    """The hyper-parameters a belief.npz holds (``read_npz``'s arrays): its three numbers and
+    its form kernel (squared exponential where an older file names none)."""
+    from adaptive_cal.gaussian.prior import Hyper
+
+    kernel = str(data[KERNEL_KEY]) if KERNEL_KEY in data else "se"
+    return Hyper(*np.asarray(data["hyper"], float).tolist()[:3], kernel=kernel)

@@ -5,7 +5,8 @@ Prior: a = a_tilt + a_form, independent Gaussians.
 * tilt:  a_tilt = P (s_x, s_y, c), P = [x_k - x_c, y_k - y_c, 1] at the knots; slopes with
   std tan(tilt_std_deg), offset at the plate centre with std offset_std_mm. Splines reproduce a
   plane exactly, so the tilt is inside the model.
-* form:  a_form ~ N(0, sigma_f^2 K_x kron K_y), K(u, v) = exp(-(u - v)^2 / (2 l^2)) at the knots.
+* form:  a_form ~ N(0, sigma_f^2 K_x kron K_y), K(u, v) = k(u - v) at the knots, k a squared
+  exponential exp(-d^2 / (2 l^2)) or a Matern-5/2 (``kernels``): the kernel is a hyper-parameter.
 
 Grown models (``embed``): the spline lives on refined knots and the form on the coarse ones,
 a_form = E a_coarse, E = ``spline.embedding`` (exact), plus an extra covariance given by the
@@ -14,20 +15,23 @@ the posterior equals the coarse model's.
 
 Hyper-parameters theta = (sigma_f, l, sigma_n) are fitted by maximising the log marginal
 likelihood of the readings, log N(y; H m0, H C0(theta) H^T + sigma_n^2 I), plus a weak
-log-normal hyper-prior around the configured values (MAP-II), with JAX gradients.
+log-normal hyper-prior around the configured values (MAP-II), with JAX gradients, once per
+kernel; the kernels are weighed by their evidence (Laplace) and the beliefs mixed.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache, partial
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 
 from adaptive_cal.gaussian.belief import Belief, coefficient_form, condition, mixture
+from adaptive_cal.gaussian.evidence import log_evidence, log_evidence_coefficients
+from adaptive_cal.gaussian.kernels import KERNELS, knot_correlation
 from adaptive_cal.gaussian.places import floor_penalty as _floor_penalty, pooled
 from adaptive_cal.gaussian.spline import Surface
 
@@ -35,11 +39,18 @@ JITTER_MM2 = 1e-10
 
 
 class Hyper(NamedTuple):
-    """Form amplitude (mm), form length scale (mm), reading noise std (mm)."""
+    """Form amplitude (mm), form length scale (mm), reading noise std (mm), and the form's
+    correlation (``kernels.KERNELS``)."""
 
     form_std_mm: float
     length_scale_mm: float
     noise_std_mm: float
+    kernel: str = "se"
+
+    @property
+    def theta(self) -> np.ndarray:
+        """The three numbers (mm): form amplitude, length scale, noise."""
+        return np.array(self[:3], float)
 
 
 @dataclass(frozen=True, eq=False)  # hashed by identity: caches its compiled objective
@@ -56,6 +67,8 @@ class PriorModel:
     # middle to hi, with Gaussian shoulders of ``hyper_log_std[2]`` beyond (``_prior_box``);
     # None: log-normal about hyper0
     noise_span_mm: tuple[float, float] | None = None
+    # the form kernels a learned belief weighs by their evidence (``learned_belief``)
+    kernels: tuple[str, ...] = KERNELS
     embed: np.ndarray | None = None  # E (K x K_coarse): the form lives on coarser knots
     coarse: Surface | None = None  # the coarse spline E maps from
 
@@ -78,78 +91,26 @@ class PriorModel:
         p = self.tilt_basis
         return (p * var) @ p.T
 
-    def form_cov(self, form_std_mm, length_scale_mm, xp=np):
+    def form_cov(self, form_std_mm, length_scale_mm, xp=np, kernel: str = "se"):
         s = self.form_surface
         c = _form_cov(s.sx.knots[: s.sx.size], s.sy.knots[: s.sy.size], form_std_mm,
-                      length_scale_mm, xp)
+                      length_scale_mm, xp, kernel)
         return c if self.embed is None else self.embed @ c @ self.embed.T
 
     def belief(self, hyper: Hyper, extra: np.ndarray | None = None) -> Belief:
         """The prior belief N(0, C_tilt + C_form(theta) + extra)."""
         k = self.surface.size
-        cov = self.tilt_cov() + self.form_cov(hyper.form_std_mm, hyper.length_scale_mm)
+        cov = self.tilt_cov() + self.form_cov(hyper.form_std_mm, hyper.length_scale_mm,
+                                              kernel=hyper.kernel)
         if extra is not None:
             cov = cov + extra
         return Belief(np.zeros(k), cov + JITTER_MM2 * np.eye(k))
 
 
-def _se(knots, length, xp):
-    d = knots[:, None] - knots[None, :]
-    return xp.exp(-0.5 * (d / length) ** 2)
-
-
-def _form_cov(knots_x, knots_y, form_std_mm, length_scale_mm, xp):
+def _form_cov(knots_x, knots_y, form_std_mm, length_scale_mm, xp, kernel="se"):
     """sigma_f^2 K_x kron K_y at the knots (numpy, or traced by JAX in the objective)."""
-    return form_std_mm**2 * xp.kron(_se(knots_x, length_scale_mm, xp),
-                                    _se(knots_y, length_scale_mm, xp))
-
-
-def _solve_lower(lower, b, xp):
-    if xp is np:
-        return solve_triangular(lower, b, lower=True)
-    return jax.scipy.linalg.solve_triangular(lower, b, lower=True)
-
-
-def log_evidence(rows, readings, cov, noise_var, mask=None, xp=np):
-    """log N(y; 0, H C0 H^T + r I): the log marginal likelihood of readings y at rows H under the
-    prior covariance C0, by Cholesky (L L^T = S, z = L^-1 y):
-
-        log p = -z^T z / 2 - sum_i log L_ii - n log(2 pi) / 2.
-
-    ``mask`` (n,) of 0/1 marks padded rows (static shapes under jit): a padded row gets unit
-    variance and zero data, so it adds nothing; n counts the unmasked rows. ``xp`` is numpy or
-    jax.numpy (the hyper-parameter objective traces it)."""
-    if mask is None:
-        mask = xp.ones(rows.shape[0])
-    s = rows @ cov @ rows.T
-    s = s + xp.diag(mask * noise_var + (1.0 - mask))
-    lower = xp.linalg.cholesky(s)
-    z = _solve_lower(lower, readings * mask, xp)
-    return -0.5 * z @ z - xp.sum(xp.log(xp.diag(lower))) - 0.5 * xp.sum(mask) * xp.log(2 * xp.pi)
-
-
-def log_evidence_coefficients(rows, readings, cov, noise_var, mask=None, xp=np):
-    """``log_evidence`` in the coefficients' dimension K instead of the readings' n: the same
-    log N(y; 0, H C0 H^T + D), D = diag(noise variance; 1 on a padded row), by the matrix
-    determinant lemma and Woodbury with C0 = L L^T, G = H L, A = I + G^T D^-1 G, b = G^T D^-1 y:
-
-        log p = -(y^T D^-1 y - b^T A^-1 b) / 2 - log|A| / 2 - log|D| / 2 - n log(2 pi) / 2.
-
-    O(n K^2) time and n K memory where ``log_evidence`` takes O(n^3) and n^2: a recording of
-    20,000 rows asked for 34 GB there. A >= I, so its Cholesky is well conditioned even where
-    C0 is nearly singular (C0 carries a jitter, ``JITTER_MM2``, for its own)."""
-    if mask is None:
-        mask = xp.ones(rows.shape[0])
-    d = mask * noise_var + (1.0 - mask)
-    g = rows @ xp.linalg.cholesky(cov)
-    gd = g / d[:, None]
-    a = xp.eye(g.shape[1]) + g.T @ gd
-    lower = xp.linalg.cholesky(a)
-    yd = readings * mask / d
-    c = _solve_lower(lower, g.T @ yd, xp)
-    quad = (readings * mask) @ yd - c @ c
-    logdet = 2.0 * xp.sum(xp.log(xp.diag(lower))) + xp.sum(xp.log(d))
-    return -0.5 * quad - 0.5 * logdet - 0.5 * xp.sum(mask) * xp.log(2 * xp.pi)
+    return form_std_mm**2 * xp.kron(knot_correlation(knots_x, length_scale_mm, kernel, xp),
+                                    knot_correlation(knots_y, length_scale_mm, kernel, xp))
 
 
 def log_marginal(model: PriorModel, hyper: Hyper, rows: np.ndarray, readings: np.ndarray) -> float:
@@ -159,14 +120,14 @@ def log_marginal(model: PriorModel, hyper: Hyper, rows: np.ndarray, readings: np
 
 
 def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, lo, hi, sd,
-                  embed, extra, weights=1.0):
+                  embed, extra, weights=1.0, kernel="se"):
     """-(log N(y; 0, H C0(theta) H^T + sigma_n^2 W^-1) + log hyper-prior); padded rows masked.
     C0 = C_tilt + E C_form E^T + extra (E = I and extra = 0 unless the model grew).
     ``weights`` w_i in (0, 1]: a reading judged an outlier with probability p has w = 1 - p.
     The hyper-prior in log theta is flat on [lo, hi] with Gaussian shoulders of ``sd`` beyond
     (lo = hi: the log-normal about it)."""
     sf, ls, sn = jnp.exp(log_theta)
-    cov = tilt_cov + embed @ _form_cov(knots_x, knots_y, sf, ls, jnp) @ embed.T + extra \
+    cov = tilt_cov + embed @ _form_cov(knots_x, knots_y, sf, ls, jnp, kernel) @ embed.T + extra \
         + JITTER_MM2 * jnp.eye(tilt_cov.shape[0])
     # the coefficients' form for many (padded) readings: ``belief.coefficient_form``
     form = log_evidence_coefficients if coefficient_form(rows.shape) else log_evidence
@@ -176,8 +137,11 @@ def _neg_log_post(log_theta, rows, readings, mask, tilt_cov, knots_x, knots_y, l
     return -(loglik + logprior)
 
 
-# compiled once per array shape (coefficients, padded readings), shared by every model
-_value_and_grad = jax.jit(jax.value_and_grad(_neg_log_post))
+@lru_cache(maxsize=None)
+def _value_and_grad(kernel: str):
+    """The objective and its gradient for one kernel, compiled once per array shape
+    (coefficients, padded readings) and shared by every model."""
+    return jax.jit(jax.value_and_grad(partial(_neg_log_post, kernel=kernel)))
 
 
 def _model_args(model: PriorModel, extra=None) -> tuple:
@@ -198,7 +162,7 @@ def _prior_box(model: PriorModel) -> tuple:
     a dozen readings where the form took part of it (3 um plates learned 2.6 um, stops at
     11-13 touches with 1.5-3 x the claimed error): a noise read too low makes the bands lie,
     one read too high costs touches, so below the middle the prior stays as it was."""
-    lo = np.log(np.asarray(model.hyper0, float))
+    lo = np.log(model.hyper0.theta)
     hi = lo.copy()
     if model.noise_span_mm is not None:
         a, b = model.noise_span_mm
@@ -229,7 +193,8 @@ def _padded_weights(size: int, weights=None):
 
 def fit_hyper(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
               start: Hyper | None = None, extra: np.ndarray | None = None) -> Hyper:
-    """MAP-II hyper-parameters from the readings (L-BFGS-B on log theta, JAX gradients)."""
+    """MAP-II hyper-parameters from the readings (L-BFGS-B on log theta, JAX gradients), for
+    ``start``'s kernel (default the configured prior's)."""
     return hyper_posterior(model, rows, readings, start, points=False, extra=extra)[0][0]
 
 
@@ -242,74 +207,99 @@ def require_float64(what: str) -> None:
 
 def hyper_posterior(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
                     start: Hyper | None = None, *, points: bool = True, weights=None,
-                    extra: np.ndarray | None = None, floor: tuple[float, int] | None = None
-                    ) -> list[tuple[Hyper, float]]:
+                    extra: np.ndarray | None = None, floor: tuple[float, int] | None = None,
+                    kernel: str | None = None) -> list[tuple[Hyper, float]]:
     """Hyper-parameters with weights: the MAP, and with ``points`` also 2 x 3 sigma points of
     the Laplace approximation in log theta (at +-2 sd along each principal axis, unscented
     weights with kappa = 1, corrected by the true posterior density). Conditioning on each and
     mixing carries the hyper-parameter uncertainty into the belief. ``weights`` (n,), > 0:
     reading i has noise variance sigma_n^2 / w_i (outliers weighted out, a place read several
     times their sum: ``pooled``; default all 1). ``floor`` (ss, dof): the scatter of readings
-    about their place's mean, which measures the probe alone (``learned_belief``)."""
+    about their place's mean, which measures the probe alone (``learned_belief``). ``kernel``:
+    the form's correlation (default ``start``'s, else the configured prior's)."""
+    return _laplace(model, rows, readings, start, points, weights, extra, floor, kernel)[0]
+
+
+def _laplace(model, rows, readings, start, points, weights, extra, floor, kernel):
+    """``hyper_posterior``'s points and the log evidence of the kernel by Laplace's method,
+    log p(y | kernel) ~ -f(x*) + d/2 log 2 pi - 1/2 log |H| (f the negative log posterior in
+    log theta, x* its minimum, H its Hessian there; the hyper-prior's shoulders are not
+    normalised, alike for every kernel). Where H is not positive definite (x* on a bound) its
+    eigenvalues are floored at 1 (a width of one e-fold, the hyper-prior's own)."""
     require_float64("fit_hyper")
+    kernel = kernel or (start or model.hyper0).kernel
+    value_and_grad = _value_and_grad(kernel)
     padded = _padded(rows, readings)
     args = padded + _model_args(model, extra) + (_padded_weights(padded[2].shape[0], weights),)
 
     def fun(x):
-        v, g = _value_and_grad(np.asarray(x, np.float64), *args)  # numpy: jit's fast path
+        v, g = value_and_grad(np.asarray(x, np.float64), *args)  # numpy: jit's fast path
         v, g = float(v), np.array(g, float)
         if floor is not None:
             p, dp = _floor_penalty(x[2], *floor)
             v, g[2] = v + p, g[2] + dp
         return v, g
 
-    h0 = model.hyper0
-    x0 = np.log(np.asarray(start or h0, float))
+    x0 = np.log((start or model.hyper0).theta)
     span = model.surface.sx.period + model.surface.sy.period
     bounds = [(np.log(1e-5), np.log(10.0)), (np.log(0.02 * span), np.log(5 * span)),
               (np.log(1e-5), np.log(1.0))]
-    x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
+    lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
+    x0 = np.clip(x0, lo, hi)
     res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds)
     best = res.x if np.isfinite(res.fun) else x0
-    out = [(Hyper(*np.exp(best).tolist()), 1.0)]
+    f0 = fun(best)[0]
+    mapped = [(Hyper(*np.exp(best).tolist(), kernel=kernel), 1.0)]
     if not points:
-        return out
+        return mapped, -f0
     eps = 1e-4  # Hessian by central differences of the exact gradient (no extra compile)
     h = np.array([(fun(best + eps * e)[1] - fun(best - eps * e)[1]) / (2 * eps)
                   for e in np.eye(len(best))])
-    if not np.all(np.isfinite(h)):
-        return out  # the posterior is not finite around the MAP: keep the MAP alone
+    n = len(best)
+    if not np.all(np.isfinite(h)) or not np.isfinite(f0):
+        return mapped, -f0 if np.isfinite(f0) else -np.inf
     w, v = np.linalg.eigh(0.5 * (h + h.T))
+    logz = -f0 + 0.5 * n * np.log(2 * np.pi) - 0.5 * np.sum(np.log(np.maximum(w, 1.0)))
     if w.min() <= 0:
-        return out  # not a proper maximum (on a bound): keep the MAP alone
-    kappa, n = 1.0, len(best)
-    lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
-    nodes, weights = [best], [kappa / (n + kappa)]
+        return mapped, logz  # not a proper maximum (on a bound): keep the MAP alone
+    kappa = 1.0
+    nodes, wts = [best], [kappa / (n + kappa)]
     for i in range(n):
         step = np.sqrt(n + kappa) * v[:, i] / np.sqrt(w[i])
         for sign in (1.0, -1.0):
             nodes.append(np.clip(best + sign * step, lo, hi))
-            weights.append(0.5 / (n + kappa))
+            wts.append(0.5 / (n + kappa))
     # density correction: true posterior over the Laplace approximation at each node
-    f0 = fun(best)[0]
     logc = [-(fun(x)[0] - f0) + 0.5 * (x - best) @ h @ (x - best) for x in nodes]
-    wts = np.asarray(weights) * np.exp(np.clip(np.asarray(logc) - max(logc), -30, 0))
+    wts = np.asarray(wts) * np.exp(np.clip(np.asarray(logc) - max(logc), -30, 0))
     wts = wts / wts.sum()
-    return [(Hyper(*np.exp(x).tolist()), float(wi)) for x, wi in zip(nodes, wts)]
+    return [(Hyper(*np.exp(x).tolist(), kernel=kernel), float(wi))
+            for x, wi in zip(nodes, wts)], logz
+
+
+#: Occam's window (Madigan & Raftery 1994): a kernel whose evidence is below 1/20 of the best
+#: kernel's is left out of the belief's mixture. Kept at 3 % on the simulated cell's smooth bow
+#: after 32 touches, a Matern-5/2 component of 0.5 mm amplitude left the saved map rough enough
+#: between its touches that a re-check from it took 13 touches instead of 10
+OCCAM_RATIO = 20.0
 
 
 def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
                    start: Hyper | None = None, weights=None, extra: np.ndarray | None = None
                    ) -> tuple[Belief, list[tuple[Hyper, float]]]:
     """The belief with learned hyper-parameters: the posterior of the readings under each
-    weighted point of ``hyper_posterior``, moment-matched into one Gaussian,
+    weighted point of ``hyper_posterior``, for each of ``model.kernels`` weighed by its
+    evidence (Bayesian model averaging over the kernel, a_k the Laplace evidence normalised
+    over the kernels within ``OCCAM_RATIO`` of the best), moment-matched into one Gaussian,
 
         m = sum_k a_k m_k,   C = sum_k a_k (C_k + (m_k - m)(m_k - m)^T),
 
-    so the belief carries the hyper-parameter uncertainty. Returns it and the points (the MAP
-    first: its noise serves the fusions until the next refit). ``weights`` w_i: reading i's
-    noise variance is sigma_n^2 / w_i in the fit and the posterior (robust: outliers out).
-    ``extra``: a fixed covariance added to the prior (a grown model's finer structure).
+    so the belief carries the hyper-parameter and kernel uncertainty. Returns it and the
+    points, weights multiplied through (the MAP of the heaviest kernel first: its noise
+    serves the fusions until the next refit, its form the self-checks). ``weights`` w_i:
+    reading i's noise variance is sigma_n^2 / w_i in the fit and the posterior (robust:
+    outliers out). ``extra``: a fixed covariance added to the prior (a grown model's finer
+    structure). Each kernel's fit starts from ``start``'s numbers.
 
     The noise sigma_n is a nugget: the probe's noise plus the plate's structure finer than the
     spline, s^2 + p^2. Readings at one place (``places.places``: repeats, retakes, a place
@@ -324,8 +314,16 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     A place's mean keeps noise sigma_n^2 / sum w: where the nugget holds structure, which its
     repeats do not average down, a place read many times is trusted a little too much."""
     rows, readings, w, floor = pooled(model.surface, rows, readings, weights)
-    points = hyper_posterior(model, rows, readings, start=start, weights=w, extra=extra,
-                             floor=floor)
+    fits = [_laplace(model, rows, readings, start, True, w, extra, floor, k)
+            for k in model.kernels]
+    logz = np.array([z for _, z in fits])
+    share = np.exp(logz - logz.max()) if np.isfinite(logz.max()) else np.ones(len(fits))
+    share = np.where(share >= 1.0 / OCCAM_RATIO, share, 0.0)
+    share = share / share.sum()
+    order = [i for i in np.argsort(-share, kind="stable") if share[i] > 0]
+    points = [(h, float(share[i] * wt)) for i in order for h, wt in fits[i][0]]
+    total = sum(wt for _, wt in points)
+    points = [(h, wt / total) for h, wt in points]
     belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)
                       for h, _ in points], [wt for _, wt in points])
     return belief, points

@@ -80,7 +80,7 @@ class Adequacy:
     knot_spacing_mm: float
     readings: np.ndarray  # (rx, ry) fused readings per region
     surface: object = None  # the spline, for the learned form's projection variance
-    form: tuple[float, float] = (0.0, 1.0)  # learned (s_f mm, l mm)
+    form: tuple = (0.0, 1.0, "se")  # learned (s_f mm, l mm, kernel)
     form_var_mm2: float = 0.0  # its plate mean
     plate_mm: tuple | None = None  # ((x0, x1), (y0, y1)) the workplane
     reach_mm: tuple | None = None  # ((x0, x1), (y0, y1)) the box touches can reach
@@ -94,7 +94,8 @@ class Adequacy:
         plus the region's variance."""
         x_mm, y_mm = np.asarray(x_mm, float), np.asarray(y_mm, float)
         return self._region_var(x_mm, y_mm) + (
-            checks.unresolved_form_var(self.surface, *self.form, x_mm, y_mm)[0]
+            checks.unresolved_form_var(self.surface, *self.form[:2], x_mm, y_mm,
+                                       kernel=self.form[2])[0]
             if self.form_var_mm2 > 0 else 0.0)
 
     def _region_var(self, x_mm, y_mm) -> np.ndarray:
@@ -261,8 +262,9 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     loo = checks.leave_one_out(rows, readings, prior.mean, prior.cov, r)
     q = np.maximum(loo.variance_mm2 - r, 0.0)
     e2 = loo.residual_mm**2
-    form = (hyper.form_std_mm, hyper.length_scale_mm)
-    form_pts, form_var = checks.unresolved_form_var(form_surface, *form, xy[:, 0], xy[:, 1])
+    form = (hyper.form_std_mm, hyper.length_scale_mm, hyper.kernel)
+    form_pts, form_var = checks.unresolved_form_var(form_surface, *form[:2], xy[:, 0], xy[:, 1],
+                                                    kernel=hyper.kernel)
     excess = e2 - q - r_mag - form_pts  # beyond the probe noise and the form's finer part
     stdz = e2 / (q + r_p)
     result = {

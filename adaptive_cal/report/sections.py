@@ -17,6 +17,7 @@ from adaptive_cal.analysis.flatness_answer import (FIGURES, MEDIAN, MEDIAN_NOTE,
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.numbers import count, fixed
+from adaptive_cal.gaussian.kernels import KERNEL_NAMES
 from adaptive_cal.report.explain_text import stale
 from adaptive_cal.report.status import missing, next_step
 
@@ -139,7 +140,9 @@ def run_section(result: dict) -> str:
                                              f"{_um(p['max_std_mm'], 2)}"),  # the terminal's digits
             (f"reading noise {how}", _um(h.get("noise_std_mm"))),
             (f"form prior {how}", f"amplitude {_um(h.get('form_std_mm'))}, length scale "
-                                  f"{h.get('length_scale_mm', float('nan')):.0f} mm")]
+                                  f"{h.get('length_scale_mm', float('nan')):.0f} mm"
+                                  + (f", {KERNEL_NAMES.get(h['kernel'], h['kernel'])}"
+                                     if h.get("kernel") else ""))]
     if pf:
         c = pf.get("correction_deg") or {}
         rows.insert(0, ("a re-check of", f"{escape(str(pf.get('run', '-')))}, its belief the "

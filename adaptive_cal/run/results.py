@@ -14,7 +14,7 @@ from adaptive_cal.cell.build import plan_model, touch_floor
 from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
 from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2, weighted_out
 from adaptive_cal.cell.schema import Cell
-from adaptive_cal.formats.npz import broken_belief, broken_text, read_npz
+from adaptive_cal.formats.npz import broken_belief, broken_text, read_npz, saved_hyper
 from adaptive_cal.formats.recording import read_recording, surface_height_mm
 from adaptive_cal.formats.times import last_time_s
 from adaptive_cal.formats.writing import provenance, rows_digest
@@ -308,7 +308,8 @@ def save_belief(plan: SurveyPlan, state: sv.SurveyState, path: Path, features=()
     finer than the knots and of confirmed local ``features`` on a grid (``unresolved_grid``)."""
     s = plan.model.surface
     arrays = {"mean": state.belief.mean, "cov": state.belief.cov, "knots_x": s.sx.knots,
-              "knots_y": s.sy.knots, "hyper": np.array(state.hyper),
+              "knots_y": s.sy.knots, "hyper": state.hyper.theta,
+              "kernel": np.array(state.hyper.kernel),
               "touches": np.array(state.touches), "fused": np.array(state.fused),
               **unresolved_grid(plan, state, features),
               **({} if digest is None else {"recording_sha256": np.array(digest)})}
@@ -329,7 +330,7 @@ def read_belief(run_dir: Path, cell: Cell) -> tuple[bl.Belief, Hyper]:
     bad = broken_belief(data)
     if bad:
         raise ValueError(broken_text(path, bad))
-    return bl.Belief(data["mean"], data["cov"]), Hyper(*data["hyper"].tolist())
+    return bl.Belief(data["mean"], data["cov"]), saved_hyper(data)
 
 
 def belief_mismatch(surface, data) -> str | None:

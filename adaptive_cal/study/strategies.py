@@ -159,10 +159,10 @@ def run_planner(ctx: Context, *, learn: bool, target_true: float,
 
 
 def _points(state: sv.SurveyState) -> list:
-    """[[form_std_mm, length_scale_mm, noise_std_mm, weight], ...]: the hyper-parameter posterior
-    the belief mixes (the point the belief rests on, weight 1, before any refit)."""
+    """[[form_std_mm, length_scale_mm, noise_std_mm, weight, kernel], ...]: the hyper-parameter
+    posterior the belief mixes (the point the belief rests on, weight 1, before any refit)."""
     points = state.hyper_points or [(state.hyper, 1.0)]
-    return [[*map(float, h), float(w)] for h, w in points]
+    return [[*map(float, h.theta), float(w), h.kernel] for h, w in points]
 
 
 # -- fixed designs, learned estimator -------------------------------------------------------------

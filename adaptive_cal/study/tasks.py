@@ -58,7 +58,7 @@ def lower_bounds(study: Study, cell, model, rec: dict) -> dict:
                                                                budget)
     # and for the question the planner's stop answers: its belief mixes the posteriors under
     # the weighted hyper-parameter points of its last refit
-    points = [(p[:3], p[3]) for p in rec["hyper_points_at_stop"]]
+    points = [(Hyper(*p[:3], *p[4:5]), p[3]) for p in rec["hyper_points_at_stop"]]
     out["marginal_whole_touches_at_stop"] = integer_touches(
         marginal_problem(cell, model, points, candidates=lb.candidates), j, budget)
     return out
