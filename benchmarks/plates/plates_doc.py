@@ -183,8 +183,13 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   touches rises above its 5 um bound). Not adopted. A mixture of squared-exponential and
   Matern-5/2 weighed by their evidence (`*-2026-11-30-kernel-mixture-trial.json`): 0.837 /
   0.848 / 0.862, false stops 6 of 18, in-family 82.3 -> 84.5 touches with coverage 0.944, the
-  other families within 0.024 of their coverage for 1-5 more touches: the lead, not yet landed.
-  A stop after a dozen touches stays a guess on such plates.
+  other families within 0.024 of their coverage for 1-5 more touches. **In the product since
+  2026-12-01** (`model.form_kernels`, `prior.learned_belief`; `rough-2026-12-01.json`):
+  coverage 0.766 / 0.823 / 0.889 and 0.973 at 20 um / 40 mm, false stops 10 -> 6 of 18 on the
+  three gentler variants (4 / 2 / 0: 12-27 touches at 5.8-6.9 um true on the 10 um / 100 mm
+  one), in-family 84.7 touches at the own stop, coverage 0.946. Still short of 0.90: a stop
+  after a dozen touches stays a guess on such plates. The table above was measured before
+  it.
 * **touches to target on dent**: the grid meets the 5 um target after 5.7 touches on average;
   0.6 x that is 3.4 touches, fewer than a tilt and the planner's stroke-safe start need.
   That start looks wasteful -- its second and third touches land 4 and 8 mm from the first,
