@@ -28,7 +28,9 @@ def test_no_bound_stops_before_as_many_touches_as_coefficients_unless_told():
     k = plan.model.form_surface.size  # the cell's knots (a model that may grow plans on finer ones)
     m = drive(plan, open_cell(cell))
     assert sv.stop_reason(plan, m) == "mean_std_bound" and m.touches >= k
-    early = sim_cell(plan={"stop": {"mean_std_mm": 0.004, "max_touches": 120, "min_touches": 0}})
+    # 4.5 um: at 4 um the floor-free run happens to stop at 30 = k touches since the form
+    # kernels are weighed (2026-12-01; 28 at 4.5 um, 27 at 5 um)
+    early = sim_cell(plan={"stop": {"mean_std_mm": 0.0045, "max_touches": 120, "min_touches": 0}})
     plan0 = survey_plan(early)
     m0 = drive(plan0, open_cell(early))
     assert sv.stop_reason(plan0, m0) == "mean_std_bound" and m0.touches < k
@@ -287,7 +289,8 @@ def test_prior_from_an_earlier_run_needs_only_a_handful_of_touches(tmp_path):
     r = session.run(again, tmp_path / "b", prior_from=tmp_path / "a", correction_applied="none",
                     progress=False)
     assert r["stopped_because"] == "mean_std_bound"
-    assert r["touches"] <= 10 and r["touches"] < 0.5 * fresh["touches"]
+    # 12: 10 before the form kernels were weighed (tests/test_recheck.py says why)
+    assert r["touches"] <= 12 and r["touches"] < 0.5 * fresh["touches"]
     assert r["truth"]["rms_error_mm"] < 0.006
 
 

@@ -40,7 +40,7 @@ def log_evidence_coefficients(rows, readings, cov, noise_var, mask=None, xp=np):
 
     O(n K^2) time and n K memory where ``log_evidence`` takes O(n^3) and n^2: a recording of
     20,000 rows asked for 34 GB there. A >= I, so its Cholesky is well conditioned even where
-    C0 is nearly singular (C0 carries a jitter, ``JITTER_MM2``, for its own)."""
+    C0 is nearly singular (C0 carries a jitter, ``prior.JITTER_MM2``, for its own)."""
     if mask is None:
         mask = xp.ones(rows.shape[0])
     d = mask * noise_var + (1.0 - mask)
