@@ -30,16 +30,16 @@ at one place enter as their mean, and their scatter -- the probe's alone -- is a
 nugget, not a pull toward it; fitted with the rest, repeats had pulled the nugget toward the
 probe's noise and narrowed the bands by the structure it held.
 
-Without a span the test is stricter (``NO_SPAN_TEST``: 1 %, judged once all ``DOF`` repeats
-are in), as suspicion is common there -- a first guess is often off by 1.5 x -- and a false
-alarm sends a run to its budget. Measured (2026-11-29): on the 20 plates of
-tests/test_coverage.py (no span, probes of 4.5-12 um against a 5 um guess) 10 runs took
-repeats, the mean run went 59.6 -> 69.4 touches and coverage 0.963 -> 0.964, one false alarm
-(plate 14: 12 repeats read 4.9 um of an 8.9 um probe, a 1.5 % draw) ran to 200 touches. Of 8
-of the audit's no-span plates that had stopped with coverage 0.38-0.53, 6 went on to 99-200
-touches, coverage 0.84-0.97; two (an 8 um probe guessed at 5 um) read 8.8 and 9.7 um in
-their repeats against 11.7 and 14.7 um learned, ratios the 1 % test passes, and stopped as
-before (coverage 0.53, 0.40): 12 repeats see a learned noise 3.5 x the probe's variance.
+Both tests are judged once all ``DOF`` repeats are in (``SPAN_TEST``, ``NO_SPAN_TEST``); without
+a span the test is stricter (1 % against 5 %), as suspicion is common there -- a first guess is
+often off by 1.5 x -- and a false alarm sends a run to its budget. Measured (2026-11-29): on the
+20 plates of tests/test_coverage.py (no span, probes of 4.5-12 um against a 5 um guess) 10 runs
+took repeats, the mean run went 59.6 -> 69.4 touches and coverage 0.963 -> 0.964, one false
+alarm (plate 14: 12 repeats read 4.9 um of an 8.9 um probe, a 1.5 % draw) ran to 200 touches. Of
+8 of the audit's no-span plates that had stopped with coverage 0.38-0.53, 6 went on to 99-200
+touches, coverage 0.84-0.97; two (an 8 um probe guessed at 5 um) read 8.8 and 9.7 um in their
+repeats against 11.7 and 14.7 um learned, ratios the 1 % test passes, and stopped as before
+(coverage 0.53, 0.40): 12 repeats see a learned noise 3.5 x the probe's variance.
 """
 from __future__ import annotations
 
