@@ -89,3 +89,15 @@ def test_a_saved_belief_keeps_its_kernel():
                         "kernel": np.array("m52")}) == pr.Hyper(0.01, 80.0, 0.004, "m52")
     # a belief.npz from before the kernel was saved: the squared exponential
     assert saved_hyper({"hyper": np.array([0.01, 80.0, 0.004])}).kernel == "se"
+
+
+def test_the_report_names_the_kernel_with_each_kernels_weight():
+    from adaptive_cal.report.sections import _kernels
+
+    assert pr.kernel_weights([(pr.Hyper(1, 2, 3, "se"), 0.5), (pr.Hyper(1, 3, 3, "m52"), 0.2),
+                              (pr.Hyper(1, 2, 4, "se"), 0.3)]) == pytest.approx(
+        {"se": 0.8, "m52": 0.2})
+    assert pr.kernel_weights(()) == {}
+    assert _kernels({"kernel": "m52", "kernel_weights": {"se": 0.3, "m52": 0.7}}) == \
+        "Matern-5/2 (weights Matern-5/2 0.70, squared exponential 0.30)"
+    assert _kernels({"kernel": "se", "kernel_weights": {"se": 1.0}}) == "squared exponential"

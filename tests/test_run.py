@@ -51,6 +51,10 @@ def test_cli_run_stops_at_the_bound_and_writes_everything(tmp_path, capsys):
         lo, hi = r["flatness_mm"][k]["ci95"]
         assert lo <= hi
     assert set(r["truth"]) == {"rms_error_mm", "max_error_mm", "coverage95"}
+    # the form kernels' evidence shares at the last refit, the MAP's kernel the heaviest
+    weights = r["hyper"]["kernel_weights"]
+    assert sum(weights.values()) == pytest.approx(1.0) and set(weights) <= {"se", "m52"}
+    assert weights[r["hyper"]["kernel"]] == max(weights.values())
     # the simulated plate: tilt a = 0.0140, b = 0.0019 (configs/sim-cell.yaml)
     assert r["tilt"]["a"] == pytest.approx(0.0140, abs=5e-5)
     assert r["tilt"]["b"] == pytest.approx(0.0019, abs=5e-5)

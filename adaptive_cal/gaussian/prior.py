@@ -277,6 +277,15 @@ def _laplace(model, rows, readings, start, points, weights, extra, floor, kernel
             for x, wi in zip(nodes, wts)], logz
 
 
+def kernel_weights(points) -> dict[str, float]:
+    """Each kernel's share of weighted hyper-parameter points (``learned_belief``'s; none
+    before the first refit)."""
+    out: dict[str, float] = {}
+    for h, w in points:
+        out[h.kernel] = out.get(h.kernel, 0.0) + float(w)
+    return out
+
+
 #: Occam's window (Madigan & Raftery 1994): a kernel whose evidence is below 1/20 of the best
 #: kernel's is left out of the belief's mixture. Kept at 3 % on the simulated cell's smooth bow
 #: after 32 touches, a Matern-5/2 component of 0.5 mm amplitude left the saved map rough enough

@@ -84,6 +84,17 @@ REASON_DONE = {"mean_std_bound": "met", "max_std_bound": "met", "gap_bound": "me
                "touch_budget": "spent", "at_least": "reached"}
 
 
+def _kernels(hyper: dict) -> str:
+    """The form kernel of result.json's ``hyper``, with each kernel's evidence share."""
+    name = KERNEL_NAMES.get(hyper["kernel"], hyper["kernel"])
+    shares = hyper.get("kernel_weights") or {}
+    if len(shares) < 2:
+        return name
+    ranked = sorted(shares.items(), key=lambda kw: -kw[1])
+    return f"{name} (weights " + ", ".join(f"{KERNEL_NAMES.get(k, k)} {w:.2f}"
+                                           for k, w in ranked) + ")"
+
+
 def reason_text(why: str) -> str:
     """A stop reason in words: "RMS std bound", "touch budget", ..."""
     return REASON_WORDS.get(why, why.replace("_", " "))
@@ -141,8 +152,7 @@ def run_section(result: dict) -> str:
             (f"reading noise {how}", _um(h.get("noise_std_mm"))),
             (f"form prior {how}", f"amplitude {_um(h.get('form_std_mm'))}, length scale "
                                   f"{h.get('length_scale_mm', float('nan')):.0f} mm"
-                                  + (f", {KERNEL_NAMES.get(h['kernel'], h['kernel'])}"
-                                     if h.get("kernel") else ""))]
+                                  + (f", {_kernels(h)}" if h.get("kernel") else ""))]
     if pf:
         c = pf.get("correction_deg") or {}
         rows.insert(0, ("a re-check of", f"{escape(str(pf.get('run', '-')))}, its belief the "

@@ -22,7 +22,7 @@ from adaptive_cal.formats.numbers import count
 from adaptive_cal.planning.gap import largest_gap as gap_radius
 from adaptive_cal.planning.gate import flagged_weight
 from adaptive_cal.gaussian import belief as bl
-from adaptive_cal.gaussian.prior import Hyper
+from adaptive_cal.gaussian.prior import Hyper, kernel_weights
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.route import robot_time_s
@@ -90,7 +90,7 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
                                              informed_prior=state.prior is not None)},
         "posterior": {"mean_std_mm": status.mean_std_mm, "max_std_mm": status.max_std_mm,
                       "mean_std_is": "RMS posterior std over the whole plate"},
-        "hyper": dict(state.hyper._asdict()),
+        "hyper": {**state.hyper._asdict(), "kernel_weights": kernel_weights(state.hyper_points)},
         "knots_mm": {"x": surface.sx.knots.tolist(), "y": surface.sy.knots.tolist(),
                      "ends": surface.sx.ends},
     }
