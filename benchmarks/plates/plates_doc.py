@@ -187,7 +187,7 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   2026-12-01** (`model.form_kernels`, `prior.learned_belief`; `rough-2026-12-01.json`):
   coverage 0.766 / 0.823 / 0.889 and 0.973 at 20 um / 40 mm, false stops 10 -> 6 of 18 on the
   three gentler variants (4 / 2 / 0: 12-27 touches at 5.8-6.9 um true on the 10 um / 100 mm
-  one), in-family 84.7 touches at the own stop, coverage 0.946. Still short of 0.90: a stop
+  one), in-family 84.6 touches at the own stop, coverage 0.946. Still short of 0.90: a stop
   after a dozen touches stays a guess on such plates. The table above was measured before
   it.
 * **touches to target on dent**: the grid meets the 5 um target after 5.7 touches on average;
