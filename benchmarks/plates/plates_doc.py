@@ -185,7 +185,7 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   0.848 / 0.862, false stops 6 of 18, in-family 82.3 -> 84.5 touches with coverage 0.944, the
   other families within 0.024 of their coverage for 1-5 more touches. **In the product since
   2026-12-01** (`model.form_kernels`, `prior.learned_belief`; `rough-2026-12-01.json`):
-  coverage 0.766 / 0.823 / 0.889 and 0.973 at 20 um / 40 mm, false stops 10 -> 6 of 18 on the
+  coverage 0.769 / 0.818 / 0.889 and 0.973 at 20 um / 40 mm, false stops 10 -> 6 of 18 on the
   three gentler variants (4 / 2 / 0: 12-27 touches at 5.8-6.9 um true on the 10 um / 100 mm
   one), in-family 84.6 touches at the own stop, coverage 0.946. Still short of 0.90: a stop
   after a dozen touches stays a guess on such plates. The table above was measured before
