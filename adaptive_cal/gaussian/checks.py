@@ -147,9 +147,9 @@ def unresolved_form_var(surface, form_std_mm: float, length_scale_mm: float, x_m
 
     with G = integral m m^T, B = integral integral m(s) k(s, u) m(u)^T, b(t) = integral
     m(s) k(s, t): the kernel and the basis are tensor products, so every term is a product of
-    1-D integrals (Gauss-Legendre, 12 nodes per knot interval). Returns the variance at the
-    points (mm^2) and its mean over the plate (mm^2). Small when l is long against the knot
-    spacing; near s^2 when l is shorter than it."""
+    1-D integrals (Gauss-Legendre, 12 nodes per knot interval, 24 for the Matern). Returns the
+    variance at the points (mm^2) and its mean over the plate (mm^2). Small when l is long
+    against the knot spacing; near s^2 when l is shorter than it."""
     px = _axis_projection(surface.sx, x_mm, length_scale_mm, kernel)
     py = _axis_projection(surface.sy, y_mm, length_scale_mm, kernel)
     var = form_std_mm**2 * (1 - 2 * px.a * py.a + px.c * py.c)

@@ -143,7 +143,8 @@ def load_prior(run_dir: Path, cell: Cell, correction: str | tuple[float, float] 
     wp = cell.workplane
     half = 0.5 * math.hypot(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
     drift = type(model)(model.surface, d / half, d, model.centre_mm, hyper)
-    extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov  # smooth
+    # the drift's form is smooth (squared exponential) whatever kernel the map's form took
+    extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
     widened = {k: bl.widen(b, extra) for k, b in frames.items()}
     assumed = widened.pop((c["rx"], c["ry"]))
     # each frame not assumed as --correction-applied would name it (a stop says which one the
