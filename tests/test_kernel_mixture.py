@@ -72,14 +72,23 @@ def test_the_learned_belief_is_the_kernels_mixture_weighed_by_evidence():
     np.testing.assert_allclose(belief.cov, mixed.cov, rtol=0, atol=1e-14)
 
 
-def test_a_kernel_below_its_share_floor_is_left_out():
-    from dataclasses import replace
-
-    model = replace(_plan().model, kernels=("se",))
+@pytest.mark.parametrize("ratio, kept", [(1 / 10, {"se", "m52"}), (1 / 30, {"se"})])
+def test_a_kernel_outside_occams_window_is_left_out(monkeypatch, ratio, kept):
+    """Evidence ratios either side of 1/``OCCAM_RATIO`` (each kernel's fit as computed, its log
+    evidence set): the weaker kernel is kept at 1/10 with its share, left out at 1/30."""
+    model = _plan().model
     rows, y = _readings(model, "se", 4)
+    laplace = pr._laplace
+
+    def fixed(*args):
+        points, _ = laplace(*args)
+        return points, (0.0 if args[-1] == "se" else np.log(ratio))
+    monkeypatch.setattr(pr, "_laplace", fixed)
     _, points = pr.learned_belief(model, rows, y)
-    assert {h.kernel for h, _ in points} == {"se"}
-    assert len(points) in (1, 7)
+    weights = pr.kernel_weights(points)
+    assert set(weights) == kept and sum(weights.values()) == pytest.approx(1.0, abs=1e-12)
+    if "m52" in kept:
+        assert weights["m52"] == pytest.approx(ratio / (1 + ratio), rel=1e-9)
 
 
 def test_a_saved_belief_keeps_its_kernel():
