@@ -125,13 +125,59 @@ def summarise(records: list[dict], study, base: dict) -> dict:
     return out
 
 
-def verdicts(summary: dict, bound_um: float) -> list[dict]:
-    """The issue's targets, each with its figure and PASS / MISS."""
+def intervals(records: list[dict], bound_um: float, draws: int = 2000,
+              seed: int = 0) -> dict[str, list[float]]:
+    """A 95 % percentile-bootstrap interval for each target's figure (``verdicts``' names):
+    plates resampled with replacement within each family, the same plates for every strategy
+    (the strategies ran on the same plates: a paired comparison), ``draws`` times. The figures
+    are means over 20 plates a family; the interval says how far another 20 plates drawn the
+    same way could move them, i.e. whether a PASS or MISS is the plates' draw. A plate that
+    never reached the true-RMS target counts the touch budget, as in ``summarise``."""
+    rng = np.random.default_rng(seed)
+    fams: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+    for fam in dict.fromkeys(r["family"] for r in records):
+        for s in ("adaptive", "grid"):
+            rs = sorted((r for r in records if r["family"] == fam and r["strategy"] == s),
+                        key=lambda r: r["plate"])
+            if rs:
+                fams.setdefault(fam, {})[s] = {
+                    k: np.array([r[k] for r in rs], float)
+                    for k in ("coverage95", "true_rms_mm", "touches", "robot_time_s")}
+                fams[fam][s]["to_target"] = np.array(
+                    [r["touches_to_target"] if r["touches_to_target"] is not None
+                     else r["budget"] for r in rs], float)
+    stats: dict[str, list[float]] = {}
+    paired = {f: v for f, v in fams.items() if "grid" in v
+              and len(v["grid"]["touches"]) == len(v["adaptive"]["touches"])}
+    for _ in range(draws):
+        idx = {f: rng.integers(0, len(v["adaptive"]["touches"]), len(v["adaptive"]["touches"]))
+               for f, v in fams.items() if "adaptive" in v}
+        for f, i in idx.items():
+            a = fams[f]["adaptive"]
+            stats.setdefault(f"{f}: coverage95 (adaptive)", []).append(a["coverage95"][i].mean())
+            stats.setdefault(f"{f}: true RMS / stated bound (adaptive)", []).append(
+                1e3 * a["true_rms_mm"][i].mean() / bound_um)
+            if f in paired and f in TOUCH_TARGET:
+                stats.setdefault(f"{f}: touches to true-RMS target vs grid", []).append(
+                    a["to_target"][i].mean() / paired[f]["grid"]["to_target"][i].mean())
+        if paired and len(paired) == len(idx):
+            for key, name in (("robot_time_s", "mix: robot time at own stop vs grid"),
+                              ("touches", "mix: touches at own stop vs grid")):
+                a = np.mean([fams[f]["adaptive"][key][idx[f]].mean() for f in paired])
+                g = np.mean([fams[f]["grid"][key][idx[f]].mean() for f in paired])
+                stats.setdefault(name, []).append(a / g)
+    return {k: [round(float(v), 3) for v in np.percentile(x, [2.5, 97.5])]
+            for k, x in stats.items()}
+
+
+def verdicts(summary: dict, bound_um: float, ci: dict | None = None) -> list[dict]:
+    """The issue's targets, each with its figure and PASS / MISS (and, given ``ci`` from
+    ``intervals``, its 95 % bootstrap interval over plates)."""
     out = []
 
     def add(what, value, ok, target):
         out.append({"target": what, "value": value, "target_text": target,
-                    "verdict": "PASS" if ok else "MISS"})
+                    "verdict": "PASS" if ok else "MISS", "interval": (ci or {}).get(what)})
 
     mix = {s: [summary[f][s] for f in summary if s in summary[f]] for s in ("adaptive", "grid")}
     for family, row in summary.items():
@@ -175,10 +221,28 @@ def table(summary: dict, checks: list[dict]) -> str:
                 f"{x['coverage95_mean']:.2f}, {x['coverage95_min']:.2f} | "
                 f"{x['touches_to_target']:.1f} ({x['reached_target']}/{x['plates']}) | "
                 f"{f(x['robot_time_to_target_s'], '{:.0f}')} |")
-    lines += ["", "| target | value | wanted | verdict |", "|---|---|---|---|"]
-    lines += [f"| {c['target']} | {c['value']} | {c['target_text']} | {c['verdict']} |"
-              for c in checks]
+    lines += ["", "| target | value | 95 % interval, plates resampled | wanted | verdict |",
+              "|---|---|---|---|---|"]
+    lines += [f"| {c['target']} | {c['value']} | {_interval(c.get('interval'))} | "
+              f"{c['target_text']} | {c['verdict']}{_settled(c)} |" for c in checks]
     return "\n".join(lines)
+
+
+def _interval(iv) -> str:
+    return "-" if not iv else f"{iv[0]:g} .. {iv[1]:g}"
+
+
+def _settled(check: dict) -> str:
+    """" (the draw)" where the interval reaches across the target's bound: another set of
+    plates could turn the verdict; "" where it lies wholly on one side (or is unknown)."""
+    iv, text = check.get("interval"), check["target_text"]
+    if not iv:
+        return ""
+    if text.startswith("<= "):
+        bounds = [float(text[3:].split()[0])]
+    else:
+        bounds = [float(v) for v in text.split()[0].split("-")]
+    return " (the draw)" if any(iv[0] <= b <= iv[1] for b in bounds) else ""
 
 
 def main(argv=None) -> int:
@@ -194,7 +258,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.from_json:
         old = json.loads(Path(args.from_json).read_text())
-        old["targets"] = verdicts(old["summary"], old["bound_um"])
+        old["targets"] = verdicts(old["summary"], old["bound_um"],
+                                  intervals(old["records"], old["bound_um"]))
         text = table(old["summary"], old["targets"])
         print(text)
         if args.doc:
@@ -224,7 +289,9 @@ def main(argv=None) -> int:
                 records.append(rec)
         print(f"  {family}: {plates} plates done at {time.perf_counter() - t0:.0f} s", flush=True)
     summary = summarise(records, study, base)
-    checks = verdicts(summary, 1e3 * study.bound.mean_std_mm)
+    bound_um = 1e3 * study.bound.mean_std_mm
+    checks = verdicts(summary, bound_um, intervals(
+        [slim(r, study.bound.true_mm, study.bound.max_touches) for r in records], bound_um))
     text = table(summary, checks)
     print(text)
     date = datetime.date.today().isoformat()

@@ -120,7 +120,11 @@ def write(docs: Path, summary: dict, checks: list, table: str, plates: int, date
     run = "quick run" if quick else "full run"
     body = (HEAD + f"## Results ({run}: {plates} plates per family, {date})\n\n"
             "Per family and strategy at the strategy's own stop (means over plates), then the "
-            "issue's targets (adaptive against grid; \"mix\": all families together).\n\n"
+            "issue's targets (adaptive against grid; \"mix\": all families together), each "
+            "with a 95 % bootstrap interval: the family's plates resampled with replacement, the "
+            "same plates for both strategies (`bench_plates.intervals`). It says how far "
+            "another set of plates drawn the same way could move the figure; \"(the draw)\" "
+            "marks a verdict the interval reaches across, one that more plates could turn.\n\n"
             + table + "\n\n" + "".join(f"![{n}]({n})\n\n" for n in names)
             + WHY)
     path = docs / "plates.md"
