@@ -30,8 +30,10 @@ Setup: the simulated reference cell's workplane (450 x 370 mm), no keep-out; 5 u
 reading noise, the probe's noise span stated as 3-8 um (`probe.noise_range_mm`); stop at 4 um
 RMS posterior std (`bound.mean_std_mm`); true-RMS target 5 um (1.25 x the stated bound); touch
 budget 200. Strategies: `adaptive` (the loop on the simulated cell, through the probe cycle),
-`grid` (serpentine grids of growing size, the same learned estimator) and `paper` (Cheng, Chang
-& Weng 2025: 5-point levelling, then rounds of the 10 x 4 S path). Robot time: xy travel from the
+`grid` (serpentine grids of growing size, the same learned estimator; its readings are the
+plate's heights with the cell's noise at its points, with no probe stroke to stay inside, where
+the planner keeps every touch promised inside it -- docs/study-notes.md, the cost side) and
+`paper` (Cheng, Chang & Weng 2025: 5-point levelling, then rounds of the 10 x 4 S path). Robot time: xy travel from the
 plate centre at `robot.speed_mm_per_s` (150 mm/s) plus `touch_time_s` (3 s) per touch.
 coverage95: share of the evaluation grid where |true - posterior mean| <= 1.96 posterior std.
 "Touches to target": the first point of the trajectory with true RMS error <= 5 um; a plate that
