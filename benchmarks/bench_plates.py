@@ -18,6 +18,7 @@ budget), then the issue's targets with PASS / MISS.
 
     nice -n 10 python benchmarks/bench_plates.py --quick        # 2 plates per family, ~3 min
     nice -n 10 python benchmarks/bench_plates.py                # 20 plates per family
+    nice -n 10 python benchmarks/bench_plates.py --workers 2    # the same, on two processes
     nice -n 10 python benchmarks/bench_plates.py --quick --doc  # also rewrite docs/plates.md
     python benchmarks/bench_plates.py --doc --from-json benchmarks/results/plates-DATE.json
 
@@ -34,6 +35,7 @@ import datetime  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from multiprocessing import get_context  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -58,6 +60,13 @@ TRUE_OVER_BOUND = 1.25
 def family_study(study, family: str, maps: Path, plates: int):
     plate = study.plate.model_copy(update={"surface_files": str(maps / family / "plate-*.csv")})
     return study.model_copy(update={"plate": plate, "plates": plates})
+
+
+def _job(job: tuple) -> list[dict]:
+    """One plate's strategies (a worker process: float64 set there too)."""
+    study_data, base, family, i = job
+    adaptive_cal.use_float64()
+    return [dict(rec, family=family) for rec in plate_task(study_data, base, i, STRATEGIES)]
 
 
 def family_base(base: dict, family: str, manifest: dict) -> dict:
@@ -252,6 +261,8 @@ def main(argv=None) -> int:
     p.add_argument("--families", default=",".join(generate.FAMILIES))
     p.add_argument("--maps", default=str(ROOT / "benchmarks" / "plates" / "out"))
     p.add_argument("--json", default=None, help="default benchmarks/results/plates-<date>.json")
+    p.add_argument("--workers", type=int, default=1, help="processes (default 1; the records "
+                   "are the same with any number)")
     p.add_argument("--doc", action="store_true", help="rewrite docs/plates.md and its figures")
     p.add_argument("--from-json", metavar="RESULTS.json", help="no run: print (and with --doc "
                    "write the page) from an earlier results file")
@@ -279,15 +290,21 @@ def main(argv=None) -> int:
         manifest = generate.generate(maps, max(plates, 20 if not args.quick else plates),
                                      generate.FAMILIES)
     study, base = load_study(STUDY)
+    jobs = [(family_study(study, f, maps, plates).model_dump(mode="json"),
+             family_base(base, f, manifest), f, i) for f in families for i in range(plates)]
     records, t0 = [], time.perf_counter()
-    for family in families:
-        fs = family_study(study, family, maps, plates)
-        fb = family_base(base, family, manifest)
-        for i in range(plates):
-            for rec in plate_task(fs.model_dump(mode="json"), fb, i, STRATEGIES):
-                rec["family"] = family
-                records.append(rec)
-        print(f"  {family}: {plates} plates done at {time.perf_counter() - t0:.0f} s", flush=True)
+    if args.workers <= 1:
+        done = map(_job, jobs)
+    else:  # each plate is independent and seeded by its index: the same records, sooner
+        pool = get_context("spawn").Pool(args.workers)
+        done = pool.imap(_job, jobs)  # in order: the records as a single process writes them
+    for k, recs in enumerate(done, 1):
+        records += recs
+        if k % plates == 0:
+            print(f"  {jobs[k - 1][2]}: {plates} plates done at "
+                  f"{time.perf_counter() - t0:.0f} s", flush=True)
+    if args.workers > 1:
+        pool.close()
     summary = summarise(records, study, base)
     bound_um = 1e3 * study.bound.mean_std_mm
     checks = verdicts(summary, bound_um, intervals(
