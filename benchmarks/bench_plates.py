@@ -31,6 +31,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import datetime  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
@@ -293,18 +294,16 @@ def main(argv=None) -> int:
     jobs = [(family_study(study, f, maps, plates).model_dump(mode="json"),
              family_base(base, f, manifest), f, i) for f in families for i in range(plates)]
     records, t0 = [], time.perf_counter()
-    if args.workers <= 1:
-        done = map(_job, jobs)
-    else:  # each plate is independent and seeded by its index: the same records, sooner
-        pool = get_context("spawn").Pool(args.workers)
-        done = pool.imap(_job, jobs)  # in order: the records as a single process writes them
-    for k, recs in enumerate(done, 1):
-        records += recs
-        if k % plates == 0:
-            print(f"  {jobs[k - 1][2]}: {plates} plates done at "
-                  f"{time.perf_counter() - t0:.0f} s", flush=True)
-    if args.workers > 1:
-        pool.close()
+    # each plate is independent and seeded by its index: more workers, the same records sooner
+    # (imap keeps the jobs' order: the records as a single process writes them)
+    with (get_context("spawn").Pool(args.workers) if args.workers > 1
+          else contextlib.nullcontext()) as pool:
+        done = pool.imap(_job, jobs) if pool is not None else map(_job, jobs)
+        for k, recs in enumerate(done, 1):
+            records += recs
+            if k % plates == 0:
+                print(f"  {jobs[k - 1][2]}: {plates} plates done at "
+                      f"{time.perf_counter() - t0:.0f} s", flush=True)
     summary = summarise(records, study, base)
     bound_um = 1e3 * study.bound.mean_std_mm
     checks = verdicts(summary, bound_um, intervals(
