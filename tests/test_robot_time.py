@@ -249,11 +249,17 @@ def test_study_summary_puts_touches_and_robot_time_side_by_side():
                rec("grid", 0, 72, 240.0, 3500.0), rec("grid", 1, 88, 300.0, 4500.0)]
     s = summarise(study.model_copy(update={"strategies": ["adaptive", "grid"]}), records)
     assert s["strategies"]["adaptive"]["stop_travel_mm_mean"] == 3500.0
-    assert s["adaptive_vs_grid"] == {"plates": 2, "touch_ratio": pytest.approx(70 / 80),
-                                     "robot_time_ratio": pytest.approx(240 / 270)}
+    vg = s["adaptive_vs_grid"]
+    assert {k: vg[k] for k in ("plates", "touch_ratio", "robot_time_ratio")} == {
+        "plates": 2, "touch_ratio": pytest.approx(70 / 80),
+        "robot_time_ratio": pytest.approx(240 / 270)}
+    # paired resampling of 2 plates: (0, 0), (1, 1) or one of each -- 60/72, 80/88 or 70/80
+    lo, hi = vg["touch_ratio_ci95"]
+    assert 60 / 72 - 1e-12 <= lo <= hi <= 80 / 88 + 1e-12
     text = table(s)
     assert "| adaptive | 70.0 / 78 | 240 | 100% | 70.0 | 240 | 5.00 |" in text
-    assert "touches 0.88 x, robot time 0.89 x" in text
+    assert "touches 0.88 x (95 % " in text and ", robot time 0.89 x (95 % " in text
+    assert "95 % intervals of the means over the plates" in text
 
 
 def test_a_probe_position_the_adapter_cannot_read_is_planned_from_the_last_touch():

@@ -9,9 +9,32 @@ from adaptive_cal.formats.numbers import count
 from adaptive_cal.study.config import Study
 
 
+#: bootstrap draws of the 95 % intervals over plates (a fixed seed: a summary is reproducible)
+DRAWS = 2000
+
+
 def _mean(values) -> float | None:
     v = [x for x in values if x is not None]
     return float(np.mean(v)) if v else None
+
+
+def ci95(*columns, stat=None, draws: int = DRAWS, seed: int = 0) -> list[float] | None:
+    """A 95 % percentile-bootstrap interval of ``stat`` (default: the first column's mean) over
+    the plates resampled with replacement, every column by the same indices (paired: the
+    strategies ran on the same plates); None for fewer than 2 plates or a missing value. It
+    says how far another study of as many plates drawn the same way could move the figure."""
+    cols = [np.asarray(c, float) for c in columns]
+    n = len(cols[0])
+    if n < 2 or any(len(c) != n or not np.all(np.isfinite(c)) for c in cols):
+        return None
+    stat = stat or (lambda a, *_: a.mean())
+    idx = np.random.default_rng(seed).integers(0, n, (draws, n))
+    vals = np.array([stat(*(c[i] for c in cols)) for i in idx], float)
+    return [float(v) for v in np.percentile(vals, [2.5, 97.5])]
+
+
+def _ratio(a, b):
+    return a.mean() / b.mean()
 
 
 def summarise(study: Study, records: list[dict]) -> dict:
@@ -45,6 +68,9 @@ def summarise(study: Study, records: list[dict]) -> dict:
             "stop_robot_time_s_mean": _mean(r["robot_time_s"] for r in recs),
             "stop_travel_mm_mean": _mean(r.get("travel_mm") for r in recs),
             "stop_mean_std_mm_mean": _mean(r["mean_std_mm"] for r in recs),
+            "touches_mean_ci95": ci95(touches),
+            "stop_touches_mean_ci95": ci95([r["touches"] for r in recs]),
+            "coverage95_mean_ci95": ci95([r["coverage95"] for r in recs]),
         }
     adaptive = by.get("adaptive", [])
     grids = {r["plate"]: r for r in by.get("grid", [])}
@@ -55,7 +81,11 @@ def summarise(study: Study, records: list[dict]) -> dict:
             "touch_ratio": float(np.mean([a["touches"] for a, _ in same])
                                  / np.mean([g["touches"] for _, g in same])),
             "robot_time_ratio": float(np.mean([a["robot_time_s"] for a, _ in same])
-                                      / np.mean([g["robot_time_s"] for _, g in same]))}
+                                      / np.mean([g["robot_time_s"] for _, g in same])),
+            "touch_ratio_ci95": ci95([a["touches"] for a, _ in same],
+                                     [g["touches"] for _, g in same], stat=_ratio),
+            "robot_time_ratio_ci95": ci95([a["robot_time_s"] for a, _ in same],
+                                          [g["robot_time_s"] for _, g in same], stat=_ratio)}
     lb = [r for r in adaptive if r.get("relaxed_touches") is not None]
     # a plate where no design meets the bound within the budget has no bound (inf): counted,
     # and left out of every mean and ratio alike (one such plate made the mean inf, the ratio not)
@@ -151,6 +181,14 @@ def _f(v, scale=1.0, fmt="{:.1f}"):
     return "-" if v is None else fmt.format(v * scale)
 
 
+def _ci(iv, fmt="{:.1f}", around="{}") -> str:
+    """"lo-hi" of an interval (``ci95``), in ``around``; "-" (or nothing, with ``around``)
+    where there is none."""
+    if not iv:
+        return "" if around != "{}" else "-"
+    return around.format(f"{fmt.format(iv[0])}-{fmt.format(iv[1])}")
+
+
 def table(summary: dict) -> str:
     """The headline table (markdown): touches and robot time to the bound on the true error;
     true error and coverage at each strategy's own stop."""
@@ -179,6 +217,13 @@ def table(summary: dict) -> str:
                   + " (the 'reached' column)"
                   + ("; its robot time is the mean over the plates that reached it only"
                      if missed else "")]
+        cis = [f"{name}: touches to true bound {_ci(s.get('touches_mean_ci95'))}, at own stop "
+               f"{_ci(s.get('stop_touches_mean_ci95'))}, coverage95 "
+               f"{_ci(s.get('coverage95_mean_ci95'), '{:.3f}')}"
+               for name, s in summary["strategies"].items() if s.get("stop_touches_mean_ci95")]
+        if cis:
+            lines += ["", "95 % intervals of the means over the plates (percentile bootstrap, "
+                      "plates resampled): " + "; ".join(cis)]
     lb = summary.get("lower_bound") or {}
     if lb.get("plates_beyond_budget"):
         lines += ["", f"lower bound: on {count(lb['plates_beyond_budget'])} no design meets the "
@@ -208,8 +253,10 @@ def table(summary: dict) -> str:
     vg = summary.get("adaptive_vs_grid")
     if vg:
         lines += ["", f"adaptive / grid at each one's own stop ({count(vg['plates'])}, ratio of "
-                  f"means): touches {vg['touch_ratio']:.2f} x, robot time "
-                  f"{vg['robot_time_ratio']:.2f} x"]
+                  f"means): touches {vg['touch_ratio']:.2f} x"
+                  + _ci(vg.get("touch_ratio_ci95"), "{:.2f}", " (95 % {})")
+                  + f", robot time {vg['robot_time_ratio']:.2f} x"
+                  + _ci(vg.get("robot_time_ratio_ci95"), "{:.2f}", " (95 % {})")]
     vp = summary.get("adaptive_vs_paper")
     if vp:
         lines += ["", f"paper's procedure: {vp['paper_touches_mean']:.1f} touches, true RMS "
