@@ -2,7 +2,7 @@
 they claim. Over repeated studies of 40 plates drawn from a known distribution, the interval of
 a mean holds the true mean about 95 % of the time, and the paired interval of a ratio of means
 (adaptive / grid on the same plates) holds the true ratio about as often (Monte Carlo, with a
-binomial bound); fewer than two plates or a missing value give no interval."""
+binomial bound); fewer than two plates, or a missing value in a pair, give no interval."""
 import numpy as np
 from scipy import stats
 
@@ -31,7 +31,8 @@ def test_pairing_no_plates_and_missing_values():
     x = np.array([60.0, 80.0, 75.0, 90.0])
     assert ci95(x, x, stat=lambda a, b: a.mean() / b.mean()) == [1.0, 1.0]  # same plates
     assert ci95([70.0]) is None and ci95([]) is None
-    assert ci95([70.0, np.nan, 80.0]) is None
+    assert ci95([70.0, np.nan, 80.0]) == ci95([70.0, 80.0])  # left out, as the mean leaves it
+    assert ci95([70.0, np.nan, 80.0], [1.0, 2.0, 3.0], stat=lambda a, b: a.mean()) is None
     lo, hi = ci95(x)
     assert x.min() <= lo <= x.mean() <= hi <= x.max()
     assert ci95(x) == ci95(x)  # a fixed seed: the summary is reproducible

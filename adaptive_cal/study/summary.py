@@ -21,15 +21,18 @@ def _mean(values) -> float | None:
 def ci95(*columns, stat=None, draws: int = DRAWS, seed: int = 0) -> list[float] | None:
     """A 95 % percentile-bootstrap interval of ``stat`` (default: the first column's mean) over
     the plates resampled with replacement, every column by the same indices (paired: the
-    strategies ran on the same plates); None for fewer than 2 plates or a missing value. It
-    says how far another study of as many plates drawn the same way could move the figure."""
+    strategies ran on the same plates); None for fewer than 2 plates or, paired, a missing
+    value. It says how far another study of as many plates drawn the same way could move the
+    figure. A lone column's missing values are left out, as ``_mean`` leaves them out."""
     cols = [np.asarray(c, float) for c in columns]
+    if stat is None and len(cols) == 1:
+        cols = [cols[0][np.isfinite(cols[0])]]
     n = len(cols[0])
     if n < 2 or any(len(c) != n or not np.all(np.isfinite(c)) for c in cols):
         return None
-    stat = stat or (lambda a, *_: a.mean())
     idx = np.random.default_rng(seed).integers(0, n, (draws, n))
-    vals = np.array([stat(*(c[i] for c in cols)) for i in idx], float)
+    vals = (cols[0][idx].mean(axis=1) if stat is None
+            else np.array([stat(*(c[i] for c in cols)) for i in idx], float))
     return [float(v) for v in np.percentile(vals, [2.5, 97.5])]
 
 
