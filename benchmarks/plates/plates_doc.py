@@ -18,10 +18,12 @@ that imports numpy, scipy and yaml only, nothing from `adaptive_cal`; a study
 (`configs/study-plates.yaml`, `plate.surface_files`) runs the product's own loop on them.
 
 Regenerate this page, its table and figures with one command (about 3 min with `--quick`;
-without it, 20 plates per family: 17 min on the 2-core development machine under load):
+without it, 20 plates per family: 17-18 min on the 2-core development machine under load, 11 min
+with `--workers 2` -- 2026-12-01, the same touches, stops and targets, other figures within
+1e-6 of themselves as the processes' arithmetic differs):
 
 ```text
-nice -n 10 python benchmarks/bench_plates.py --doc
+nice -n 10 python benchmarks/bench_plates.py --doc --workers 2
 ```
 
 (`--from-json benchmarks/results/plates-DATE.json` redraws the page from an earlier run.)
