@@ -185,8 +185,8 @@ def verdicts(summary: dict, bound_um: float, ci: dict | None = None) -> list[dic
     ``intervals``, its 95 % bootstrap interval over plates)."""
     out = []
 
-    def add(what, value, ok, target):
-        out.append({"target": what, "value": value, "target_text": target,
+    def add(what, value, ok, target, bounds):
+        out.append({"target": what, "value": value, "target_text": target, "bounds": bounds,
                     "verdict": "PASS" if ok else "MISS", "interval": (ci or {}).get(what)})
 
     mix = {s: [summary[f][s] for f in summary if s in summary[f]] for s in ("adaptive", "grid")}
@@ -196,23 +196,26 @@ def verdicts(summary: dict, bound_um: float, ci: dict | None = None) -> list[dic
             continue
         c = a["coverage95_mean"]
         add(f"{family}: coverage95 (adaptive)", round(c, 3), COVERAGE[0] <= c <= COVERAGE[1],
-            f"{COVERAGE[0]}-{COVERAGE[1]}")
+            f"{COVERAGE[0]}-{COVERAGE[1]}", list(COVERAGE))
         ratio = a["true_rms_um"] / bound_um
         add(f"{family}: true RMS / stated bound (adaptive)", round(ratio, 3),
-            ratio <= TRUE_OVER_BOUND, f"<= {TRUE_OVER_BOUND}")
+            ratio <= TRUE_OVER_BOUND, f"<= {TRUE_OVER_BOUND}", [TRUE_OVER_BOUND])
         if g is not None and family in TOUCH_TARGET:
             r = a["touches_to_target"] / g["touches_to_target"]
             none = a["reached_target"] == 0 and g["reached_target"] == 0  # nothing measured
             add(f"{family}: touches to true-RMS target vs grid", round(r, 3),
                 r <= TOUCH_TARGET[family] and not none, f"<= {TOUCH_TARGET[family]}"
-                + (" (neither reached the target on any plate)" if none else ""))
+                + (" (neither reached the target on any plate)" if none else ""),
+                [TOUCH_TARGET[family]])
     if mix["adaptive"] and len(mix["adaptive"]) == len(mix["grid"]):
         rt = (np.mean([x["robot_time_s"] for x in mix["adaptive"]])
               / np.mean([x["robot_time_s"] for x in mix["grid"]]))
-        add("mix: robot time at own stop vs grid", round(float(rt), 3), rt <= 1.0, "<= 1.0")
+        add("mix: robot time at own stop vs grid", round(float(rt), 3), rt <= 1.0, "<= 1.0",
+            [1.0])
         tr = (np.mean([x["touches"] for x in mix["adaptive"]])
               / np.mean([x["touches"] for x in mix["grid"]]))
-        add("mix: touches at own stop vs grid", round(float(tr), 3), tr <= 0.92, "<= 0.92")
+        add("mix: touches at own stop vs grid", round(float(tr), 3), tr <= 0.92, "<= 0.92",
+            [0.92])
     return out
 
 
@@ -245,14 +248,10 @@ def _interval(iv) -> str:
 def _settled(check: dict) -> str:
     """" (the draw)" where the interval reaches across the target's bound: another set of
     plates could turn the verdict; "" where it lies wholly on one side (or is unknown)."""
-    iv, text = check.get("interval"), check["target_text"]
+    iv = check.get("interval")
     if not iv:
         return ""
-    if text.startswith("<= "):
-        bounds = [float(text[3:].split()[0])]
-    else:
-        bounds = [float(v) for v in text.split()[0].split("-")]
-    return " (the draw)" if any(iv[0] <= b <= iv[1] for b in bounds) else ""
+    return " (the draw)" if any(iv[0] <= b <= iv[1] for b in check["bounds"]) else ""
 
 
 def main(argv=None) -> int:
@@ -306,8 +305,8 @@ def main(argv=None) -> int:
                       f"{time.perf_counter() - t0:.0f} s", flush=True)
     summary = summarise(records, study, base)
     bound_um = 1e3 * study.bound.mean_std_mm
-    checks = verdicts(summary, bound_um, intervals(
-        [slim(r, study.bound.true_mm, study.bound.max_touches) for r in records], bound_um))
+    slimmed = [slim(r, study.bound.true_mm, study.bound.max_touches) for r in records]
+    checks = verdicts(summary, bound_um, intervals(slimmed, bound_um))
     text = table(summary, checks)
     print(text)
     date = datetime.date.today().isoformat()
@@ -316,9 +315,8 @@ def main(argv=None) -> int:
                                "wall_s": time.perf_counter() - t0, "bound_um":
                                1e3 * study.bound.mean_std_mm, "target_true_um":
                                1e3 * study.bound.true_mm, "summary": summary,
-                               "targets": checks, "records": [
-                                   slim(r, study.bound.true_mm, study.bound.max_touches)
-                                   for r in records]}, indent=None, separators=(",", ":")))
+                               "targets": checks, "records": slimmed},
+                              indent=None, separators=(",", ":")))
     print(f"wrote {out} ({time.perf_counter() - t0:.0f} s)")
     if args.doc:
         import plates_doc  # benchmarks/plates/plates_doc.py

@@ -59,8 +59,18 @@ def test_pairing_and_the_draw_mark(bench):
     ci = bench.intervals(same, 4.0, draws=300)
     assert ci["mix: robot time at own stop vs grid"] == [1.0, 1.0]  # paired: identical plates
     assert ci["dent: touches to true-RMS target vs grid"] == [1.0, 1.0]
-    check = {"target_text": "0.9-0.98", "interval": [0.97, 0.99]}
+    check = {"bounds": [0.9, 0.98], "interval": [0.97, 0.99]}
     assert bench._settled(check) == " (the draw)"
     assert bench._settled({**check, "interval": [0.95, 0.97]}) == ""
-    assert bench._settled({"target_text": "<= 1.25 (neither ...)", "interval": [1.3, 1.4]}) == ""
-    assert bench._settled({"target_text": "<= 1.25", "interval": [1.2, 1.3]}) == " (the draw)"
+    assert bench._settled({"bounds": [1.25], "interval": [1.3, 1.4]}) == ""
+    assert bench._settled({"bounds": [1.25], "interval": [1.2, 1.3]}) == " (the draw)"
+    # verdicts hand each target its bounds as numbers
+    run = {"touches": 12.0, "robot_time_s": 50.0, "touches_to_target": 8.0, "reached_target": 8}
+    summary = {"dent": {"adaptive": {**run, "coverage95_mean": 0.97, "true_rms_um": 4.0},
+                        "grid": run}}
+    got = {c["target"]: c["bounds"] for c in bench.verdicts(summary, 4.0)}
+    assert got == {"dent: coverage95 (adaptive)": [0.9, 0.98],
+                   "dent: true RMS / stated bound (adaptive)": [1.25],
+                   "dent: touches to true-RMS target vs grid": [0.6],
+                   "mix: robot time at own stop vs grid": [1.0],
+                   "mix: touches at own stop vs grid": [0.92]}
