@@ -63,7 +63,7 @@ def check_cell(cell) -> None:
                              "settings; make the two blocks identical")
     sim = cell.simulation
     if sim is not None and sim.surface_file is not None:  # loads, covers, within the stroke
-        from adaptive_cal.formats.heightmap import check_map
+        from adaptive_cal.formats.mapfiles import check_map
 
         check_map(sim.surface_file, wp, "simulation.surface_file", p.usable_mm,
                   sim.effects.get("tilt", {}).get("c", 0.0))

@@ -18,7 +18,7 @@ from adaptive_cal.cell.plate import (REACH_MM, Interval, Rect, Workplane,  # noq
                                      _interval)  # (re-exported)
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
 from adaptive_cal.cell.simulation import FrameCorrection, Simulation  # noqa: F401 (re-exported)
-from adaptive_cal.formats.heightmap import beside
+from adaptive_cal.formats.mapfiles import beside
 from adaptive_cal.hardware.hses.config import HsesConfig
 from adaptive_cal.hardware.manual.config import ManualConfig
 from adaptive_cal.hardware.modbus.config import ModbusConfig

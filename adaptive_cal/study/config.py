@@ -17,7 +17,8 @@ from adaptive_cal.gaussian.belief import rms_std_from_integrated_variance
 from adaptive_cal.hardware.config import Strict
 from adaptive_cal.cell.schema import (Cell, ConfigError, Rect, load_yaml, parse_cell, resolve_files,
                                      validate)
-from adaptive_cal.formats.heightmap import HeightMapError, beside, check_map
+from adaptive_cal.formats.heightmap import HeightMapError
+from adaptive_cal.formats.mapfiles import beside_glob, check_map
 
 STRATEGIES = ("adaptive", "greedy_fixed", "paper", "grid", "random")
 SHAPES = ("bow_x", "bow_y", "twist", "warp")
@@ -140,8 +141,9 @@ def parse_study(data: dict, source: str = "study") -> Study:
 
 def base_cell_dict(study: Study, study_path: str | Path | None) -> dict:
     """The base cell as a plain mapping (plates are variations of it)."""
-    if isinstance(study.cell, dict):
-        return dict(study.cell)
+    if isinstance(study.cell, dict):  # its files are relative to the study file, as a cell's
+        return dict(study.cell) if study_path is None else resolve_files(dict(study.cell),
+                                                                         study_path)
     path = cell_path(study.cell, study_path)
     return resolve_files(load_yaml(path), path)
 
@@ -160,7 +162,7 @@ def load_study(path: str | Path) -> tuple[Study, dict]:
     plate = data.get("plate") if isinstance(data, dict) else None
     if isinstance(plate, dict) and isinstance(plate.get("surface_files"), str) \
             and plate["surface_files"]:
-        data = {**data, "plate": {**plate, "surface_files": beside(plate["surface_files"], path)}}
+        data = {**data, "plate": {**plate, "surface_files": beside_glob(plate["surface_files"], path)}}
     study = parse_study(data, str(path))
     cell_dict = base_cell_dict(study, path)
     # an error names the file it is in: the cell file's own, where the study names one
@@ -201,7 +203,8 @@ def map_in_reach(path: str, cell: Cell, source: str) -> None:
     workplane) no steeper than the planner serves, its height at the plate centre within the
     prior's reach, and its form within half the usable stroke -- else every touch lands at the
     stroke's end and the study measures nothing (a map 6 mm high ran its whole budget)."""
-    from adaptive_cal.formats.heightmap import load_heightmap, plane_of
+    from adaptive_cal.formats.heightmap import load_heightmap
+    from adaptive_cal.formats.mapfiles import plane_of
 
     wp, probe = cell.workplane, cell.probe
     a, b, c, form = plane_of(load_heightmap(path), wp.x_mm, wp.y_mm)

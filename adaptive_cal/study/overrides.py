@@ -8,7 +8,7 @@ from typing import Sequence
 import yaml
 
 from adaptive_cal.cell.schema import ConfigError, parse_cell
-from adaptive_cal.formats.heightmap import beside
+from adaptive_cal.formats.mapfiles import beside_glob
 from adaptive_cal.study.config import Study, check_feasible, parse_study
 
 
@@ -63,7 +63,7 @@ def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
         if item.partition("=")[0] == "plate.surface_files" and study_path is not None \
                 and isinstance(data["plate"].get("surface_files"), str) \
                 and data["plate"]["surface_files"]:
-            data["plate"]["surface_files"] = beside(data["plate"]["surface_files"], study_path)
+            data["plate"]["surface_files"] = beside_glob(data["plate"]["surface_files"], study_path)
     study = parse_study(data, source)
     check_feasible(study, parse_cell(base), source)
     return study
