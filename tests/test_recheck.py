@@ -399,3 +399,25 @@ def test_the_stop_names_the_frame_the_readings_agree_with_or_none_or_both():
     assert said[0.0, 1.0].startswith("the 3 readings inside the probe's stroke")
     off = SimpleNamespace(**{**vars(rec), "reading_mm": np.full(3, 9.9)})  # past the stroke
     assert matching_frame(plan, off, at(0.0), [at(1.0)], carried) == ""
+
+
+def test_a_recheck_of_a_plate_whose_form_changed_is_checked_and_does_not_stop_on_its_bound(
+        first_map, tmp_path):
+    """An outside audit (2026-12-01): a re-check learns nothing, and its self-checks never ran
+    -- on a plate whose form went from 0.28 to 0.40 mm pv it stopped on its bound after 18
+    touches, exit 0, with a true RMS error of 21.8 um, result.json saying adequate with no
+    checks. The earlier belief is now checked against every reading as a learned model is:
+    the checks fail, the bands carry what they find, and no bound stop is a result."""
+    out, first = first_map
+    from adaptive_cal.cell.schema import parse_cell
+
+    data = load_yaml(SIM_CELL)
+    data["simulation"]["effects"]["form"]["pv_mm"] = 0.40  # the form changed, not the frame
+    cell = parse_cell(data, "changed form")
+    r = session.run(cell, tmp_path / "changed", prior_from=out, correction_applied="none",
+                    progress=False)
+    model = json.loads((tmp_path / "changed" / "result.json").read_text())["model"]
+    assert model["checks"] and not model["adequate"], model["summary"]
+    assert r["stopped_because"] != "mean_std_bound"
+    # where a bound stop had claimed 3.7 um, the bands now hold the plate
+    assert r["truth"]["coverage95"] >= 0.9, r["truth"]

@@ -96,7 +96,7 @@ class SurveyState:
 def start(plan: SurveyPlan, *, prior: bl.Belief | None = None,
           hyper: Hyper | None = None) -> SurveyState:
     """The state before any touch: the prior belief under ``hyper`` (default: the model's first
-    guess), or ``prior`` from an earlier run (plan with ``informed_prior=True``: nothing learned)."""
+    guess), or ``prior`` from an earlier run (``informed_prior=True``: nothing learned)."""
     if plan.learn:  # before any robot moves, not at the first refit some touches in
         require_float64("a survey that learns its hyper-parameters")
     hyper = hyper or plan.model.hyper0
@@ -110,12 +110,10 @@ def start(plan: SurveyPlan, *, prior: bl.Belief | None = None,
 def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
            touches: int | None = None, unresolved_mm2: np.ndarray | None = None) -> Status:
     """Touches, RMS std sqrt(trace(Q C) / area + mean s_u^2) and the largest std on the grid
-    (mm), of the TRUE plate: the spline's posterior variance plus the unresolved-structure
-    variance s_u^2 the self-checks found; ``adequate``: the checks pass (a survey that learns
-    is not adequate before its first check; ``repeats_owed``: ``planning.repeats``).
-    ``cov``/``touches``: the status a batch planned ahead would reach (the covariance after its
-    picks, without readings), under the checks as they stand now; ``unresolved_mm2``:
-    ``unresolved_var_mm2`` on ``plan.eval_xy`` when at hand (from the state, not ``cov``)."""
+    (mm) of the TRUE plate (s_u^2: the unresolved structure the checks found); ``adequate``:
+    the checks pass (not before a learning survey's first); ``cov``/``touches``: what a batch
+    planned ahead would reach, under the checks as they stand; ``unresolved_mm2``:
+    ``unresolved_var_mm2`` on ``plan.eval_xy`` when at hand."""
     c = state.belief.cov if cov is None else cov
     var = np.einsum("nk,nk->n", plan.eval_rows @ c, plan.eval_rows)
     j_area = float(bl.integrated_variance(c, plan.gram)) / plan.model.surface.area_mm2
@@ -132,10 +130,9 @@ def status(plan: SurveyPlan, state: SurveyState, cov: np.ndarray | None = None,
 
 def unresolved_var_mm2(plan: SurveyPlan, state: SurveyState, xy) -> np.ndarray:
     """s_u^2 (mm^2) at points ``xy`` (N, 2): variance of the plate the spline cannot represent
-    (``planning.adequacy``: the learned form's part finer than the knots, plus the readings'
-    excess where a check fails -- or everywhere in a model that grew finer knots), plus a drift
-    a failed closure touch found (d^2
-    everywhere, ``planning.closure``). Add it to the spline's variance for bands of the plate."""
+    (``planning.adequacy``: the form finer than the knots, the readings' excess where a check
+    fails or the model grew), plus d^2 of a drift a failed closure touch found. Add it to the
+    spline's variance for bands of the plate."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     drift = state.closure.drift_var_mm2 if state.closure is not None else 0.0
     if state.adequacy is None:
@@ -200,20 +197,27 @@ def fuse(plan: SurveyPlan, state: SurveyState, told: Told) -> SurveyState:
     state = replace(state, rows=np.vstack([state.rows, h[None]]),
                     heights_mm=np.append(state.heights_mm, told.height_mm),
                     weights=np.append(state.fused_weights, told.weight))
-    n = state.fused
     w = (confirmed_against(plan, state.rows, state.heights_mm, state.fused_weights, gated)
          if "surprise" in told.flags and gated is not None and learns(plan, state)
          and not state.hyper_points else None)  # a map of few readings, not yet learned
     if w is not None:  # the map the gate judged by rested on a reading now judged wrong
         state = replace(state, weights=w)
-    learning = learns(plan, state) and n >= plan.hyper_after
-    if learning and n - state.fitted_at >= plan.hyper_every:
+    learning = learns(plan, state) and state.fused >= plan.hyper_after
+    if learning and state.fused - state.fitted_at >= plan.hyper_every:
         return refit(plan, state)
     state = batch_posterior(plan, state) if w is not None else replace(state, belief=bl.fuse(
         state.belief, h, told.height_mm, state.noise_var / told.weight)[0])
     # a stop rests on checks of every fused reading, not on the last refit's (a bump a retake
     # confirmed between two refits read 1.1 um RMS std there, 11 um refitted); near a bound too
-    return refit(plan, state) if learning and near(plan.stop, status(plan, state)) else state
+    if learning and near(plan.stop, status(plan, state)):
+        return refit(plan, state)
+    return carried_checked(plan, state)
+
+
+def carried_checked(plan: SurveyPlan, state: SurveyState) -> SurveyState:
+    """From an earlier belief nothing is learned, but it is checked on every reading (a re-check
+    of a plate whose form changed stopped on the old bound, true error 21.8 um: an audit)."""
+    return replace(state, adequacy=check(plan, state)) if state.prior is not None else state
 
 
 def batch_posterior(plan: SurveyPlan, state: SurveyState) -> SurveyState:
@@ -269,9 +273,8 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
     finer structure on the refined knots, and the belief is rebuilt from the fused readings
     (exact: the batch posterior under the grown prior); where it is adequate, that is 0."""
     def fitted(state):
-        belief, points = learned_belief(plan.model, state.rows, state.heights_mm,
-                                        start=state.hyper, weights=state.fused_weights,
-                                        extra=extra_cov(plan, state))
+        belief, points = learned_belief(plan.model, state.rows, state.heights_mm, start=state.hyper,
+                                        weights=state.fused_weights, extra=extra_cov(plan, state))
         return replace(state, belief=belief, hyper=points[0][0], hyper_points=tuple(points),
                        fitted_at=state.fused)
 
@@ -292,10 +295,9 @@ def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     probability p under its leave-one-out predictive (the belief from every other reading, its
     genuine noise the learned one; ``gate.outlier_probability``), and its weight lowered to
     1 - p where p reaches ``FLAG_P`` (never raised: a weight is the least trust any judgement
-    gave it). None when no weight falls. Before the noise is learned the gate judges against
-    the hyper-prior's wide mixture, so a gross error among the first touches was fused in full
-    (and held 28 um of "unresolved structure" for the rest of a run). A replay makes the same
-    decisions; result.json's model lists the readings it lowered (``run.results``)."""
+    gave it). None when no weight falls. Before the noise is learned the gate judged against
+    the hyper-prior's wide mixture: a gross error among the first touches was fused in full.
+    A replay makes the same decisions; result.json lists the readings lowered."""
     if state.fused < 3 or not learns(plan, state):
         return None
     w = state.fused_weights
@@ -321,7 +323,7 @@ def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
         weights = replayed_weights(plan, rec, fused, rows, heights, weights, first_fit)
         state = replace(state, rows=rows, heights_mm=heights, weights=weights)
         state = refit(plan, state) if learns(plan, state) and len(heights) >= plan.hyper_after \
-            else batch_posterior(plan, state)
+            else carried_checked(plan, batch_posterior(plan, state))
     retake = None
     if len(rec) and rec.flags and "gated" in rec.flags[-1]:
         i = len(rec) - 1
