@@ -40,6 +40,7 @@ from scipy.special import logsumexp
 from adaptive_cal import effects
 from adaptive_cal.effects import Effect
 from adaptive_cal.analysis.explain.design import Design
+from adaptive_cal.analysis.explain.sharpen import sharpened
 from adaptive_cal.analysis.explain.evidence import (Projector, log_evidence, log_evidence_columns_mixture,
                        log_evidence_mixture, log_evidence_presence, posterior)
 
@@ -264,8 +265,8 @@ def bump_candidate(ctx: Context, effect: Effect, records: list[tuple], classes: 
                      fixed=fixed, nonlinear_mean=mean, nonlinear_std=std,
                      look_elsewhere=lz_best - total, searched=int(classes),
                      support={"values": {"x_mm": allx, "y_mm": ally, "radius_mm": allr},
-                              "log_w": logw, "tau": all_tau})
-    return cand.fit_posterior(ctx)
+                              "log_w": logw, "tau": all_tau}).fit_posterior(ctx)
+    return sharpened(ctx, cand, records, taus, nameable_reach)  # a peak the grid cannot resolve
 
 
 def _centres(ctx: Context, effect: Effect, bells=None) -> Candidate | None:
