@@ -59,6 +59,9 @@ def test_nan_in_text_and_in_nested_blocks_is_refused(tmp_path):
     ({"model": {"knots_x": 10**5}}, "model.knots_x"),
     ({"plan": {"candidates": 10**9}}, "plan.candidates"),
     ({"workplane": {"x_mm": [-1e9, 1e9]}}, "workplane.x_mm"),
+    # a floor above the budget: every run ended INCOMPLETE with no word before (an audit)
+    ({"plan": {"stop": {"max_touches": 40, "min_touches": 50}}},
+     r"plan.stop.min_touches: min_touches=50 is above max_touches=40"),
 ])
 def test_values_outside_a_physical_range_are_refused_naming_the_key(patch, match):
     with pytest.raises(ConfigError, match=match):

@@ -54,3 +54,34 @@ def gap_line(gap: dict) -> str:
     return (f"largest gap between touches: {gap['radius_mm']:.0f} mm radius around "
             f"({gap['x_mm']:.0f}, {gap['y_mm']:.0f}) mm; a dent or bump of smaller radius can "
             "lie there unseen, and the flatness intervals do not include one")
+
+
+def out_of_box(plan, belief) -> dict | None:
+    """Where the workspace box keeps the probe off the plate: the share of the points a touch may
+    go to whose approach height under ``belief`` (the expected reading mid-stroke) lies outside
+    ``workspace.z_mm``, the box around them and their approach heights (mm); None where every
+    point is inside. Such points are never planned, so no budget maps them (an outside audit,
+    2026-12-01: a floor 2 mm above a tilted plate's low corner ran its 120 touches and advised
+    a larger budget)."""
+    if plan.z_range_mm is None:
+        return None
+    from adaptive_cal.gaussian import belief as bl
+
+    cand = np.asarray(plan.candidates.xy_mm, dtype=np.float64)
+    z = plan.approach_height(np.asarray(bl.predict(belief, plan.candidates.rows)[0]))
+    off = ~plan.z_allowed(z)
+    if not off.any():
+        return None
+    lo, hi = plan.z_range_mm
+    xy, zz = cand[off], z[off]
+    side = "below the workspace floor" if zz.min() < lo else "above the workspace ceiling"
+    out = {"share": float(off.mean()), "x_mm": [float(xy[:, 0].min()), float(xy[:, 0].max())],
+           "y_mm": [float(xy[:, 1].min()), float(xy[:, 1].max())],
+           "approach_z_mm": [float(zz.min()), float(zz.max())], "workspace_z_mm": [lo, hi]}
+    out["text"] = (f"{100 * out['share']:.0f} % of the plate (x {out['x_mm'][0]:.0f}.."
+                   f"{out['x_mm'][1]:.0f} mm, y {out['y_mm'][0]:.0f}..{out['y_mm'][1]:.0f} mm) is "
+                   f"out of the workspace box: its approach heights, {zz.min():.2f} to "
+                   f"{zz.max():.2f} mm, lie {side} (workspace.z_mm [{lo:g}, {hi:g}] mm); no touch "
+                   "goes there, so the map rests on touches elsewhere. Widen workspace.z_mm if "
+                   "the robot can reach there safely; more touches will not")
+    return out

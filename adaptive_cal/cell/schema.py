@@ -231,6 +231,13 @@ class Stop(Block):
         "R / 2 sees at least half its depth (a smooth bowl). It costs about area / (2.6 r^2) "
         "touches: 100 for r = 24 mm on a 430 x 350 mm plate")
 
+    @model_validator(mode="after")
+    def _floor_within_budget(self):
+        if self.min_touches is not None and self.min_touches > self.max_touches:
+            raise ValueError(f"min_touches={self.min_touches} is above max_touches="
+                             f"{self.max_touches}: no variance bound could stop the run")
+        return self
+
 
 class Plan(Block):
     """The planner: candidates, refinement, batches, hyper-parameter learning."""

@@ -282,6 +282,8 @@ def _summary(r: dict, out: Path, cell=None) -> None:
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
         r.get('model', {}).get('summary') or 'model: not checked',
         *(k["text"] for k in r.get("keep_outs") or []),
+        *([r["out_of_box"]["text"]] if r.get("out_of_box") and r["out_of_box"]["text"] not in then
+          else []),
         *([r["closure"]["text"]] if r.get("closure") else []),
         f"tilt correction{' (provisional)' if gap else ''}: {tilt_angles(t)}; a {signed(t['a'], 6)}, "
         f"b {signed(t['b'], 6)} mm/mm, c {signed(t['c'], 4)} mm",

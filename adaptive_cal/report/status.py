@@ -103,6 +103,9 @@ def next_step(result: dict, resume: str | None) -> str:
         return (f"Continue with {resume} --robot CHANGED.yaml, a copy of the run's cell.yaml "
                 "changed as the error says (robot.safe_height_mm and workspace.z_mm may differ on "
                 "a resume; --resume alone asks the same move and is refused again)")
+    box = result.get("out_of_box")
+    if box and result.get("stopped_because") in ("touch_budget", "no_admissible_point"):
+        return box["text"][0].upper() + box["text"][1:]  # a larger budget maps no more of it
     if resume and result.get("stopped_because") == "touch_budget":  # --resume alone stops again
         return (f"Continue with {resume} --robot MORE.yaml, a copy of the run's cell.yaml with a "
                 "larger plan.stop.max_touches")

@@ -12,6 +12,7 @@ import numpy as np
 
 from adaptive_cal.cell.build import plan_model, touch_floor
 from adaptive_cal.analysis.flatness_answer import SAMPLES, flatness_answer, largest_gap
+from adaptive_cal.analysis.reach import out_of_box
 from adaptive_cal.analysis.local_features import confirmed, feature_var_mm2, weighted_out
 from adaptive_cal.cell.schema import Cell
 from adaptive_cal.formats.npz import broken_belief, broken_text, read_npz, saved_hyper
@@ -40,16 +41,14 @@ def plate_estimates(plan: SurveyPlan, belief: bl.Belief, rng: np.random.Generato
 def touched_heights(plan: SurveyPlan, recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(x, y, height) in mm of a recording's fused touches, with the plan's probe zero: the
     heights exactly as written, so a result and ``flatness`` on the file agree to the digit."""
-    rec = _recording(recording)
-    f = rec.fused
+    f = (rec := _recording(recording)).fused
     return rec.x_mm[f], rec.y_mm[f], surface_height_mm(rec.reading_mm[f], rec.z_mm[f], plan.zero_mm)
 
 
 def reweighted(state: sv.SurveyState, rec) -> list[dict]:
     """The fused readings whose weight was lowered below what their flags say -- by a refit
-    once the noise was learned (``planning.survey.reweighed``), or when a retake confirmed a
-    gated reading they contradicted (``planning.robust.condemned``): [{seq,
-    outlier_probability}] (p = 1 - weight now)."""
+    (``planning.survey.reweighed``), or when a retake confirmed a gated reading they contradicted
+    (``planning.robust.condemned``): [{seq, outlier_probability}] (p = 1 - weight now)."""
     fused = rec.fused
     if not rec.flags or int(fused.sum()) != state.fused:
         return []
@@ -97,8 +96,8 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
     result["model"] = model_block(state, status, plan)
     # the closure touch's verdict (planning.closure), or None when none was made
     result["closure"] = state.closure.as_dict() if state.closure is not None else None
-    rec = (_recording(recording)
-           if not isinstance(recording, (str, Path)) or Path(recording).exists() else None)
+    rec = _recording(recording) if not isinstance(recording, (str, Path)) \
+        or Path(recording).exists() else None
     xyz = touched_heights(plan, rec) if rec is not None else None
     result["clock_s"] = last_time_s(rec)  # the cell's own clock at the last reading (its t_s)
     # a dent or burr a retake confirmed and the spline cannot follow (analysis.local_features)
@@ -119,9 +118,10 @@ def result_of(cell: Cell, plan: SurveyPlan, state: sv.SurveyState, recording,
                                   xyz if xyz is not None and len(xyz[2]) >= 4 else None, rng,
                                   SAMPLES, sv.unresolved_var_mm2(plan, state, plan.eval_xy),
                                   result["local_features"], plan.learn))
-    # where a narrow feature could hide between the fused touches (all touches without them)
+    # where a narrow feature could hide between the fused touches; where the box keeps it off
     result["largest_gap"] = largest_gap(
         plan, np.c_[xyz[0], xyz[1]] if xyz is not None else state.touched_xy_mm)
+    result["out_of_box"] = out_of_box(plan, state.belief)
     result["keep_outs"] = keep_out_maps(cell, plan, state)
     # the units of the tilt's plane (its keys a, b, c stay as they are: a stable interface)
     result["tilt"] = {**result["tilt"], "plane_is": TILT_PLANE_IS}
