@@ -270,6 +270,7 @@ def _summary(r: dict, out: Path, cell=None) -> None:
     model of the estimated robot time)."""
     from adaptive_cal.analysis.flatness_answer import answer_lines
     from adaptive_cal.report.sections import percent, signed, stopped_text, tilt_angles
+    from adaptive_cal.formats.numbers import count
     from adaptive_cal.report.status import missing, next_step, quoted
 
     gap = missing(r)
@@ -277,7 +278,8 @@ def _summary(r: dict, out: Path, cell=None) -> None:
     then = next_step(r, f"adaptive-cal run --resume {quoted(out)}")
     lines = [f"INCOMPLETE: {gap}. Not a result. {then}"] if gap else []
     lines += [
-        f"stopped: {stopped_text(r['stopped_because'])} after {r['touches']} touches "
+        f"stopped: {stopped_text(r['stopped_because'])} after "
+        f"{count(r['touches'], 'touch', 'touches')} "
         f"({r['fused']} fused)",
         f"posterior std: RMS {p['mean_std_mm'] * 1e3:.2f} um, max {p['max_std_mm'] * 1e3:.2f} um",
         r.get('model', {}).get('summary') or 'model: not checked',

@@ -80,7 +80,10 @@ def missing(result: dict) -> str | None:
     unmet = unmet_bounds(result)
     if why in FINISHING and not unmet:
         return None
-    text = f"{WHY.get(why, why.replace('_', ' '))} after {result['touches']} touches"
+    from adaptive_cal.formats.numbers import count
+
+    touches = count(result['touches'], 'touch', 'touches')
+    text = f"{WHY.get(why, why.replace('_', ' '))} after {touches}"
     return "; ".join([text] + unmet)
 
 
