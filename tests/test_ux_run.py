@@ -276,7 +276,7 @@ def test_a_stop_that_may_leave_the_probe_down_erases_the_bar_so_the_warning_come
     assert last_line(ProbeLeftDown("THE PROBE MAY BE DOWN")).strip() == ""
 
 
-def test_a_second_sigterm_is_named_sigterm_not_ctrl_c():
+def test_a_second_sigterm_is_named_sigterm_not_ctrl_c(capsys):
     """A service manager's or a timeout's SIGTERM stopped a run with "interrupted: Ctrl-C"
     (an outside audit, 2026-11-29): the interrupt now carries the signal's name into the
     probe-down warning; the exit status stays 130 (README)."""
@@ -292,6 +292,9 @@ def test_a_second_sigterm_is_named_sigterm_not_ctrl_c():
             assert state["stop"]
             os.kill(os.getpid(), signal.SIGTERM)  # the second: at once
     assert caught.value.by == "SIGTERM"
+    # the first is said at once, naming the signal (an audit: nothing was said until the touch
+    # ended, and a manual adapter's prompt may wait for its reading first)
+    assert "SIGTERM: stopping after this touch" in capsys.readouterr().err
     down = _left_down(1.0, 2.0, 0.0, 15.0, caught.value, "then")
     assert "failed (interrupted: SIGTERM)" in str(down) and down.interrupted
     plain = _left_down(1.0, 2.0, 0.0, 15.0, KeyboardInterrupt(), "then")

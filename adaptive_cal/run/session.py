@@ -78,17 +78,19 @@ def replay(plan: SurveyPlan, state: sv.SurveyState, rec
 
 @contextmanager
 def _deferred_interrupt():
-    """First Ctrl-C (or SIGTERM) sets a flag (stop after this touch); a second one interrupts at
-    once -- except once ``state["shield"]`` is set (the touches done, the results being
-    written: a second press there left a folder without result.json, an outside audit)."""
+    """First Ctrl-C (or SIGTERM) sets a flag (stop after this touch) and says so; a second one
+    interrupts at once, unless ``state["shield"]`` is set (results being written)."""
     state = {"stop": False, "shield": False}
     if signal.getsignal(signal.SIGINT) is None or not _main_thread():
         yield state
         return
 
     def handler(signum, frame):
+        by = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
         if state["stop"] and not state["shield"]:
-            raise Interrupted("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
+            raise Interrupted(by)
+        if not state["stop"]:  # said at once: a manual prompt may wait for its reading first
+            print(f"\n{by}: stopping after this touch (again: at once)", file=sys.stderr)
         state["stop"] = True
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -115,12 +117,10 @@ def run(cell: Cell, out: str | Path, *, resume: bool = False, prior_from: str | 
     it fails at once with ``RunFolderBusy``. Resuming a finished run (its stopping rule already
     holds) changes nothing and returns its result.json with ``already_finished`` (the reason).
     ``prior_from``: start from that run's belief in the frame ``correction_applied`` gives
-    (``load_prior``); result.json then records it as "prior_from". ``max_new_touches`` stops
-    (as ``interrupted``)
-    after that many touches: used by tests to simulate an interruption at a chosen point.
-    ``before_start()`` runs once the lock is held (the CLI copies the cell file into the folder
-    there, so it never writes into a folder another run holds). ``cell``: a Cell, or a cell
-    file's path or dict (``cell.schema.as_cell``), read before the folder is touched."""
+    (``load_prior``); result.json then records it as "prior_from". ``max_new_touches``: stop
+    (as ``interrupted``) after that many touches (tests). ``before_start()`` runs once the lock
+    is held (the CLI copies the cell file there). ``cell``: a Cell, or a cell file's path or
+    dict (``cell.schema.as_cell``), read before the folder is touched."""
     from adaptive_cal.cell.schema import as_cell
 
     cell = as_cell(cell)

@@ -40,7 +40,7 @@ class ManualCell:
         line = (self.inp or sys.stdin).readline()
         if line == "":
             raise AdapterError("manual adapter: input ended (no reading typed); the run stops "
-                               "here and can be continued with --resume")
+                               "here; type the readings, then continue with --resume")
         return line
 
     # -- Motion -----------------------------------------------------------------------
