@@ -62,6 +62,9 @@ def test_nan_in_text_and_in_nested_blocks_is_refused(tmp_path):
     # a floor above the budget: every run ended INCOMPLETE with no word before (an audit)
     ({"plan": {"stop": {"max_touches": 40, "min_touches": 50}}},
      r"plan.stop.min_touches: min_touches=50 is above max_touches=40"),
+    # knots short of the workplane: refused when the model was built, naming neither (an audit)
+    ({"model": {"knots_x": [-100, 0, 100]}}, r"model.knots_x=\[-100.0, 0.0, 100.0\] must span "
+                                             r"workplane.x_mm=\[-225.0, 225.0\]"),
 ])
 def test_values_outside_a_physical_range_are_refused_naming_the_key(patch, match):
     with pytest.raises(ConfigError, match=match):

@@ -22,6 +22,10 @@ def derived_box_mm(cell) -> tuple[tuple[float, float], tuple[float, float], tupl
 def check_cell(cell) -> None:
     """Raise ValueError naming the keys when the blocks of ``cell`` contradict each other."""
     r, p, ws, wp = cell.robot, cell.probe, cell.workspace, cell.workplane
+    for axis in ("x", "y"):  # at load, naming the key (it was found building the model)
+        k, (lo, hi) = getattr(cell.model, f"knots_{axis}"), getattr(wp, f"{axis}_mm")
+        if isinstance(k, list) and (k[0] > lo or k[-1] < hi):
+            raise ValueError(f"model.knots_{axis}={k} must span workplane.{axis}_mm={[lo, hi]}")
     if r.adapter != "sim" and ws is None:
         raise ValueError(f"robot.adapter={r.adapter!r} moves a real probe: give a workspace block "
                          "(x_mm, y_mm, z_mm: the box the probe tip may be sent to; nothing outside "
