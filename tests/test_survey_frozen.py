@@ -69,3 +69,30 @@ def test_no_check_where_the_readout_is_as_coarse_as_the_noise_and_bad_readings_s
     with pytest.raises(TypeError, match="reading_mm = True is not a number"):
         survey.tell(t.x_mm, t.y_mm, t.z_mm, True)
     assert survey.touches == 0
+
+
+def test_a_restored_state_starts_the_frozen_count_and_the_history_afresh():
+    """``survey.state`` may be kept and restored (shell.py): three what-if tells of one genuine
+    reading, each undone, made the fourth tell 'frozen' and restoring the start state kept
+    ``readout_frozen`` (an outside audit, 2026-12-01)."""
+    survey = _survey()
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        t = survey.ask(1)[0]
+        survey.tell(t.x_mm, t.y_mm, t.z_mm, _plate(t.x_mm, t.y_mm) + rng.normal(0, 0.005))
+    kept, t = survey.state, survey.ask(1)[0]
+    reading = round(_plate(t.x_mm, t.y_mm) + 0.002, 4)
+    for _ in range(survey.plan.frozen_after + 1):  # what-ifs, each undone
+        assert survey.tell(t.x_mm, t.y_mm, t.z_mm, reading).fused
+        survey.state = kept
+    assert survey.tell(t.x_mm, t.y_mm, t.z_mm, reading).fused
+    assert len(survey.history) == survey.touches + 1 == 5
+    start = survey.state
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for _ in range(survey.plan.frozen_after + 3):  # a frozen readout ends the survey...
+            t = survey.ask(1)[0]
+            survey.tell(t.x_mm, t.y_mm, t.z_mm, 5.0)
+    assert survey.stop_reason() == "readout_frozen"
+    survey.state = start  # ... and restoring an earlier state leaves it behind
+    assert survey.stop_reason() != "readout_frozen" and len(survey.history) == 5

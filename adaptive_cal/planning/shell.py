@@ -45,6 +45,15 @@ class Survey:
         self._same = (float("nan"), 0)  # the last reading told and how often in a row
         self._frozen = 0  # touches in a row rejected as a frozen readout
         self._asked: tuple | None = None  # (state, n, from_xy, targets): the last ask's answer
+        self._mine = self.state  # the state the counters above and ``history`` belong to
+
+    def _adopt(self) -> None:
+        """A state assigned from outside (a kept one restored, a what-if undone) starts the
+        frozen-readout count afresh and the history at its own touches (an outside audit: three
+        what-if tells of one reading, each undone, made the fourth tell 'frozen')."""
+        if self.state is not self._mine:
+            self._same, self._frozen, self._mine = (float("nan"), 0), 0, self.state
+            self.history[self.state.touches:] = [self.status()]
 
     def ask(self, n: int | None = None, *, from_xy=None) -> list[Target]:
         """The next touch(es) (``planning.ask.ask``): ``n`` of them (None: the plan's batch)."""
@@ -69,6 +78,7 @@ class Survey:
         warning says why, as the run's probe cycle does; ``FROZEN_STOP`` of them in a row make
         ``stop_reason()`` ``readout_frozen``. Else the learned noise would collapse onto the
         repeats and the bands with it."""
+        self._adopt()
         try:  # a float, numpy or JAX scalar (0-d); else sv.tell says why
             number = np.ndim(reading_mm) == 0 and not isinstance(reading_mm, (str, bytes, bool))
             reading = float(reading_mm) if number else float("nan")
@@ -88,7 +98,7 @@ class Survey:
         else:
             self.state, told = sv.tell(self.plan, self.state, x_mm, y_mm, z_mm, reading_mm)
             self._frozen = 0
-        self._same = (reading, same)
+        self._same, self._mine = (reading, same), self.state
         self.history.append(self.status())
         return told
 
@@ -97,7 +107,8 @@ class Survey:
         one a touch can have (finite, on the workplane, outside the keep-outs): else
         ``InvalidReading`` naming it, and nothing is counted."""
         check_touch(self.plan, x_mm, y_mm, 0.0, 0.0, position_only=True)
-        self.state = sv.skip(self.plan, self.state, x_mm, y_mm)
+        self._adopt()
+        self.state = self._mine = sv.skip(self.plan, self.state, x_mm, y_mm)
         self.history.append(self.status())
 
     def status(self) -> Status:
@@ -111,6 +122,7 @@ class Survey:
         (as the run's loop ends; the answer is kept, so the ``ask()`` after it is not redone) --
         e.g. heights told in place of readings put the plate millimetres off the probe's stroke
         (an outside audit's loop ``survey.ask()[0]`` raised IndexError there)."""
+        self._adopt()
         if self._frozen >= FROZEN_STOP:
             return READOUT_FROZEN
         why = sv.stop_reason(self.plan, self.state)
