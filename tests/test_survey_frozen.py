@@ -96,3 +96,20 @@ def test_a_restored_state_starts_the_frozen_count_and_the_history_afresh():
     assert survey.stop_reason() == "readout_frozen"
     survey.state = start  # ... and restoring an earlier state leaves it behind
     assert survey.stop_reason() != "readout_frozen" and len(survey.history) == 5
+
+
+def test_a_retake_told_microns_from_its_point_is_the_retake():
+    """A robot reports where it stood, not where it was sent: a retake told 2 um from the gated
+    reading's point went unrecognised and the point was gated 99 times over (an outside audit,
+    2026-12-01). Within ``gate.SAME_POINT_MM`` (0.1 mm) it is the retake."""
+    survey = _survey()
+    rng = np.random.default_rng(2)
+    for _ in range(24):
+        t = survey.ask(1)[0]
+        survey.tell(t.x_mm, t.y_mm, t.z_mm, _plate(t.x_mm, t.y_mm) + rng.normal(0, 0.005))
+    t = survey.ask(1)[0]
+    assert "gated" in survey.tell(t.x_mm, t.y_mm, t.z_mm, _plate(t.x_mm, t.y_mm) + 0.5).flags
+    r = survey.ask(1)[0]
+    assert (r.x_mm, r.y_mm) == (t.x_mm, t.y_mm)  # the retake is asked for
+    told = survey.tell(r.x_mm + 0.002, r.y_mm - 0.002, r.z_mm, _plate(r.x_mm, r.y_mm) + 0.001)
+    assert "retake" in told.flags and not survey.retake_pending
