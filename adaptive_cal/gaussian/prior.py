@@ -337,3 +337,11 @@ def learned_belief(model: PriorModel, rows: np.ndarray, readings: np.ndarray,
     belief = mixture([condition(model.belief(h, extra), rows, readings, h.noise_std_mm**2 / w)
                       for h, _ in points], [wt for _, wt in points])
     return belief, points
+
+
+def log_evidence_kernel(model: PriorModel, rows: np.ndarray, readings: np.ndarray, start: Hyper,
+                        weights=None, extra: np.ndarray | None = None) -> float:
+    """log p(y | ``start``'s kernel): the hyper-parameters integrated by Laplace's method, the
+    readings pooled by place, as ``learned_belief`` weighs its kernels."""
+    rows, readings, w, floor = pooled(model.surface, rows, readings, weights)
+    return float(_laplace(model, rows, readings, start, True, w, extra, floor, start.kernel)[1])

@@ -43,6 +43,7 @@ from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.gap import largest_gap
 from adaptive_cal.planning import repeats
 from adaptive_cal.planning.stopping import Status, near
+from adaptive_cal.planning.unmask import unmasked
 
 
 @dataclass(frozen=True, eq=False)
@@ -292,21 +293,19 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
 
 def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
     """Each fused reading judged again once the hyper-parameters are learned: its outlier
-    probability p under its leave-one-out predictive (the belief from every other reading, its
-    genuine noise the learned one; ``gate.outlier_probability``), and its weight lowered to
-    1 - p where p reaches ``FLAG_P`` (never raised: a weight is the least trust any judgement
-    gave it). None when no weight falls. Before the noise is learned the gate judged against
-    the hyper-prior's wide mixture: a gross error among the first touches was fused in full.
-    A replay makes the same decisions; result.json lists the readings lowered."""
+    probability p under its leave-one-out predictive (``gate.outlier_probability``, the learned
+    noise), its weight lowered to 1 - p where p reaches ``FLAG_P`` (never raised); where none
+    falls, the one a noise it inflated hides (``unmask``). None when no weight falls. A replay
+    makes the same decisions; result.json lists the readings lowered."""
     if state.fused < 3 or not learns(plan, state):
         return None
-    w = state.fused_weights
-    r = state.hyper.noise_std_mm**2
+    w, r, stroke = state.fused_weights, state.hyper.noise_std_mm**2, np.ptp(plan.usable_mm)
     prior = plan.model.belief(state.hyper, extra_cov(plan, state))
-    p = loo_outlier_probability(prior, state.rows, state.heights_mm, r / w, r,
-                                plan.usable_mm[1] - plan.usable_mm[0])
+    p = loo_outlier_probability(prior, state.rows, state.heights_mm, r / w, r, stroke)
     new = np.where(p >= FLAG_P, np.minimum(w, np.maximum(1.0 - p, W_MIN)), w)  # 1 - p = 0: NaN
-    return new if np.any(new < w - 1e-12) else None
+    return new if np.any(new < w - 1e-12) else unmasked(
+        plan.model, prior, state.rows, state.heights_mm, w, state.hyper, extra_cov(plan, state),
+        stroke)
 
 
 def replay(plan: SurveyPlan, state: SurveyState, recording) -> SurveyState:
