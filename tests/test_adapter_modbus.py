@@ -329,3 +329,65 @@ def test_device_id_0_on_a_serial_line_is_refused():
     with pytest.raises(ValueError, match="broadcast address"):
         ModbusConfig(transport="rtu", serial_port="/dev/ttyUSB0", device_id=0)
     ModbusConfig(transport="tcp", host="127.0.0.1", port=502, device_id=0)  # unit id 0 on TCP
+
+
+@pytest.mark.parametrize("actual", [True, False])
+def test_a_stopped_approachs_late_done_is_not_taken_for_the_retracts(actual):
+    """An outside audit (2026-12-01), on a peer PLC written from the register map and on this
+    emulator alike: an approach that timed out (or a Ctrl-C) left the job in its move; the
+    retract's wait ended on the approach's late 'done', the PC put the tip at the safe height
+    while it stood on the plate, and nothing said so. Now a retract after such a move is
+    believed only where actual_x/y/z put the robot there, else not sent: either way the error
+    says THE PROBE MAY BE DOWN first."""
+    from adaptive_cal.hardware.base import ProbeLeftDown
+    from adaptive_cal.hardware.cycle import ProbeCycle
+
+    regs = CELL.robot.modbus.registers
+    if not actual:
+        regs = regs.model_copy(update={"actual_x": None, "actual_y": None, "actual_z": None})
+    cfg = config(move_timeout_s=1.0, registers=regs, parked_at_safe_height=True)
+    server = PlcServer(EmulatedRobot.from_cell(CELL, move_s=0.01), cfg, port=0).start()
+    link = ModbusLink(cfg.model_copy(update={"port": server.port}))
+    try:
+        motion = ModbusMotion(link)
+        cycle = ProbeCycle(motion, ModbusProbe(link), lambda x, y, z: True, safe_height_mm=15.0,
+                           usable_mm=(0.5, 9.5))
+        motion.move_to(10.0, 10.0, 15.0)
+        move = motion.move_to
+
+        def slow_approach(x, y, z):  # the approach (z 0) outlasts move_timeout_s
+            server.robot.move_s = 1.5 if z < 5.0 else 0.01
+            return move(x, y, z)
+        motion.move_to = slow_approach
+        with pytest.raises(ProbeLeftDown) as e:
+            cycle.touch(10.0, 10.0, 0.0)
+        assert str(e.value).startswith("THE PROBE MAY BE DOWN")
+        said = "the stopped move's done" if actual else "was not sent"
+        assert said in str(e.value), str(e.value)
+        time.sleep(1.6)
+        assert server.robot.pose()[2] == pytest.approx(0.0)  # it was: the PC does not say 15
+        assert not motion.position()[2] > 1.0
+    finally:
+        link.close()
+        server.close()
+
+
+def test_the_emulated_job_pauses_with_done_off_on_a_target_outside_its_box():
+    """ACAL_TOUCH holds the workspace box (D021..D026) and faults -- pauses with done off -- on a
+    target outside it (hw/plc-register-map.md, step 3); the emulated PLC moved there and set
+    done (an outside audit, 2026-12-01). The PC never sends such a target: this drives the
+    registers directly, as another program on the PLC could."""
+    cfg = config()
+    box = ((-230.0, 230.0), (-190.0, 190.0), (-20.0, 60.0))
+    server = PlcServer(EmulatedRobot.from_cell(CELL, move_s=0.01), cfg, port=0, box=box).start()
+    try:
+        server.write_mm("target_x", 5000.0)
+        server.write_mm("target_y", 0.0)
+        server.write_mm("target_z", 15.0)
+        server.set_bit("start", False)
+        time.sleep(0.05)
+        server.set_bit("start", True)
+        time.sleep(0.1)
+        assert not server.bit("done") and server.robot.moves == 0
+    finally:
+        server.close()

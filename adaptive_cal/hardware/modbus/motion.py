@@ -19,6 +19,7 @@ from adaptive_cal.hardware.base import AdapterError
 log = logging.getLogger(__name__)
 TARGETS = ("target_x", "target_y", "target_z")
 ACTUALS = ("actual_x", "actual_y", "actual_z")
+ACTUAL_SETTLE_S = 0.3  # the job's 0.1 s position loop and a few PLC scans (``_check_arrived``)
 
 
 class ModbusMotion:
@@ -27,12 +28,15 @@ class ModbusMotion:
     def __init__(self, link):
         self.link, self.pose = link, (math.nan, math.nan, math.nan)
         self.started = False  # no move started yet on this connection
+        self.unfinished: str | None = None  # how the last move ended, where not in its done
 
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
         k = self.link
         k.check_fault()
         if not self.started:
             self._first_move_allowed((x_mm, y_mm, z_mm))
+        if self.unfinished and "actual_x" not in k.map:
+            self._refuse_after_unfinished((x_mm, y_mm, z_mm))
         self._write_target((x_mm, y_mm, z_mm))
         k.write_bit("start", False)  # one left set (a clear that failed) would give no edge:
         k.write_bit("done", False)   # it is off for the settle below, a scan or more
@@ -46,7 +50,9 @@ class ModbusMotion:
                 k.check_fault()
                 if k.read_bit("done"):
                     k.write_bit("start", False)
-                    self.pose = (x_mm, y_mm, z_mm)
+                    if self.unfinished:  # the stopped move's done, or this one's?
+                        self._check_arrived((x_mm, y_mm, z_mm))
+                    self.pose, self.unfinished = (x_mm, y_mm, z_mm), None
                     return
                 if k.clock() - start >= k.cfg.move_timeout_s:
                     raise AdapterError(
@@ -54,8 +60,41 @@ class ModbusMotion:
                         f"move_timeout_s={k.cfg.move_timeout_s} s; check the robot job")
                 k.sleep(k.cfg.poll_s)
         except BaseException as err:  # fault, timeout, lost link, Ctrl-C: start must not stay set
+            self.unfinished = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
             self._drop_start(err)
             raise
+
+    def _refuse_after_unfinished(self, target) -> None:
+        """The last move ended without its done (Ctrl-C, a timeout, a fault): the job may still
+        be in it -- ACAL_TOUCH reads start only between moves -- and the PLC latches done when
+        it ends, which the next wait would take for its own: an outside audit's retract after a
+        stopped approach was reported done with the tip still down. Without actual_x/y/z to
+        tell, raise before anything is written."""
+        k = self.link
+        raise AdapterError(
+            f"{k.where}: the last move ended without 'done' ({k.map['done'].name}) "
+            f"({self.unfinished}); the robot job may still be running it, and the PLC's next "
+            f"'done' could be that move's: the move to x={target[0]:.3f} y={target[1]:.3f} "
+            f"z={target[2]:.3f} mm was not sent. See where the robot stands and let its job "
+            "finish or stop it at the pendant before continuing (mapping actual_x/y/z lets the "
+            "PC check where the robot stands itself: hw/plc-register-map.md)")
+
+    def _check_arrived(self, target, tol_mm: float = 1.0) -> None:
+        """After a move that ended without done, the next done is believed only where the PLC's
+        actual_x/y/z put the robot at the target (within ``tol_mm``), read ``ACTUAL_SETTLE_S``
+        after it: the job writes where it stands only while it waits for start (every 0.1 s,
+        hw/ACAL_TOUCH.JBI), so right at the done they can still hold where the stopped move
+        began -- an audit's peer PLC read the safe height there with the tip down."""
+        k = self.link
+        self.pose = (math.nan,) * 3
+        k.sleep(max(ACTUAL_SETTLE_S, 3 * k.cfg.scan_s))
+        here = self.position()
+        if not all(abs(a - b) <= tol_mm for a, b in zip(here, target)):
+            raise AdapterError(
+                f"{k.where}: 'done' ({k.map['done'].name}) came, but actual_x/y/z put the robot "
+                f"at {tuple(round(v, 3) for v in here)} mm, not at the target "
+                f"{tuple(round(v, 3) for v in target)} mm: it was the stopped move's done "
+                f"({self.unfinished}). See where the robot stands before continuing")
 
     def _write_target(self, xyz: tuple[float, float, float]) -> None:
         """Write the three target registers, then read them back: each must hold the very words

@@ -95,7 +95,10 @@ def start_emulator(cell: Cell, *, ephemeral: bool = False, move_s: float = 0.02)
                 key = (cfg.host, cfg.port, cfg.device_id)
                 if key not in ends:
                     host = _loopback(cfg.host, f"{role}.modbus.host")
-                    ends[key] = PlcServer(emu.robot, cfg, host, 0 if ephemeral else cfg.port).start()
+                    box = None if cell.workspace is None or role != "robot" else (
+                        cell.workspace.x_mm, cell.workspace.y_mm, cell.workspace.z_mm)
+                    ends[key] = PlcServer(emu.robot, cfg, host, 0 if ephemeral else cfg.port,
+                                          box=box).start()
                 emu.plcs[role] = ends[key]
         if p.adapter == "serial":
             url = urlparse(p.serial.port)

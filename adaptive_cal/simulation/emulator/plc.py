@@ -42,8 +42,11 @@ class PlcServer:
     """Serve the register map of ``cfg`` on (host, port); port 0 picks a free one."""
 
     def __init__(self, robot: EmulatedRobot, cfg: ModbusConfig, host: str = "127.0.0.1",
-                 port: int = 0, scan_s: float = 0.005):
+                 port: int = 0, scan_s: float = 0.005, box=None):
         self.robot, self.cfg, self.host, self.want_port, self.scan_s = robot, cfg, host, port, scan_s
+        # the box ACAL_TOUCH holds (D021..D026, the cell's workspace): a target outside it
+        # pauses the job with done off (hw/plc-register-map.md, step 3); None: no box
+        self.box = box
         self.words = 1 if cfg.number == "int16" else 2
         self.map = check_map(cfg.registers.roles(), self.words)
         self.faults = PlcFaults()
@@ -132,7 +135,9 @@ class PlcServer:
     # -- the PLC program (one scan) --------------------------------------------------------
     def scan(self) -> None:
         now = self.robot.clock()
-        if "actual_x" in self.map:  # what the job writes while it waits: where the tip is
+        if "actual_x" in self.map and not self.busy:  # the job writes where the tip is while
+            # it waits for start, not during a move (hw/ACAL_TOUCH.JBI): until 2026-12-01 the
+            # emulator wrote them every scan, and hid a late done an audit's peer PLC showed
             for role, mm in zip(("actual_x", "actual_y", "actual_z"), self.robot.pose()):
                 self.write_mm(role, mm)
         wd = self.words_of("watchdog", 1)[0]
@@ -161,6 +166,9 @@ class PlcServer:
                 self.set_bit("fault", True)
                 return
             xyz = [self.read_mm(r) for r in ("target_x", "target_y", "target_z")]
+            if self.box is not None and not all(lo <= v <= hi for v, (lo, hi) in zip(xyz, self.box)):
+                log.warning("plc emulator: target %s outside the job's box: paused, done off", xyz)
+                return
             self.robot.command(*xyz)
             self.busy = True
         if self.rising("probe_trigger"):
