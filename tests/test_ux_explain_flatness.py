@@ -134,3 +134,15 @@ def test_bare_recording_spread_and_average_range_in_um(cheng_round0, capsys):
     # um, as every flatness figure, and a figure of millimetres in mm beside it
     assert spread.endswith(" um)") and "6431.1 um = 6.43 mm (95 % " in spread
     assert "average range (Cheng Table 8, tilt included) along x 5661.6 um, along y 687.6 um" in out
+
+
+def test_the_none_line_does_not_name_an_effect_the_tilt_absorbs_whole():
+    """An effect the tilt absorbs whole scores exactly 0 (the likelihood of none): the line named
+    it the best candidate beside 'the tilt absorbs 100 %' (an outside audit, 2026-12-01)."""
+    rep = {"candidates": [{"effect": "probe_gain", "log_bayes_factor": 0.0},
+                          {"effect": "thermal_drift", "log_bayes_factor": -0.34}],
+           "not_identifiable": [{"effect": "probe_gain", "aliased_with": ["tilt"]}],
+           "threshold": {"log_bayes_factor": 1.0}, "verdict_probability": 0.5}
+    assert "best candidate, thermal_drift, has log Bayes factor -0.34" in none_line(rep)
+    alone = {**rep, "candidates": rep["candidates"][:1]}  # nothing else: said as it is
+    assert "best candidate, probe_gain" in none_line(alone)

@@ -198,7 +198,12 @@ def none_line(report: dict) -> str:
         return (f"  {NONE}: the mismatch after the tilt, RMS {low['rms_mm'] * 1e3:.4f} um, is "
                 f"below the probe's readout step ({low['readout_mm'] * 1e3:g} um): rounding, "
                 "not physics -- no effect can be shown")
-    best = max(cands, key=lambda c: c["log_bayes_factor"])
+    # an effect the tilt absorbs whole scores exactly 0, the likelihood of none: not a candidate
+    # to name as the best (an audit: "probe_gain, +0.00" beside "the tilt absorbs 100 %")
+    absorbed = {n["effect"] for n in report.get("not_identifiable") or ()}
+    tested = [c for c in cands if not (c["effect"] in absorbed
+                                        and abs(c["log_bayes_factor"]) < 1e-9)] or cands
+    best = max(tested, key=lambda c: c["log_bayes_factor"])
     need = (report.get("threshold") or {}).get("log_bayes_factor")
     line = (f"  {NONE}: the best candidate, {best['effect']}, has log Bayes factor "
             f"{fixed(best['log_bayes_factor'], 2, '+')} against none"
