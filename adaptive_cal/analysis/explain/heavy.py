@@ -22,7 +22,8 @@ than log(len(NU_GRID)) = 2.2 nats of likelihood over the Gaussian (measured: Gau
 of 72 readings are kept Gaussian in 98.5 %; tests/test_explain_heavy.py). The residuals are
 those of the kept readings plus the leave-one-out residuals of the readings already set aside as
 suspects: a suspect is a tail reading. A spurious bump that ate the two largest readings of a
-heavy-tailed recording leaves Gaussian-looking residuals; the suspect it leaves does not.
+heavy-tailed recording leaves Gaussian-looking residuals; the suspect it leaves does not. Under
+the Gaussian a suspect is the screen's gross error (``screened_gains``), not a Gaussian reading.
 
 The correction (Laplace: evidence = best likelihood x Occam factor; the Occam factors of the
 prior are the same under either noise model to first order):
@@ -42,7 +43,7 @@ from dataclasses import replace
 import numpy as np
 
 from adaptive_cal.analysis import tails
-from adaptive_cal.analysis.explain.suspects import model_terms
+from adaptive_cal.analysis.explain.suspects import RATE, SCALE, _gross_logpdf, model_terms
 from adaptive_cal.analysis.tails import LOG_SQRT_2PI, t_loglik_at, t_scale_em
 
 NU_GRID = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.0, 20.0, 50.0)  # Student-t dof tried; inf = Gaussian
@@ -74,6 +75,27 @@ def tail_gains(residual: np.ndarray) -> np.ndarray:
     return tails.tail_gains(residual, NU_GRID)
 
 
+def _gaussian_at_mle(r: np.ndarray) -> float:
+    return -r.size * (LOG_SQRT_2PI + 0.5 * np.log(max(float(r @ r) / max(r.size, 1), 1e-300)) + 0.5)
+
+
+def screened_gains(kept: np.ndarray, set_aside: np.ndarray) -> np.ndarray:
+    """l_nu - l_N per nu with the readings set aside as suspects explained as the screen explains
+    them, gross errors at its rate (``suspects.RATE``, a normal of ``SCALE`` noise sds with a
+    Cauchy tail), under the Gaussian; under each t either so or as its own tail, whichever is
+    likelier. Judged as plain Gaussian readings, one spike on a Gaussian null made the noise a
+    Student-t of 1.5 dof, set aside and counted as a tail both (an outside audit, 2026-12-01).
+    Without suspects: ``tail_gains`` of the kept residuals, as before."""
+    if not set_aside.size or not np.any(kept):
+        return tail_gains(np.concatenate([kept, set_aside]))
+    s = np.sqrt(max(float(kept @ kept) / kept.size, 1e-300))
+    gross = float(np.sum(np.log(RATE) + _gross_logpdf(set_aside, SCALE * s)))
+    every = np.concatenate([kept, set_aside])
+    t_every = tail_gains(every) + _gaussian_at_mle(every)
+    t_kept = tail_gains(kept) + _gaussian_at_mle(kept)
+    return np.maximum(t_every, t_kept + gross) - (_gaussian_at_mle(kept) + gross)
+
+
 def noise_dof(gain: np.ndarray) -> float:
     """The most probable noise model given the gains l_nu - l_N: the Gaussian (inf) with prior
     ``GAUSSIAN_PRIOR``, each nu of ``NU_GRID`` with the rest shared evenly. With prior 1/2 the
@@ -94,7 +116,7 @@ def heavy_tailed(ctx, cands: list, set_aside: np.ndarray = np.zeros(0)) -> tuple
     y = ctx.design.target
     judge = int(np.argmax([0.0] + [c.log_bf - np.log(len(cands)) for c in cands]))  # none: 1/2
     D, P = terms[judge]
-    gain = tail_gains(np.concatenate([_fit(D, y, P, np.ones(y.size)), set_aside]))
+    gain = screened_gains(_fit(D, y, P, np.ones(y.size)), np.asarray(set_aside, float))
     nu = noise_dof(gain)
     noise = {"nu": None if np.isinf(nu) else nu, "log_lr_vs_gaussian": float(gain.max()),
              "judged_under": "none" if judge == 0 else cands[judge - 1].effect}
