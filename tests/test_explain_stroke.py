@@ -110,3 +110,23 @@ def test_one_file_of_two_rounds_names_the_round_of_each_reading_set_aside(
     aside = json.loads(out.read_text())["readings"]["not_used"]
     assert [(r["seq"], r["round"]) for r in aside] == [(0, 0.0), (19, 0.0), (20, 0.0)]
     assert all("recording" not in r for r in aside)
+
+
+def test_readings_spread_wider_than_the_whole_stroke_are_asked_if_they_are_um(tmp_path,
+                                                                               cheng_round0,
+                                                                               capsys):
+    """A 30 um bow across y at round 0's touches, read as a gauge's relative readout in um and
+    written as if mm: the readings spread 30 "mm", more than the probe's whole stroke, which no
+    reading of it can -- the warning asks whether they are um (an audit, 2026-12-01: it only
+    asked 'signed readings?', and explain then reported 7,560 um of structure)."""
+    lines = cheng_round0.read_text().splitlines()
+
+    def as_um(line):
+        cells = line.split(",")
+        y = float(cells[3])
+        return ",".join(cells[:5] + [f"{30.0 * (y / 185.0) ** 2 - 10.0:.3f}"])
+    path = tmp_path / "round0-um.csv"
+    path.write_text("\n".join(as_um(x) if x[:1].isdigit() else x for x in lines) + "\n")
+    main(["explain", str(path), "--robot", str(CELL)])
+    err = capsys.readouterr().err
+    assert "is more than the probe's whole stroke" in err and "readings in um?" in err, err

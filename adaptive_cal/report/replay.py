@@ -93,11 +93,15 @@ def for_replay(rec: Recording, cell: Cell, cell_file: str | Path) -> Recording:
                       f"{rec.reading_mm[i]:g} mm)" for i in idx[:5])
     more = f" and {idx.size - 5} more" if idx.size > 5 else ""
     if idx.size > STROKE_MISMATCH_SHARE * np.count_nonzero(used):
+        spread = float(np.ptp(rec.reading_mm[used]))
+        why = (f"their spread, {spread:g} mm, is more than the probe's whole stroke "
+               f"({cell.probe.stroke_mm:g} mm): readings in um? (reading_mm is mm, DESIGN.md)"
+               if spread > cell.probe.stroke_mm else "signed readings? a zero set elsewhere?")
         say([f"{where}: {idx.size} of its {np.count_nonzero(used)} readings lie outside the "
              f"probe's usable stroke {[lo, hi]} mm of {cell_file} ({shown}{more}): the cell's "
-             "probe block does not describe this recording's gauge (signed readings? a zero set "
-             "elsewhere?), so they are used, not set aside as a run's stroke-end touches; give "
-             "the cell probe.rest_mm and probe.usable_mm that hold them (docs/config.md)"])
+             f"probe block does not describe this recording's gauge ({why}), so they are used, "
+             "not set aside as a run's stroke-end touches; give the cell probe.rest_mm and "
+             "probe.usable_mm that hold them (docs/config.md)"])
         return rec
     say([f"{where}: {idx.size} reading{'s' * (idx.size != 1)} outside the probe's usable stroke "
          f"{[lo, hi]} mm (probe.usable_mm of {cell_file}) not used, as the run does not use "
