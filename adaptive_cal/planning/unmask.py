@@ -41,7 +41,9 @@ def unmasked(model, prior, rows, heights_mm, weights, hyper, extra, stroke_mm):
     if z[i] < Z_TRIAL:
         return None
     keep = np.arange(len(y)) != i
-    good = log_evidence_kernel(model, rows, y, hyper, w, extra) + np.log1p(-OUTLIER_PRIOR)
+    genuine = w.copy()
+    genuine[i] = 1.0  # judged as a reading, not at the weight an earlier judgement left it
+    good = log_evidence_kernel(model, rows, y, hyper, genuine, extra) + np.log1p(-OUTLIER_PRIOR)
     gross = (log_evidence_kernel(model, rows[keep], y[keep], hyper, w[keep], extra)
              + np.log(OUTLIER_PRIOR) - np.log(stroke_mm))
     p = float(1.0 / (1.0 + np.exp(np.clip(good - gross, -700, 700))))
