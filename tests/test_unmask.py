@@ -82,3 +82,32 @@ def test_each_models_evidence_matches_brute_force_integration():
                - log_evidence_kernel(model, rows[keep], y[keep], start))
     exact = brute(rows, y) - brute(rows[keep], y[keep])
     assert laplace == pytest.approx(exact, abs=0.3)
+
+
+def test_a_replay_of_the_recording_weighs_the_misreading_as_the_run_did(tmp_path):
+    """A 30 um misreading at touch 25 of the simulated cell's run: the replay of its recording
+    (one judgement, at the end: ``survey.replay``, as a --resume or a bare recording's analysis
+    makes) gives it the weight the run gave it at its refits. Judged at the weight an earlier
+    judgement had left it, the run ratcheted it down (0.813) where the replay said 0.698."""
+    from dataclasses import replace
+
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.run.loop import run_loop
+
+    cell = ac.load_cell(SIM_CELL)
+    plan, opened = ac.survey_plan(cell), ac.open_cell(cell)
+    path = tmp_path / "rec.csv"
+    writer = ac.RecordingWriter(path)
+    real, n = opened.cycle.touch, [0]
+
+    def touch(*a, **k):
+        t, n[0] = real(*a, **k), n[0] + 1
+        return replace(t, reading_mm=t.reading_mm + 0.03) if n[0] == 26 else t
+    opened.cycle.touch = touch
+    final, _ = run_loop(plan, sv.start(plan), opened.cycle, record=lambda r: writer.append(
+        seq=r.seq, t_s=r.t_s, x_mm=r.x_mm, y_mm=r.y_mm, z_mm=r.z_mm, reading_mm=r.reading_mm,
+        flags=r.flags))
+    writer.close()
+    replayed = sv.replay(plan, sv.start(plan), ac.read_recording(path))
+    assert final.fused_weights[25] < 0.95  # judged
+    assert replayed.fused_weights == pytest.approx(final.fused_weights, abs=0.02)
