@@ -154,6 +154,22 @@ def test_out_option_and_errors_without_traceback(run_dir, tmp_path, capsys):
     assert "result.json: missing" in err and "adaptive-cal run --out DIR" in err
 
 
+def test_without_belief_npz_a_cut_recording_is_refused_and_the_page_says_it_cannot_check(
+        run_dir, tmp_path, capsys):
+    """An outside audit (2026-12-01): with belief.npz deleted, a recording cut to 4 of its
+    touches gave a page of result.json's touches beside a figure of 4, exit 0, no word."""
+    d = tmp_path / "run"
+    shutil.copytree(run_dir, d)
+    (d / "belief.npz").unlink()
+    assert main(["report", str(d)]) == 0
+    assert "belief.npz is missing" in capsys.readouterr().err
+    lines = (d / "recording.csv").read_text().splitlines(keepends=True)
+    (d / "recording.csv").write_text("".join(lines[:8]))
+    assert main(["report", str(d)]) == 2
+    err = capsys.readouterr().err
+    assert "result.json counts" in err and "belief.npz, whose digest" in err, err
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="headless render check needs chromium "
                     "(Debian: apt-get install -y chromium); .ci/run installs it")
 def test_renders_in_headless_chromium(explained, capsys):
@@ -470,3 +486,16 @@ def test_report_and_flatness_refuse_a_saved_map_that_is_not_a_posterior(run_dir,
     for argv in (["report", str(d)], ["flatness", str(d / "recording.csv")]):
         assert main(argv) == 2
         assert "belief.npz: array 'mean' is not a map's" in capsys.readouterr().err
+
+
+def test_a_finished_run_missing_belief_npz_is_not_told_to_resume(run_dir, tmp_path, capsys):
+    """compensate on a finished run whose belief.npz was deleted said the run stopped before
+    writing its results and sent the user to --resume, which moves the robot (an audit)."""
+    d = tmp_path / "run"
+    shutil.copytree(run_dir, d)
+    (d / "belief.npz").unlink()
+    gcode = tmp_path / "p.gcode"
+    gcode.write_text("G90 G21\nG0 X0 Y0 Z5\nG1 X10 Y0 Z-0.1 F300\n")
+    assert main(["compensate", str(gcode), "--map", str(d), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "belief.npz was removed or not copied" in err and "--resume" not in err, err

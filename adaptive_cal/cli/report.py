@@ -89,7 +89,10 @@ def _page_reads() -> tuple[str, ...]:
 def _check_belief(run_dir: Path) -> None:
     """The folder's belief.npz must be the map its cell.yaml gives (``cli.flatness.check_belief``);
     a folder without either is left to the page, which says what is missing."""
-    if not ((run_dir / "cell.yaml").is_file() and (run_dir / "belief.npz").is_file()):
+    if not (run_dir / "belief.npz").is_file():
+        _check_without_belief(run_dir)
+        return
+    if not (run_dir / "cell.yaml").is_file():
         return
     from adaptive_cal.cell.build import plan_model
     from adaptive_cal.cell.run_cell import load_run_cell
@@ -102,6 +105,34 @@ def _check_belief(run_dir: Path) -> None:
                  read_npz(run_dir / "belief.npz"), "report")
     if (run_dir / "recording.csv").is_file():
         refuse_stale_map(run_dir, "report")
+
+
+def _check_without_belief(run_dir: Path) -> None:
+    """No belief.npz, so no digest to check the recording against: its rows must at least be
+    the touches result.json counts, and the page says it could not check more (an outside
+    audit, 2026-12-01: a recording cut to 4 of 32 touches gave a page of '32 touches' beside a
+    figure of 4, exit 0)."""
+    import sys
+
+    from adaptive_cal.cli.common import UserError
+    from adaptive_cal.formats.jsonfile import read_json
+    from adaptive_cal.formats.recording import read_recording
+
+    rec, res = run_dir / "recording.csv", run_dir / "result.json"
+    if not (rec.is_file() and res.is_file()):
+        return
+    try:
+        said = read_json(res).get("touches")
+    except (OSError, ValueError, AttributeError):
+        return  # the page says what is wrong with it
+    rows = len(read_recording(rec))
+    if type(said) is int and rows != said:
+        raise UserError(f"{rec} holds {rows} touches, {res} counts {said}, and belief.npz, "
+                        "whose digest would tell which is the run's, is missing: the recording "
+                        f"was edited or the run went on. Replay the recording as it is: "
+                        f"adaptive-cal report {quoted(rec)} --robot {quoted(run_dir / 'cell.yaml')}")
+    print(f"warning: {run_dir / 'belief.npz'} is missing: the page shows result.json's figures "
+          "and cannot check the recording against the map they came from", file=sys.stderr)
 
 
 def _from_recording(recording, cell_file, out, round_=None) -> "Path":

@@ -132,6 +132,12 @@ def unfinished(run_dir, name: str) -> str:
     from pathlib import Path
 
     run_dir = Path(run_dir)
+    replay = (f"adaptive-cal report {quoted(run_dir / 'recording.csv')} --robot "
+              f"{quoted(run_dir / 'cell.yaml')} replays the touches taken")
+    if name == "belief.npz" and (run_dir / "result.json").is_file() \
+            and (run_dir / "recording.csv").is_file() and (run_dir / "cell.yaml").is_file():
+        return (f"the run finished (its result.json is there) but belief.npz was removed or not "
+                f"copied with it: copy it back, or, without the robot, {replay}")
     if name in ("result.json", "belief.npz") and (run_dir / "recording.csv").is_file() \
             and (run_dir / "cell.yaml").is_file():
         return (f"the run stopped before writing its results; adaptive-cal run --resume "
