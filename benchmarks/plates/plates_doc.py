@@ -379,9 +379,9 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   by two models of all the readings, each with its own hyper-parameters (Laplace's evidence): all
   genuine, or that one a gross error. An outside audit's 55 um error among a 6 um probe's
   readings had been learned as 11 um of noise that hid it. Here only the heavy-tailed family
-  moved: the planner's touches 26.4 -> 24.9, robot time 100 -> 94 s, coverage 0.929 -> 0.924,
+  moved: the planner's touches 26.4 -> 24.7, robot time 100 -> 94 s, coverage 0.929 -> 0.926,
   true RMS / bound 1.01 -> 1.04 (the grid's 29.2 -> 28.6 touches); rough 0.951 -> 0.952; over
-  the mix robot time 1.087 -> 1.085 x the grid's, touches 1.076 -> 1.073 x; no verdict changed.
+  the mix robot time 1.087 -> 1.084 x the grid's, touches 1.076 -> 1.073 x; no verdict changed.
   In-family (40 plates) the same: 84.5 touches at the own stop, coverage 0.946
   (`study-tilts-adaptive-2026-12-01b.json`).
 """
