@@ -163,7 +163,9 @@ def compensate(path: Toolpath, height: Height, plate_mm, tolerance_mm: float, *,
             ends.append(_cut_ends(move, name))
         else:
             rapids.append(move)
-    out.cuts, out.rapids = len(cuts), len(rapids)
+    # a cut from nowhere (a CSV's first row) is a point, not a move (an audit: a one-row CSV
+    # printed "1 cutting moves")
+    out.cuts, out.rapids = sum(m.start is not None for m in cuts), len(rapids)
     if cuts:
         se = np.asarray(ends, float)  # (cuts, 2, 3): start and end
         counts = _counts(se[:, 0], se[:, 1], sample_mm)

@@ -231,6 +231,7 @@ def _program(hmap, args) -> int:
     from adaptive_cal.analysis.compensate import beyond_text, compensate, refusal, under_text
     from adaptive_cal.cli.common import UserError
     from adaptive_cal.formats.toolpath import read_toolpath, write_toolpath
+    from adaptive_cal.formats.numbers import count
 
     name, T = args.program, args.tolerance_mm
     path = read_toolpath(_text(name), name)
@@ -270,8 +271,8 @@ def _program(hmap, args) -> int:
         f"{made['software']} compensate, {made['written_utc']}: map {where}, frame {args.frame}, "
         f"tolerance {T:g} mm = {T * 1e3:.4g} um"))
     Path(args.out).write_text(text, encoding="utf-8", newline="")
-    print(f"{name}: {result.cuts} cutting moves, {result.rapids} rapids; frame {args.frame}, "
-          f"tolerance {T * 1e3:.4g} um")
+    print(f"{name}: {count(result.cuts, 'cutting move')}, {count(result.rapids, 'rapid')}; "
+          f"frame {args.frame}, tolerance {T * 1e3:.4g} um")
     print(f"wrote {args.out}: {result.added} points added by splitting; the path departs from the "
           f"map by at most {result.max_deviation_mm * 1e3:.2f} um at the check samples")
     if result.rapids:
