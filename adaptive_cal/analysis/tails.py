@@ -69,15 +69,26 @@ def t_loglik_at(r: np.ndarray, s2: float, nu: float) -> float:
     return float(np.sum(t_logpdf(r / np.sqrt(s2), nu))) - 0.5 * r.size * np.log(s2)
 
 
+def gaussian_loglik_at(r: np.ndarray) -> float:
+    """The Gaussian's maximised log likelihood of residuals r (its scale fitted): -n/2 log(2 pi
+    s^2) - n/2, s^2 = r.r / n."""
+    s2 = max(float(r @ r) / max(r.size, 1), 1e-300)
+    return -r.size * (LOG_SQRT_2PI + 0.5 * np.log(s2) + 0.5)
+
+
+def t_logliks(r: np.ndarray, dofs) -> np.ndarray:
+    """The Student-t's maximised log likelihood of residuals r per nu in ``dofs`` (its scale
+    fitted, ``t_scale_em``)."""
+    return np.array([t_loglik_at(r, t_scale_em(r, nu)[1], nu) for nu in dofs])
+
+
 def tail_gains(residual, dofs) -> np.ndarray:
     """l_nu - l_N per nu in ``dofs``: the Student-t's maximised log likelihood of residuals held
     fixed (its scale fitted, ``t_scale_em``) less the Gaussian's (its scale fitted)."""
     r = np.asarray(residual, float)
     if not np.any(r):  # no scatter at all (readings exactly the nominal): no tail to judge
         return np.zeros(len(dofs))
-    s2n = max(float(r @ r) / r.size, 1e-300)
-    base = -r.size * (LOG_SQRT_2PI + 0.5 * np.log(s2n) + 0.5)
-    return np.array([t_loglik_at(r, t_scale_em(r, nu)[1], nu) - base for nu in dofs])
+    return t_logliks(r, dofs) - gaussian_loglik_at(r)
 
 
 def standardized_residuals(rows, belief, heights, noise_std_mm: float) -> np.ndarray:

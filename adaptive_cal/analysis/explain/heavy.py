@@ -44,7 +44,7 @@ import numpy as np
 
 from adaptive_cal.analysis import tails
 from adaptive_cal.analysis.explain.suspects import RATE, SCALE, _gross_logpdf, model_terms
-from adaptive_cal.analysis.tails import LOG_SQRT_2PI, t_loglik_at, t_scale_em
+from adaptive_cal.analysis.tails import t_loglik_at, t_scale_em
 
 NU_GRID = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.0, 20.0, 50.0)  # Student-t dof tried; inf = Gaussian
 GAUSSIAN_PRIOR = 0.5  # prior probability of Gaussian noise; the rest spread over NU_GRID
@@ -59,9 +59,7 @@ def _fit(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, w: np.ndarray) -> np
 
 def gaussian_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray) -> float:
     """max log likelihood under Gaussian noise: -n/2 log(2 pi s^2) - n/2, s^2 = RSS / n."""
-    r = _fit(D, y, penalty, np.ones(y.size))
-    s2 = max(float(r @ r) / y.size, 1e-300)
-    return -y.size * (LOG_SQRT_2PI + 0.5 * np.log(s2) + 0.5)
+    return tails.gaussian_loglik_at(_fit(D, y, penalty, np.ones(y.size)))
 
 
 def t_loglik(D: np.ndarray, y: np.ndarray, penalty: np.ndarray, nu: float) -> float:
@@ -75,10 +73,6 @@ def tail_gains(residual: np.ndarray) -> np.ndarray:
     return tails.tail_gains(residual, NU_GRID)
 
 
-def _gaussian_at_mle(r: np.ndarray) -> float:
-    return -r.size * (LOG_SQRT_2PI + 0.5 * np.log(max(float(r @ r) / max(r.size, 1), 1e-300)) + 0.5)
-
-
 def screened_gains(kept: np.ndarray, set_aside: np.ndarray) -> np.ndarray:
     """l_nu - l_N per nu with the readings set aside as suspects explained as the screen explains
     them, gross errors at its rate (``suspects.RATE``, a normal of ``SCALE`` noise sds with a
@@ -90,10 +84,9 @@ def screened_gains(kept: np.ndarray, set_aside: np.ndarray) -> np.ndarray:
         return tail_gains(np.concatenate([kept, set_aside]))
     s = np.sqrt(max(float(kept @ kept) / kept.size, 1e-300))
     gross = float(np.sum(np.log(RATE) + _gross_logpdf(set_aside, SCALE * s)))
-    every = np.concatenate([kept, set_aside])
-    t_every = tail_gains(every) + _gaussian_at_mle(every)
-    t_kept = tail_gains(kept) + _gaussian_at_mle(kept)
-    return np.maximum(t_every, t_kept + gross) - (_gaussian_at_mle(kept) + gross)
+    t_every = tails.t_logliks(np.concatenate([kept, set_aside]), NU_GRID)
+    t_kept = tails.t_logliks(kept, NU_GRID)
+    return np.maximum(t_every, t_kept + gross) - (tails.gaussian_loglik_at(kept) + gross)
 
 
 def noise_dof(gain: np.ndarray) -> float:
