@@ -88,7 +88,9 @@ def _page_reads() -> tuple[str, ...]:
 
 def _check_belief(run_dir: Path) -> None:
     """The folder's belief.npz must be the map its cell.yaml gives (``cli.flatness.check_belief``);
-    a folder without either is left to the page, which says what is missing."""
+    without belief.npz the recording is checked against result.json's count alone
+    (``_check_without_belief``); a folder without cell.yaml is left to the page, which says what
+    is missing."""
     if not (run_dir / "belief.npz").is_file():
         _check_without_belief(run_dir)
         return

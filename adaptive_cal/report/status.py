@@ -127,21 +127,18 @@ def quoted(path) -> str:
 
 def unfinished(run_dir, name: str) -> str:
     """What to do about a run folder missing ``name``: a folder with its recording and cell
-    but not its results stopped before writing them (``run --resume`` writes them), else it is
-    not a folder ``run --out`` wrote."""
+    but not its results stopped before writing them (``run --resume`` writes them); one with
+    result.json but not belief.npz lost it since; else it is not a folder ``run --out`` wrote."""
     from pathlib import Path
 
     run_dir = Path(run_dir)
-    replay = (f"adaptive-cal report {quoted(run_dir / 'recording.csv')} --robot "
-              f"{quoted(run_dir / 'cell.yaml')} replays the touches taken")
-    if name == "belief.npz" and (run_dir / "result.json").is_file() \
-            and (run_dir / "recording.csv").is_file() and (run_dir / "cell.yaml").is_file():
-        return (f"the run finished (its result.json is there) but belief.npz was removed or not "
-                f"copied with it: copy it back, or, without the robot, {replay}")
     if name in ("result.json", "belief.npz") and (run_dir / "recording.csv").is_file() \
             and (run_dir / "cell.yaml").is_file():
+        replay = (f"without the robot, adaptive-cal report {quoted(run_dir / 'recording.csv')} "
+                  f"--robot {quoted(run_dir / 'cell.yaml')} replays the touches taken")
+        if name == "belief.npz" and (run_dir / "result.json").is_file():
+            return ("the run finished (its result.json is there) but belief.npz was removed or "
+                    f"not copied with it: copy it back, or, {replay}")
         return (f"the run stopped before writing its results; adaptive-cal run --resume "
-                f"{quoted(run_dir)} writes them (it moves the robot on), or, without the "
-                f"robot, adaptive-cal report {quoted(run_dir / 'recording.csv')} --robot "
-                f"{quoted(run_dir / 'cell.yaml')} replays the touches taken")
+                f"{quoted(run_dir)} writes them (it moves the robot on), or, {replay}")
     return f"is {run_dir} a folder written by 'adaptive-cal run --out DIR'?"
