@@ -10,7 +10,7 @@ import pytest
 from adaptive_cal.cell.build import survey_plan
 from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.planning import survey as sv
-from adaptive_cal.planning.gate import FLAG_P, Predictive, outlier_probability
+from adaptive_cal.planning.gate import FLAG_P, W_MIN, Predictive, outlier_probability
 
 from helpers import sim_cell
 
@@ -165,3 +165,20 @@ def test_condemned_judges_worst_first_against_a_batch_posterior():
     m, v = bl.predict(post, rows[:1])
     p = outlier_probability(Predictive.gaussian(float(m[0]), float(v[0]) + r), 1.4, stroke)
     assert w[0] == pytest.approx(max(1.0 - p, sv.W_MIN), abs=1e-12) and w[1] == 1.0
+
+
+def test_a_genuine_reading_condemned_early_is_raised_and_a_gross_error_is_not():
+    """Weights judged at each refit are raised too where the reading was weighted out: a genuine
+    reading a retake's ``confirmed_against`` had set to ``W_MIN`` before the first refit (an
+    audit: two genuine readings beside a 0.2 mm error held at 0 for the whole run) takes
+    weight 1 again; a 128 um error held out stays out; a reading still in (w > 0.5) whose gate
+    flag lowered it is not raised (the noise it inflated may hide it: ``unmask``)."""
+    plan, clean = _state(0.0)
+    assert np.all(clean.fused_weights == 1.0)
+    condemned = replace(clean, weights=np.where(np.arange(40) == 5, W_MIN, 1.0))
+    assert np.all(sv.refit(plan, condemned).fused_weights == 1.0)
+    kept_in = replace(clean, weights=np.where(np.arange(40) == 5, 0.8, 1.0))
+    assert sv.refit(plan, kept_in).fused_weights[5] == 0.8
+    plan, bad = _state(128.0)
+    out = replace(bad, weights=np.where(np.arange(40) == 2, W_MIN, 1.0))
+    assert sv.refit(plan, out).fused_weights[2] < 0.05

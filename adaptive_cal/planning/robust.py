@@ -203,15 +203,16 @@ REWEIGH_PASSES = 3
 
 
 def settled(state, judge, refit):
-    """``state`` after its fused readings are judged (``judge(state)``: lowered weights, or None)
-    and refitted (``refit(state, weights)``) until no weight falls, at most ``REWEIGH_PASSES``
-    times; after the first pass only the readings it weighted out (weight <= 0.5) are judged."""
+    """``state`` after its fused readings are judged (``judge(state)``: new weights, or None)
+    and refitted (``refit(state, weights)``) until no weight changes, at most
+    ``REWEIGH_PASSES`` times; after the first pass only the readings it weighted out (weight
+    <= 0.5) are judged."""
     judged = None
     for _ in range(REWEIGH_PASSES):
         weights, was = judge(state), state.fused_weights
         if weights is not None and judged is not None:
             weights = np.where(judged, weights, was)
-        if weights is None or not np.any(weights < was - 1e-12):
+        if weights is None or not np.any(np.abs(weights - was) > 1e-12):
             break
         judged = weights <= 0.5 if judged is None else judged
         state = refit(state, weights)

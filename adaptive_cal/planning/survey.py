@@ -292,18 +292,19 @@ def refit(plan: SurveyPlan, state: SurveyState) -> SurveyState:
 
 
 def reweighed(plan: SurveyPlan, state: SurveyState) -> np.ndarray | None:
-    """Each fused reading judged again once the hyper-parameters are learned: its outlier
-    probability p under its leave-one-out predictive (``gate.outlier_probability``, the learned
-    noise), its weight lowered to 1 - p where p reaches ``FLAG_P`` (never raised); where none
-    falls, the one a noise it inflated hides (``unmask``). None when no weight falls. A replay
-    makes the same decisions; result.json lists the readings lowered."""
+    """Each fused reading judged at a refit: p under its leave-one-out predictive (the learned
+    noise), weight lowered to 1 - p where p >= ``FLAG_P``; one weighted out (w <= 0.5) takes
+    1 - p or 1, raised: a genuine one condemned among the first (an audit: two beside a 0.2 mm
+    error held at 0 to the end) is not lost; one still in is never raised (a noise it
+    inflated can hide it). Where none changes, ``unmask``. None when none changes."""
     if state.fused < 3 or not learns(plan, state):
         return None
     w, r, stroke = state.fused_weights, state.hyper.noise_std_mm**2, np.ptp(plan.usable_mm)
     prior = plan.model.belief(state.hyper, extra_cov(plan, state))
     p = loo_outlier_probability(prior, state.rows, state.heights_mm, r / w, r, stroke)
-    new = np.where(p >= FLAG_P, np.minimum(w, np.maximum(1.0 - p, W_MIN)), w)  # 1 - p = 0: NaN
-    return new if np.any(new < w - 1e-12) else unmasked(
+    judged = np.where(p >= FLAG_P, np.maximum(1.0 - p, W_MIN), 1.0)  # 1 - p = 0: NaN
+    new = np.where(w <= 0.5, judged, np.minimum(w, judged))
+    return new if np.any(np.abs(new - w) > 1e-12) else unmasked(
         plan.model, prior, state.rows, state.heights_mm, w, state.hyper, extra_cov(plan, state),
         stroke)
 
