@@ -113,3 +113,55 @@ def test_a_run_folders_recording_replayed_with_another_cell_says_so(tmp_path, ca
     assert main(["report", str(rec), "--robot", str(other), "--out",
                  str(tmp_path / "r.html")]) == 0
     assert "differs from it in what changes the map (probe.zero_mm)" in capsys.readouterr().err
+
+
+def _edited(run_dir, tmp_path, name, edit_rows=None, edit_cell=None):
+    import shutil
+
+    d = tmp_path / name
+    shutil.copytree(run_dir, d)
+    if edit_rows is not None:
+        rec = d / "recording.csv"
+        lines = rec.read_text().splitlines(keepends=True)
+        header = next(i for i, ln in enumerate(lines) if ln.startswith("seq,"))
+        rec.write_text("".join(edit_rows(lines, header)))
+    if edit_cell is not None:
+        cell = d / "cell.yaml"
+        cell.write_text(edit_cell(cell.read_text()))
+    return d
+
+
+def _cells(line, col, value):
+    cells = line.rstrip("\n").split(",")
+    cells[col] = value
+    return ",".join(cells) + "\n"
+
+
+@pytest.mark.parametrize("name, edit_rows, edit_cell, said", [
+    ("offplate", lambda ls, h: ls[:h + 3] + [_cells(ls[h + 3], 2, "300.0000")] + ls[h + 4:],
+     None, ":{line}: touch seq 2 is a fused reading that the run could not have fused"),
+    ("stroke", lambda ls, h: ls[:h + 3] + [_cells(ls[h + 3], 5, "9.900000")] + ls[h + 4:],
+     None, "reading_mm = 9.9 is outside the probe's usable stroke"),
+    ("swapped", lambda ls, h: ls[:h] + [ls[h].replace("x_mm,y_mm", "y_mm,x_mm")] + ls[h + 1:],
+     None, "recording.csv"),  # off the workplane or not the map's rows: either refused
+    ("deleted", lambda ls, h: ls[:h + 2] + ls[h + 3:], None, "it holds 5 rows, the map 6"),
+    ("value", lambda ls, h: ls[:h + 2] + [_cells(ls[h + 2], 5, "5.123456")] + ls[h + 3:],
+     None, "with other values in them"),
+    ("zero", None, lambda t: t.replace("zero_mm: 5.0", "zero_mm: 5.3"),
+     "recorded with probe_zero_mm 5, but the cell resumed has probe.zero_mm 5.3"),
+])
+def test_a_recording_the_run_could_not_have_made_is_not_resumed(run_dir, tmp_path, capsys, name,
+                                                                 edit_rows, edit_cell, said):
+    """An outside audit (2026-12-01): --resume fused a touch typed off the workplane, a reading
+    outside the stroke, a header with x and y swapped, and the folder's cell.yaml given another
+    probe zero (true error 0.3 to 2 mm afterwards, the robot moving on that map), where report
+    and flatness refuse the same folder. Refused now before anything is sent, naming the line;
+    nothing in the folder changes."""
+    d = _edited(run_dir, tmp_path, name, edit_rows, edit_cell)
+    before = _files(d)
+    assert main(["run", "--resume", str(d), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    lines = (d / "recording.csv").read_text().splitlines()
+    line = next(i for i, ln in enumerate(lines) if ln.startswith("seq,")) + 4  # 1-based, row 2
+    assert said.format(line=line) in err and "nothing was sent" in err, err
+    assert "Traceback" not in err and _files(d) == before

@@ -97,3 +97,35 @@ def test_the_cli_keeps_pymodbus_reconnect_lines_off_stderr(tmp_path, capsys):
     main(["flatness", str(tmp_path / "none.csv")])  # any command sets up the CLI's logging
     capsys.readouterr()
     assert logging.getLogger("pymodbus").getEffectiveLevel() == logging.CRITICAL
+
+
+def test_a_row_a_full_disk_kept_out_is_written_back_by_the_resume(tmp_path):
+    """An outside audit (2026-12-01): with the disk full half-way through a row, the error
+    printed the row, but --resume dropped its cut start and wrote the next touch under its seq:
+    the reading was lost. Now the row is kept whole beside the recording and written back."""
+    from adaptive_cal.formats.recording import read_recording
+    from adaptive_cal.formats.writing import repair_cut_row_said, unwritten_file
+
+    path = tmp_path / "recording.csv"
+    writer = RecordingWriter(path)
+    writer.append(seq=0, t_s=0.0, x_mm=1.0, y_mm=2.0, z_mm=0.0, reading_mm=5.0)
+    real = writer._file.write
+
+    def half_then_full(text):
+        real(text[:len(text) // 2])
+        writer._file.flush()
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    writer._file.write = half_then_full
+    with pytest.raises(OSError) as e:
+        writer.append(seq=1, t_s=4.0, x_mm=10.5, y_mm=-3.0, z_mm=0.0, reading_mm=5.0123)
+    writer._file.write = real
+    writer.close()
+    assert f"kept in {unwritten_file(path)}" in e.value.strerror
+    assert not path.read_text().endswith("\n")  # the cut start of the row is in the file
+    said = repair_cut_row_said(path)
+    assert "1 row a full disk had kept out of it written back" in said
+    rec = read_recording(path)
+    assert list(rec.seq) == [0, 1] and rec.reading_mm[1] == 5.0123 and rec.x_mm[1] == 10.5
+    assert not unwritten_file(path).exists()
+    assert repair_cut_row_said(path) is None  # once

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from adaptive_cal.cli import main
-from adaptive_cal.formats.recording import read_recording
+from adaptive_cal.formats.recording import RecordingError, read_recording
 from adaptive_cal.formats.writing import repair_cut_row
 from adaptive_cal.run import session
 from adaptive_cal.run.folder import (LOCK_NAME, RunFolderBusy, finite_json, replace_atomically,
@@ -87,6 +87,10 @@ def test_resume_continues_from_the_last_seq_plus_one(tmp_path):
     session.run(cell, out, progress=False, max_new_touches=6)
     rec_path = out / "recording.csv"
     _rewrite_seq(rec_path, [100, 101, 102, 110, 111, 112])  # starts at 100, with a gap
+    with pytest.raises(RecordingError, match="not the recording the map saved beside it"):
+        session.run(cell, out, resume=True, progress=False, max_new_touches=3)  # edited since
+    for name in ("belief.npz", "result.json"):  # as a run killed before its results leaves it
+        (out / name).unlink()
     r = session.run(cell, out, resume=True, progress=False, max_new_touches=3)
     rec = read_recording(rec_path)  # readable: seq still increases
     assert rec.seq.tolist() == [100, 101, 102, 110, 111, 112, 113, 114, 115]
@@ -212,3 +216,56 @@ def test_replaced_files_keep_the_usual_permissions(tmp_path):
     finally:
         os.umask(old)
     assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
+
+
+def test_a_touch_recorded_but_not_fused_when_stopped_at_once_is_said(tmp_path, monkeypatch):
+    """An outside audit (2026-12-01): a second Ctrl-C between a touch's row and its fusion left
+    8 rows beside a map and result.json of 7 with no word, and report blamed a resume that never
+    happened. The count is in result.json, the INCOMPLETE line and report's refusal."""
+    from adaptive_cal.cli.common import UserError
+    from adaptive_cal.cli.run_guards import refuse_stale_map
+    from adaptive_cal.formats.writing import RecordingWriter
+    from adaptive_cal.report.status import missing
+
+    real = RecordingWriter.append
+
+    def second_ctrl_c(self, **row):
+        real(self, **row)
+        if row["seq"] == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(RecordingWriter, "append", second_ctrl_c)
+    out = tmp_path / "run"
+    r = session.run(sim_cell(), out, progress=False)
+    assert r["touches"] == 2 and r["recorded_not_fused"] == 1
+    assert "1 touch more in the recording, stopped before it was fused: --resume fuses it" \
+        in missing(r)
+    with pytest.raises(UserError, match="stopped at once .* after it recorded them"):
+        refuse_stale_map(out, "report")
+    monkeypatch.setattr(RecordingWriter, "append", real)
+    r = session.run(sim_cell(), out, resume=True, progress=False, max_new_touches=1)
+    assert r["touches"] == 4 and "recorded_not_fused" not in r
+
+
+def test_a_folder_a_run_is_using_is_said_so_not_sent_to_resume(tmp_path, capsys):
+    """An outside audit (2026-12-01): while a run held the folder, a second `run --out` said
+    'exists: continue it with --resume' (which then said 'in use'), and report said its results
+    were missing, to be written by --resume."""
+    from adaptive_cal.report.status import unfinished
+
+    out = tmp_path / "run"
+    session.run(sim_cell(), out, progress=False, max_new_touches=2)
+    (out / "result.json").unlink()
+    (out / "belief.npz").unlink()
+    proc = _holder(out)
+    try:
+        assert main(["run", "--robot", str(SIM_CELL), "--out", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert f"is in use by another run (pid {proc.pid})" in err and "--resume" not in err
+        said = unfinished(out, "result.json")
+        assert f"a run (pid {proc.pid}) is going on" in said and "--resume" not in said
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    (out / "cell.yaml").write_text(SIM_CELL.read_text())  # as the CLI's run leaves it
+    assert "adaptive-cal run --resume" in unfinished(out, "result.json")

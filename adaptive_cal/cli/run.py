@@ -84,6 +84,11 @@ def command(args) -> int:
     created = None  # (folders this run made, names --out held before)
     if not args.resume and not args.prior_from:
         _warn_unreachable(cell)
+    from adaptive_cal.formats.lockfile import busy_by
+
+    if busy_by(out) is not None:  # before "exists: --resume", which would then say "in use"
+        raise UserError(f"{out} is in use by another run (pid {busy_by(out)}): wait for it to "
+                        "end (or give this run another --out)")
     if not args.resume:
         if (out / "recording.csv").exists() and (out / "recording.csv").stat().st_size:
             raise UserError(f"{out}/recording.csv exists: continue it with --resume {out}, or "

@@ -125,9 +125,15 @@ def refuse_stale_map(folder: Path, command: str) -> None:
               if command == "report" else
               f"adaptive-cal flatness {quoted(rec)} --robot {quoted(folder / 'cell.yaml')}")
     if rows > map_touches:
+        try:
+            late = read_json(folder / "result.json").get("recorded_not_fused")
+        except (OSError, ValueError, AttributeError):
+            late = None
+        why = ("the run was stopped at once (a second Ctrl-C) after it recorded them, before it "
+               "fused them" if late == rows - map_touches else "the run went on after it was "
+               "saved (a resume) and was stopped before it saved again")
         raise UserError(f"{rec} holds {rows} touches, but the map saved beside it (result.json, "
-                        f"belief.npz) is of the first {map_touches}: the run went on after it "
-                        f"was saved (a resume) and was stopped before it saved again. To use "
+                        f"belief.npz) is of the first {map_touches}: {why}. To use "
                         f"every touch, replay the recording: {replay}; or finish the run: "
                         f"adaptive-cal run --resume {quoted(folder)}")
     digest = str(saved["recording_sha256"]) if "recording_sha256" in saved else None

@@ -49,8 +49,77 @@ def repair_cut_row(path: str | os.PathLike) -> str | None:
 
 
 def repair_cut_row_said(path: str | os.PathLike) -> str | None:
-    """``repair_cut_row``, returning the message for the user (None when nothing was cut)."""
-    return _repair(path)[1]
+    """``repair_cut_row``, then ``restore_unwritten``: the message for the user (None when
+    nothing was done)."""
+    said = [restore_unwritten(path), _repair(path)[1]]  # the row's cut start, then another
+    said = [m for m in said + [restore_unwritten(path)] if m]
+    return "; ".join(said) or None
+
+
+def unwritten_file(path: str | os.PathLike) -> Path:
+    """Where a row the recording could not take (a full disk) is kept: beside it."""
+    path = Path(path)
+    return path.with_name(path.stem + ".unwritten.csv")
+
+
+def _keep_unwritten(path: Path, columns, line: str) -> Path | None:
+    """Append a row the recording could not take to ``unwritten_file`` (a new, small file: a
+    file-size limit or a disk with a little room left takes it); None where it could not."""
+    target = unwritten_file(path)
+    try:
+        new = not target.exists()
+        with open(target, "a", encoding="utf-8") as f:
+            if new:
+                f.write(",".join(columns) + "\n")
+            f.write(line + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        return target
+    except OSError:
+        return None
+
+
+def restore_unwritten(path: str | os.PathLike) -> str | None:
+    """Write the rows a full disk kept out of the recording (``unwritten_file``, same columns)
+    back at its end -- those whose seq follows its last row -- then rename that file
+    ``*.restored.csv`` (kept). An outside audit: the row was printed, a resume dropped its cut
+    part and wrote another touch under its seq, and the reading was lost. The message, or
+    None when there was nothing to restore."""
+    from adaptive_cal.formats.recording import read_recording
+
+    path, src = Path(path), unwritten_file(path)
+    if not src.exists() or not path.exists():
+        return None
+    lines = [ln for ln in src.read_text(encoding="utf-8").splitlines() if ln.strip()]
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):  # cut mid-write: the start of a row kept here?
+        start = data.rfind(b"\n") + 1
+        tail = data[start:].decode("utf-8", "replace")
+        if not any(ln.startswith(tail) for ln in lines[1:]):
+            return None  # another cut: ``_repair`` first
+        with open(cut_file(path), "a", encoding="utf-8") as f:  # first: the text is safe
+            f.write(f"# {path.name}: the start of a row kept whole in {src.name}:\n{tail}\n")
+            f.flush()
+            os.fsync(f.fileno())
+        with open(path, "r+b") as f:
+            f.truncate(start)
+            f.flush()
+            os.fsync(f.fileno())
+    text = path.read_text(encoding="utf-8-sig")
+    header = _header_line(text)
+    if not lines or header is None or lines[0].split(",") != header.split(","):
+        return f"{src}: not written back into {path} (its columns differ): add its rows by hand"
+    seq, rec = lines[0].split(",").index("seq"), read_recording(path)
+    last = int(rec.seq[-1]) if len(rec) else -1
+    rows = [ln for ln in lines[1:] if int(ln.split(",")[seq]) > last]
+    newline = "\r\n" if "\r\n" in text[:text.find("\n") + 1] else "\n"
+    with open(path, "a", encoding="utf-8", newline="") as f:
+        f.writelines(ln + newline for ln in rows)
+        f.flush()
+        os.fsync(f.fileno())
+    src.rename(src.with_name(src.stem + ".restored.csv"))
+    return (f"{path}: {len(rows)} row{'s' * (len(rows) != 1)} a full disk had kept out of it "
+            f"written back from {src} (seq {', '.join(ln.split(',')[seq] for ln in rows)})")
 
 
 def _repair(path) -> tuple[str | None, str | None]:
@@ -105,6 +174,7 @@ class RecordingWriter:
     """
 
     COLUMNS = REQUIRED + ("flags",)
+    rows_written = 0  # by this writer
 
     def __init__(self, path: str | os.PathLike, meta: Mapping[str, str] | None = None,
                  extra_columns: Iterable[str] = ()):
@@ -157,12 +227,17 @@ class RecordingWriter:
         try:
             self._file.write(line + self.newline)
             self._sync()
-        except OSError as e:  # a full disk, a file-size limit: say which reading is lost
+            self.rows_written += 1
+        except OSError as e:  # a full disk, a file-size limit: the reading kept, or said
+            kept = _keep_unwritten(self.path, self.columns, line)
+            where = (f"kept in {kept}: make room, then continue with --resume, which writes it "
+                     "back" if kept is not None else "add it at the recording's end by hand, "
+                     "make room, then continue with --resume")
             raise OSError(e.errno, f"touch seq {int(seq)} could not be written "
                           f"({e.strerror or e}); its row, taken and not in the recording, "
-                          f"reads {line} ({','.join(self.columns)}); make room, then continue "
-                          "with --resume (a part of the row already written is kept in "
-                          "recording.cut.txt and not fused)", str(self.path)) from e
+                          f"reads {line} ({','.join(self.columns)}); {where} (a part of the "
+                          "row already written is kept in recording.cut.txt and not fused)",
+                          str(self.path)) from e
 
     def close(self) -> None:
         if not self._file.closed:

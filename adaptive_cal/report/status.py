@@ -84,7 +84,10 @@ def missing(result: dict) -> str | None:
 
     touches = count(result['touches'], 'touch', 'touches')
     text = f"{WHY.get(why, why.replace('_', ' '))} after {touches}"
-    return "; ".join([text] + unmet)
+    late = result.get("recorded_not_fused")  # a second Ctrl-C: recorded, not yet in the map
+    late = [f"{count(late, 'touch', 'touches')} more in the recording, stopped before it was "
+            "fused: --resume fuses it"] if isinstance(late, int) and late > 0 else []
+    return "; ".join([text] + late + unmet)
 
 
 def exit_status(result: dict) -> int:
@@ -131,7 +134,12 @@ def unfinished(run_dir, name: str) -> str:
     result.json but not belief.npz lost it since; else it is not a folder ``run --out`` wrote."""
     from pathlib import Path
 
+    from adaptive_cal.formats.lockfile import busy_by
+
     run_dir = Path(run_dir)
+    if name in ("result.json", "belief.npz") and busy_by(run_dir) is not None:
+        return (f"a run (pid {busy_by(run_dir)}) is going on in {run_dir} and writes its "
+                "results when it stops: wait for it")
     if name in ("result.json", "belief.npz") and (run_dir / "recording.csv").is_file() \
             and (run_dir / "cell.yaml").is_file():
         replay = (f"without the robot, adaptive-cal report {quoted(run_dir / 'recording.csv')} "

@@ -20,8 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
-LOCK_NAME = ".run.lock"
-
+from adaptive_cal.formats.lockfile import LOCK_NAME  # noqa: F401 (where tests look)
 
 #: ``replace_atomically``'s temporary files: ".NAME.PID.HEX8.tmp"
 TMP_NAME = re.compile(r"\..+\.([0-9]+)\.[0-9a-f]{8}\.tmp")

@@ -24,11 +24,11 @@ from adaptive_cal.formats.jsonfile import read_json
 from adaptive_cal.formats.recording import read_recording, say
 from adaptive_cal.formats.times import last_time_s
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
-from adaptive_cal.hardware.base import (AdapterError, Interrupted, OperatorStop, ProbeLeftDown,
-                                        StrokeOverrun)
+from adaptive_cal.hardware.base import AdapterError, Interrupted, OperatorStop, StrokeOverrun
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
+from adaptive_cal.run.bar import _close_bar, _progress, _update
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock, write_json
 from adaptive_cal.run.loop import (CLOSING, DRIFT, NO_ADMISSIBLE_POINT, TOUCHES_REJECTED, Row,
@@ -36,6 +36,7 @@ from adaptive_cal.run.loop import (CLOSING, DRIFT, NO_ADMISSIBLE_POINT, TOUCHES_
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_HOLD, PRIOR_RECORD, PRIOR_SURPRISES,
                                       disagreement, load_prior, matching_frame, recheck_guard,
                                       saved_prior)
+from adaptive_cal.run.resumable import resumable
 from adaptive_cal.run.results import write_results
 from adaptive_cal.run.truth import TrueError
 
@@ -151,16 +152,15 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
         said = repair_cut_row_said(paths.recording)  # a message line, not a Python warning
         if said is not None:
             say([said])
-        rec = read_recording(paths.recording)
+        rec = resumable(paths.out, read_recording(paths.recording), plan, cell.probe.zero_mm)
         state, start_t, next_seq, fused_t_s, closed_at = replay(plan, state, rec)
         done = plan.stop(sv.status(plan, state))
         saved = _saved_result(paths.out)
         if done and saved is not None and saved.get("touches") == state.touches:
             return {**saved, "already_finished": done}  # finished: nothing to do or rewrite
-        # what is resumed, before the bar (which would otherwise be the only sign of it)
         print(f"resuming {paths.out}: {state.touches} touch{'es' * (state.touches != 1)} in "
               f"{paths.recording.name} ({state.fused} fused), going on from seq {next_seq}",
-              file=sys.stderr, flush=True)
+              file=sys.stderr, flush=True)  # before the bar, else its only sign
     else:
         fused_t_s, closed_at = None, None
     if state.touches == 0:  # refused before a device is opened (a controller connected to)
@@ -247,6 +247,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             if bar is not None:
                 _close_bar(bar, stopped, error)
         state = loop.state
+        # a second Ctrl-C between a touch's row and its fusion: recorded, not in this map
+        unfused = writer.rows_written - (state.touches - start_touch)
         result = None
         if error is None or state.touches:
             if carried is not None and stopped == PRIOR_DISAGREES:
@@ -260,6 +262,7 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
                     refits=history.refits, truth=truth,
                     true_rms_mm=true_rms.rms_mm if true_rms else None,
                     extra={**({} if carried is None else {"prior_from": carried}),
+                           **({"recorded_not_fused": unfused} if unfused > 0 else {}),
                            **({} if error is None else {"error": str(error),
                                                         "error_is": type(error).__name__})})
             except OSError as e:  # a full disk: the recording is whole, the results are not
@@ -301,50 +304,3 @@ class History:
         if step.state.fitted_at != self._fitted_at:
             self._fitted_at = step.state.fitted_at
             self.refits.append(step.status.touches)
-
-
-def _progress(enabled: bool, cell: Cell, initial: int):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-    return tqdm(total=cell.plan.stop.max_touches, initial=initial, unit="touch",
-                desc="touches", dynamic_ncols=True)
-
-
-#: the stop reasons of a run that met its bound: the bar closes full, not at a share of the budget
-BOUND_MET = ("mean_std_bound", "max_std_bound")
-
-
-def _close_bar(bar, stopped: str | None, error=None) -> None:
-    """Close the bar. A run that stopped on its bound ends it full ("bound met" kept): at "26%
-    31/120" of the budget it would read as aborted. Any other stop leaves it where the run
-    stopped; one that may have left the probe down erases it: the CLI says so first."""
-    if stopped in BOUND_MET:
-        bar.total = bar.n  # close() draws the bar once more
-    if isinstance(error, ProbeLeftDown):
-        bar.leave = False  # close() erases it
-    bar.close()
-
-
-def _update(bar, cell: Cell, s, floor: int = 0) -> None:
-    """The bar's text: each std with its bound and unit, e.g. ``RMS std 3.9 um / bound 4.0 um``
-    (the RMS over the plate: result.json's ``mean_std_mm``), and, once a bound is met, "bound
-    met" or why the run goes on (the touch floor, a model the self-checks call inadequate, or
-    repeat touches owed)."""
-    stop, parts, met = cell.plan.stop, [], False
-    for what, value, bound in (("RMS std", s.mean_std_mm, stop.mean_std_mm),
-                               ("max std", s.max_std_mm, stop.max_std_mm)):
-        parts.append(f"{what} {value * 1e3:.1f} um"
-                     + (f" / bound {bound * 1e3:.1f} um" if bound else ""))
-        met = met or (bound is not None and value <= bound)
-    if met and s.touches < floor:
-        parts.append(f"bound met, going on to the touch floor of {floor}")
-    elif met and not s.adequate:
-        parts.append("bound met, going on: the model's self-checks fail")
-    elif met and s.repeats_owed:  # planning.repeats: the learned noise may be the plate
-        parts.append(f"bound met, going on: {s.repeats_owed} repeat readings measure the "
-                     "probe's own noise")
-    elif met:
-        parts.append("bound met")
-    bar.set_postfix_str(", ".join(parts), refresh=False)
-    bar.update(1)
