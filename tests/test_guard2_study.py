@@ -57,3 +57,24 @@ def test_an_unreachable_scheduler_is_a_user_error_naming_the_address(tmp_path, c
     assert "--scheduler tcp://127.0.0.1:1: cannot reach the Dask scheduler" in err
     assert "internal error" not in err and "please report" not in err
     assert not out.exists()
+
+
+def test_workers_without_dask_installed_say_which_extra_to_install(tmp_path, capsys,
+                                                                   monkeypatch):
+    """An outside audit (2026-12-01): --workers on the README's install (no Dask, an extra)
+    was an 'internal error: ModuleNotFoundError'."""
+    import builtins
+
+    real = builtins.__import__
+
+    def no_dask(name, *args, **kwargs):
+        if name.split(".")[0] == "dask":
+            raise ModuleNotFoundError("No module named 'dask'")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_dask)
+    out = tmp_path / "o.json"
+    assert main(["study", str(SMOKE), "--json", str(out), "--quiet", "--workers", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "pip install 'adaptive-cal[dask]'" in err and "--scheduler None" not in err
+    assert "internal error" not in err and not out.exists()

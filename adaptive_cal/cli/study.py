@@ -263,8 +263,9 @@ def command(args) -> int:
 
         try:
             client = connect(args.scheduler, max(args.workers, 1))
-        except SchedulerError as e:  # the address given is wrong or down: the user's to fix
-            raise UserError(f"--scheduler {args.scheduler}: {e}") from None
+        except SchedulerError as e:  # the address wrong or down, no Dask: the user's to fix
+            raise UserError(f"--scheduler {args.scheduler}: {e}" if args.scheduler and
+                            "lacks" not in str(e) else str(e)) from None
     try:
         with _sigterm_as_ctrl_c():
             records = run_study(study, base, checkpoint, client=client,

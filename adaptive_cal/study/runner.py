@@ -43,8 +43,15 @@ def _jobs(study: Study, done: set) -> tuple[dict, dict]:
 def connect(scheduler: str | None, workers: int, timeout_s: float = 5.0):
     """A Dask client: the scheduler at ``scheduler`` (tcp://host:port) or a LocalCluster of
     ``workers`` processes, one thread each. The processes inherit this process's environment:
-    set OPENBLAS_NUM_THREADS=1 before numpy loads (the CLI does), so BLAS runs one thread."""
-    from dask.distributed import Client, LocalCluster
+    set OPENBLAS_NUM_THREADS=1 before numpy loads (the CLI does), so BLAS runs one thread.
+    SchedulerError where Dask is not installed (it is an extra: ``adaptive-cal[dask]``)."""
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError:  # an audit: the README's install has no Dask; "internal error" before
+        raise SchedulerError("--workers and --scheduler run plates on Dask, which this install "
+                             "lacks: pip install 'adaptive-cal[dask]' (from a clone: pip "
+                             "install -e '.[dask]'), or leave them out to run the plates in "
+                             "this process") from None
 
     if scheduler:
         try:
