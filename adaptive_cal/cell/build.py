@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from adaptive_cal.cell.consistency import derived_box_mm
+from adaptive_cal.cell.consistency import check_knots, derived_box_mm
 from adaptive_cal.cell.files import ConfigError
 from adaptive_cal.cell.schema import Cell, Workspace
 from adaptive_cal.gaussian.prior import Hyper, PriorModel
@@ -42,14 +42,14 @@ def workspace(cell: Cell) -> Workspace | None:
 
 
 def knots_for(cell: Cell) -> tuple[np.ndarray, np.ndarray]:
-    """Knots from the cell file, or evenly spaced by Brunn eq. 15."""
+    """Knots from the cell file (on the workplane's edges: ``check_knots`` again, for a cell
+    changed by ``model_copy``), or evenly spaced by Brunn eq. 15."""
     m, wp = cell.model, cell.workplane
+    check_knots(cell)
     out = []
     for spec, (lo, hi) in ((m.knots_x, wp.x_mm), (m.knots_y, wp.y_mm)):
         if isinstance(spec, list):
             k = np.asarray(spec, float)
-            if k[0] > lo or k[-1] < hi:
-                raise ValueError(f"knots {spec} must span the workplane [{lo}, {hi}] mm")
         elif isinstance(spec, int):
             k = np.linspace(lo, hi, spec)
         else:

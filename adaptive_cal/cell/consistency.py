@@ -19,13 +19,28 @@ def derived_box_mm(cell) -> tuple[tuple[float, float], tuple[float, float], tupl
     return tuple(wp.x_mm), tuple(wp.y_mm), z
 
 
+KNOT_SLACK_MM = 1e-6  # round-off on knots written to the workplane's edges
+
+
+def check_knots(cell) -> None:
+    """ValueError naming the key unless given knot positions begin and end on the workplane's
+    edges: the map, its integrated variance and the stop's RMS std are taken over the knots'
+    span (an outside audit, 2026-12-01: knots 100 mm beyond a 450 x 370 mm plate gave an RMS
+    std of 16.8 um where the plate's own was 5.3 um, counting area no touch reaches)."""
+    for axis in ("x", "y"):
+        k, (lo, hi) = getattr(cell.model, f"knots_{axis}"), getattr(cell.workplane, f"{axis}_mm")
+        if isinstance(k, list) and (abs(k[0] - lo) > KNOT_SLACK_MM
+                                    or abs(k[-1] - hi) > KNOT_SLACK_MM):
+            raise ValueError(f"model.knots_{axis}={k} must begin and end on the edges of "
+                             f"workplane.{axis}_mm={[lo, hi]} (the map and its stop are taken "
+                             "over the knots' span: beyond the plate it counts area no touch "
+                             "reaches; inside it the plate's edges are not mapped)")
+
+
 def check_cell(cell) -> None:
     """Raise ValueError naming the keys when the blocks of ``cell`` contradict each other."""
     r, p, ws, wp = cell.robot, cell.probe, cell.workspace, cell.workplane
-    for axis in ("x", "y"):  # at load, naming the key (it was found building the model)
-        k, (lo, hi) = getattr(cell.model, f"knots_{axis}"), getattr(wp, f"{axis}_mm")
-        if isinstance(k, list) and (k[0] > lo or k[-1] < hi):
-            raise ValueError(f"model.knots_{axis}={k} must span workplane.{axis}_mm={[lo, hi]}")
+    check_knots(cell)  # at load, naming the key (it was found building the model)
     if r.adapter != "sim" and ws is None:
         raise ValueError(f"robot.adapter={r.adapter!r} moves a real probe: give a workspace block "
                          "(x_mm, y_mm, z_mm: the box the probe tip may be sent to; nothing outside "

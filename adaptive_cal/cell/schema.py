@@ -177,7 +177,8 @@ class Probe(Block):
 class Model(Block):
     """The stochastic spline and its prior."""
 
-    knots_x: int | list[float] | None = Field(None, description="count or positions (mm); "
+    knots_x: int | list[float] | None = Field(None, description="count or positions (mm; the "
+                                               "first and last on the workplane's edges); "
                                                "default from Brunn eq. 15")
     knots_y: int | list[float] | None = Field(None, description="as knots_x, along y")
     ends: Literal["not_a_knot", "natural"] = Field(
