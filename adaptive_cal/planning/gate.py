@@ -13,7 +13,8 @@ The belief stays Gaussian: a fused reading gets the expected noise precision of 
 is fused with noise r / w. Below ``FLAG_P`` a reading is fused as the plain Gaussian update
 (w = 1, no flag); from ``FLAG_P`` on its p is written in the flags as ``outlier=0.12`` (two
 decimals, ``OUTLIER_FLAG``) and the fusion, replay and refits use that rounded p, so a
-recording reproduces every decision. A reading more likely an outlier than not, or beyond the
+recording reproduces every decision -- the gate's too: "p" below is the rounded p, so a reading
+at 0.495 <= p < 0.5 (written ``outlier=0.50``) is gated. A reading more likely an outlier than not, or beyond the
 Mahalanobis gate d = |y - h^T m| / sqrt(s) > g, is not fused but retaken:
 
 * no retake pending, d <= g and p < ``GATE_P``: fused (weight 1 - p);
