@@ -53,13 +53,17 @@ def _anchor(path: str) -> str:
     return re.sub(r"[^a-z0-9_ -]", "", path.lower()).replace(" ", "-")
 
 
-def reference() -> str:
-    out = ["# Cell file reference", "",
-           "Generated from the schema by `python -m adaptive_cal.cell.doc`; a test keeps it "
-           "current. Units: mm, s, deg, in the workplane frame. Unknown keys are refused, and "
-           "every error names the key and the value. `configs/sim-cell.yaml` is a complete "
-           "example.", ""]
-    for prefix, model, same_as in _models(Cell, "", {}):
+CELL_HEAD = ["# Cell file reference", "",
+             "Generated from the schema by `python -m adaptive_cal.cell.doc`; a test keeps it "
+             "current. Units: mm, s, deg, in the workplane frame. Unknown keys are refused, and "
+             "every error names the key and the value. `configs/sim-cell.yaml` is a complete "
+             "example.", ""]
+
+
+def reference(model: type[BaseModel] = Cell, head: list[str] = CELL_HEAD) -> str:
+    """The markdown reference of ``model``'s keys, block by block, under ``head``."""
+    out = list(head)
+    for prefix, model, same_as in _models(model, "", {}):
         if same_as is not None:
             out += [f"## `{prefix}`", "", f"The same keys as [`{same_as}`](#{_anchor(same_as)}): "
                     f"{_intro(model)}", ""]

@@ -37,9 +37,13 @@ class PlateDistribution(Strict):
 
     tilt_deg: float = Field(1.0, ge=0, description="tilt about each axis uniform in +-tilt_deg")
     offset_mm: float = Field(0.2, ge=0, description="height at the centre uniform in +-offset_mm")
-    form_pv_mm: Span = (0.02, 0.3)
-    form_shapes: list[Literal["bow_x", "bow_y", "twist", "warp"]] = list(SHAPES)
-    noise_std_mm: Span = (0.005, 0.02)
+    form_pv_mm: Span = Field((0.02, 0.3), description="the form's peak to valley, uniform in "
+                             "[lo, hi] (lo = hi: fixed)")
+    form_shapes: list[Literal["bow_x", "bow_y", "twist", "warp"]] = Field(
+        list(SHAPES), description="the form: these shapes with random weights, scaled to its "
+        "peak to valley")
+    noise_std_mm: Span = Field((0.005, 0.02), description="reading noise (1 sigma), uniform in "
+                               "[lo, hi] per plate (lo = hi: fixed)")
     repeatability_mm: float = Field(0.0, ge=0, le=1.0, description="robot z repeatability (1 "
                                     "sigma)")
     noise_range_known: bool = Field(True, description="tell the planner the span of the reading "
@@ -73,7 +77,7 @@ class Bound(Strict):
     mean_std_mm: float = Field(0.005, gt=0, description="stop at this RMS posterior std")
     true_rms_mm: float | None = Field(None, gt=0, description="bound on the TRUE RMS error; "
                                       "default: mean_std_mm")
-    max_touches: int = Field(200, ge=1, le=100_000)
+    max_touches: int = Field(200, ge=1, le=100_000, description="touch budget of each run")
 
     @property
     def true_mm(self) -> float:
@@ -84,19 +88,19 @@ class Paper(Strict):
     """The reference procedure (Cheng, Chang & Weng 2025): 5-point levelling, then rounds of the
     10 x 4 S-shaped path until the levelling check passes."""
 
-    nx: int = Field(10, ge=2)
-    ny: int = Field(4, ge=2)
+    nx: int = Field(10, ge=2, description="points of the S path along x")
+    ny: int = Field(4, ge=2, description="rows of the S path along y")
     level_tolerance_mm: float = Field(0.02, gt=0, description="stop when the tilt of the round's "
                                       "least-squares plane changes the height by at most this "
                                       "across the plate")
-    max_rounds: int = Field(3, ge=1)
+    max_rounds: int = Field(3, ge=1, description="rounds of the S path at most")
 
 
 class LowerBound(Strict):
     """Lower bound on touches: relaxed optimal design; exhaustive integer search if small."""
 
     plates: int = Field(20, ge=0, description="computed on the first N plates")
-    candidates: int = Field(1000, ge=16)
+    candidates: int = Field(1000, ge=16, description="candidate points of the design")
     exhaustive_limit: int = Field(200000, ge=0, description="largest number of designs "
                                   "enumerated by the exhaustive search")
 
@@ -104,21 +108,22 @@ class LowerBound(Strict):
 class Study(Strict):
     """A whole study file."""
 
-    name: str = "study"
+    name: str = Field("study", description="a label in the outputs")
     seed: int = Field(0, ge=0, description="seed of every plate's draws")
-    plates: int = Field(ge=1)
+    plates: int = Field(ge=1, description="plates drawn (or maps taken), each run by every "
+                        "strategy")
     cell: str | dict = Field("sim-cell.yaml", description="cell file (relative to the study "
                              "file) or an inline cell mapping")
     plate: PlateDistribution = PlateDistribution()
     bound: Bound = Bound()
-    strategies: list[Literal["adaptive", "greedy_fixed", "paper", "grid", "random"]] = \
-        list(STRATEGIES)
+    strategies: list[Literal["adaptive", "greedy_fixed", "paper", "grid", "random"]] = Field(
+        list(STRATEGIES), description="what runs on each plate (docs/study.md)")
     estimator: Literal["learned", "fixed"] = Field(
         "learned", description="paper/grid/random: fit hyper-parameters like the adaptive "
         "planner (learned), or keep the cell's (fixed; vectorised over plates with jax.vmap)")
     paper: Paper = Paper()
     lower_bound: LowerBound = LowerBound()
-    example_plate: int = Field(0, ge=0)
+    example_plate: int = Field(0, ge=0, description="the plate drawn in the figures")
 
     @field_validator("strategies")
     @classmethod

@@ -64,7 +64,10 @@ touches), `table.md`; per-plate records in `{out_dir}/plates.jsonl`.
 
 ## Running studies
 
-* `--workers N` runs on a Dask LocalCluster of N processes; `--scheduler tcp://host:port` on a
+Every key of a study file, with its default and meaning: [study-config.md](study-config.md)
+(generated from the schema).
+
+* `--workers N` runs on a Dask LocalCluster of N processes (Dask is an extra: `pip install -e ".[dask]"`); `--scheduler tcp://host:port` on a
   running cluster (start workers with `OPENBLAS_NUM_THREADS=1`). An unreachable scheduler fails
   within seconds naming the address.
 * Each finished plate is appended to `plates.jsonl` at once (with its `simulation` block: the
