@@ -118,7 +118,7 @@ def test_survey_grid_ask_from_and_tell_refuse_what_cannot_be_meant_and_grid_band
     for n in (-5, 2.5, 1, True):
         with pytest.raises(ValueError, match=f"n = {n!r}: a grid needs"):
             survey.grid(n)
-    for bad in ("ab", (1.0,), (float("nan"), 0.0)):
+    for bad in ("ab", (1.0,), (float("nan"), 0.0), (1e6, 1e6)):  # 1 km away: an audit
         with pytest.raises(ValueError, match="from_xy = "):
             survey.ask(1, from_xy=bad)
     t = survey.ask(1, from_xy=(0, 0))[0]

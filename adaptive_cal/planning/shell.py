@@ -172,4 +172,9 @@ def _point(xy, name: str) -> tuple[float, float]:
         raise ValueError(f"{name} = {xy!r}: give (x_mm, y_mm), two numbers") from None
     if not (math.isfinite(x) and math.isfinite(y)):
         raise ValueError(f"{name} = {xy!r}: not finite")
+    from adaptive_cal.formats.recording import MAX_ABS_POSITION_MM as far
+
+    if max(abs(x), abs(y)) > far:  # an audit: (1e6, 1e6) mm planned a tour from 1 km away
+        raise ValueError(f"{name} = {xy!r}: beyond +-{far:g} mm of the workplane's origin, "
+                         "where no robot cell's probe stands (um, or another frame?)")
     return x, y
