@@ -49,6 +49,18 @@ def test_extraction_skips_setup_and_keeps_the_rest():
 
 
 @pytest.mark.parametrize("doc", DOCS)
+def test_every_command_parses_as_the_shell_reads_it(doc):
+    # CI 2026-12-01: docs/compensate.md's trailing "# the quick start's run" broke a plain
+    # shlex.split (an apostrophe inside a comment); the shell drops the comment, and so does this
+    path = ROOT / doc
+    if not path.exists():
+        pytest.skip(f"{doc} not written yet")
+    for cmd in commands(path.read_text(encoding="utf-8")):
+        argv = shlex.split(cmd, comments=True)
+        assert argv and "#" not in argv, f"{doc}: `{cmd}` read as {argv}"
+
+
+@pytest.mark.parametrize("doc", DOCS)
 def test_docs_hold_commands(doc):
     path = ROOT / doc
     if not path.exists():
@@ -85,7 +97,7 @@ def test_every_command_runs(doc, tmp_path):
     background = []
     try:
         for cmd in commands(path.read_text(encoding="utf-8")):
-            argv = shlex.split(cmd)
+            argv = shlex.split(cmd, comments=True)  # as the shell reads it: '# the quick start's run'
             if argv[:2] == ["adaptive-cal", "emulate"] and "&&" not in cmd:
                 proc = subprocess.Popen(argv, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL,
                                         stderr=subprocess.PIPE, text=True)
