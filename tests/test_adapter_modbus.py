@@ -250,8 +250,11 @@ class JobMirrorPlc:
 
 def test_a_plc_that_mirrors_the_robots_done_is_refused_before_start():
     pytest.importorskip("modbus_tk")
-    plc = JobMirrorPlc()
-    link = ModbusLink(config(port=plc.port, watchdog_s=5.0))
+    plc = JobMirrorPlc()  # it writes no actual_x/y/z: mapped, they would read 0
+    regs = CELL.robot.modbus.registers.model_copy(
+        update={"actual_x": None, "actual_y": None, "actual_z": None})
+    link = ModbusLink(config(port=plc.port, watchdog_s=5.0, registers=regs,
+                             parked_at_safe_height=True))
     try:
         motion = ModbusMotion(link)
         motion.move_to(10.0, 20.0, 15.0)

@@ -32,6 +32,14 @@ def config(**kw):
     return CELL.robot.modbus.model_copy(update=kw)
 
 
+def peer_config(**kw):
+    """The peer PLC below writes no actual_x/y/z (an unmapped register reads 0, a position that
+    is not one): its map leaves them out and states the robot starts parked at the safe height."""
+    regs = CELL.robot.modbus.registers.model_copy(
+        update={"actual_x": None, "actual_y": None, "actual_z": None})
+    return config(registers=regs, parked_at_safe_height=True, **kw)
+
+
 def int32_words(v: int) -> list[int]:  # low word first (word_order little)
     lo, hi = struct.unpack("<HH", struct.pack("<i", v))
     return [lo, hi]
@@ -122,7 +130,7 @@ class TkPlc:
 
 def test_adapter_runs_a_survey_handshake_against_a_modbus_tk_plc():
     plc = TkPlc()
-    link = ModbusLink(config(port=plc.port))
+    link = ModbusLink(peer_config(port=plc.port))
     try:
         motion, probe = ModbusMotion(link), ModbusProbe(link)
         points = [(-200, -150), (200, -150), (0, 0), (-200, 150), (200, 150), (50, -80)]
@@ -176,7 +184,7 @@ def test_samples_reach_an_edge_detecting_plc_that_scans_slower_than_the_pc_write
     been left set, and every later sample was stale. The PC now holds the trigger off for
     scan_s (here 0.04 s, longer than the PLC's scan) before it sets it."""
     plc = EdgeTkPlc(scan_s, miss=1)
-    link = ModbusLink(config(port=plc.port, scan_s=0.04, probe_timeout_s=0.5))
+    link = ModbusLink(peer_config(port=plc.port, scan_s=0.04, probe_timeout_s=0.5))
     try:
         motion, probe = ModbusMotion(link), ModbusProbe(link)
         motion.move_to(100.0, -50.0, 0.0)

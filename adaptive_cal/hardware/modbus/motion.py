@@ -29,6 +29,9 @@ class ModbusMotion:
         self.link, self.pose = link, (math.nan, math.nan, math.nan)
         self.started = False  # no move started yet on this connection
         self.unfinished: str | None = None  # how the last move ended, where not in its done
+        # a new connection's first done may end a move an earlier one left running (a Ctrl-C,
+        # then --resume): believed, as after an unfinished move, only where actual_x/y/z agree
+        self.first_done_checked = "actual_x" not in link.map
 
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
         k = self.link
@@ -50,9 +53,10 @@ class ModbusMotion:
                 k.check_fault()
                 if k.read_bit("done"):
                     k.write_bit("start", False)
-                    if self.unfinished:  # the stopped move's done, or this one's?
+                    if self.unfinished or not self.first_done_checked:  # a stopped move's?
                         self._check_arrived((x_mm, y_mm, z_mm))
                     self.pose, self.unfinished = (x_mm, y_mm, z_mm), None
+                    self.first_done_checked = True
                     return
                 if k.clock() - start >= k.cfg.move_timeout_s:
                     raise AdapterError(
@@ -80,21 +84,26 @@ class ModbusMotion:
             "PC check where the robot stands itself: hw/plc-register-map.md)")
 
     def _check_arrived(self, target, tol_mm: float = 1.0) -> None:
-        """After a move that ended without done, the next done is believed only where the PLC's
-        actual_x/y/z put the robot at the target (within ``tol_mm``), read ``ACTUAL_SETTLE_S``
-        after it: the job writes where it stands only while it waits for start (every 0.1 s,
-        hw/ACAL_TOUCH.JBI), so right at the done they can still hold where the stopped move
-        began -- an audit's peer PLC read the safe height there with the tip down."""
+        """After a move that ended without done, and on a connection's first move, the next
+        done is believed only where the PLC's actual_x/y/z put the robot at the target (within
+        ``tol_mm``), read ``ACTUAL_SETTLE_S`` after it: the job writes where it stands only while
+        it waits for start (every 0.1 s, hw/ACAL_TOUCH.JBI), so right at the done they can still
+        hold where the stopped move began -- an audit's peer PLC read the safe height there with
+        the tip down. A first move's done can be the end of a move an earlier connection left
+        running (a Ctrl-C, then --resume): the job ignores a start while it moves."""
         k = self.link
         self.pose = (math.nan,) * 3
         k.sleep(max(ACTUAL_SETTLE_S, 3 * k.cfg.scan_s))
         here = self.position()
         if not all(abs(a - b) <= tol_mm for a, b in zip(here, target)):
+            whose = (f"the stopped move's done ({self.unfinished})" if self.unfinished else
+                     "the done of a move the job was still in when this connection began (an "
+                     "earlier run stopped during a move?); this move's start went unseen")
             raise AdapterError(
                 f"{k.where}: 'done' ({k.map['done'].name}) came, but actual_x/y/z put the robot "
                 f"at {tuple(round(v, 3) for v in here)} mm, not at the target "
-                f"{tuple(round(v, 3) for v in target)} mm: it was the stopped move's done "
-                f"({self.unfinished}). See where the robot stands before continuing")
+                f"{tuple(round(v, 3) for v in target)} mm: it was {whose}. See where the robot "
+                "stands before continuing")
 
     def _write_target(self, xyz: tuple[float, float, float]) -> None:
         """Write the three target registers, then read them back: each must hold the very words

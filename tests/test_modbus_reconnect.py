@@ -1,0 +1,63 @@
+"""A new connection (a --resume, a second run) after a run that stopped mid-move: the robot job
+may still be in that move, and the PLC latches its 'done' when it ends; the first wait of the
+new connection must not take it for its own (an outside audit, 2026-12-01: a Ctrl-C during a
+move to (100, 0, 15), then --resume: the first move returned at once, the approach that
+followed descended diagonally from where the old move ended)."""
+import time
+
+import pytest
+
+from adaptive_cal.cell.schema import load_cell
+from adaptive_cal.hardware.base import AdapterError
+from adaptive_cal.hardware.modbus.adapter import ModbusLink, ModbusMotion
+from adaptive_cal.simulation.emulator.plc import PlcServer
+from adaptive_cal.simulation.emulator.robot import EmulatedRobot
+from tests.conftest import ROOT
+
+CELL = load_cell(ROOT / "configs" / "cell-modbus-emulated.yaml")
+
+
+def config(**kw):
+    kw = {"timeout_s": 0.3, "retries": 0, "poll_s": 0.002, "move_timeout_s": 0.3,
+          "probe_timeout_s": 0.3, "watchdog_s": 5.0, **kw}
+    return CELL.robot.modbus.model_copy(update=kw)
+
+
+def test_the_first_done_of_a_new_connection_is_checked_against_where_the_robot_is():
+    cfg = config()
+    robot = EmulatedRobot.from_cell(CELL, move_s=0.01)
+    server = PlcServer(robot, cfg, port=0).start()
+    cfg = cfg.model_copy(update={"port": server.port})
+    try:
+        first = ModbusMotion(ModbusLink(cfg))
+        first.move_to(0.0, 0.0, 15.0)
+        robot.move_s = 1.0  # the next move outlasts move_timeout_s: the run stops in it
+        with pytest.raises(AdapterError, match="no 'done'"):
+            first.move_to(100.0, 0.0, 15.0)
+        first.close()
+        robot.move_s = 0.01
+        second = ModbusMotion(ModbusLink(cfg.model_copy(update={"move_timeout_s": 3.0})))  # --resume: a new connection, a new object
+        with pytest.raises(AdapterError) as e:
+            second.move_to(0.0, 0.0, 15.0)  # the lift above where actual_x/y/z said it stood
+        assert "not at the target" in str(e.value), str(e.value)
+        time.sleep(0.2)
+        assert robot.pose() == pytest.approx((100.0, 0.0, 15.0))  # where the old move ended
+        second.close()
+    finally:
+        server.close()
+
+
+def test_a_plain_first_move_of_a_new_connection_still_goes():
+    cfg = config()
+    robot = EmulatedRobot.from_cell(CELL, move_s=0.01)
+    server = PlcServer(robot, cfg, port=0).start()
+    cfg = cfg.model_copy(update={"port": server.port})
+    try:
+        for target in [(10.0, 20.0, 15.0), (-40.0, 5.0, 15.0)]:  # two runs, one after another
+            motion = ModbusMotion(ModbusLink(cfg))
+            motion.move_to(*target)
+            assert motion.position() == pytest.approx(target)
+            assert robot.pose() == pytest.approx(target)
+            motion.close()
+    finally:
+        server.close()
