@@ -64,10 +64,28 @@ def test_no_answer_ends_in_a_clear_error_quickly(controller):
 
 def test_alarm_during_move_reset_once_then_succeeds(controller):
     m = connect(controller, reset_alarms=True)
+    m.move_to(0.0, 0.0, 5.0)
     controller.faults.alarm_on_move = 1
-    m.move_to(5.0, 5.0, 5.0)
+    m.move_to(5.0, 5.0, 5.0)  # a level move (a travel at the safe height)
     assert controller.robot.pose() == pytest.approx((5.0, 5.0, 5.0)) and not controller.robot.alarm
     assert any(r.command == P.CMD_ALARM_RESET for r in controller.requests)
+    m.close()
+
+
+@pytest.mark.parametrize("fault", ["alarm_on_move", "error_on_move"])
+def test_an_alarm_during_a_descent_is_never_reset_or_the_move_sent_again(controller, fault):
+    """An outside audit (2026-12-01): with reset_alarms an alarm during an approach (a
+    collision with the plate or a fixture) was reset and the same move sent again, into
+    whatever stopped it."""
+    m = connect(controller, reset_alarms=True)
+    m.move_to(5.0, 5.0, 15.0)
+    setattr(controller.faults, fault, 1)
+    n = len(controller.requests)
+    with pytest.raises(HsesError, match="not reset: it came while the robot moved down"):
+        m.move_to(5.0, 5.0, 0.0)
+    after = requests_after(controller, n)
+    assert sum(c == (P.CMD_MOVE, 2) for c in after) == 1
+    assert not [c for c in after if c[0] == P.CMD_ALARM_RESET]
     m.close()
 
 
@@ -190,6 +208,7 @@ def test_servo_off_during_a_move_is_not_switched_on_again(controller):
 
 def test_an_error_is_cancelled_with_instance_2_an_alarm_reset_with_instance_1(controller):
     m = connect(controller, reset_alarms=True)
+    m.move_to(0.0, 0.0, 5.0)
     controller.faults.error_on_move = 1
     n = len(controller.requests)
     m.move_to(5.0, 5.0, 5.0)

@@ -208,9 +208,8 @@ class HsesMotion:
                                  user_frame=c.user_frame if c.frame == "user" else 0,
                                  form=self.form, expanded_form=self.expanded_form)
         before, self.pose = self.pose, None  # unknown while moving: ask the controller
-        reset = c.reset_alarms
-        # busy (0x2010: an earlier move still running, e.g. one whose wait a Ctrl-C cut short)
-        # clears by itself: wait for it as long as a move may take
+        reset, sent = c.reset_alarms, False
+        # busy (0x2010: an earlier move still running) clears by itself: wait as long as a move
         deadline = self.clock() + c.move_timeout_s
         while True:
             try:
@@ -226,6 +225,7 @@ class HsesMotion:
                         self.pose = (x_mm, y_mm, z_mm)
                         return
                     raise self._refusal(e) from None
+                sent = True  # an alarm from here on came while the robot moved
                 self._wait(target, before)
                 self.pose = (x_mm, y_mm, z_mm)
                 return
@@ -236,13 +236,18 @@ class HsesMotion:
                 if e.added in P.RETRYABLE:
                     break
                 if reset and (e.alarm or e.error):
-                    reset = False  # one reset per move; a second alarm stops the run
+                    if sent and not self._rises(target, before):
+                        raise HsesError(  # a collision? the same move would drive into it
+                            f"{e} -- not reset: it came while the robot moved down or from "
+                            "where it is not known (reset_alarms never resets one during a "
+                            "descent: it may be a collision)", e.status, e.added) from None
+                    reset, sent = False, False  # one reset per move; a second alarm stops
                     self._reset(e)
                     continue
                 raise
         raise AdapterError(f"{self.where}: the robot stayed busy (added status 0x2010) for "
-                           f"move_timeout_s = {c.move_timeout_s:g} s; the "
-                           f"move to ({x_mm:.3f}, {y_mm:.3f}, {z_mm:.3f}) was not sent")
+                           f"move_timeout_s = {c.move_timeout_s:g} s; the move to ({x_mm:.3f}, "
+                           f"{y_mm:.3f}, {z_mm:.3f}) was not sent")
 
     def _refusal(self, e: HsesError) -> HsesError:
         """A refused move, with alarm/error read from the status when the code is 0x2060 or the
@@ -257,6 +262,17 @@ class HsesMotion:
         if e.added == 0x2060:  # the bits cleared in between: take the code's word for it
             return HsesError(str(e), e.status, e.added, alarm=True)
         return e
+
+    def _rises(self, target, before) -> bool:
+        """Whether a move to ``target`` (frame of the moves) does not descend from the last
+        pose reached, else from where the controller reports; False where neither is known."""
+        if before is not None:
+            start_z = before[2] + self.cfg.offset_mm[2]
+        elif self.cfg.can_locate:
+            start_z = self.from_base(self.robot_position())[2]
+        else:
+            return False
+        return target[2] >= start_z - 0.01
 
     def _reset(self, e: HsesError) -> None:
         """Reset a genuine alarm (0x82 instance 1) and/or cancel an error (instance 2); servo

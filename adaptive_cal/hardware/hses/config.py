@@ -74,7 +74,9 @@ class HsesConfig(Strict):
             raise ValueError(f"form {v}: 'current' or a type word 0-255")
         return v
     offset_mm: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="workplane origin in the robot frame")
+        (0.0, 0.0, 0.0), description="workplane origin in the frame of the moves (the user "
+        "frame user_frame with frame user, the default; the base frame with frame base), "
+        "added to every target")
     user_frame_in_base: UserFrameInBase | None = Field(
         None, description="the user frame's origin_mm and rotation_deg in the base frame, as the "
         "pendant shows them; needed by check_position with frame user, because the position "
@@ -100,8 +102,9 @@ class HsesConfig(Strict):
                                    "status data 2 to show it before the run stops")
     poll_s: float = Field(0.02, gt=0, description="status polling period during a move")
     reset_alarms: bool = Field(False, description="once per move, reset a controller alarm "
-                               "(0x82 instance 1) or cancel an error (instance 2) and retry; a "
-                               "hold or servo power off is never reset: it stops the run")
+                               "(0x82 instance 1) or cancel an error (instance 2) and retry; "
+                               "never one during a move down (a collision?), a hold or servo "
+                               "power off: those stop the run")
 
     @field_validator("host")
     @classmethod
