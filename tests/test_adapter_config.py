@@ -254,3 +254,30 @@ def test_blocks_built_in_python_refuse_nan_and_inf(block, kwargs, field):
                if n.lower() == f"{block}config")
     with pytest.raises(ValidationError, match=rf"(?s){field}\n.*finite number"):
         cls(**kwargs)
+
+
+def test_a_modicon_style_raw_address_is_warned_about_before_anything_moves(tmp_path, capsys):
+    """An outside audit (2026-12-01): hr:40101 was taken silently as protocol address 40101;
+    Modicon's 40101 is holding register 101, protocol address 100 (Modbus Application
+    Protocol s.4.4: counted from 0)."""
+    import yaml
+
+    from adaptive_cal.cell.consistency import doubts, modicon_doubt
+    from adaptive_cal.cell.schema import load_yaml, parse_cell
+    from adaptive_cal.cli import main
+
+    assert modicon_doubt("hr:40101").endswith("write hr:100")
+    assert modicon_doubt("ir:30005").endswith("write ir:4")
+    assert modicon_doubt("di:10001").endswith("write di:0")
+    for fine in ("hr:100", "hr:4196", "hr:0x1064", "hr:30005", "coil:2058", "D100", "hr:40000"):
+        assert modicon_doubt(fine) is None, fine
+    data = load_yaml(ROOT / "configs" / "cell-modbus-emulated.yaml")
+    data["robot"]["modbus"]["registers"]["watchdog"] = "hr:40121"
+    cell = parse_cell(data)
+    said = doubts(cell)
+    assert len(said) == 1 and said[0].startswith("robot.modbus.registers.watchdog: hr:40121 reads "
+                                                 "like a Modicon reference"), said
+    f = tmp_path / "cell.yaml"
+    f.write_text(yaml.safe_dump(data))
+    assert main(["run", "--robot", str(f), "--dry-run"]) == 0
+    assert "warning: robot.modbus.registers.watchdog: hr:40121" in capsys.readouterr().err

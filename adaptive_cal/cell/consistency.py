@@ -108,7 +108,34 @@ def doubts(cell) -> list[str]:
             out.append(f"plan.stop.{key}: {value:g} mm is {value / span:.0%} of the probe's usable "
                        f"stroke ({span:g} mm): the run stops once the map is known to that -- "
                        f"um given as mm? ({value:g} um is {value / 1000:g})")
+    seen = []
+    for part in ("robot", "probe"):
+        m = getattr(getattr(cell, part), "modbus", None)
+        if m is not None and getattr(cell, part).adapter == "modbus" and m not in seen:
+            seen.append(m)  # the probe on the robot's own PLC: said once
+            out += [f"{part}.modbus.registers.{role}: {line}"
+                    for role, name in m.registers.roles().items()
+                    if (line := modicon_doubt(name))]
     return out
+
+
+MODICON = {"coil": 0, "di": 1, "ir": 3, "hr": 4}  # a Modicon reference's leading digit
+TABLE_NAMES = {"di": "discrete input", "ir": "input register", "hr": "holding register"}
+
+
+def modicon_doubt(name: str) -> str | None:
+    """A raw ``hr:40101`` (``ir:3..``, ``di:1..``, ``coil:0..`` can't tell) reads like a
+    Modicon reference, counted from 1 with the table as its first digit; ``hr:N`` is the
+    protocol address, counted from 0, and is sent as given."""
+    table, _, n = str(name).strip().lower().partition(":")
+    if table not in ("di", "ir", "hr") or not n.isdigit() or len(n) != 5:
+        return None
+    if int(n[0]) != MODICON[table] or int(n[1:]) == 0:
+        return None
+    return (f"{name} reads like a Modicon reference ({MODICON[table]}xxxx, counted from 1); "
+            f"{table}:N is the protocol address, counted from 0, and {int(n)} is sent as "
+            f"given. If your PLC's table means {TABLE_NAMES[table]} {int(n[1:])}, write "
+            f"{table}:{int(n[1:]) - 1}")
 
 
 def no_admissible_point(cell, plan) -> str:

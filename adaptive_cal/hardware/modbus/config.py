@@ -12,7 +12,8 @@ from adaptive_cal.hardware.modbus.registers import check_map
 
 class ModbusRegisters(Strict):
     """Where the handshake lives in the PLC. Names: Delta D/M/X/Y (X, Y octal), DOP HMI $n/$Mn,
-    or raw ``hr:N`` (holding register), ``coil:N``, ``di:N`` (discrete input)."""
+    or raw ``hr:N`` (holding register), ``coil:N``, ``di:N`` (discrete input), ``ir:N`` (input
+    register): N is the protocol address, counted from 0 (hr:100 is Modicon's 40101)."""
 
     start: str = Field("M10", description="PC sets: go to the target")
     done: str = Field("M11", description="PLC sets: target reached")

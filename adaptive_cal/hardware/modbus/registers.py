@@ -6,7 +6,8 @@ Delta DOP HMI as a slave (manual 2007PDD23000007): ``$n`` is holding register n 
 ``$Mn`` is holding register 2000+n ($M0-$M1023 = W42001-W43024): a flag kept in a whole word,
 written 1 / 0 and read as set when non-zero. D4096 and up are refused: their Modbus address
 differs between DVP models (see docs/adapters/modbus.md); use ``hr:N`` from your PLC's table.
-Raw names: ``hr:N``, ``coil:N``, ``di:N``, ``ir:N`` (decimal or 0x hex).
+Raw names: ``hr:N``, ``coil:N``, ``di:N``, ``ir:N`` (decimal or 0x hex): N is the protocol
+address, counted from 0 (Modicon's 40101 is hr:100; cell.consistency warns about hr:4xxxx).
 """
 from __future__ import annotations
 
