@@ -658,8 +658,8 @@ def test_a_keep_out_over_the_plates_centre_is_named_when_no_first_touch_fits(tmp
     f.write_text(yaml.safe_dump(data))
     assert main(["run", "--robot", str(f), "--dry-run"]) == 2
     err = capsys.readouterr().err
-    assert "workplane.keep_outs[0] (x_mm [-100.0, 100.0], y_mm [-75.0, 75.0]) covers the " \
-           "plate's centre" in err
+    assert "workplane.keep_outs[0] (x_mm [-100.0, 100.0], y_mm [-75.0, 75.0]) covers the point " \
+           "whose height the prior knows (0, 0) mm" in err
 
 
 def test_the_map_under_a_keep_out_is_said_to_be_untouched_with_its_band(tmp_path):

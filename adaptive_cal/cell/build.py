@@ -64,6 +64,20 @@ def knots_for(cell: Cell) -> tuple[np.ndarray, np.ndarray]:
     return out[0], out[1]
 
 
+def pivot(cell: Cell) -> tuple[float, float]:
+    """Where the prior knows the plate's height to model.offset_std_mm: model.pivot_mm, else
+    the frame's origin where it lies on the workplane (a frame taught with its origin at a
+    corner of the plate: an audit's 1 deg plate on x 0..600 mm stood 7 mm high at the centre,
+    beyond the stroke, and the first touch there stopped the run), else the workplane's centre
+    (the origin of a frame centred on the plate is both)."""
+    wp, given = cell.workplane, cell.model.pivot_mm
+    if given is not None:
+        return float(given[0]), float(given[1])
+    if wp.x_mm[0] <= 0.0 <= wp.x_mm[1] and wp.y_mm[0] <= 0.0 <= wp.y_mm[1]:
+        return 0.0, 0.0
+    return 0.5 * (wp.x_mm[0] + wp.x_mm[1]), 0.5 * (wp.y_mm[0] + wp.y_mm[1])
+
+
 def prior_model(cell: Cell) -> PriorModel:
     """The spline over the workplane and its prior (tilt + form, the reading noise's prior)."""
     wp, m = cell.workplane, cell.model
@@ -76,7 +90,7 @@ def prior_model(cell: Cell) -> PriorModel:
         log_std = log_std[:2] + (noise_log_std,)
     span_mm = cell.probe.noise_range_mm
     return PriorModel(surface, float(np.tan(np.radians(m.tilt_std_deg))), m.offset_std_mm,
-                      (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm)), hyper0, log_std,
+                      pivot(cell), hyper0, log_std,
                       noise_span_mm=tuple(map(float, span_mm)) if span_mm else None,
                       kernels=tuple(dict.fromkeys(m.form_kernels)))
 

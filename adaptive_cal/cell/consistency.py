@@ -153,13 +153,13 @@ def no_admissible_point(cell, plan) -> str:
     cx, cy = plan.model.centre_mm
     over = [f"workplane.keep_outs[{i}] (x_mm {list(k.x_mm)}, y_mm {list(k.y_mm)})"
             for i, k in enumerate(cell.workplane.keep_outs) if k.contains(cx, cy)]
-    where = (f"{' and '.join(over)} covers the plate's centre ({cx:g}, {cy:g}) mm, where the first "
-             "touches must be while the tilt is unknown: make it smaller (the clamp's own "
-             "footprint and its clearance), or level the plate first so the prior allows "
-             "touches farther out" if over else
+    where = (f"{' and '.join(over)} covers the point whose height the prior knows "
+             f"({cx:g}, {cy:g}) mm (model.pivot_mm), where the first touches must be while the "
+             "tilt is unknown: make it smaller (the clamp's own footprint and its clearance), "
+             "or level the plate first so the prior allows touches farther out" if over else
              "the prior is too wide for the stroke (level the plate first, or narrow "
              "model.offset_std_mm / tilt_std_deg), or the keep-outs and the edge margin leave "
-             "no point near the plate's centre, where the first touches must be while the "
-             "tilt is unknown")
+             f"no point near ({cx:g}, {cy:g}) mm, where the prior knows the plate's height "
+             "(model.pivot_mm) and the first touches must be while the tilt is unknown")
     return (f"no allowed point can be promised to land inside the usable probe stroke "
             f"{[lo, hi]} mm: {where}")

@@ -15,6 +15,7 @@ from adaptive_cal.cell.schema import Cell
 def _type(annotation) -> str:
     text = str(annotation).replace("typing.", "").replace("NoneType", "None")
     text = re.sub(r"adaptive_cal(\.\w+)*\.(?=[A-Z])", "", text)  # a class's module path
+    text = re.sub(r"Annotated\[(\w+), FieldInfo\(.*?\]\)\]", r"\1", text)  # bounds: in the text
     for wrapper in ("<class '", "'>"):
         text = text.replace(wrapper, "")
     return text.replace("|", "&#124;")

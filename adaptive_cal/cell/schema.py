@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -174,6 +174,9 @@ class Probe(Block):
         return math.sqrt(lo * hi), math.log(hi / lo) / (2 * Z95)
 
 
+Within10m = Annotated[float, Field(ge=-10_000, le=10_000)]  # mm
+
+
 class Model(Block):
     """The stochastic spline and its prior."""
 
@@ -184,7 +187,11 @@ class Model(Block):
     ends: Literal["not_a_knot", "natural"] = Field(
         "not_a_knot", description="spline end conditions; not_a_knot reproduces a bow at the edge")
     tilt_std_deg: float = Field(1.0, gt=0, le=30, description="prior std of the tilt about x and y")
-    offset_std_mm: float = Field(0.5, gt=0, description="prior std of the height at the plate centre")
+    offset_std_mm: float = Field(0.5, gt=0, description="prior std of the height at pivot_mm")
+    pivot_mm: tuple[Within10m, Within10m] | None = Field(
+        None, description="where the plate's height is known to offset_std_mm, the tilt turning "
+        "about it: where the frame's z was set (a user frame taught on the plate: its origin). "
+        "Default: the frame's origin where it lies on the workplane, else the workplane's centre")
     form_std_mm: float = Field(0.05, gt=0, description="prior form amplitude (learned)")
     length_scale_mm: float | None = Field(
         None, gt=0, description="prior form length scale (learned); default half the shorter side")

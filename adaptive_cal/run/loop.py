@@ -180,6 +180,10 @@ class SurveyLoop:
         x, y = (float(v) for v in xy[i])
         first = next((k for k, p in enumerate(state.touched_xy_mm)
                       if math.hypot(p[0] - x, p[1] - y) < 1e-6), -1)
+        if first >= 0:  # the place as touched: the rows give it back with round-off, and an
+            # edge-margin touch's y = 10 came back 9.999999999999993, which the safety check
+            # refuses (an audit's corner-origin plate: the run stopped there)
+            x, y = (float(v) for v in state.touched_xy_mm[first])
         start = cl.start_cluster(state.fused_weights, xy, i)
         first_rows, first_mm = state.rows[start].copy(), state.heights_mm[start].copy()
         first_t = self.fused_t_s[i] if i < len(self.fused_t_s) else math.nan

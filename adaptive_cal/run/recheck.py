@@ -142,7 +142,8 @@ def load_prior(run_dir: Path, cell: Cell, correction: str | tuple[float, float] 
     d = cell.plan.drift_std_mm
     wp = cell.workplane
     half = 0.5 * math.hypot(wp.x_mm[1] - wp.x_mm[0], wp.y_mm[1] - wp.y_mm[0])
-    drift = type(model)(model.surface, d / half, d, model.centre_mm, hyper)
+    centre = (0.5 * sum(wp.x_mm), 0.5 * sum(wp.y_mm))  # the drift turns about the plate's middle
+    drift = type(model)(model.surface, d / half, d, centre, hyper)
     # the drift's form is smooth (squared exponential) whatever kernel the map's form took
     extra = drift.belief(Hyper(d / 4, hyper.length_scale_mm, hyper.noise_std_mm)).cov
     widened = {k: bl.widen(b, extra) for k, b in frames.items()}
