@@ -7,6 +7,8 @@ Each error names the keys and their values.
 """
 from __future__ import annotations
 
+import math
+
 
 def derived_box_mm(cell) -> tuple[tuple[float, float], tuple[float, float], tuple[float, float]]:
     """The workspace box (x, y, z in mm) of a simulated cell that gives none, derived from the
@@ -108,6 +110,16 @@ def doubts(cell) -> list[str]:
             out.append(f"plan.stop.{key}: {value:g} mm is {value / span:.0%} of the probe's usable "
                        f"stroke ({span:g} mm): the run stops once the map is known to that -- "
                        f"um given as mm? ({value:g} um is {value / 1000:g})")
+    probe = cell.probe
+    step_std = probe.resolution_mm / math.sqrt(12)  # the rounding to the readout step alone
+    stated = (("noise_range_mm", probe.noise_range_mm[0]) if probe.noise_range_mm else
+              ("noise_std_mm", probe.noise_std_mm))
+    if stated[1] < step_std:
+        out.append(f"probe.{stated[0]}: {stated[1] * 1e3:.3g} um of reading noise is below what "
+                   f"the readout step alone gives (probe.resolution_mm {probe.resolution_mm * 1e3:g}"
+                   f" um: {step_std * 1e3:.2g} um std): no reading is that precise, and the first "
+                   "readings would fix the map as if they were (state the probe's noise as its "
+                   "datasheet or a gauge study gives it)")
     seen = []
     for part in ("robot", "probe"):
         m = getattr(getattr(cell, part), "modbus", None)

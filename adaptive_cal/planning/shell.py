@@ -19,6 +19,7 @@ from adaptive_cal.gaussian import belief as bl
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.ask import Target, ask
+from adaptive_cal.planning.disagree import READINGS_DISAGREE, Disagreements
 from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.robust import check_touch
@@ -44,6 +45,8 @@ class Survey:
         self.history: list[Status] = [self.status()]
         self._same = (float("nan"), 0)  # the last reading told and how often in a row
         self._frozen = 0  # touches in a row rejected as a frozen readout
+        # retakes the gate rejected in a row at one place (``planning.disagree``)
+        self._disagree, self.disagreement = Disagreements(), ""
         self._asked: tuple | None = None  # (state, n, from_xy, targets): the last ask's answer
         self._mine = self.state  # the state the counters above and ``history`` belong to
 
@@ -53,6 +56,7 @@ class Survey:
         what-if tells of one reading, each undone, made the fourth tell 'frozen')."""
         if self.state is not self._mine:
             self._same, self._frozen, self._mine = (float("nan"), 0), 0, self.state
+            self._disagree, self.disagreement = Disagreements(), ""
             self.history[self.state.touches:] = [self.status()]
 
     def ask(self, n: int | None = None, *, from_xy=None) -> list[Target]:
@@ -96,8 +100,12 @@ class Survey:
                         y_mm=float(y_mm), z_mm=float(z_mm))
             self._frozen += 1
         else:
+            before = self.state  # what the readings held back were judged by
             self.state, told = sv.tell(self.plan, self.state, x_mm, y_mm, z_mm, reading_mm)
             self._frozen = 0
+            if self._disagree.see(told):
+                self.disagreement = self._disagree.text(self.plan, before)
+                warnings.warn(self.disagreement, UserWarning, stacklevel=2)
         self._same, self._mine = (reading, same), self.state
         self.history.append(self.status())
         return told
@@ -118,6 +126,8 @@ class Survey:
     def stop_reason(self) -> str | None:
         """Why the survey's stopping rule stops now, or None; ``readout_frozen`` after
         ``FROZEN_STOP`` touches in a row rejected as a frozen readout (``tell``);
+        ``readings_disagree`` after two retakes in a row at one place rejected by the gate
+        (``planning.disagree``; ``disagreement`` says what the readings there show);
         ``no_admissible_point`` where the rule would go on but ``ask()`` has no touch to offer
         (as the run's loop ends; the answer is kept, so the ``ask()`` after it is not redone) --
         e.g. heights told in place of readings put the plate millimetres off the probe's stroke
@@ -125,6 +135,8 @@ class Survey:
         self._adopt()
         if self._frozen >= FROZEN_STOP:
             return READOUT_FROZEN
+        if self.disagreement:
+            return READINGS_DISAGREE
         why = sv.stop_reason(self.plan, self.state)
         return NO_ADMISSIBLE_POINT if why is None and not self.ask() else why
 

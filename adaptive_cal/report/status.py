@@ -18,6 +18,9 @@ WHY = {
                         "whose approach would overrun it again)",
     "readout_frozen": "stopped: the probe read the very same value touch after touch (a "
                       "frozen readout)",
+    "readings_disagree": "stopped: two touches in a row at one place were held back by the "
+                         "gate and their retakes disagreed with them (the readings agree neither "
+                         "with the map nor with each other)",
     "prior_disagrees_with_readings": "stopped: the readings contradict the earlier belief "
                                      "(--prior-from) in the frame assumed",
     "drift": "stopped: the cell drifted during the run (the closure touch read the first place "
@@ -36,6 +39,10 @@ INSTEAD = {
                       "the PLC's register and handshake: the value must change with the tip), "
                       "then continue with --resume (the first few repeats were fused before they "
                       "were seen to repeat; those flagged frozen;rejected were not)",
+    "readings_disagree": "see the error: state the probe's noise where the readings are "
+                         "noisier than the map assumed (probe.noise_std_mm, noise_range_mm), or "
+                         "check that the plate, fixture and probe hold still, then map again in "
+                         "a new folder",
     "drift": "warm the cell up (run the robot over the plate for as long as the drift took) and "
              "map again in a new folder, or model the drift: adaptive-cal explain on the "
              "recording",

@@ -47,6 +47,7 @@ from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.ask import Target, ask, target as target_at
 from adaptive_cal.planning.clearance import plate_top_mm  # the travel's height over the plate
 from adaptive_cal.planning.gate import Told
+from adaptive_cal.planning.disagree import READINGS_DISAGREE, Disagreements
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.robust import InvalidReading
 from adaptive_cal.planning.shell import READOUT_FROZEN  # the stop for repeats (frozen_after)
@@ -114,6 +115,8 @@ class SurveyLoop:
         self.record, self.hooks, self.interrupt = record, tuple(hooks), interrupt
         self.invalid_in_a_row = 0
         self.rejected_in_a_row = 0
+        # retakes the gate rejected in a row at one place, and what they show once they stop it
+        self.disagree, self.disagreement = Disagreements(), ""
         # the time (s) of each fused reading, for the closure's elapsed time (resume: from the
         # recording; NaN where unknown)
         self.fused_t_s = (list(map(float, fused_t_s)) if fused_t_s is not None
@@ -142,6 +145,9 @@ class SurveyLoop:
                     return INVALID_READINGS
                 if self.rejected_in_a_row >= MAX_REJECTED:
                     return READOUT_FROZEN if "frozen" in step.rejected.flags else TOUCHES_REJECTED
+                if step.told is not None and self.disagree.see(step.told):
+                    self.disagreement = self.disagree.text(self.plan, self.state)
+                    return READINGS_DISAGREE
                 owed = waits_for_repeats(self.plan.stop, step.status)
                 if (step.invalid is not None or self.state.retake is not None or self.interrupt()
                         or owed or self.stop(self.state, step.status) or self._last_touch()):

@@ -31,6 +31,7 @@ from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.bar import _close_bar, _progress, _update
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock, write_json
+from adaptive_cal.planning.disagree import READINGS_DISAGREE
 from adaptive_cal.run.loop import (CLOSING, DRIFT, NO_ADMISSIBLE_POINT, TOUCHES_REJECTED, Row,
                                    Step, SurveyLoop)
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_HOLD, PRIOR_RECORD, PRIOR_SURPRISES,
@@ -45,6 +46,10 @@ RESULTS_SEED = 0  # the posterior samples behind result.json's intervals
 
 class NoAdmissiblePoint(AdapterError):
     """No allowed point can be promised to land inside the probe stroke."""
+
+
+class ReadingsDisagree(AdapterError):
+    """Retakes rejected in a row at one place (``planning.disagree``)."""
 
 
 @dataclass(frozen=True)
@@ -235,6 +240,8 @@ def _run(cell: Cell, paths: RunPaths, resume: bool, prior_from, correction_appli
             stopped = DRIFT if drifted else loop.run()
             if stopped == NO_ADMISSIBLE_POINT:
                 stopped, error = "interrupted", NoAdmissiblePoint(no_admissible_point(cell, plan))
+            elif stopped == READINGS_DISAGREE:
+                error = ReadingsDisagree(loop.disagreement)
         except (KeyboardInterrupt, OperatorStop):  # Ctrl-C, the manual adapter's q
             stopped = "interrupted"
         except AdapterError as e:  # a device stopped the run: report what was measured, then raise
