@@ -94,13 +94,12 @@ def start_survey(cell, *, prior=None, hyper=None):
     bound of 4 mm meant as 4 um) is warned about, as ``adaptive-cal run`` does."""
     import warnings
 
-    from adaptive_cal.cell.build import survey_plan
-    from adaptive_cal.cell.consistency import doubts
+    from adaptive_cal.cell.build import cell_doubts, survey_plan
     from adaptive_cal.cell.schema import as_cell
     from adaptive_cal.planning.shell import Survey
 
     cell = as_cell(cell)
-    for line in doubts(cell):
+    for line in cell_doubts(cell, informed_prior=prior is not None):
         warnings.warn(line, UserWarning, stacklevel=2)
     return Survey(survey_plan(cell, informed_prior=prior is not None), prior=prior, hyper=hyper)
 

@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from adaptive_cal.cell.consistency import check_knots, derived_box_mm
+from adaptive_cal.cell.consistency import check_knots, derived_box_mm, doubts
 from adaptive_cal.cell.files import ConfigError
 from adaptive_cal.cell.schema import Cell, Workspace
 from adaptive_cal.gaussian.prior import Hyper, PriorModel
@@ -153,6 +153,27 @@ def touch_floor(cell: Cell, coefficients: int, *, informed_prior: bool = False) 
     s = cell.plan.stop
     guard = cell.model.learn_hyper and not informed_prior and cell.probe.noise_range_mm is None
     return s.min_touches if s.min_touches is not None else (coefficients if guard else 0)
+
+
+def cell_doubts(cell: Cell, *, informed_prior: bool = False) -> list[str]:
+    """``consistency.doubts`` and the touch floor's: a floor the cell file left to its default
+    (the spline's coefficients, ``touch_floor``) above the touch budget -- no variance bound
+    could stop the run, which would spend its budget and end with no result (an audit: a 3 x
+    2 m plate's 256 coefficients against the default budget of 200, said only at the end). An
+    explicit plan.stop.min_touches above max_touches is refused at load."""
+    out = doubts(cell)
+    s = cell.plan.stop
+    if s.min_touches is None and (s.mean_std_mm is not None or s.max_std_mm is not None):
+        kx, ky = knots_for(cell)
+        floor = touch_floor(cell, len(kx) * len(ky), informed_prior=informed_prior)
+        if floor > s.max_touches:
+            out.append(f"plan.stop.max_touches: {s.max_touches} touches is below the touch floor "
+                       f"of {floor} (the spline's {len(kx)} x {len(ky)} coefficients, learned "
+                       "from scratch: plan.stop.min_touches' default), so no variance bound can "
+                       "stop the run and it will spend its budget and end with no result: raise "
+                       f"max_touches to {floor} or more, give fewer knots (model.knots_x/y), "
+                       "or state the probe's noise span (probe.noise_range_mm: no floor)")
+    return out
 
 
 def criterion(cell: Cell) -> str:

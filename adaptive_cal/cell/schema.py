@@ -230,8 +230,8 @@ class Stop(Block):
     min_touches: int | None = Field(
         None, ge=0, description="no variance bound stops the run before this many touches; "
         "default: the number of spline coefficients while hyper-parameters are learned from "
-        "scratch; 0 with probe.noise_range_mm, a prior from an earlier run (--prior-from) or "
-        "learn_hyper: false")
+        "scratch (warned about where above max_touches); 0 with probe.noise_range_mm, a prior "
+        "from an earlier run (--prior-from) or learn_hyper: false")
     max_gap_mm: float | None = Field(
         None, gt=0, description="no variance bound stops the run while a disc of this radius "
         "(mm) on the reachable plate holds no touch; the planner then touches the largest gap. "

@@ -71,7 +71,8 @@ def command(args) -> int:
         if not args.robot or not args.out:
             raise UserError("run needs --robot CELL.yaml and --out DIR (or --resume DIR)")
         out, cell_path = Path(args.out), Path(args.robot)
-    cell = _doubted(load_cell(cell_path))
+    informed = bool(args.prior_from) or (out / "prior_from.json").exists()  # a re-check's
+    cell = _doubted(load_cell(cell_path), informed_prior=informed)
     real = cell.robot.adapter not in ("sim", "manual") and not getattr(cell.robot, "emulated", False)
     if real and not args.yes:
         if not sys.stdin.isatty():
@@ -168,11 +169,11 @@ def command(args) -> int:
     return exit_status(result)  # 1 where the map is not a result: the summary said why
 
 
-def _doubted(cell):
-    """``cell``, its doubtful settings (``cell.consistency.doubts``) warned on stderr."""
-    from adaptive_cal.cell.consistency import doubts
+def _doubted(cell, informed_prior: bool = False):
+    """``cell``, its doubtful settings (``cell.build.cell_doubts``) warned on stderr."""
+    from adaptive_cal.cell.build import cell_doubts
 
-    for line in doubts(cell):
+    for line in cell_doubts(cell, informed_prior=informed_prior):
         print(f"warning: {line}", file=sys.stderr)
     return cell
 
