@@ -686,3 +686,17 @@ def test_the_map_under_a_keep_out_is_said_to_be_untouched_with_its_band(tmp_path
     assert k["std_rms_mm"] <= k["std_max_mm"]
     assert "keep_outs[0] (x -225..-150, y 110..185 mm) is never touched" in k["text"]
     assert f"rests on touches up to {corner:.0f} mm away" in k["text"]
+
+
+def test_too_few_candidates_are_named_when_no_first_touch_fits(tmp_path, capsys):
+    """An outside audit (2026-12-01): plan.candidates 16 (allowed by the schema) left no grid
+    point near the plate's centre, and the refusal blamed the prior and the keep-outs."""
+    import yaml
+    data = load_yaml(SIM_CELL)
+    data["plan"]["candidates"] = 16
+    f = tmp_path / "coarse.yaml"
+    f.write_text(yaml.safe_dump(data))
+    assert main(["run", "--robot", str(f), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert "among the 16 points of plan.candidates=16" in err and "give more candidates" in err
+    assert "keep-outs" not in err

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 
 def derived_box_mm(cell) -> tuple[tuple[float, float], tuple[float, float], tuple[float, float]]:
     """The workspace box (x, y, z in mm) of a simulated cell that gives none, derived from the
@@ -163,6 +165,15 @@ def no_admissible_point(cell, plan) -> str:
                 f"less the middle of probe.usable_mm {[lo, hi]}), outside that range: no touch "
                 "can be made. Widen workspace.z_mm to hold it")
     cx, cy = plan.model.centre_mm
+    dense = denser_grid_allows(plan)
+    if dense:  # an audit: 16 candidates on the reference plate; the prior and keep-outs blamed
+        n = len(plan.candidates.xy_mm)
+        return (f"no allowed point can be promised to land inside the usable probe stroke "
+                f"{[lo, hi]} mm among the {n} points of plan.candidates={cell.plan.candidates}: "
+                f"none lies near enough to ({cx:g}, {cy:g}) mm, where the prior knows the plate's "
+                f"height (model.pivot_mm) and the first touches must be while the tilt is "
+                f"unknown ({dense} points of a 10,000-point grid would do): give more "
+                "candidates (the default is 10000)")
     over = [f"workplane.keep_outs[{i}] (x_mm {list(k.x_mm)}, y_mm {list(k.y_mm)})"
             for i, k in enumerate(cell.workplane.keep_outs) if k.contains(cx, cy)]
     where = (f"{' and '.join(over)} covers the point whose height the prior knows "
@@ -175,3 +186,21 @@ def no_admissible_point(cell, plan) -> str:
              "(model.pivot_mm) and the first touches must be while the tilt is unknown")
     return (f"no allowed point can be promised to land inside the usable probe stroke "
             f"{[lo, hi]} mm: {where}")
+
+
+def denser_grid_allows(plan, count: int = 10_000) -> int:
+    """How many points of a ``count``-point candidate grid the prior would allow (inside the
+    usable stroke with the planner's certainty, approach height inside the workspace), where
+    the plan's own candidates allow none: more than 0 when the plan's grid is too coarse."""
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.planning.scoring import candidate_grid, stroke_ok
+
+    if len(plan.candidates.xy_mm) >= count:
+        return 0
+    state = sv.start(plan)
+    grid = candidate_grid(plan.model.surface, plan.allows, *plan.bounds_mm, count)
+    rows, b = grid.rows, state.belief
+    var = np.einsum("nk,nk->n", rows @ b.cov, rows)
+    ok = stroke_ok(var, state.noise_var, plan.usable_mm) & plan.z_allowed(
+        plan.approach_height(rows @ b.mean))
+    return int(ok.sum())
