@@ -87,18 +87,48 @@ def use_float64() -> None:
     jax.config.update("jax_enable_x64", True)
 
 
-def start_survey(cell, *, prior=None, hyper=None):
+def start_survey(cell, *, prior=None, hyper=None, correction="proposed"):
     """A ``Survey`` of the cell's workplane: ``survey_plan(cell)`` read once, the prior belief
     (or ``prior``, e.g. an earlier run's widened belief, with its ``hyper``-parameters).
-    ``cell``: a Cell, a cell file's path or a dict. A setting that looks like a unit slip (a
-    bound of 4 mm meant as 4 um) is warned about, as ``adaptive-cal run`` does."""
+    ``cell``: a Cell, a cell file's path or a dict. ``prior``: a ``Belief`` (with ``hyper``, a
+    ``Hyper``), or an earlier run's folder: its belief.npz and hyper-parameters, moved into the
+    frame ``correction`` says was applied since ("proposed", "none" or (rx, ry) deg) and
+    widened by plan.drift_std_mm, as ``adaptive-cal run --prior-from`` reads it (that command
+    also keeps the probe clear of the frames not assumed). A setting that looks like a unit slip
+    (a bound of 4 mm meant as 4 um) is warned about, as ``adaptive-cal run`` does."""
+    import os
     import warnings
+    from pathlib import Path
 
     from adaptive_cal.cell.build import cell_doubts, survey_plan
     from adaptive_cal.cell.schema import as_cell
+    from adaptive_cal.gaussian.belief import Belief
+    from adaptive_cal.gaussian.prior import Hyper
     from adaptive_cal.planning.shell import Survey
 
     cell = as_cell(cell)
+    if isinstance(prior, (str, os.PathLike)):
+        from adaptive_cal.run.recheck import load_prior
+
+        if hyper is not None:
+            raise TypeError("hyper: leave it out with prior = a run folder, whose own "
+                            "hyper-parameters come with its belief")
+        run_dir = Path(prior)
+        if not (run_dir / "belief.npz").is_file():
+            raise FileNotFoundError(f"prior = {str(prior)!r}: no belief.npz there (give the folder "
+                                    "of a finished 'adaptive-cal run --out DIR')")
+        prior, hyper = load_prior(run_dir, cell, correction)[:2]
+    elif prior is not None and not isinstance(prior, Belief):
+        raise TypeError(f"prior = {prior!r:.60}: give a Belief or an earlier run's folder")
+    if isinstance(hyper, dict):  # result.json's "hyper" block, by its field names
+        try:
+            hyper = Hyper(**{k: hyper[k] for k in Hyper._fields if k in hyper})
+        except TypeError:
+            raise TypeError(f"hyper = {hyper!r:.80}: needs form_std_mm, length_scale_mm and "
+                            "noise_std_mm (mm), and may give kernel") from None
+    if hyper is not None and not isinstance(hyper, Hyper):
+        raise TypeError(f"hyper = {hyper!r:.60}: give a Hyper (adaptive_cal.gaussian.prior."
+                        "Hyper(form_std_mm, length_scale_mm, noise_std_mm, kernel)), or None")
     for line in cell_doubts(cell, informed_prior=prior is not None):
         warnings.warn(line, UserWarning, stacklevel=2)
     return Survey(survey_plan(cell, informed_prior=prior is not None), prior=prior, hyper=hyper)

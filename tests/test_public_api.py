@@ -256,3 +256,35 @@ def test_stop_reason_says_no_admissible_point_where_ask_has_nothing_and_ask_is_n
         end = abs(rng.normal(0, 0.002))  # past the stroke: read at its end, noisily
         survey.tell(t.x_mm, t.y_mm, t.z_mm, min(max(height, 0.5 + end), 9.5 - end))
     assert reasons[-1] == shell.NO_ADMISSIBLE_POINT and survey.ask() == []
+
+
+def test_start_survey_takes_an_earlier_runs_folder_as_its_prior_and_refuses_odd_types(tmp_path):
+    """An outside audit (2026-12-01): start_survey(prior='runs/x') and hyper=dict raised
+    AttributeError deep inside, and no public call read an earlier run's belief."""
+    import numpy as np
+
+    import adaptive_cal
+    from adaptive_cal.cli import main
+    from adaptive_cal.run.recheck import load_prior
+
+    adaptive_cal.use_float64()
+    SIM = ROOT / "configs" / "sim-cell.yaml"
+    out = tmp_path / "run"
+    assert main(["run", "--robot", str(SIM), "--out", str(out), "--no-progress"]) == 0
+    survey = adaptive_cal.start_survey(SIM, prior=out, correction="none")
+    belief, hyper = load_prior(out, adaptive_cal.load_cell(SIM), "none")[:2]
+    np.testing.assert_array_equal(survey.state.belief.mean, belief.mean)
+    fresh = adaptive_cal.start_survey(SIM)
+    assert survey.status().mean_std_mm < 0.1 * fresh.status().mean_std_mm
+    with pytest.raises(TypeError, match="leave it out with prior = a run folder"):
+        adaptive_cal.start_survey(SIM, prior=str(out), hyper=hyper)
+    with pytest.raises(FileNotFoundError, match="no belief.npz there"):
+        adaptive_cal.start_survey(SIM, prior=tmp_path)
+    with pytest.raises(TypeError, match="give a Belief or an earlier run's folder"):
+        adaptive_cal.start_survey(SIM, prior=3)
+    with pytest.raises(TypeError, match="needs form_std_mm, length_scale_mm and noise_std_mm"):
+        adaptive_cal.start_survey(SIM, hyper={"form_std_mm": 0.05})
+    with pytest.raises(TypeError, match="give a Hyper"):
+        adaptive_cal.start_survey(SIM, hyper=[0.05, 185, 0.004])
+    s = adaptive_cal.start_survey(SIM, prior=belief, hyper=hyper._asdict())
+    np.testing.assert_array_equal(s.state.belief.mean, belief.mean)
