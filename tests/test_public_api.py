@@ -288,3 +288,16 @@ def test_start_survey_takes_an_earlier_runs_folder_as_its_prior_and_refuses_odd_
         adaptive_cal.start_survey(SIM, hyper=[0.05, 185, 0.004])
     s = adaptive_cal.start_survey(SIM, prior=belief, hyper=hyper._asdict())
     np.testing.assert_array_equal(s.state.belief.mean, belief.mean)
+
+
+def test_grid_is_indexed_x_first_as_its_docstring_says():
+    import numpy as np
+
+    adaptive_cal.use_float64()
+    survey = adaptive_cal.start_survey(ROOT / "configs" / "sim-cell.yaml")
+    for t in survey.ask(3):  # a plate rising along x only
+        survey.tell(t.x_mm, t.y_mm, t.z_mm, 0.01 * t.x_mm - t.z_mm + 5.0)
+    gx, gy, mean, _ = survey.grid(7)
+    h = survey.plan.model.surface.basis(np.array([gx[5]]), np.array([gy[1]]))[0]
+    assert mean[5, 1] == pytest.approx(float(h @ survey.state.belief.mean), abs=1e-12)
+    assert "mean[i, j] and std[i, j] at (gx[i], gy[j])" in adaptive_cal.planning.shell.Survey.grid.__doc__

@@ -46,10 +46,10 @@ def test_a_reading_with_its_approach_height_is_a_recording_without_the_first_lin
     assert np.array_equal(got.z_mm, z) and np.array_equal(got.reading_mm, VALUES)
 
 
-@pytest.mark.parametrize("row, says", [("100,abc,1.1", "t.csv:3: column y: 'abc'"),
+@pytest.mark.parametrize("row, says", [("100,abc,1.1", "t.csv:3: column y_mm: 'abc'"),
                                        ("100,0,nan", "t.csv:3: column reading_mm"),
                                        ("100,0", "t.csv:3: column reading_mm: ''"),
-                                       ("1e12,0,1", "t.csv:3: column x")])
+                                       ("1e12,0,1", "t.csv:3: column x_mm")])
 def test_bad_table_values_are_refused_naming_line_and_column(tmp_path, row, says):
     table = tmp_path / "t.csv"
     table.write_text(f"x_mm,y_mm,reading_mm\n0,0,1\n{row}\n")
@@ -74,3 +74,23 @@ def test_flatness_of_a_table_from_the_command_line(tmp_path, capsys):
     assert main(["flatness", str(table)]) == 0
     out = capsys.readouterr().out
     assert "flatness of the 6 touched points" in out
+
+
+def test_a_bad_value_is_named_by_its_column_as_the_header_names_it(tmp_path):
+    """An outside audit (2026-12-01): the header said y_mm, the message 'column y'."""
+    table = tmp_path / "t.csv"
+    table.write_text("X,Y,Height\n0,0,1\n100,abc,1.1\n")
+    with pytest.raises(ValueError, match="t.csv:3: column y: 'abc'"):
+        read_recording(table)
+
+
+def test_heights_in_um_in_a_mm_column_are_warned_about(tmp_path):
+    """An outside audit (2026-12-01): a table of heights in um, read as mm, gave a 62 deg tilt
+    and no word about units."""
+    table = tmp_path / "um.csv"
+    table.write_text("x_mm,y_mm,height_mm\n0,0,0\n100,0,15.3\n0,100,22.1\n100,100,40.2\n")
+    notes = read_recording(table).notes
+    assert any("column height_mm: the heights' least-squares plane tilts 16.1 deg" in n
+               and "um in a mm column?" in n for n in notes), notes
+    table.write_text("x_mm,y_mm,height_mm\n0,0,0\n100,0,0.0153\n0,100,0.0221\n100,100,0.0402\n")
+    assert not any("tilts" in n for n in read_recording(table).notes)

@@ -129,8 +129,8 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
     iflags = names.index("flags") if "flags" in names else None
     x, y, v, z, flags = [], [], [], [], []
     unknown: dict[str, tuple[int, int]] = {}
-    columns = [(ix, "x", x), (iy, "y", y), (iv, value_name, v)]
-    columns += [(iz, "z", z)] if iz is not None else []
+    columns = [(ix, names[ix], x), (iy, names[iy], y), (iv, value_name, v)]  # as the header
+    columns += [(iz, names[iz], z)] if iz is not None else []
     with open(path, encoding="utf-8-sig", newline="") as f:
         rows = csv.reader(f, skipinitialspace=True)
         next(rows, None)
@@ -169,9 +169,32 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
                      f"flagged {'/'.join(sorted(NOT_FUSED))} are not used")
     if unknown:
         notes.append(unknown_flag_note(path, unknown))
+    steep = steep_plane_note(path, np.array(x), np.array(y),
+                             np.array(v) + (np.array(z) if z else 0.0), value_name)
+    notes += [steep] if steep else []
     return {"seq": np.arange(n, dtype=float), "t_s": np.full(n, np.nan),
             "x_mm": np.array(x), "y_mm": np.array(y), "z_mm": np.array(z) if z else np.zeros(n),
             "reading_mm": np.array(v), "flags": tuple(flags),
             "meta": {"source": f"table {Path(path).name}", "column": value_name},
             "path": str(path),
             "notes": tuple(notes)}
+
+
+STEEP_DEG = 5.0  # a workplane tilted more than this would leave any probe's stroke across it
+
+
+def steep_plane_note(path, x, y, heights, name: str) -> str | None:
+    """A note where the heights' least-squares plane tilts more than ``STEEP_DEG``: heights in
+    um written in a mm column (an outside audit: a table in um read as a 62 deg tilt, no word)."""
+    a = np.column_stack([x, y, np.ones_like(x)])
+    if len(x) < 3 or np.linalg.matrix_rank(a) < 3:
+        return None
+    slope = np.linalg.lstsq(a, heights, rcond=None)[0][:2]
+    deg = math.degrees(math.atan(math.hypot(*slope)))
+    if deg <= STEEP_DEG:
+        return None
+    spread = float(np.ptp(heights))
+    extent = float(math.hypot(np.ptp(x), np.ptp(y)))
+    return (f"{path}: column {name}: the heights' least-squares plane tilts {deg:.1f} deg "
+            f"({spread:.4g} mm over {extent:.4g} mm of plate): heights in um in a mm column? "
+            f"(this tool reads mm: 15.3 um is 0.0153)")

@@ -141,7 +141,9 @@ class Survey:
         return NO_ADMISSIBLE_POINT if why is None and not self.ask() else why
 
     def grid(self, n: int = 61):
-        """(gx, gy, mean, std) on an n x n grid over the whole plate (mm); the std includes the
+        """(gx, gy, mean, std) on an n x n grid over the whole plate (mm): gx, gy the grid's x
+        and y (n each), mean[i, j] and std[i, j] at (gx[i], gy[j]) -- x along the first axis
+        (``indexing="ij"``; transpose for an image whose rows are y). The std includes the
         unresolved structure the self-checks found, as ``status().mean_std_mm`` does."""
         if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 2:
             raise ValueError(f"n = {n!r}: a grid needs a whole number of at least 2 points "
