@@ -72,19 +72,23 @@ def test_alarm_during_move_reset_once_then_succeeds(controller):
     m.close()
 
 
+@pytest.mark.parametrize("lost", [0, 1])
 @pytest.mark.parametrize("fault", ["alarm_on_move", "error_on_move"])
-def test_an_alarm_during_a_descent_is_never_reset_or_the_move_sent_again(controller, fault):
+def test_an_alarm_during_a_descent_is_never_reset_or_the_move_sent_again(controller, fault,
+                                                                         lost):
     """An outside audit (2026-12-01): with reset_alarms an alarm during an approach (a
     collision with the plate or a fixture) was reset and the same move sent again, into
-    whatever stopped it."""
+    whatever stopped it. A second audit: where the answer to the descent was lost (``lost``),
+    its re-send was refused for the alarm and the alarm was reset all the same."""
     m = connect(controller, reset_alarms=True)
     m.move_to(5.0, 5.0, 15.0)
     setattr(controller.faults, fault, 1)
+    controller.faults.drop_answers = lost
     n = len(controller.requests)
     with pytest.raises(HsesError, match="not reset: it came while the robot moved down"):
         m.move_to(5.0, 5.0, 0.0)
     after = requests_after(controller, n)
-    assert sum(c == (P.CMD_MOVE, 2) for c in after) == 1
+    assert sum(c == (P.CMD_MOVE, 2) for c in after) == 1 + lost  # the one re-send, no more
     assert not [c for c in after if c[0] == P.CMD_ALARM_RESET]
     m.close()
 

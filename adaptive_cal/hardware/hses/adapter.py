@@ -216,11 +216,11 @@ class HsesMotion:
                 try:
                     self.call(P.CMD_MOVE, 2, 1, P.SET_ALL, payload)
                 except HsesError as e:
+                    sent = sent or self.sends > 1  # a lost answer: an earlier send may move it
                     if e.added in P.RETRYABLE and self.sends > 1:
                         # the answer to an earlier send was lost: that send moves the robot now
-                        log.warning("%s: the answer to the move was lost and the robot is "
-                                    "moving; waiting for it to stop, then checking where it is",
-                                    self.where)
+                        log.warning("%s: the answer to the move was lost and the robot moves: "
+                                    "waiting for it to stop, then reading where", self.where)
                         self._wait(target, before, confirm=True)
                         self.pose = (x_mm, y_mm, z_mm)
                         return
