@@ -65,17 +65,38 @@ def knots_for(cell: Cell) -> tuple[np.ndarray, np.ndarray]:
 
 
 def pivot(cell: Cell) -> tuple[float, float]:
-    """Where the prior knows the plate's height to model.offset_std_mm: model.pivot_mm, else
-    the frame's origin where it lies on the workplane (a frame taught with its origin at a
-    corner of the plate: an audit's 1 deg plate on x 0..600 mm stood 7 mm high at the centre,
-    beyond the stroke, and the first touch there stopped the run), else the workplane's centre
-    (the origin of a frame centred on the plate is both)."""
-    wp, given = cell.workplane, cell.model.pivot_mm
+    """Where the prior knows the plate's height to model.offset_std_mm: model.pivot_mm, else the
+    workplane's centre. A frame taught with its origin at a corner of the plate has its z set
+    there (an audit: x 0..600 mm, 1 deg both ways -- the plate 7 mm high at the centre, past the
+    stroke at the first touch), one whose z was set at the centre does not (a second audit, when
+    the origin was the default for a day): the cell file says which, ``pivot_doubt`` asks."""
+    given = cell.model.pivot_mm
     if given is not None:
         return float(given[0]), float(given[1])
-    if wp.x_mm[0] <= 0.0 <= wp.x_mm[1] and wp.y_mm[0] <= 0.0 <= wp.y_mm[1]:
-        return 0.0, 0.0
+    wp = cell.workplane
     return 0.5 * (wp.x_mm[0] + wp.x_mm[1]), 0.5 * (wp.y_mm[0] + wp.y_mm[1])
+
+
+def pivot_doubt(cell: Cell) -> str | None:
+    """Where model.pivot_mm is not given and the frame's origin lies on the workplane so far
+    from its centre that a tilt of tilt_std_deg puts the two more than offset_std_mm apart: which
+    of them the frame's z was set at decides where the first touches can go."""
+    wp, m = cell.workplane, cell.model
+    if m.pivot_mm is not None or not (wp.x_mm[0] <= 0 <= wp.x_mm[1]
+                                      and wp.y_mm[0] <= 0 <= wp.y_mm[1]):
+        return None
+    cx, cy = pivot(cell)
+    apart_mm = float(np.hypot(cx, cy))
+    dz = apart_mm * float(np.tan(np.radians(m.tilt_std_deg)))
+    if dz <= m.offset_std_mm:
+        return None
+    return (f"model.pivot_mm is not given: the prior knows the plate's height to "
+            f"{m.offset_std_mm:g} mm (model.offset_std_mm) at the workplane's centre ({cx:g}, "
+            f"{cy:g}) mm; the frame's origin (0, 0) lies on the plate {apart_mm:.0f} mm from it, "
+            f"where a tilt of {m.tilt_std_deg:g} deg (model.tilt_std_deg) puts the plate "
+            f"{dz:.2g} mm off. If the frame's z was set at its origin (a frame taught at the "
+            "plate's corner), say model.pivot_mm: [0, 0]; if at the centre, say "
+            f"model.pivot_mm: [{cx:g}, {cy:g}]")
 
 
 def prior_model(cell: Cell) -> PriorModel:
@@ -161,7 +182,7 @@ def cell_doubts(cell: Cell, *, informed_prior: bool = False) -> list[str]:
     could stop the run, which would spend its budget and end with no result (an audit: a 3 x
     2 m plate's 256 coefficients against the default budget of 200, said only at the end). An
     explicit plan.stop.min_touches above max_touches is refused at load."""
-    out = doubts(cell)
+    out = doubts(cell) + [line for line in [pivot_doubt(cell)] if line]
     s = cell.plan.stop
     if s.min_touches is None and (s.mean_std_mm is not None or s.max_std_mm is not None):
         kx, ky = knots_for(cell)

@@ -104,7 +104,8 @@ class ProbeCycle:
                 f"top from z={o[2]:.3f} mm: the plate stands higher there than the belief allowed, "
                 f"and the approach to z={z_mm:.3f} mm would run the probe past its stroke's end "
                 "again; nothing was sent. Check the plate's height in the cell file (workplane, "
-                "model's offset prior) and the probe's zero")
+                "model's offset prior and model.pivot_mm, where the frame's z was set) and the "
+                "probe's zero")
         safe = max(self.safe_height_mm, zs[0])
         cx, cy, cz = self.motion.position()
         mine = plate_top((cx, cy)) if plate_top is not None else -math.inf
