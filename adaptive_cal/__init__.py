@@ -108,7 +108,7 @@ def start_survey(cell, *, prior=None, hyper=None, correction="proposed"):
 
     cell = as_cell(cell)
     if isinstance(prior, (str, os.PathLike)):
-        from adaptive_cal.run.recheck import load_prior
+        load_prior = importlib.import_module("adaptive_cal.run.recheck").load_prior  # lazily, as __getattr__
 
         if hyper is not None:
             raise TypeError("hyper: leave it out with prior = a run folder, whose own "

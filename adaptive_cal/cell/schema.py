@@ -190,9 +190,8 @@ class Model(Block):
     offset_std_mm: float = Field(0.5, gt=0, description="prior std of the height at pivot_mm")
     pivot_mm: tuple[Within10m, Within10m] | None = Field(
         None, description="where the plate's height is known to offset_std_mm, the tilt turning "
-        "about it: where the frame's z was set (a user frame taught on the plate: its origin). "
-        "Default: the workplane's centre (warned about where the origin on the plate is far "
-        "enough away to matter)")
+        "about it: where the frame's z was set (a frame taught on the plate: its origin). "
+        "Default: the workplane's centre (an origin on the plate far from it is warned about)")
     form_std_mm: float = Field(0.05, gt=0, description="prior form amplitude (learned)")
     length_scale_mm: float | None = Field(
         None, gt=0, description="prior form length scale (learned); default half the shorter side")
