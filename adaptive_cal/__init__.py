@@ -108,7 +108,7 @@ def start_survey(cell, *, prior=None, hyper=None, correction="proposed"):
 
     cell = as_cell(cell)
     if isinstance(prior, (str, os.PathLike)):
-        load_prior = importlib.import_module("adaptive_cal.run.recheck").load_prior  # lazily, as __getattr__
+        load_prior = importlib.import_module("adaptive_cal.run.recheck").load_prior  # on first use
 
         if hyper is not None:
             raise TypeError("hyper: leave it out with prior = a run folder, whose own "
