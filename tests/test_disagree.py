@@ -36,6 +36,11 @@ def test_two_rejected_retakes_in_a_row_at_one_place_stop_and_nothing_less_does()
     for t in [told(False, ("gated",)), told(False, ("retake", "rejected")),
               told(False, ("gated",), x=50.0), told(False, ("retake", "rejected"), x=50.0)]:
         assert not d.see(t)
+    d = Disagreements()  # a millimetre away is the same place (the planner shifts a touch)
+    for t in [told(False, ("gated",)), told(False, ("retake", "rejected")),
+              told(False, ("gated",), x=10.9)]:
+        assert not d.see(t)
+    assert d.see(told(False, ("retake", "rejected"), x=10.9))
     d = Disagreements()  # a retake that confirmed the gated reading is fused: no stop
     for t in [told(False, ("gated",)), told(True, ("retake", "surprise"))] * 3:
         assert not d.see(t)
@@ -100,3 +105,23 @@ def test_a_stated_noise_below_the_readout_steps_own_is_warned_about():
     assert "0.029 um std" in said[0]
     assert doubts(sim_cell(probe={"noise_std_mm": 0.0001})) == []  # 0.1 um: above 0.029 um
     assert math.isclose(1e-4 / math.sqrt(12) * 1e3, 0.028868, rel_tol=1e-4)
+
+
+def test_a_recheck_from_a_map_with_a_noise_far_too_small_says_the_map_is_the_cause(tmp_path):
+    """A second audit: a re-check from a run whose learned noise was 0.1 um stopped with
+    readings_disagree and advised setting probe.noise_std_mm, which cannot help there."""
+    from adaptive_cal.gaussian.belief import Belief
+    from adaptive_cal.planning import survey as sv
+    from adaptive_cal.cell.build import survey_plan
+
+    plan = survey_plan(sim_cell(), informed_prior=True)
+    fresh = sv.start(plan)
+    state = sv.start(plan, prior=Belief(fresh.belief.mean, fresh.belief.cov),
+                     hyper=fresh.hyper._replace(noise_std_mm=1e-4))
+    d = Disagreements()
+    for t in [told(False, ("gated",), height=1.0), told(False, ("retake", "rejected"), height=1.01),
+              told(False, ("gated",), height=1.02), told(False, ("retake", "rejected"), height=1.0)]:
+        d.see(t)
+    text = d.text(plan, state)
+    assert "the map this survey started from" in text and "probe.noise_std_mm" not in text
+    assert "probe.noise_std_mm" in d.text(plan, fresh)

@@ -8,12 +8,15 @@ was learned, so the planner asks for the same place again. An outside audit (202
 fixed the plate's tilt to a fraction of a micron, the fifth touch was held back, and the same
 point was gated and retaken 12 times over (24 touches) before a refit let one through; at 0.01
 um the touch budget went with 4 readings fused and the map 1.3 mm off. ``DISAGREE_STOP`` such
-rejected retakes in a row at one place (no reading fused in between) end the survey as
-``readings_disagree``, and ``text`` says what the readings there show: their spread against
-the noise the map assumes (a stated noise too small) or their agreement far from the map (a
-plate or fixture that moved).
+rejected retakes in a row at one place (within ``PLACE_MM``; no reading fused in between) end
+the survey as ``readings_disagree``, and ``text`` says what the readings there show: a spread
+far above the noise the map assumes (a rejected pair differs by more than the gate's sigmas
+times sqrt(2) of it: the noise stated too small, or a probe or plate that moves between
+touches; in a survey from an earlier run's map, that map's noise).
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -21,6 +24,9 @@ from adaptive_cal.planning.gate import Retake, Told
 
 #: rejected retakes in a row at one place that end a survey
 DISAGREE_STOP = 2
+#: one place: the planner may move a touch from a rejected point by a millimetre or so (the
+#: touches already made push it apart), and a second audit saw the count start afresh there
+PLACE_MM = 5.0
 READINGS_DISAGREE = "readings_disagree"
 
 
@@ -38,7 +44,8 @@ class Disagreements:
         if told.fused:
             self.__init__()
             return False
-        if self.where is None or not self.where.at(told.x_mm, told.y_mm):
+        if self.where is None or math.hypot(told.x_mm - self.where.x_mm,
+                                            told.y_mm - self.where.y_mm) > PLACE_MM:
             self.__init__()
             self.where = Retake(told.x_mm, told.y_mm, told.z_mm, told.height_mm)
         self.heights_mm.append(told.height_mm)
@@ -60,12 +67,14 @@ class Disagreements:
                 f"um from where the map puts the plate (its std there {std * 1e3:.2g} um) and "
                 f"spread {spread * 1e3:.2g} um among themselves, where the map assumes "
                 f"{noise * 1e3:.2g} um of reading noise: ")
-        if spread > 3 * noise:
-            return said + ("the readings are noisier than the map assumes -- the probe's noise "
-                           "stated too small (probe.noise_std_mm is a first guess; the first "
-                           "readings were taken as that precise)? State the probe's noise "
-                           "(probe.noise_std_mm, or probe.noise_range_mm from its datasheet) "
-                           "and map again in a new folder")
-        return said + ("they agree among themselves far from the map: the plate or the fixture "
-                       "moved, or the probe slipped in its holder; check the cell and map again "
-                       "in a new folder")
+        if state.prior is not None:  # a survey from an earlier run's map: its noise, not ours
+            return said + ("the map this survey started from (run --prior-from, start_survey's "
+                           "prior) assumes a noise the readings do not have, or the plate has "
+                           "changed: map from scratch in a new folder, or from a run whose "
+                           "noise was learned from enough readings")
+        return said + ("the readings are noisier than the map assumes -- the probe's noise "
+                       "stated too small (probe.noise_std_mm is a first guess; the first "
+                       "readings were taken as that precise), or a probe or plate that moves "
+                       "between touches? State the probe's noise (probe.noise_std_mm, or "
+                       "probe.noise_range_mm from its datasheet), check that the probe and "
+                       "plate hold still, and map again in a new folder")
