@@ -61,3 +61,28 @@ def test_a_plain_first_move_of_a_new_connection_still_goes():
             motion.close()
     finally:
         server.close()
+
+
+class SilentActualsPlc(PlcServer):
+    """A PLC whose actual_x/y/z registers are mapped but nobody writes: they read 0."""
+
+    def write_mm(self, role, mm):
+        if not role.startswith("actual_"):
+            super().write_mm(role, mm)
+
+
+def test_registers_nobody_writes_are_named_not_a_stale_done():
+    """A second audit: mapped actual_x/y/z that nobody writes (they read 0) refused the first
+    move, which had run, as 'the done of a move the job was still in' -- not the cause."""
+    cfg = config()
+    robot = EmulatedRobot.from_cell(CELL, move_s=0.01)
+    server = SilentActualsPlc(robot, cfg, port=0).start()
+    try:
+        motion = ModbusMotion(ModbusLink(cfg.model_copy(update={"port": server.port})))
+        with pytest.raises(AdapterError, match="they read the same before the move and after it: "
+                                               "either nobody writes them"):
+            motion.move_to(0.0, 0.0, 15.0)
+        assert robot.pose() == pytest.approx((0.0, 0.0, 15.0))  # the move did run
+        motion.close()
+    finally:
+        server.close()

@@ -99,10 +99,17 @@ class ModbusMotion:
             whose = (f"the stopped move's done ({self.unfinished})" if self.unfinished else
                      "the done of a move the job was still in when this connection began (an "
                      "earlier run stopped during a move?); this move's start went unseen")
+            if not self.unfinished and here == getattr(self, "read_first", None):
+                whose = ("they read the same before the move and after it: either nobody "
+                         "writes them (a register nobody writes reads 0; map them only once the "
+                         "job and the ladder write them, hw/plc-register-map.md) or this 'done' "
+                         "was " + whose)
+            else:
+                whose = "it was " + whose
             raise AdapterError(
                 f"{k.where}: 'done' ({k.map['done'].name}) came, but actual_x/y/z put the robot "
                 f"at {tuple(round(v, 3) for v in here)} mm, not at the target "
-                f"{tuple(round(v, 3) for v in target)} mm: it was {whose}. See where the robot "
+                f"{tuple(round(v, 3) for v in target)} mm: {whose}. See where the robot "
                 "stands before continuing")
 
     def _write_target(self, xyz: tuple[float, float, float]) -> None:
@@ -164,6 +171,7 @@ class ModbusMotion:
         """The first move starts from where the robot stands: known (read), or stated parked at
         the safe height in the cell file; else raise before anything is written."""
         k, here = self.link, self.position()
+        self.read_first = here  # to tell registers nobody writes from a stale done (below)
         if all(map(math.isfinite, here)) or k.cfg.parked_at_safe_height:
             return
         x, y, z = target
