@@ -41,3 +41,15 @@ def test_no_floor_no_warning():
     assert cell_doubts(sim_cell(plan=SHORT, probe={"noise_range_mm": [0.002, 0.006],
                                                    "noise_std_mm": 0.004})) == []
     assert cell_doubts(sim_cell(plan=SHORT), informed_prior=True) == []
+
+
+def test_no_shipped_cell_file_is_warned_about():
+    """A second audit: configs/cell-manual.yaml (25 touches, a first-guess noise: a floor of
+    30) warned on every run and could never give a result; it states its gauge's span now."""
+    from adaptive_cal.cell.schema import load_cell
+    from tests.helpers import ROOT
+
+    cells = sorted(p for p in (ROOT / "configs").glob("*.yaml") if not p.name.startswith("study"))
+    assert len(cells) >= 6
+    for path in cells:
+        assert cell_doubts(load_cell(path)) == [], path.name
