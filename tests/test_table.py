@@ -94,3 +94,23 @@ def test_heights_in_um_in_a_mm_column_are_warned_about(tmp_path):
                and "um in a mm column?" in n for n in notes), notes
     table.write_text("x_mm,y_mm,height_mm\n0,0,0\n100,0,0.0153\n0,100,0.0221\n100,100,0.0402\n")
     assert not any("tilts" in n for n in read_recording(table).notes)
+
+
+def test_a_levelled_plate_in_um_and_flagged_rows_are_judged_right(tmp_path):
+    """A second audit: a levelled plate's 30 um bow written in um was read as 31 mm of flatness
+    with no word (its plane tilts under 5 deg); a mm table whose two rejected rows (not used)
+    lay far off was warned about as um."""
+    table = tmp_path / "lev.csv"
+    rows = [(x, y, 30.0 * (1 - ((x - 200) / 200) ** 2)) for x in range(0, 401, 50)
+            for y in (0, 100, 200)]
+    table.write_text("x_mm,y_mm,height_mm\n" + "".join(f"{x},{y},{h}\n" for x, y, h in rows))
+    assert any("stray 30 mm from their least-squares plane" in n for n in
+               read_recording(table).notes), read_recording(table).notes
+    table.write_text("x_mm,y_mm,height_mm\n" + "".join(f"{x},{y},{h / 1000}\n"
+                                                        for x, y, h in rows))
+    assert not any("um in a mm column" in n for n in read_recording(table).notes)
+    flagged = tmp_path / "flagged.csv"
+    good = [f"{x},{y},{0.001 * x},\n" for x in (0, 10, 20) for y in (0, 10, 20)]
+    flagged.write_text("x_mm,y_mm,height_mm,flags\n" + "".join(good)
+                       + "5,5,3.0,rejected\n15,15,-3.0,gated\n")
+    assert not any("um in a mm column" in n for n in read_recording(flagged).notes)

@@ -169,8 +169,10 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
                      f"flagged {'/'.join(sorted(NOT_FUSED))} are not used")
     if unknown:
         notes.append(unknown_flag_note(path, unknown))
-    steep = steep_plane_note(path, np.array(x), np.array(y),
-                             np.array(v) + (np.array(z) if z else 0.0), value_name)
+    used = np.array([not (f & NOT_FUSED) for f in flags], bool) if flags else np.ones(n, bool)
+    heights = np.array(v) + (np.array(z) if z else 0.0)
+    steep = steep_plane_note(path, np.array(x)[used], np.array(y)[used], heights[used],
+                             value_name)
     notes += [steep] if steep else []
     return {"seq": np.arange(n, dtype=float), "t_s": np.full(n, np.nan),
             "x_mm": np.array(x), "y_mm": np.array(y), "z_mm": np.array(z) if z else np.zeros(n),
@@ -181,20 +183,28 @@ def read_table(path: str | Path, first_line: str) -> dict | None:
 
 
 STEEP_DEG = 5.0  # a workplane tilted more than this would leave any probe's stroke across it
+WARPED = 0.01  # heights straying from their plane by this share of the plate's size: no workplane
 
 
 def steep_plane_note(path, x, y, heights, name: str) -> str | None:
-    """A note where the heights' least-squares plane tilts more than ``STEEP_DEG``: heights in
-    um written in a mm column (an outside audit: a table in um read as a 62 deg tilt, no word)."""
+    """A note where the used rows' heights look like um in a mm column: their least-squares
+    plane tilts more than ``STEEP_DEG``, or they stray from it by more than ``WARPED`` of the
+    plate's size (an outside audit: a table in um read as a 62 deg tilt, no word; a second: a
+    levelled plate's 30 um bow in um read as 31 mm of flatness, no word)."""
     a = np.column_stack([x, y, np.ones_like(x)])
     if len(x) < 3 or np.linalg.matrix_rank(a) < 3:
         return None
-    slope = np.linalg.lstsq(a, heights, rcond=None)[0][:2]
-    deg = math.degrees(math.atan(math.hypot(*slope)))
-    if deg <= STEEP_DEG:
-        return None
-    spread = float(np.ptp(heights))
+    coef = np.linalg.lstsq(a, heights, rcond=None)[0]
+    deg = math.degrees(math.atan(math.hypot(*coef[:2])))
     extent = float(math.hypot(np.ptp(x), np.ptp(y)))
-    return (f"{path}: column {name}: the heights' least-squares plane tilts {deg:.1f} deg "
-            f"({spread:.4g} mm over {extent:.4g} mm of plate): heights in um in a mm column? "
-            f"(this tool reads mm: 15.3 um is 0.0153)")
+    stray = float(np.ptp(heights - a @ coef))
+    if deg > STEEP_DEG:
+        what = (f"the heights' least-squares plane tilts {deg:.1f} deg "
+                f"({float(np.ptp(heights)):.4g} mm over {extent:.4g} mm of plate)")
+    elif stray > WARPED * extent:
+        what = (f"the heights stray {stray:.4g} mm from their least-squares plane over "
+                f"{extent:.4g} mm of plate")
+    else:
+        return None
+    return (f"{path}: column {name}: {what}: heights in um in a mm column? (this tool reads mm: "
+            "15.3 um is 0.0153)")
