@@ -108,8 +108,7 @@ def start_survey(cell, *, prior=None, hyper=None, correction="proposed"):
 
     cell = as_cell(cell)
     if isinstance(prior, (str, os.PathLike)):
-        load_prior = importlib.import_module("adaptive_cal.run.recheck").load_prior  # on first use
-
+        recheck = importlib.import_module("adaptive_cal.run.recheck")  # on first use
         if hyper is not None:
             raise TypeError("hyper: leave it out with prior = a run folder, whose own "
                             "hyper-parameters come with its belief")
@@ -117,7 +116,13 @@ def start_survey(cell, *, prior=None, hyper=None, correction="proposed"):
         if not (run_dir / "belief.npz").is_file():
             raise FileNotFoundError(f"prior = {str(prior)!r}: no belief.npz there (give the folder "
                                     "of a finished 'adaptive-cal run --out DIR')")
-        prior, hyper = load_prior(run_dir, cell, correction)[:2]
+        prior, hyper = recheck.load_prior(run_dir, cell, correction)[:2]
+        note = recheck.provisional_note(run_dir)
+        if note:
+            warnings.warn(f"prior = {note}", UserWarning, stacklevel=2)
+    elif correction != "proposed":
+        raise TypeError(f"correction = {correction!r}: it moves an earlier run's map; give that "
+                        "run's folder as prior")
     elif prior is not None and not isinstance(prior, Belief):
         raise TypeError(f"prior = {prior!r:.60}: give a Belief or an earlier run's folder")
     if isinstance(hyper, dict):  # result.json's "hyper" block, by its field names

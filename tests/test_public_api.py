@@ -301,3 +301,38 @@ def test_grid_is_indexed_x_first_as_its_docstring_says():
     h = survey.plan.model.surface.basis(np.array([gx[5]]), np.array([gy[1]]))[0]
     assert mean[5, 1] == pytest.approx(float(h @ survey.state.belief.mean), abs=1e-12)
     assert "mean[i, j] and std[i, j] at (gx[i], gy[j])" in adaptive_cal.planning.shell.Survey.grid.__doc__
+
+
+def test_a_prior_from_a_run_that_was_not_a_result_is_warned_about(tmp_path, capsys):
+    """A second audit: start_survey(prior=...) and run --prior-from took the map of a run that
+    stopped with readings_disagree after 4 fused readings (1.3 mm off) without a word; and a
+    correction given without a run folder was ignored."""
+    import warnings
+
+    import yaml
+
+    from adaptive_cal.cli import main
+
+    adaptive_cal.use_float64()
+    sim = ROOT / "configs" / "sim-cell.yaml"
+    data = yaml.safe_load(sim.read_text())
+    data["plan"]["stop"]["max_touches"] = 6  # spent before the bound: not a result
+    data["plan"]["stop"]["min_touches"] = 0
+    short = tmp_path / "short.yaml"
+    short.write_text(yaml.safe_dump(data))
+    out = tmp_path / "short"
+    assert main(["run", "--robot", str(short), "--out", str(out), "--no-progress"]) == 1
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        adaptive_cal.start_survey(sim, prior=out, correction="none")
+    said = [str(w.message) for w in seen]
+    assert any("was not a result (touch budget spent after 6 touches" in m
+               and "its map is provisional" in m for m in said), said
+    capsys.readouterr()
+    assert main(["run", "--robot", str(sim), "--prior-from", str(out), "--correction-applied",
+                 "none", "--dry-run"]) == 2  # a dry run plans from scratch: refused as before
+    from adaptive_cal.cli.run_guards import check_prior_from
+    check_prior_from(out, "none")
+    assert "warning: --prior-from" in capsys.readouterr().err
+    with pytest.raises(TypeError, match="give that run's folder as prior"):
+        adaptive_cal.start_survey(sim, correction=(0.5, 0.5))

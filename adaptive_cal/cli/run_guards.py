@@ -2,6 +2,8 @@
 the folder was mapped with, a re-check's earlier run folder."""
 from __future__ import annotations
 
+import sys
+
 from pathlib import Path
 
 from adaptive_cal.cli.common import UserError
@@ -99,6 +101,11 @@ def check_prior_from(prior: Path, correction) -> None:
         raise UserError(f"--prior-from {prior}: not a run folder with a map, it has no "
                         "belief.npz (give the folder an earlier 'adaptive-cal run --out DIR' "
                         "wrote)")
+    from adaptive_cal.run.recheck import provisional_note
+
+    note = provisional_note(prior)
+    if note:
+        print(f"warning: --prior-from {note}", file=sys.stderr)
 
 
 def refuse_stale_map(folder: Path, command: str) -> None:

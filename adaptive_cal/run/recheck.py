@@ -256,3 +256,18 @@ def frame_shift_mm(run_dir: Path, cell: Cell, correction="proposed") -> float:
     x, y = (v.ravel() for v in np.meshgrid(np.linspace(x0, x1, 21), np.linspace(y0, y1, 21)))
     rows = model.surface.basis(x, y)
     return max(float(np.max(np.abs(rows @ (o.mean - assumed.mean)))) for o in others)
+
+
+def provisional_note(run_dir: Path) -> str | None:
+    """What an earlier run's map lacks where that run was not a result (``report.status``):
+    a re-check or a survey from it starts from a provisional map (an outside audit: a run that
+    stopped with readings_disagree after 4 fused readings, its map 1.3 mm off, was taken
+    without a word). None for a finished run or one without result.json."""
+    from adaptive_cal.report.status import missing
+
+    path = Path(run_dir) / "result.json"
+    if not path.is_file():
+        return None
+    why = missing(read_json(path))
+    return (f"{run_dir} was not a result ({why}): its map is provisional, and a survey from it "
+            "starts from that" if why else None)
