@@ -281,3 +281,12 @@ def test_a_modicon_style_raw_address_is_warned_about_before_anything_moves(tmp_p
     f.write_text(yaml.safe_dump(data))
     assert main(["run", "--robot", str(f), "--dry-run"]) == 0
     assert "warning: robot.modbus.registers.watchdog: hr:40121" in capsys.readouterr().err
+
+
+def test_a_six_digit_modicon_reference_is_refused_with_what_to_write():
+    with pytest.raises(ValueError, match=r"beyond 65535 \(a 6-digit Modicon reference, counted "
+                                         r"from 1\? hr:N takes the protocol address: 400101 is "
+                                         r"hr:100\)"):
+        resolve("hr:400101")
+    with pytest.raises(ValueError, match=r"beyond 65535$"):
+        resolve("hr:99999999")

@@ -43,7 +43,12 @@ def resolve(name: str) -> Address:
     if m:
         addr = int(m.group(2), 0)
         if addr > 0xFFFF:
-            raise ValueError(f"address {name!r} is beyond 65535")
+            digits, table = m.group(2), m.group(1).lower()
+            lead = {"hr": "4", "ir": "3", "di": "1"}.get(table)  # Modicon's 6-digit 4xxxxx ...
+            hint = (f" (a 6-digit Modicon reference, counted from 1? {table}:N takes the "
+                    f"protocol address: {digits} is {table}:{int(digits[1:]) - 1})"
+                    if len(digits) == 6 and digits[0] == lead and int(digits[1:]) > 0 else "")
+            raise ValueError(f"address {name!r} is beyond 65535{hint}")
         return Address(m.group(1).lower(), addr, s)
     m = re.fullmatch(r"\$(M?)(\d+)", s, re.I)
     if m:
