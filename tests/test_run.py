@@ -700,3 +700,24 @@ def test_too_few_candidates_are_named_when_no_first_touch_fits(tmp_path, capsys)
     err = capsys.readouterr().err
     assert "among the 16 points of plan.candidates=16" in err and "give more candidates" in err
     assert "keep-outs" not in err
+
+
+def test_max_std_alone_is_the_bound_and_two_bounds_both_hold_the_run():
+    """An outside audit (2026-12-02): a cell stating plan.stop.max_std_mm alone kept the default
+    mean bound, which stopped the run (any bound stopped it) while the max bound was unmet: the
+    summary said INCOMPLETE, and the --resume it advised answered 'already finished'."""
+    from adaptive_cal.cell.build import stop_rule
+    from adaptive_cal.planning.stopping import Status
+    from tests.helpers import sim_cell
+
+    alone = sim_cell(plan={"stop": {"max_std_mm": 0.008, "max_touches": 120}})
+    assert alone.plan.stop.mean_std_mm is None
+    rule = stop_rule(alone, 30)
+    assert rule(Status(touches=40, mean_std_mm=0.003, max_std_mm=0.0082)) is None
+    assert rule(Status(touches=40, mean_std_mm=0.009, max_std_mm=0.0079)) == "max_std_bound"
+    both = sim_cell(plan={"stop": {"max_std_mm": 0.008, "mean_std_mm": 0.004}})
+    rule = stop_rule(both, 30)
+    assert rule(Status(touches=40, mean_std_mm=0.003, max_std_mm=0.0082)) is None
+    assert rule(Status(touches=40, mean_std_mm=0.0041, max_std_mm=0.0079)) is None
+    assert rule(Status(touches=40, mean_std_mm=0.0039, max_std_mm=0.0079)) is not None
+    assert rule(Status(touches=200, mean_std_mm=0.1, max_std_mm=0.1)) == "touch_budget"

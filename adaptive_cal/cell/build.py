@@ -144,7 +144,7 @@ def plan_model(cell: Cell) -> PriorModel:
 
 
 def stop_rule(cell: Cell, coefficients: int, *, informed_prior: bool = False) -> StopRule:
-    """(variance bounds, after at least min_touches touches) | touch budget.
+    """(every variance bound set, after at least min_touches touches) | touch budget.
 
     By default a bound may stop the run only after as many touches as the spline has
     coefficients: before that the hyper-parameters rest on too few readings, and runs that
@@ -159,7 +159,7 @@ def stop_rule(cell: Cell, coefficients: int, *, informed_prior: bool = False) ->
     bounds += [MaxStdBelow(s.max_std_mm)] if s.max_std_mm is not None else []
     rule: StopRule = TouchBudget(s.max_touches)
     if bounds:
-        bound = bounds[0] if len(bounds) == 1 else bounds[0] | bounds[1]
+        bound = bounds[0] if len(bounds) == 1 else bounds[0] & bounds[1]  # every one set
         bound = bound & AtLeast(touch_floor(cell, coefficients, informed_prior=informed_prior))
         if s.max_gap_mm is not None:
             bound = bound & GapBelow(s.max_gap_mm)

@@ -18,6 +18,7 @@ from adaptive_cal.cell.plate import (REACH_MM, Interval, Rect, Workplane,  # noq
                                      _interval)  # (re-exported)
 from adaptive_cal.cell.files import ConfigError, load_yaml, validate  # noqa: F401 (re-exported)
 from adaptive_cal.cell.simulation import FrameCorrection, Simulation  # noqa: F401 (re-exported)
+from adaptive_cal.cell.stop import Stop
 from adaptive_cal.formats.mapfiles import beside
 from adaptive_cal.hardware.hses.config import HsesConfig
 from adaptive_cal.hardware.manual.config import ManualConfig
@@ -220,37 +221,10 @@ class Model(Block):
         return v
 
 
-class Stop(Block):
-    """When to stop: any bound met, or the touch budget spent. `run` warns about a bound of a
-    tenth of the probe's usable stroke or more (at least 0.1 mm): um typed as mm?"""
-
-    mean_std_mm: float | None = Field(0.01, gt=0, description="RMS posterior std over the plate")
-    max_std_mm: float | None = Field(None, gt=0, description="largest posterior std on the plate")
-    max_touches: int = Field(200, ge=1, le=100_000, description="touch budget")
-    min_touches: int | None = Field(
-        None, ge=0, description="no variance bound stops the run before this many touches; "
-        "default: the number of spline coefficients while hyper-parameters are learned from "
-        "scratch (warned about where above max_touches); 0 with probe.noise_range_mm, a prior "
-        "from an earlier run (--prior-from) or learn_hyper: false")
-    max_gap_mm: float | None = Field(
-        None, gt=0, description="no variance bound stops the run while a disc of this radius "
-        "(mm) on the reachable plate holds no touch; the planner then touches the largest gap. "
-        "A dent or bump of radius R is then touched within this distance of its centre: at most "
-        "R / 2 sees at least half its depth (a smooth bowl). It costs about area / (2.6 r^2) "
-        "touches: 100 for r = 24 mm on a 430 x 350 mm plate")
-
-    @model_validator(mode="after")
-    def _floor_within_budget(self):
-        if self.min_touches is not None and self.min_touches > self.max_touches:
-            raise ValueError(f"min_touches={self.min_touches} is above max_touches="
-                             f"{self.max_touches}: no variance bound could stop the run")
-        return self
-
-
 class Plan(Block):
     """The planner: candidates, refinement, batches, hyper-parameter learning."""
 
-    stop: Stop = Field(Stop(), description="stopping rules (any one stops)")
+    stop: Stop = Field(Stop(), description="stopping rules: every bound set met, or the budget")
     candidates: int = Field(10000, ge=16, le=1_000_000, description="grid points scored per decision")
     refine: int = Field(3, ge=0, description="best candidates refined by gradient steps")
     batch: int = Field(1, ge=1, le=1000, description="touches planned ahead and ordered for travel")
