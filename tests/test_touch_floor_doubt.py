@@ -53,3 +53,15 @@ def test_no_shipped_cell_file_is_warned_about():
     assert len(cells) >= 6
     for path in cells:
         assert cell_doubts(load_cell(path)) == [], path.name
+
+
+def test_a_plate_mostly_beyond_reach_is_warned_about():
+    """An outside audit (2026-12-02): an edge margin of a third of the plate left 85 % of it to
+    extrapolation; the 4 um bound was never met and the whole budget was spent, unwarned."""
+    from adaptive_cal.cell.consistency import doubts, unreachable_share
+
+    assert abs(unreachable_share(sim_cell().workplane) - 0.13) < 0.01  # 10 mm margin, a clamp
+    assert not [d for d in doubts(sim_cell()) if "beyond the touches' reach" in d]
+    said = [d for d in doubts(sim_cell(workplane={"edge_margin_mm": 123}))
+            if "beyond the touches' reach" in d]
+    assert len(said) == 1 and said[0].startswith("workplane: 85% of the plate lies beyond")

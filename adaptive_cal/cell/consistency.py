@@ -112,6 +112,14 @@ def doubts(cell) -> list[str]:
             out.append(f"plan.stop.{key}: {value:g} mm is {value / span:.0%} of the probe's usable "
                        f"stroke ({span:g} mm): the run stops once the map is known to that -- "
                        f"um given as mm? ({value:g} um is {value / 1000:g})")
+    unreachable = unreachable_share(cell.workplane)
+    if unreachable >= UNREACHABLE_SHARE and (stop.mean_std_mm or stop.max_std_mm):
+        wp = cell.workplane
+        out.append(f"workplane: {unreachable:.0%} of the plate lies beyond the touches' reach (the "
+                   f"edge margin of {wp.edge_margin_mm:g} mm and {len(wp.keep_outs)} keep-out(s)): "
+                   "the stopping bound is over the whole plate, so over that share it rests on "
+                   "extrapolation and may never be met; narrow the margin and the keep-outs to "
+                   "what the probe really cannot touch")
     probe = cell.probe
     step_std = probe.resolution_mm / math.sqrt(12)  # the rounding to the readout step alone
     stated = (("noise_range_mm", probe.noise_range_mm[0]) if probe.noise_range_mm else
@@ -131,6 +139,20 @@ def doubts(cell) -> list[str]:
                     for role, name in m.registers.roles().items()
                     if (line := modicon_doubt(name))]
     return out
+
+
+#: a share of the plate beyond the touches' reach from which a bound over the whole plate is
+#: doubted (an outside audit: an edge margin of a third of the plate, 85 % unreachable, spent the
+#: whole budget against a bound extrapolation could not meet)
+UNREACHABLE_SHARE = 0.3
+
+
+def unreachable_share(wp, n: int = 100) -> float:
+    """The share of the workplane no touch may go to (edge margin, keep-outs): an n x n grid."""
+    x = np.linspace(wp.x_mm[0], wp.x_mm[1], n)
+    y = np.linspace(wp.y_mm[0], wp.y_mm[1], n)
+    xx, yy = np.meshgrid(x, y, indexing="ij")
+    return float(1.0 - np.mean(wp.allowed(xx, yy)))
 
 
 MODICON = {"coil": 0, "di": 1, "ir": 3, "hr": 4}  # a Modicon reference's leading digit
