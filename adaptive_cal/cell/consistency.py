@@ -187,7 +187,7 @@ def no_admissible_point(cell, plan) -> str:
                 f"less the middle of probe.usable_mm {[lo, hi]}), outside that range: no touch "
                 "can be made. Widen workspace.z_mm to hold it")
     cx, cy = plan.model.centre_mm
-    dense = denser_grid_allows(plan)
+    dense = denser_grid_allows(plan) if cell.plan.candidates < DENSE else 0
     if dense:  # an audit: 16 candidates on the reference plate; the prior and keep-outs blamed
         n = len(plan.candidates.xy_mm)
         return (f"no allowed point can be promised to land inside the usable probe stroke "
@@ -210,15 +210,16 @@ def no_admissible_point(cell, plan) -> str:
             f"{[lo, hi]} mm: {where}")
 
 
-def denser_grid_allows(plan, count: int = 10_000) -> int:
+DENSE = 10_000  # candidates (the default): a grid fine enough to tell a coarse one's fault
+
+
+def denser_grid_allows(plan, count: int = DENSE) -> int:
     """How many points of a ``count``-point candidate grid the prior would allow (inside the
     usable stroke with the planner's certainty, approach height inside the workspace), where
-    the plan's own candidates allow none: more than 0 when the plan's grid is too coarse."""
+    the plan's own, coarser candidates allow none: more than 0 when they are too coarse."""
     from adaptive_cal.planning import survey as sv
     from adaptive_cal.planning.scoring import candidate_grid, stroke_ok
 
-    if len(plan.candidates.xy_mm) >= count:
-        return 0
     state = sv.start(plan)
     grid = candidate_grid(plan.model.surface, plan.allows, *plan.bounds_mm, count)
     rows, b = grid.rows, state.belief
