@@ -177,11 +177,11 @@ def touch_floor(cell: Cell, coefficients: int, *, informed_prior: bool = False) 
 
 
 def cell_doubts(cell: Cell, *, informed_prior: bool = False) -> list[str]:
-    """``consistency.doubts`` and the touch floor's: a floor the cell file left to its default
-    (the spline's coefficients, ``touch_floor``) above the touch budget -- no variance bound
-    could stop the run, which would spend its budget and end with no result (an audit: a 3 x
-    2 m plate's 256 coefficients against the default budget of 200, said only at the end). An
-    explicit plan.stop.min_touches above max_touches is refused at load."""
+    """``consistency.doubts``, ``pivot_doubt`` and the touch floor's: a floor the cell file left
+    to its default (the spline's coefficients, ``touch_floor``) above the touch budget -- no
+    variance bound could stop the run, which would spend its budget and end with no result (an
+    audit: a 3 x 2 m plate's 256 coefficients against the default budget of 200, said only at
+    the end). An explicit plan.stop.min_touches above max_touches is refused at load."""
     out = doubts(cell) + [line for line in [pivot_doubt(cell)] if line]
     s = cell.plan.stop
     if s.min_touches is None and (s.mean_std_mm is not None or s.max_std_mm is not None):

@@ -3,7 +3,6 @@ the folder was mapped with, a re-check's earlier run folder."""
 from __future__ import annotations
 
 import sys
-
 from pathlib import Path
 
 from adaptive_cal.cli.common import UserError
