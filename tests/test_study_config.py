@@ -205,3 +205,19 @@ def test_settings_that_change_nothing_are_said():
         or line.startswith("plate.tilt_deg not used: plate.surface_files"), line
     grid_only = study.model_copy(update={"strategies": ["grid"]})
     assert "does not run" in summarise(grid_only, [])["lower_bound"]["why_none"]
+
+
+def test_the_paper_strategys_levelling_points_keep_out_of_keep_outs():
+    """An outside audit (2026-12-02): the paper strategy's 5 levelling points were never
+    filtered; with a keep-out over the centre and one over a corner it touched both."""
+    import numpy as np
+
+    from adaptive_cal.study.designs import paper_points
+    from adaptive_cal.study.config import Paper
+    from tests.helpers import sim_cell
+
+    cell = sim_cell(workplane={"keep_outs": [{"x_mm": [-30, 30], "y_mm": [-30, 30]},
+                                             {"x_mm": [150, 225], "y_mm": [120, 185]}]})
+    level, path = paper_points(cell, Paper())
+    assert len(level) == 3
+    assert all(cell.workplane.allows(x, y) for x, y in np.vstack([level, path]))

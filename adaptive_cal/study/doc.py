@@ -20,7 +20,9 @@ figures, and the benchmark figures from `benchmarks/results/`) is written by one
 {command}
 ```
 
-Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun, so the page is
+Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun -- whatever code
+made them: the checkpoint's key covers the study's settings and height maps, not the code, so
+delete it to remeasure with the code at hand --, so the page is
 rewritten in seconds; this run took {took} of wall clock.{history}
 
 ## Headline ({plates} of `{study_file}`)
