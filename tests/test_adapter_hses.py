@@ -90,6 +90,10 @@ def test_an_alarm_during_a_descent_is_never_reset_or_the_move_sent_again(control
     after = requests_after(controller, n)
     assert sum(c == (P.CMD_MOVE, 2) for c in after) == 1 + lost  # the one re-send, no more
     assert not [c for c in after if c[0] == P.CMD_ALARM_RESET]
+    # a third audit: the retract after it found the alarm standing and reset it
+    with pytest.raises(HsesError, match="not reset: an alarm came during an earlier descent"):
+        m.move_to(5.0, 5.0, 15.0)
+    assert not [c for c in requests_after(controller, n) if c[0] == P.CMD_ALARM_RESET]
     m.close()
 
 

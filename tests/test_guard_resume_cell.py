@@ -165,3 +165,17 @@ def test_a_recording_the_run_could_not_have_made_is_not_resumed(run_dir, tmp_pat
     line = next(i for i, ln in enumerate(lines) if ln.startswith("seq,")) + 4  # 1-based, row 2
     assert said.format(line=line) in err and "nothing was sent" in err, err
     assert "Traceback" not in err and _files(d) == before
+
+
+def test_keys_that_move_the_frame_or_scale_a_length_may_not_differ_on_resume():
+    """An outside audit (2026-12-02): robot.hses.offset_mm 50 um lower on a resume was accepted
+    as changing nothing; every new touch read 50 um off and the run ended in 'drift'."""
+    from adaptive_cal.cli.run_guards import _differ
+
+    was = {"robot.hses.offset_mm": [0, 0, 0], "robot.hses.host": "10.0.0.2",
+           "robot.modbus.scale": 10000, "robot.hses.user_frame": 1, "name": "a"}
+    now = {"robot.hses.offset_mm": [0, 0, -0.05], "robot.hses.host": "10.0.0.3",
+           "robot.modbus.scale": 1000, "robot.hses.user_frame": 2, "name": "b"}
+    bad, fine = _differ(was, now)
+    assert bad == ["robot.hses.offset_mm", "robot.hses.user_frame", "robot.modbus.scale"]
+    assert fine == ["name", "robot.hses.host"]

@@ -15,6 +15,14 @@ RESUME_MAY_DIFFER = ("name", "plan.stop.", "robot.speed_mm_per_s", "robot.touch_
                      "robot.safe_height_mm", "robot.manual.", "robot.hses.", "robot.modbus.",
                      "robot.robodk.", "probe.serial.", "probe.modbus.", "probe.settle_s",
                      "workspace.z_mm")  # the box's height: what a refused travel asks raised
+#: ... except where a key moves the frame the touches are taken in, or how a length is read: a
+#: resume with robot.hses.offset_mm 50 um lower read every new touch 50 um off, and was told it
+#: changed nothing (an outside audit, 2026-12-02); these must be the recording's own
+RESUME_MAY_NOT_DIFFER = ("robot.hses.offset_mm", "robot.hses.frame", "robot.hses.user_frame",
+                         "robot.hses.user_frame_in_base", "robot.hses.tool",
+                         "robot.hses.orientation_deg", "robot.modbus.scale",
+                         "robot.modbus.number", "robot.modbus.word_order", "probe.modbus.scale",
+                         "probe.modbus.number", "probe.modbus.word_order", "probe.serial.scale")
 
 
 def _flat(value, prefix: str = "") -> dict:
@@ -30,7 +38,8 @@ def _differ(was: dict, now: dict) -> tuple[list[str], list[str]]:
     """The keys two flattened cells differ in: (those that change the map or the touches,
     those that do not -- ``RESUME_MAY_DIFFER``)."""
     differ = [k for k in sorted(set(was) | set(now)) if was.get(k) != now.get(k)]
-    bad = [k for k in differ if not any(k == m or k.startswith(m) for m in RESUME_MAY_DIFFER)]
+    bad = [k for k in differ if not any(k == m or k.startswith(m) for m in RESUME_MAY_DIFFER)
+           or any(k == m or k.startswith(m + ".") for m in RESUME_MAY_NOT_DIFFER)]
     return bad, [k for k in differ if k not in bad]
 
 

@@ -43,7 +43,7 @@ class HsesMotion:
         self.sock.connect((cfg.host, cfg.port))
         self._id = self.sends = 0
         self.pose: tuple[float, float, float] | None = None
-        self.dropped = 0
+        self.dropped, self.descent_alarm = 0, False  # an alarm in a descent: none reset after
         d1, _ = self.status()
         if not d1 & P.REMOTE:
             raise AdapterError(f"{self.where}: command remote is off; set the pendant to REMOTE "
@@ -147,7 +147,7 @@ class HsesMotion:
             raise AdapterError(f"{self.where}: {e}") from None
 
     def robot_position(self) -> tuple[float, float, float]:
-        """Position the controller reports: the base frame (data type 16), mm, of robot.hses.tool."""
+        """Position the controller reports: base frame (data type 16), mm, of robot.hses.tool."""
         try:
             return P.unpack_position(self.call(P.CMD_POSITION, P.POSITION_INSTANCE, 0, P.GET_ALL),
                                      tool=self.cfg.tool)
@@ -236,11 +236,13 @@ class HsesMotion:
                 if e.added in P.RETRYABLE:
                     break
                 if reset and (e.alarm or e.error):
-                    if sent and not self._rises(target, before):
-                        raise HsesError(  # a collision? the same move would drive into it
-                            f"{e} -- not reset: it came while the robot moved down or from "
-                            "where it is not known (reset_alarms never resets one during a "
-                            "descent: it may be a collision)", e.status, e.added) from None
+                    if self.descent_alarm or (sent and not self._rises(target, before)):
+                        when = ("an alarm came during an earlier descent" if self.descent_alarm else
+                                "it came while the robot moved down or from an unknown start")
+                        self.descent_alarm = True  # nor the retract's (an audit): a collision?
+                        raise HsesError(f"{e} -- not reset: {when} (reset_alarms never resets "
+                                        "one during a descent: it may be a collision; reset it "
+                                        "at the pendant)", e.status, e.added) from None
                     reset, sent = False, False  # one reset per move; a second alarm stops
                     self._reset(e)
                     continue
@@ -266,13 +268,11 @@ class HsesMotion:
     def _rises(self, target, before) -> bool:
         """Whether a move to ``target`` (frame of the moves) does not descend from the last
         pose reached, else from where the controller reports; False where neither is known."""
-        if before is not None:
-            start_z = before[2] + self.cfg.offset_mm[2]
-        elif self.cfg.can_locate:
-            start_z = self.from_base(self.robot_position())[2]
-        else:
+        if before is None and not self.cfg.can_locate:
             return False
-        return target[2] >= start_z - 0.01
+        z0 = (before[2] + self.cfg.offset_mm[2] if before is not None
+              else self.from_base(self.robot_position())[2])
+        return target[2] >= z0 - 0.01
 
     def _reset(self, e: HsesError) -> None:
         """Reset a genuine alarm (0x82 instance 1) and/or cancel an error (instance 2); servo
