@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from adaptive_cal.planning.gate import Retake, Told
+from adaptive_cal.planning.gate import Told
 
 #: rejected retakes in a row at one place that end a survey
 DISAGREE_STOP = 2
@@ -36,7 +36,7 @@ class Disagreements:
     def __init__(self):
         self.heights_mm: list[float] = []
         self.rejected = 0
-        self.where: Retake | None = None
+        self.where: tuple[float, float] | None = None  # (x, y) mm of the place
 
     def see(self, told: Told) -> bool:
         """Take one judged reading; True once ``DISAGREE_STOP`` retakes in a row at its place
@@ -44,10 +44,10 @@ class Disagreements:
         if told.fused:
             self.__init__()
             return False
-        if self.where is None or math.hypot(told.x_mm - self.where.x_mm,
-                                            told.y_mm - self.where.y_mm) > PLACE_MM:
+        if self.where is None or math.hypot(told.x_mm - self.where[0],
+                                            told.y_mm - self.where[1]) > PLACE_MM:
             self.__init__()
-            self.where = Retake(told.x_mm, told.y_mm, told.z_mm, told.height_mm)
+            self.where = (told.x_mm, told.y_mm)
         self.heights_mm.append(told.height_mm)
         self.rejected += "rejected" in told.flags
         return self.rejected >= DISAGREE_STOP
@@ -55,7 +55,7 @@ class Disagreements:
     def text(self, plan, state) -> str:
         """What the readings held back at the place show, in um (``plan``, ``state``: the
         survey's; its belief is the one they were judged by: nothing was fused since)."""
-        x, y = self.where.x_mm, self.where.y_mm
+        x, y = self.where
         h = plan.model.surface.basis(np.array([x]), np.array([y]))[0]
         mean = float(h @ state.belief.mean)
         std = float(np.sqrt(max(h @ state.belief.cov @ h, 0.0)))

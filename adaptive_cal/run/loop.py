@@ -46,8 +46,8 @@ from adaptive_cal.planning import closure_noise
 from adaptive_cal.planning import survey as sv
 from adaptive_cal.planning.ask import Target, ask, target as target_at
 from adaptive_cal.planning.clearance import plate_top_mm  # the travel's height over the plate
-from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.disagree import READINGS_DISAGREE, Disagreements
+from adaptive_cal.planning.gate import Told
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.robust import InvalidReading
 from adaptive_cal.planning.shell import READOUT_FROZEN  # the stop for repeats (frozen_after)

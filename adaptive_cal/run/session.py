@@ -26,12 +26,12 @@ from adaptive_cal.formats.times import last_time_s
 from adaptive_cal.formats.writing import RecordingWriter, provenance, repair_cut_row_said
 from adaptive_cal.hardware.base import AdapterError, Interrupted, OperatorStop, StrokeOverrun
 from adaptive_cal.planning import survey as sv
+from adaptive_cal.planning.disagree import READINGS_DISAGREE
 from adaptive_cal.planning.plan import SurveyPlan
 from adaptive_cal.planning.stopping import Status
 from adaptive_cal.run.bar import _close_bar, _progress, _update
 from adaptive_cal.run.devices import open_cell
 from adaptive_cal.run.folder import run_lock, write_json
-from adaptive_cal.planning.disagree import READINGS_DISAGREE
 from adaptive_cal.run.loop import (CLOSING, DRIFT, NO_ADMISSIBLE_POINT, TOUCHES_REJECTED, Row,
                                    Step, SurveyLoop)
 from adaptive_cal.run.recheck import (PRIOR_DISAGREES, PRIOR_HOLD, PRIOR_RECORD, PRIOR_SURPRISES,

@@ -60,7 +60,7 @@ def paper_points(cell: Cell, paper: Paper) -> tuple[np.ndarray, np.ndarray]:
                       (xs[0], ys[-1])])
     # those a keep-out covers are left out, as the path's are (an outside audit: the paper
     # strategy touched the centre under a keep-out); the plane needs three
-    level = level[[bool(wp.allows(x, y)) for x, y in level]]
+    level = level[wp.allowed(level[:, 0], level[:, 1])]
     if len(level) < 3:
         raise ValueError(f"the reference procedure's levelling points: only {len(level)} of 5 "
                          "lie outside the keep-outs and inside the edge margin; a plane needs 3")

@@ -32,6 +32,7 @@ class ModbusMotion:
         # a new connection's first done may end a move an earlier one left running (a Ctrl-C,
         # then --resume): believed, as after an unfinished move, only where actual_x/y/z agree
         self.first_done_checked = "actual_x" not in link.map
+        self.read_first = None  # actual_x/y/z before the first move (``_first_move_allowed``)
 
     def move_to(self, x_mm: float, y_mm: float, z_mm: float) -> None:
         k = self.link
@@ -99,7 +100,7 @@ class ModbusMotion:
             whose = (f"the stopped move's done ({self.unfinished})" if self.unfinished else
                      "the done of a move the job was still in when this connection began (an "
                      "earlier run stopped during a move?); this move's start went unseen")
-            if not self.unfinished and here == getattr(self, "read_first", None):
+            if not self.unfinished and here == self.read_first:
                 whose = ("they read the same before the move and after it: either nobody "
                          "writes them (a register nobody writes reads 0; map them only once the "
                          "job and the ladder write them, hw/plc-register-map.md) or this 'done' "
