@@ -38,6 +38,9 @@ def add_arguments(p) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override one study key, e.g. --set bound.true_rms_mm=0.01 (YAML value; "
                         "a relative plate.surface_files is, as in the file, relative to STUDY)")
+    p.add_argument("--reuse-records", action="store_true",
+                   help="keep finished runs the checkpoint holds from other code (refused "
+                        "without it); the summary and the page say how many")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -126,6 +129,8 @@ def _command(args) -> str:
             words += [option, quote(str(value))]
     for item in args.set:
         words += ["--set", quote(item)]
+    if getattr(args, "reuse_records", False):
+        words.append("--reuse-records")
     return "OPENBLAS_NUM_THREADS=1 " + " ".join(words)
 
 
@@ -137,6 +142,14 @@ def _kept(checkpoint: Path, study, base) -> int:
         return len(read_checkpoint(checkpoint, study_key(study, base)))
     except (OSError, ValueError):  # UnicodeDecodeError and JSON errors are ValueErrors
         return 0
+
+
+def _code(records: list[dict]) -> dict:
+    """Which code made the records: this code's fingerprint and how many runs were another's."""
+    from adaptive_cal.study.checkpoint import code_fingerprint, other_code
+
+    return {"fingerprint": code_fingerprint(), "runs": len(records),
+            "runs_by_other_code": len(other_code(records))}
 
 
 def _where(args) -> str:
@@ -271,7 +284,8 @@ def command(args) -> int:
             records = run_study(study, base, checkpoint, client=client,
                                 worker_setup=worker_setup,
                                 progress=None if args.quiet else progress,
-                                warn=lambda text: print(f"warning: {text}", file=sys.stderr))
+                                warn=lambda text: print(f"warning: {text}", file=sys.stderr),
+                                reuse=args.reuse_records)
     except KeyboardInterrupt:
         progress.close()
         kept = _kept(checkpoint, study, base)
@@ -284,6 +298,11 @@ def command(args) -> int:
         if client is not None:
             client.close()
     summary = summarise(study, records)
+    summary["code"] = _code(records)
+    if summary["code"]["runs_by_other_code"]:
+        print(f"warning: {summary['code']['runs_by_other_code']} of {count(len(records), 'run')} "
+              f"kept from other code (--reuse-records): not this code's measurement",
+              file=sys.stderr)
     summary["wall_s"] = round(time.monotonic() - progress.t0, 1)
     out_json.parent.mkdir(parents=True, exist_ok=True)
     from adaptive_cal.formats.writing import provenance

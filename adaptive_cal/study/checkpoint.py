@@ -8,9 +8,15 @@ once. While a study runs it holds a lock on the checkpoint (``plates.jsonl.lock`
 a second study on the same checkpoint is refused, where it used to replace the file under the
 first one, whose later records then went to the replaced file and were lost (an outside audit,
 2026-11-29).
+
+Each record carries ``code``: a hash of the sources that make records (``code_fingerprint``).
+Records of other code are not this code's measurement: a study refuses them unless told to keep
+them (``reuse``), and then says how many it kept (an outside audit, 2026-12-02: a page's
+command reused records made by the code of nine days before, and presented them as its own).
 """
 from __future__ import annotations
 
+import functools
 import glob
 import hashlib
 import json
@@ -23,6 +29,50 @@ from pathlib import Path
 from typing import Iterable
 
 from adaptive_cal.study.config import Study, surface_files
+
+
+#: the packages whose code makes a study's records; of the study package, the modules that only
+#: present, keep or schedule records are left out (a page's wording changes no measurement)
+MEASURING = ("cell", "effects", "formats", "gaussian", "planning", "run", "simulation", "study")
+PRESENTING = ("study/doc.py", "study/figures.py", "study/summary.py", "study/checkpoint.py",
+              "study/runner.py")
+
+
+def fingerprint(root: Path) -> str:
+    """12 hex digits of a SHA-256 over the sources under the package folder ``root`` that make
+    a study's records (their paths and bytes): another planner, simulator or model is another
+    fingerprint; another page wording is not."""
+    digest = hashlib.sha256()
+    files = [root / "__init__.py"] + sorted(f for pkg in MEASURING
+                                             for f in (root / pkg).rglob("*.py"))
+    for f in files:
+        rel = f.relative_to(root).as_posix()
+        if rel not in PRESENTING:
+            digest.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
+    return digest.hexdigest()[:12]
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """This code's ``fingerprint``."""
+    return fingerprint(Path(__file__).resolve().parents[1])
+
+
+def other_code(records: list[dict]) -> list[dict]:
+    """The records made by other code than this (or before records carried their code)."""
+    return [r for r in records if r.get("code") != code_fingerprint()]
+
+
+def refuse_other_code(path: Path, records: list[dict]) -> None:
+    """ValueError naming the checkpoint where it holds records of other code."""
+    other = other_code(records)
+    if other:
+        codes = sorted({str(r.get("code", "none: made before records carried it")) for r in other})
+        raise ValueError(
+            f"{path} holds {len(other)} of {len(records)} finished runs made by other code than "
+            f"this (code {', '.join(codes)}; this code {code_fingerprint()}): they are not this "
+            "code's measurement. Delete it to measure again, or add --reuse-records to keep them "
+            "(the summary and the page then say how many are another code's)")
 
 
 def _sha256(path: str) -> str:

@@ -20,10 +20,10 @@ figures, and the benchmark figures from `benchmarks/results/`) is written by one
 {command}
 ```
 
-Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun -- whatever code
-made them: the checkpoint's key covers the study's settings and height maps, not the code, so
-delete it to remeasure with the code at hand --, so the page is
-rewritten in seconds; this run took {took} of wall clock.{history}
+Finished plates are kept in `{out_dir}/plates.jsonl` and skipped on a rerun with the same
+settings and code, so the page is rewritten in seconds; this run took {took} of wall clock.
+Each record carries a fingerprint of the code that made it; records of other code are refused
+(`--reuse-records` keeps them, and this line says so). {made_by}{history}
 
 ## Headline ({plates} of `{study_file}`)
 
@@ -76,7 +76,9 @@ Every key of a study file, with its default and meaning: [study-config.md](study
   drawn tilt and form or the map, the noise and the seed; the base cell with that block runs the
   same plate through `adaptive-cal run`); an interrupted study keeps them, and
   the same command skips them on the rerun. Its key covers the height maps' names and bytes: a
-  map added, removed or rewritten makes another study, and the rerun refuses the old plates.
+  map added, removed or rewritten makes another study, and the rerun refuses the old plates;
+  each record carries its code's fingerprint, and records of other code are refused unless
+  `--reuse-records` keeps them (the page then says how many).
   A second study on the same `plates.jsonl` is refused while the first runs (a lock beside it,
   `plates.jsonl.lock`); a damaged line is skipped and named, the records after it kept.
 * A plate of `plate.surface_files` is its map with the base cell's `simulation.effects` added on
@@ -94,7 +96,6 @@ def targets_section(summary: dict, results: Path) -> str:
     """The issue's targets against what was measured."""
     def mark(ok):
         return "met" if ok else "**missed**"
-
     lines = ["## Targets", ""]
     vp, lb = summary.get("adaptive_vs_paper"), summary.get("lower_bound") or {}
     if vp:
@@ -109,8 +110,8 @@ def targets_section(summary: dict, results: Path) -> str:
             if native is not None and same is not None else "* paper comparison: not run")
     if lb.get("adaptive_over_relaxed"):
         r, rw = lb["adaptive_over_relaxed"], lb.get("adaptive_over_relaxed_whole")
-        best = f"{rw:.2f} x the relaxed optimal design rounded up to whole touches, " \
-            if rw else ""
+        best = (f"{rw:.2f} x the relaxed optimal design rounded up to whole touches, "
+                if rw else "")
         lines.append(f"* adaptive at most 1.2 x the best lower bound computed: {best}{r:.2f} x "
                      f"the relaxed design itself, mean of per-plate ratios on "
                      f"{count(lb['plates'])} ({mark((rw or r) <= 1.2)}; same hyper-parameters as "
@@ -278,11 +279,6 @@ def _sequence_lines(q: dict) -> list[str]:
     return out
 
 
-def _planner_probe(study: Study, base: dict):
-    """The probe block the planner sees on the study's plates (plate 0 stands for all)."""
-    return plate_cell(study, base, sample_plate(study, 0)).probe
-
-
 def _noise_prior_text(probe) -> str:
     if probe.noise_range_mm is None:
         return (f"The planner learns the reading noise from a weak prior around the cell's first "
@@ -293,20 +289,21 @@ def _noise_prior_text(probe) -> str:
             "span's middle to its top, log-normal beyond), and learns the noise within it.")
 
 
-#: the provenance of the project's own page (configs/study-tilts.yaml -> docs/study.md): how
-#: long a fresh run took and what was re-counted since -- on no other study's page
+#: how long a fresh run of the project's own page took (configs/study-tilts.yaml -> study.md)
 TILTS_HISTORY = """
-A fresh 40-plate run of this page took 63 minutes on the 2-core development
-machine (2026-11-23, partly shared with other jobs), with the lower bound on 20 plates (11
-minutes on 2026-11-21, before the planner's self-checks and robot-time cost landed). On
-2026-11-24 the planner's touches to the true bound in those records were re-counted from their
-trajectories against the bound itself (they had been counted against the stricter of the bound
-and the paper's accuracy, which a run goes on to for the comparison with the paper: 84.5 / 161
-touches, 95 % reached), a closure touch charged past the touch budget (one random plate, 201
-touches) was taken off, and the one planner record whose stored touches ended before the bound
-was run again."""
+A fresh 40-plate run of this page, the lower bound on 20 plates included, took about an hour
+on the 2-core development machine (63 minutes on 2026-11-23, partly shared with other jobs)."""
 REPO = Path(__file__).resolve().parents[2]
 SHIPPED_TILTS = REPO / "configs" / "study-tilts.yaml"
+
+
+def _made_by(code: dict | None) -> str:
+    other, runs = (code or {}).get("runs_by_other_code"), count((code or {}).get("runs", 0), "run")
+    if not code:
+        return "Which code made these records was not recorded."
+    return (f"**Runs made by other code than {code['fingerprint']}: {other} of {runs}** (kept by "
+            "--reuse-records): they are not its measurement." if other else
+            f"Every run on this page ({runs}) was made by the same code, {code['fingerprint']}.")
 
 
 def _plates_are(study: Study) -> str:
@@ -331,12 +328,12 @@ def write_doc(path: Path, study: Study, summary: dict, *, study_file: str, out_d
         out_rel = Path(out_dir).resolve().relative_to(path.resolve().parent)
     except ValueError:
         pass
-    probe = _planner_probe(study, base)
+    probe = plate_cell(study, base, sample_plate(study, 0)).probe  # plate 0 for all
     own = Path(study_file).resolve() == SHIPPED_TILTS
     history = TILTS_HISTORY if own else ""
     wall = float(summary.get("wall_s") or 0.0)
     took = f"{wall:.0f} s" if wall < 90 else f"{wall / 60:.0f} min"
-    text = DOC.format(took=took,
+    text = DOC.format(took=took, made_by=_made_by(summary.get("code")),
                       command=command, history=history, plates_are=_plates_are(study),
                       study_file=study_file, out_dir=out_dir, plates=count(summary["plates"]),
                       n0=p.noise_std_mm[0] * 1e3, n1=p.noise_std_mm[1] * 1e3,

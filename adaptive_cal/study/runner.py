@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Callable
 
 from adaptive_cal.cell.schema import parse_cell
-from adaptive_cal.study.checkpoint import Checkpoint, study_key
+from adaptive_cal.study.checkpoint import Checkpoint, refuse_other_code, study_key
 from adaptive_cal.study.config import Study
 from adaptive_cal.study.tasks import fixed_batch_task, in_worker, plate_task
 
@@ -71,7 +71,8 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
               worker_setup: Callable[[], None] | None = None,
               progress: Callable[[int, int], None] | None = None,
               limit: int | None = None,
-              warn: Callable[[str], None] | None = None) -> list[dict]:
+              warn: Callable[[str], None] | None = None,
+              reuse: bool = False) -> list[dict]:
     """Run every plate not yet in ``checkpoint``; returns all records. ``client``: a Dask client
     (None: in-process, float64 already on). ``worker_setup``: called in the worker before each
     task (e.g. ``adaptive_cal.use_float64``: a fresh worker process has JAX in float32, and a
@@ -79,11 +80,15 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
     of those still to do, called with 0 before the first and after each one in-process (a Dask
     task reports a plate's per-plate strategies, or one fixed design's plates, at once).
     ``limit`` stops after that many new tasks (tests of interruption). ``warn(text)``: told of
-    damaged lines of the checkpoint, skipped (their runs go again, the records after them kept)."""
+    damaged lines of the checkpoint, skipped (their runs go again, the records after them kept).
+    ``reuse``: keep the checkpoint's records made by other code (``checkpoint.other_code``);
+    without it they are refused (ValueError naming the checkpoint), before any plate runs."""
     parse_cell(base)  # fails early on a bad cell
     key = study_key(study, base)
     ck = Checkpoint(checkpoint, key)
     try:
+        if not reuse:
+            refuse_other_code(checkpoint, ck.records)
         if ck.skipped and warn is not None:
             lines = ", ".join(map(str, ck.skipped))
             warn(f"{checkpoint}: line{'s' * (len(ck.skipped) > 1)} {lines} not a plate's record "

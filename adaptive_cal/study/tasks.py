@@ -14,6 +14,7 @@ import jax
 from adaptive_cal.gaussian.prior import Hyper
 from adaptive_cal.study.bound import (best_integer_touches, design_problem, greedy_touches,
                                       integer_touches, marginal_problem, relaxed_touches)
+from adaptive_cal.study.checkpoint import code_fingerprint
 from adaptive_cal.study.config import Study
 from adaptive_cal.study.plates import plate_cell, sample_plate
 
@@ -76,8 +77,11 @@ def plate_task(study_data: dict, base: dict, index: int, todo: tuple[str, ...],
     cell = plate_cell(study, base, plate)
     ctx = Context.create(study, plate, cell)
     target = study.bound.true_mm
-    # each record names the height map that was its plate (plate.surface_files)
-    out = _Reported(report, {"surface_file": plate.surface_file} if plate.surface_file else {})
+    # each record names the code that made it and the height map that was its plate
+    extra = {"code": code_fingerprint()}
+    if plate.surface_file:
+        extra["surface_file"] = plate.surface_file
+    out = _Reported(report, extra)
     paper_rms = None
     learned = study.estimator == "learned"
     if "paper" in study.strategies and ("paper" in todo or "adaptive" in todo):
@@ -132,4 +136,5 @@ def fixed_batch_task(study_data: dict, base: dict, indices: list[int], strategy:
     for i in indices:
         plate = sample_plate(study, i)
         contexts.append(Context.create(study, plate, plate_cell(study, base, plate)))
-    return run_fixed(strategy, contexts, [study.bound.true_mm] * len(contexts), how=how)
+    records = run_fixed(strategy, contexts, [study.bound.true_mm] * len(contexts), how=how)
+    return [{**rec, "code": code_fingerprint()} for rec in records]
