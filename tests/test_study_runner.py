@@ -84,6 +84,20 @@ def test_interrupted_study_keeps_finished_plates(tmp_path):
         run_study(other, base, path)
 
 
+def test_plates_grows_or_cuts_a_study_keeping_its_records(tmp_path):
+    """--plates was part of the study's key: 40 plates and then 41 were two studies, and the
+    41st plate cost the 40 again (an outside audit). Plate i is drawn from the seed and i."""
+    study, base = _small(strategies=["adaptive"], plates=1)
+    path = tmp_path / "plates.jsonl"
+    one = run_study(study, base, path)
+    grown, _ = _small(strategies=["adaptive"], plates=2)
+    calls = []
+    two = run_study(grown, base, path, progress=lambda d, t: calls.append((d, t)))
+    assert calls == [(0, 1), (1, 1)] and [r["plate"] for r in two] == [0, 1]  # only plate 1 ran
+    assert two[0] == one[0]
+    assert run_study(study, base, path) == one  # cut back: plate 0 alone, nothing run
+
+
 def test_unreachable_scheduler_fails_fast_naming_the_address():
     t0 = time.monotonic()
     with pytest.raises(SchedulerError, match="tcp://127.0.0.1:9"):

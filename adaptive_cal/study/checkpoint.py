@@ -106,10 +106,11 @@ def maps_key(study: Study, base: dict) -> str | None:
 
 
 def study_key(study: Study, base: dict) -> str:
-    """The study's settings and base cell hashed; with height maps, "-" and their hash
-    (``maps_key``; a study without maps keeps the key it had before maps were hashed)."""
-    text = json.dumps({"study": study.model_dump(mode="json"), "cell": base}, sort_keys=True,
-                      default=str)
+    """The study's settings and base cell hashed, but for its number of plates (plate i is
+    drawn from the seed and i alone: --plates grows or cuts a study and keeps its records);
+    with height maps, "-" and their hash (``maps_key``)."""
+    settings = {k: v for k, v in study.model_dump(mode="json").items() if k != "plates"}
+    text = json.dumps({"study": settings, "cell": base}, sort_keys=True, default=str)
     key = hashlib.sha256(text.encode()).hexdigest()[:16]
     maps = maps_key(study, base)
     return key if maps is None else f"{key}-{maps}"
@@ -141,7 +142,7 @@ def read_checkpoint(path: Path, key: str, skipped: list | None = None) -> list[d
                          f"this study {key}: {why}): {where}")
     if head["study_key"] != key:
         raise ValueError(f"{path} holds plates of another study (key {head['study_key']}, "
-                         f"this study {key}; its plates, strategies, seed or settings differ): "
+                         f"this study {key}; its strategies, seed, settings or base cell differ): "
                          f"{where}")
     records, seen = [], set()
     for number, line in enumerate(lines[1:], start=2):

@@ -75,7 +75,8 @@ Every key of a study file, with its default and meaning: [study-config.md](study
 * Each finished plate is appended to `plates.jsonl` at once (with its `simulation` block: the
   drawn tilt and form or the map, the noise and the seed; the base cell with that block runs the
   same plate through `adaptive-cal run`); an interrupted study keeps them, and
-  the same command skips them on the rerun. Its key covers the height maps' names and bytes: a
+  the same command skips them on the rerun; `--plates N` grows or cuts a study (plate i is drawn
+  from the seed and i alone). Its key covers the height maps' names and bytes: a
   map added, removed or rewritten makes another study, and the rerun refuses the old plates;
   each record carries its code's fingerprint, and records of other code are refused unless
   `--reuse-records` keeps them (the page then says how many).

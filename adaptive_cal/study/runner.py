@@ -87,8 +87,9 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
     key = study_key(study, base)
     ck = Checkpoint(checkpoint, key)
     try:
+        used = [r for r in ck.records if r["plate"] < study.plates]  # a study cut short
         if not reuse:
-            refuse_other_code(checkpoint, ck.records)
+            refuse_other_code(checkpoint, used)
         if ck.skipped and warn is not None:
             lines = ", ".join(map(str, ck.skipped))
             warn(f"{checkpoint}: line{'s' * (len(ck.skipped) > 1)} {lines} not a plate's record "
@@ -131,6 +132,7 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
             finally:
                 for f in futures:
                     f.cancel()
-        return sorted(ck.records, key=lambda r: (r["plate"], r["strategy"]))
+        return sorted((r for r in ck.records if r["plate"] < study.plates),
+                      key=lambda r: (r["plate"], r["strategy"]))
     finally:
         ck.close()
