@@ -98,6 +98,25 @@ def test_plates_grows_or_cuts_a_study_keeping_its_records(tmp_path):
     assert run_study(study, base, path) == one  # cut back: plate 0 alone, nothing run
 
 
+def test_a_ctrl_c_mid_plate_keeps_the_strategies_that_finished(tmp_path, monkeypatch):
+    """In-process, a plate's records reached the checkpoint when all its strategies were done:
+    a Ctrl-C during the last lost the others (an outside audit)."""
+    import adaptive_cal.study.strategies as strategies
+
+    def planner(ctx, learn, **kw):
+        if not learn:
+            raise KeyboardInterrupt
+        return {"plate": 0, "strategy": "adaptive", "touches": 12}
+
+    monkeypatch.setattr(strategies, "run_planner", planner)
+    study, base = _small(strategies=["adaptive", "greedy_fixed"], estimator="learned", plates=1)
+    path = tmp_path / "plates.jsonl"
+    with pytest.raises(KeyboardInterrupt):
+        run_study(study, base, path)
+    kept = [json.loads(line) for line in path.read_text().splitlines()[1:]]
+    assert [(r["plate"], r["strategy"], r["touches"]) for r in kept] == [(0, "adaptive", 12)]
+
+
 def test_unreachable_scheduler_fails_fast_naming_the_address():
     t0 = time.monotonic()
     with pytest.raises(SchedulerError, match="tcp://127.0.0.1:9"):

@@ -72,8 +72,9 @@ Every key of a study file, with its default and meaning: [study-config.md](study
 * `--workers N` runs on a Dask LocalCluster of N processes (Dask is an extra: `pip install -e ".[dask]"`); `--scheduler tcp://host:port` on a
   running cluster (start workers with `OPENBLAS_NUM_THREADS=1`). An unreachable scheduler fails
   within seconds naming the address.
-* Each finished plate is appended to `plates.jsonl` at once (with its `simulation` block: the
-  drawn tilt and form or the map, the noise and the seed; the base cell with that block runs the
+* Each finished run is appended to `plates.jsonl` at once (in-process each strategy as it
+  ends; on Dask a plate's strategies when the plate ends), with its `simulation` block: the
+  drawn tilt and form or the map, the noise and the seed (the base cell with that block runs the
   same plate through `adaptive-cal run`); an interrupted study keeps them, and
   the same command skips them on the rerun; `--plates N` grows or cuts a study (plate i is drawn
   from the seed and i alone). Its key covers the height maps' names and bytes: a

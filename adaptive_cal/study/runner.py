@@ -113,8 +113,8 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
             tasks = tasks[:limit]
         if client is None:
             for fn, args in tasks:
-                if fn is plate_task:
-                    ck.add(fn(*args, report=lambda rec: tick(1)))
+                if fn is plate_task:  # each strategy kept as it finishes (a Ctrl-C mid-plate)
+                    fn(*args, report=lambda rec: (ck.add([rec]), tick(1)))
                 else:
                     recs = fn(*args)
                     ck.add(recs)
