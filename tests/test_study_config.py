@@ -1,5 +1,6 @@
 """Study files: impossible distributions are refused with a message naming the key."""
 import copy
+import json
 
 import pytest
 
@@ -221,3 +222,28 @@ def test_the_paper_strategys_levelling_points_keep_out_of_keep_outs():
     level, path = paper_points(cell, Paper())
     assert len(level) == 3
     assert all(cell.workplane.allows(x, y) for x, y in np.vstack([level, path]))
+
+
+def test_a_set_mends_a_value_the_file_has_wrong(tmp_path, capsys):
+    """`--set` was applied after the file was validated: a bad value in the file could not be
+    mended from the command line, the file's error came first (an outside audit)."""
+    from adaptive_cal.cli import main
+
+    text = (ROOT / "configs" / "study-smoke.yaml").read_text().replace("max_touches: 60",
+                                                                      "max_touches: -5")
+    study = tmp_path / "study.yaml"
+    study.write_text(text.replace("cell: sim-cell.yaml",
+                                  f"cell: {ROOT / 'configs' / 'sim-cell.yaml'}"))
+    argv = ["study", str(study), "--plates", "1", "--strategies", "grid", "--quiet", "--json",
+            str(tmp_path / "s.json")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "bound.max_touches" in err
+    assert main(argv + ["--set", "lower_bound.plates=0"]) == 2  # another key: the file's error
+    assert "bound.max_touches" in capsys.readouterr().err
+    assert main(argv + ["--set", "bound.max_touches=40"]) == 0
+    assert json.loads((tmp_path / "s.json").read_text())["bound"]["max_touches"] == 40
+    # the file mended, the change itself wrong: that is said, as the command line's
+    assert main(argv + ["--set", "bound.max_touches=40", "--set", "bound.mean_std_mm=-1"]) == 2
+    err = capsys.readouterr().err
+    assert "bound.mean_std_mm" in err and "(with the command line's changes)" in err

@@ -253,7 +253,21 @@ def command(args) -> int:
     from adaptive_cal.study.runner import connect, run_study
     from adaptive_cal.study.summary import summarise, table
 
-    study, base = load_study(args.study)
+    from adaptive_cal.cell.schema import ConfigError
+    from adaptive_cal.study.overrides import edited
+
+    try:
+        study, base = load_study(args.study)
+    except ConfigError as error:  # a --set may mend what the file has wrong
+        if not (args.set or args.plates or args.strategies):
+            raise
+        try:
+            study, base = load_study(args.study, edit=lambda d: edited(
+                d, plates=args.plates, strategies=args.strategies, settings=args.set))
+        except ConfigError as again:  # not mended: the file's error, or what the change broke
+            if str(again) == str(error):
+                raise error from None
+            raise ConfigError(f"{again} (with the command line's changes)") from None
     study = apply_overrides(study, base, plates=args.plates, strategies=args.strategies,
                             settings=args.set, study_path=args.study)
     out_json = Path(args.json)

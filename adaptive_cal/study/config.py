@@ -161,9 +161,12 @@ def cell_path(cell: str, study_path: str | Path | None) -> Path:
     return path
 
 
-def load_study(path: str | Path) -> tuple[Study, dict]:
-    """Read a study file and its base cell; raise ConfigError naming each bad key."""
+def load_study(path: str | Path, edit=None) -> tuple[Study, dict]:
+    """Read a study file and its base cell; raise ConfigError naming each bad key. ``edit``:
+    called with the file's mapping, returns it changed (the command line's overrides)."""
     data = load_yaml(path)
+    if edit is not None and isinstance(data, dict):
+        data = edit(data)
     plate = data.get("plate") if isinstance(data, dict) else None
     if isinstance(plate, dict) and isinstance(plate.get("surface_files"), str) \
             and plate["surface_files"]:

@@ -12,9 +12,10 @@ from adaptive_cal.formats.mapfiles import beside_glob
 from adaptive_cal.study.config import Study, check_feasible, parse_study
 
 
-def set_key(data: dict, item: str) -> dict:
+def set_key(data: dict, item: str, create: bool = False) -> dict:
     """``data`` (a study as a mapping) with one ``KEY=VALUE`` applied: a new mapping, blocks
-    copied on the way down, so ``data`` is left as it was."""
+    copied on the way down, so ``data`` is left as it was. ``create``: a block the mapping lacks
+    is made (a study file leaves out blocks it takes the defaults of)."""
     key, sep, value = item.partition("=")
     if not sep:
         raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
@@ -24,6 +25,8 @@ def set_key(data: dict, item: str) -> dict:
     out = dict(data)
     node = out
     for part in path:
+        if create and node.get(part) is None:
+            node[part] = {}
         if not isinstance(node.get(part), dict):
             raise ConfigError(f"--set {key}: {part!r} is not a block of the study file")
         node[part] = dict(node[part])
@@ -67,3 +70,18 @@ def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
     study = parse_study(data, source)
     check_feasible(study, parse_cell(base), source)
     return study
+
+
+def edited(data: dict, *, plates: int | None = None, strategies: str | None = None,
+           settings: Sequence[str] = ()) -> dict:
+    """A study file's own mapping with the command line's changes, before it is validated: a
+    --set mends a value the file has wrong (the changes are applied again, and checked, by
+    ``apply_overrides``)."""
+    if plates:
+        data = {**data, "plates": plates}
+    if strategies:
+        data = {**data, "strategies": [s.strip() for s in strategies.split(",") if s.strip()]}
+    for item in settings:
+        if item.partition("=")[0].strip() != "cell":
+            data = set_key(data, item, create=True)
+    return data
