@@ -247,3 +247,22 @@ def test_a_set_mends_a_value_the_file_has_wrong(tmp_path, capsys):
     assert main(argv + ["--set", "bound.max_touches=40", "--set", "bound.mean_std_mm=-1"]) == 2
     err = capsys.readouterr().err
     assert "bound.mean_std_mm" in err and "(with the command line's changes)" in err
+
+
+@pytest.mark.parametrize("item, said", [
+    ("plate.noise_std_mm=[5, 20]", "plate.noise_std_mm up to 20 mm is 222% of the probe's usable "
+     "stroke 9 mm: um given as mm? (20 um is 0.02 mm)"),
+    ("bound.mean_std_mm=10", "bound.mean_std_mm=10 mm is above the RMS std of the cell's prior "
+     "before any touch"),
+    ("bound.true_rms_mm=5", "bound.true_rms_mm=5 mm is above the RMS std"),
+])
+def test_a_study_in_um_is_named_as_such(item, said):
+    """An outside audit: noise typed in um was blamed on the bound ("below the noise floor"), a
+    bound of 10 mm was accepted and every run stopped on the prior."""
+    from adaptive_cal.study.overrides import apply_overrides
+
+    study, base = load_study(SMOKE)
+    with pytest.raises(ConfigError) as e:
+        apply_overrides(study, base, settings=[item])
+    assert said in str(e.value)
+    assert "noise floor" not in str(e.value)

@@ -31,11 +31,13 @@ from typing import Iterable
 from adaptive_cal.study.config import Study, surface_files
 
 
-#: the packages whose code makes a study's records; of the study package, the modules that only
-#: present, keep or schedule records are left out (a page's wording changes no measurement)
+#: the packages whose code makes a study's records, and of them the modules left out: those that
+#: only check settings (the study's key covers the settings themselves, defaults included),
+#: present, keep or schedule records -- a page's wording or a new check measures nothing
 MEASURING = ("cell", "effects", "formats", "gaussian", "planning", "run", "simulation", "study")
-PRESENTING = ("study/doc.py", "study/figures.py", "study/summary.py", "study/checkpoint.py",
-              "study/runner.py")
+PRESENTING = ("cell/consistency.py", "cell/doc.py", "study/checkpoint.py", "study/config.py",
+              "study/doc.py", "study/figures.py", "study/overrides.py", "study/runner.py",
+              "study/summary.py")
 
 
 def fingerprint(root: Path) -> str:

@@ -297,6 +297,7 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
             raise ConfigError(
                 f"{source}: plate.tilt_deg={p.tilt_deg} needs approach heights over "
                 f"+-{rise:.2f} mm, outside the cell's workspace z_mm={list(ws.z_mm)}")
+    _unit_slips(study, cell, source)
     floor = noise_floor_mm(study, cell)
     repeat = (f" and the robot's z repeatability {p.repeatability_mm} mm"
               if p.repeatability_mm else "")
@@ -308,6 +309,31 @@ def check_feasible(study: Study, cell: Cell, source: str = "study") -> None:
                 f"{p.noise_std_mm[1]} mm{repeat} and at most bound.max_touches={study.bound.max_touches} "
                 f"touches no design brings the RMS posterior std below {floor:.5f} mm "
                 "(relaxed optimal design); raise the bound or the touch budget")
+
+
+def _unit_slips(study: Study, cell: Cell, source: str) -> None:
+    """Um typed as mm: a noise a tenth of the usable stroke (the probe's own check), or a bound
+    the prior meets before a touch: refused naming the key (a noise was blamed on the bound)."""
+    from adaptive_cal.cell.build import prior_model
+    from adaptive_cal.cell.consistency import um_as_mm
+    from adaptive_cal.study.bound import design_problem
+
+    p, (lo, hi) = study.plate, cell.probe.usable_mm
+    for key, value in (("plate.noise_std_mm", p.noise_std_mm[1]),
+                       ("plate.repeatability_mm", p.repeatability_mm)):
+        if um_as_mm(value, hi - lo):
+            raise ConfigError(f"{source}: {key} up to {value:g} mm is {value / (hi - lo):.0%} of "
+                              f"the probe's usable stroke {hi - lo:g} mm: um given as mm? "
+                              f"({value:g} um is {value / 1000:g} mm)")
+    prob = design_problem(cell, prior_model(cell), prior_model(cell).hyper0, candidates=16)
+    prior = float(rms_std_from_integrated_variance(prob.prior_integrated_variance, prob.area_mm2))
+    for key, value in (("bound.mean_std_mm", study.bound.mean_std_mm),
+                       ("bound.true_rms_mm", study.bound.true_rms_mm)):
+        if value is not None and value >= prior:
+            raise ConfigError(f"{source}: {key}={value:g} mm is above the RMS std of the cell's "
+                              f"prior before any touch, {prior:.3g} mm: the prior alone meets "
+                              f"it -- um given as mm? ({value:g} um is "
+                              f"{value / 1000:g} mm)")
 
 
 def noise_floor_mm(study: Study, cell: Cell) -> float:
