@@ -85,6 +85,22 @@ def test_touches_vs_bound_has_titles_and_plain_tick_numbers():
         assert not any("times" in t or "^" in t for t in shown), shown
 
 
+def test_touches_vs_bound_counts_a_plate_that_never_reached_it_at_the_budget():
+    """Averaged over the plates that reached a bound, a strategy that reached it only on the
+    easy plate looked cheaper than one that reached it on both (an outside audit)."""
+    study, _ = _study()
+    easy = {"trajectory": [[5, 0.03, 0.03], [10, 0.009, 0.009]]}
+    hard = {"trajectory": [[5, 0.05, 0.05], [45, 0.02, 0.02]]}  # never at 10 um: the budget
+    records = [{**_rec("adaptive", 0, 10, 10), **easy}, {**_rec("adaptive", 1, 45, None), **hard}]
+    fig = touches_vs_bound_figure(study, summarise(study, records), records)
+    ax = fig.axes[1]
+    x, y = ax.lines[0].get_data()  # the line of the means
+    assert x[0] == pytest.approx(10.0) and y[0] == pytest.approx((10 + 45) / 2)
+    hollow = [line for line in ax.lines if line.get_markerfacecolor() == "white"]
+    assert hollow and hollow[0].get_xdata()[0] == pytest.approx(10.0)
+    assert "counted at the budget of 45" in ax.get_ylabel()
+
+
 def test_summary_json_carries_the_true_error_target_in_force():
     study, _ = _study()
     b = summarise(study, _records())["bound"]
