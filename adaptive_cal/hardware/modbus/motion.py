@@ -145,6 +145,8 @@ class ModbusMotion:
         while True:
             if k.read_bit("done"):
                 a, s = k.map["done"].name, k.map["start"].name
+                if self.unfinished or not self.first_done_checked:
+                    self._late_done(a, s)
                 raise AdapterError(
                     f"{k.where}: 'done' ({a}) is set again after the PC cleared it; start ({s}) "
                     "was not set and nothing moved. The PLC must latch done when the robot "
@@ -153,6 +155,21 @@ class ModbusMotion:
             if k.clock() - t0 >= settle:
                 return
             k.sleep(min(k.cfg.poll_s, settle))
+
+    def _late_done(self, done: str, start: str) -> None:
+        """``done`` set during the settle after a move that ended without it (two quick Ctrl-Cs
+        in an approach), or on a connection's first move: most likely that move's own late done,
+        not a PLC that copies the robot's output (which a third audit's message blamed)."""
+        k = self.link
+        whose = (f"the move stopped before ({self.unfinished})" if self.unfinished else
+                 "a move the robot job was still in when this connection began (an earlier "
+                 "run stopped during a move?)")
+        raise AdapterError(
+            f"{k.where}: 'done' ({done}) came after the PC cleared it, most likely the late done "
+            f"of {whose}: the robot job may have gone on with that move. Start ({start}) was not "
+            "set and nothing was sent. See where the robot stands before continuing; if this "
+            "happens with no move stopped, the PLC copies the robot's done output into it "
+            "(hw/plc-register-map.md, handshake)")
 
     def _drop_start(self, err: BaseException) -> None:
         """Clear ``start`` after a move that did not end in done; a level-triggered PLC or job
