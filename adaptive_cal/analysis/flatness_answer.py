@@ -52,7 +52,7 @@ PLATE_IS = "the whole plate, from the map; touched_flatness_mm: the touched poin
 #: under the whole plate's figures: what their intervals held on plates the prior did not make
 PLATE_CALIBRATION = ("the whole plate's 95 % intervals are the map's belief: on plates the prior "
                      "did not make they held the true flatness 70-80 % of the time (edge roll-off "
-                     "35-60 %; docs/flatness.md)")
+                     "41-80 %; docs/flatness.md)")
 MEDIAN = "posterior median"
 MEDIAN_NOTE = ("* posterior median of the samples: the figure itself lay outside its 95 % interval "
                "(flatness is a max - min statistic, biased by noise and by smoothing)")
