@@ -57,7 +57,23 @@ def test_widened_bands_of_a_model_whose_checks_pass_are_said_for_what_they_are()
     form = _adequacy(True, 0.0, 1.2).summary()  # the learned form's finer part alone
     assert form.startswith("model checks pass; bands widened by about 1.2 um RMS: the learned "
                            "form's part finer than the 46 mm knots, about 1.2 um RMS")
-    assert "grew" not in form and form.endswith("(and 6 more regions)")
+    # the form's finer part is alike in every region: said once, not as three regions of nine
+    # (an outside audit: the three named were the left third of a plate rough on its right)
+    assert "grew" not in form and "over the whole plate alike" in form
+    assert "more region" not in form and " um; x " not in form
+    # the caveat of an adequate model is said where the bands were widened too (it was left
+    # out exactly on the runs an outside audit found 2-2.6 x off)
+    caveat = "structure finer than the touches' spacing cannot be told from that noise"
+    assert caveat in text and caveat in form and caveat in _adequacy(True, 0.0, 0.0).summary()
+    assert caveat not in _adequacy(False, 20.0, 0.0).summary()
+    # a grown model's form lives on coarser knots than the map's: both are named (an outside
+    # audit read "finer than the 92 mm knots" beside result.json's 45 mm knots)
+    import dataclasses
+
+    grown = dataclasses.replace(_adequacy(True, 0.0, 1.2), knot_spacing_mm=92.5,
+                                map_knot_spacing_mm=45.0)
+    assert ("the learned form's part finer than the 92 mm knots (the form's knots; the map's are "
+            "45 mm), about 1.2 um RMS") in grown.summary()
     bad = _adequacy(False, 20.0, 0.0).summary()
     assert bad.startswith("model inadequate (loo): structure finer than 46 mm, about ")
     assert bad.endswith("(and 5 more regions)")

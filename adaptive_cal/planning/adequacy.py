@@ -88,6 +88,7 @@ class Adequacy:
     noise_std_mm: float | None = None  # the learned reading noise the checks judged by
     repeat_dof: int = 0  # readings beyond the first at a place (``checks.repeats``)
     repeat_std_mm: float | None = None  # their pooled std: the probe's own noise
+    map_knot_spacing_mm: float | None = None  # the map's, where the form lives on coarser knots
 
     def unresolved_var_mm2(self, x_mm, y_mm) -> np.ndarray:
         """s_u^2 (mm^2) at points (x, y): the projection variance of the learned form there
@@ -148,24 +149,22 @@ class Adequacy:
 
     def _summary(self) -> str:
         if self.adequate and self.unresolved_rms_mm < NEGLIGIBLE_MM:
-            head = ("model adequate: the readings agree with the spline and the probe's noise"
-                    + self._noise())
-            if self.unseen_rms_mm is None:
-                return (f"{head}; structure finer than the touches' spacing cannot be told from "
-                        "that noise (no probe.noise_range_mm stated)")
-            room = "the stated span leaves" if "noise_span" in self.checks else "its repeats leave"
-            return (f"{head}; structure finer than the touches' spacing up to about "
-                    f"{self.unseen_rms_mm * 1e3:.1f} um RMS would pass these checks ({room} "
-                    "room for it)")
-        knots = f"{self.knot_spacing_mm:.0f} mm"
+            return ("model adequate: the readings agree with the spline and the probe's noise"
+                    f"{self._noise()}; {self._unseen()}")
+        knots, m = f"{self.knot_spacing_mm:.0f} mm", self.map_knot_spacing_mm
+        mapped = f" (the form's knots; the map's are {m:.0f} mm)" if m and m < (
+            self.knot_spacing_mm - 0.5) else ""  # a grown model's form lives on coarser knots
         if not self.adequate:
             failed = ", ".join(k for k, c in self.checks.items() if not c["passed"])
-            parts = [f"model inadequate ({failed}{self._noise()}): structure finer than "
-                     f"{knots}, about {self.unresolved_rms_mm * 1e3:.1f} um RMS unresolved"]
-        else:
-            parts = [f"model checks pass; bands widened by about "
-                     f"{self.unresolved_rms_mm * 1e3:.1f} um RMS: {self._widened_by(knots)}"]
-        where = self.where()
+            parts = [f"model inadequate ({failed}{self._noise()}): structure finer than {knots}"
+                     f"{mapped}, about {self.unresolved_rms_mm * 1e3:.1f} um RMS unresolved"]
+        else:  # the caveat of an adequate model holds here too (an outside audit: it was left out)
+            parts = [f"model checks pass; bands widened by about {self.unresolved_rms_mm * 1e3:.1f}"
+                     f" um RMS: {self._widened_by(knots, mapped)}",
+                     self._unseen()]
+        where, rms = self.where(), [w["unresolved_rms_mm"] for w in self.where()]
+        if len(where) == self.region_var_mm2.size > 1 and max(rms) - min(rms) <= 0.01 * max(rms):
+            where, parts[0] = [], parts[0] + " over the whole plate alike"  # not 3 regions of 9
         for w in where[:SHOWN_REGIONS]:
             parts.append(f"x {w['x_mm'][0]:.0f}..{w['x_mm'][1]:.0f} mm, y {w['y_mm'][0]:.0f}.."
                          f"{w['y_mm'][1]:.0f} mm: {w['unresolved_rms_mm'] * 1e3:.1f} um")
@@ -173,6 +172,15 @@ class Adequacy:
             more = len(where) - SHOWN_REGIONS
             parts[-1] += f" (and {more} more region{'s' * (more != 1)})"
         return "; ".join(parts)
+
+    def _unseen(self) -> str:  # what no check sees: structure finer than the touches' spacing
+        if self.unseen_rms_mm is None:
+            return ("structure finer than the touches' spacing cannot be told from that noise (no "
+                    "probe.noise_range_mm stated)")
+        room = "the stated span leaves" if "noise_span" in self.checks else "its repeats leave"
+        return (f"structure finer than the touches' spacing up to about "
+                f"{self.unseen_rms_mm * 1e3:.1f} um RMS would pass these checks ({room} room "
+                "for it)")
 
     def _noise(self) -> str:
         """" (learned noise 9.4 um; 12 repeat readings: the probe 5.1 um)": the noise the
@@ -185,7 +193,7 @@ class Adequacy:
                     f"probe {self.repeat_std_mm * 1e3:.1f} um")
         return out + ")"
 
-    def _widened_by(self, knots: str) -> str:
+    def _widened_by(self, knots: str, mapped: str = "") -> str:
         """What widens the bands of a model whose checks all pass (module docstring): the
         learned form's part finer than the knots (always in the bands), and, only in a model
         that grew (the coarse knots failed their checks: ``assess(suspect=True)``; else a
@@ -200,7 +208,7 @@ class Adequacy:
                        f"about {grown * 1e3:.1f} um RMS (the plate's mean where a region has "
                        f"fewer than {MIN_READINGS} readings), as structure finer than them")
         if form >= NEGLIGIBLE_MM or not out:
-            out.append(f"the learned form's part finer than the {knots} knots, about "
+            out.append(f"the learned form's part finer than the {knots} knots{mapped}, about "
                        f"{form * 1e3:.1f} um RMS")
         return "; ".join(out)
 
@@ -322,7 +330,8 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
                     reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)),
                     unseen_rms_mm=unseen_rms(result, q, noise_range_mm, rep_var),
                     noise_std_mm=float(noise_std_mm), repeat_dof=rep_dof,
-                    repeat_std_mm=float(np.sqrt(rep_var)) if rep_dof else None)
+                    repeat_std_mm=float(np.sqrt(rep_var)) if rep_dof else None,
+                    map_knot_spacing_mm=surface.knot_interval_mm)
 
 
 def unseen_rms(result: dict, q: np.ndarray, noise_range_mm, rep_var: float) -> float | None:
