@@ -613,3 +613,41 @@ def test_an_output_named_for_the_other_format_is_warned_about(mapped, tmp_path, 
                      str(tmp_path / name)]) == 0
         err = capsys.readouterr().err
         assert ("holds CSV rows (the output keeps the program's format)" in err) == warned, name
+
+
+def test_the_cut_farthest_from_every_touch_is_found_and_said(mapped, tmp_path, capsys):
+    """An outside audit: a 50 um boss 44 mm from the nearest touch was cut over at 10 um with a
+    narrow band and nothing said. The cut sample farthest from the run's fused touches is named
+    (checked by brute force over the samples); a feature narrower than that can hide there."""
+    path = read_toolpath("G0 X-150 Y-100 Z1\nG1 Z0\nG1 X150\nG1 Y100\n", "p")
+    touched = np.array([[-150.0, -100.0], [0.0, -100.0], [150.0, 40.0]])
+    res = cp.compensate(path, flat(std=0.001), PLATE, T, top_mm=0.0, name="p",
+                        touched_xy=touched)
+    far = res.farthest
+    # brute force: the samples of both cuts, each one's distance to its nearest touch
+    xs = np.r_[np.linspace(-150, 150, 601), np.full(401, 150.0)]
+    ys = np.r_[np.full(601, -100.0), np.linspace(-100, 100, 401)]
+    d = np.min(np.hypot(xs[:, None] - touched[:, 0], ys[:, None] - touched[:, 1]), axis=1)
+    assert far.distance_mm == pytest.approx(d.max(), abs=1e-9)
+    k = int(np.argmax(d))
+    assert (far.x_mm, far.y_mm) == (pytest.approx(xs[k]), pytest.approx(ys[k]))  # (150, -100)
+    assert far.line in (3, 4)  # the corner ends line 3 and starts line 4
+    assert cp.compensate(path, flat(std=0.001), PLATE, T, top_mm=0.0, name="p").farthest is None
+
+    run_dir, _ = mapped
+    hmap = load_map(run_dir)
+    assert hmap.touched_xy is not None and len(hmap.touched_xy) >= 10
+    out = tmp_path / "out.gcode"
+    assert main(["compensate", str(EXAMPLE), "--map", str(run_dir), "--out", str(out),
+                 "--tolerance-mm", "0.05", "--mark"]) == 0
+    said = capsys.readouterr().out
+    line = next(ln for ln in said.splitlines() if ln.startswith("the cuts pass up to "))
+    assert "mm from the nearest touch (line " in line and "can lie there unseen" in line
+    # the recording gone: the map still compensates, without this line
+    (run_dir / "recording.csv").rename(run_dir / "recording.kept")
+    try:
+        assert main(["compensate", str(EXAMPLE), "--map", str(run_dir), "--out", str(out),
+                     "--tolerance-mm", "0.05", "--mark"]) == 0
+        assert "the cuts pass up to" not in capsys.readouterr().out
+    finally:
+        (run_dir / "recording.kept").rename(run_dir / "recording.csv")

@@ -22,6 +22,11 @@ level rapid (X, Y only) the raise would tilt is written as two: across at the hi
 and the Z change on its own, first when rising, last when descending (a control may move a
 rapid's axes each at its own speed). ``rapid_dip_mm``: the most the plate rises above the
 rapids' travel between their raised ends, the most any programmed clearance shrinks.
+
+``touched_xy`` (the run's fused touches): ``farthest`` is the cut sample farthest from any of
+them. A dent or bump narrower than that distance can lie there unseen, and no band includes
+one: an outside audit's 50 um boss 44 mm from the nearest touch was cut over at a 10 um
+tolerance with a narrow band. Said, not refused: every map has such a distance.
 """
 from __future__ import annotations
 
@@ -70,6 +75,16 @@ class Under:
     index: int
 
 
+@dataclass(frozen=True)
+class Far:
+    """The cut sample farthest from every touch: where a feature narrower than that can hide."""
+
+    line: int
+    x_mm: float
+    y_mm: float
+    distance_mm: float
+
+
 @dataclass
 class Compensated:
     """``pieces``: item -> output points (x, y, z) mm, the last the move's end; ``wide``: moves
@@ -87,6 +102,7 @@ class Compensated:
     rapid_dip_mm: float = 0.0
     cuts: int = 0
     rapids: int = 0
+    farthest: Far | None = None  # the cut sample farthest from a touch (``touched_xy``)
 
 
 def samples(length_mm: float, sample_mm: float = SAMPLE_MM) -> np.ndarray:
@@ -146,7 +162,7 @@ def outside_mm(reach_mm, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def compensate(path: Toolpath, height: Height, plate_mm, tolerance_mm: float, *,
                top_mm: float, sample_mm: float = SAMPLE_MM, name: str = "program",
-               reach_mm=None, keep_outs=(), progress=None) -> Compensated:
+               reach_mm=None, keep_outs=(), progress=None, touched_xy=None) -> Compensated:
     """The output points of every move of ``path`` (see the module's doc). Refuses
     (``ToolpathError``) a point outside ``plate_mm`` and a cut whose start is not known, the
     first in the file. ``reach_mm``: the box touches can reach, or None (the whole plate was
@@ -166,12 +182,17 @@ def compensate(path: Toolpath, height: Height, plate_mm, tolerance_mm: float, *,
     # a cut from nowhere (a CSV's first row) is a point, not a move (an audit: a one-row CSV
     # printed "1 cutting moves")
     out.cuts, out.rapids = sum(m.start is not None for m in cuts), len(rapids)
+    tree = None
+    if touched_xy is not None and len(touched_xy):
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(np.asarray(touched_xy, float)[:, :2])
     if cuts:
         se = np.asarray(ends, float)  # (cuts, 2, 3): start and end
         counts = _counts(se[:, 0], se[:, 1], sample_mm)
         for a, b in _chunks(counts):
             _cuts(out, cuts[a:b], se[a:b, 0], se[a:b, 1], counts[a:b], height, tolerance_mm,
-                  reach_mm, keep_outs)
+                  reach_mm, keep_outs, tree)
             if progress is not None:
                 progress(b - a)
     _rapids(out, rapids, height, top_mm, sample_mm)
@@ -219,8 +240,15 @@ def _along(start: np.ndarray, end: np.ndarray, counts: np.ndarray):
 
 
 def _cuts(out: Compensated, moves: list, start: np.ndarray, end: np.ndarray,
-          counts: np.ndarray, height: Height, tol: float, reach_mm, keep_outs) -> None:
+          counts: np.ndarray, height: Height, tol: float, reach_mm, keep_outs,
+          tree=None) -> None:
     owner, t, pts, first = _along(start, end, counts)
+    if tree is not None:
+        d = tree.query(pts[:, :2])[0]
+        k = int(np.argmax(d))
+        if out.farthest is None or d[k] > out.farthest.distance_mm:
+            out.farthest = Far(moves[owner[k]].line, float(pts[k, 0]), float(pts[k, 1]),
+                               float(d[k]))
     mean, std = (np.asarray(a, float).ravel() for a in height(pts[:, 0], pts[:, 1]))
     band = Z95 * std
     for m in np.flatnonzero(np.maximum.reduceat(band, first) > tol):

@@ -241,7 +241,8 @@ def _program(hmap, args) -> int:
     with _bar(len(path.moves)) as bar:
         result = compensate(path, hmap.height(args.frame), hmap.plate_mm, T,
                             top_mm=hmap.top_mm(args.frame), name=name, reach_mm=hmap.reach_mm,
-                            keep_outs=hmap.keep_outs, progress=bar.update)
+                            keep_outs=hmap.keep_outs, progress=bar.update,
+                            touched_xy=hmap.touched_xy)
     marks = {}
     if result.wide or result.beyond or result.under:
         if not args.mark:
@@ -280,6 +281,11 @@ def _program(hmap, args) -> int:
               f"end's Z, up or down on its own): the plate rises at most "
               f"{max(result.rapid_dip_mm, 0.0) * 1e3:.1f} um above a rapid's travel (the "
               "programmed clearance shrinks by that much along it)")
+    far = result.farthest
+    if far is not None:
+        print(f"the cuts pass up to {far.distance_mm:.0f} mm from the nearest touch (line "
+              f"{far.line}, at x {far.x_mm:.0f}, y {far.y_mm:.0f} mm): a dent or bump narrower "
+              "than that can lie there unseen, and the 95 % band does not include one")
     if marks:
         why = " or ".join(w for w, hit in (("the band exceeds the tolerance", result.wide),
                                            ("the map is extrapolated", result.beyond),

@@ -50,6 +50,9 @@ class HeightMap:
     # the workplane's keep-outs, ((x0, x1), (y0, y1)) each: never touched, the map there rests on
     # touches beside it (``run.results.keep_out_maps``), and a clamp may stand there
     keep_outs: tuple = ()
+    # the run's fused touches (x, y) mm, from recording.csv (None without it): how far a cut
+    # passes from every touch, where a dent or bump narrower than that can lie unseen
+    touched_xy: object = None
 
     def height(self, frame: str = "nominal"):
         """height(x_mm, y_mm) -> (mean_mm, std_mm) in ``frame`` (see the module's doc)."""
@@ -109,4 +112,17 @@ def load_map(run_dir: str | Path) -> HeightMap:
                      (float(tilt["a"]), float(tilt["b"]), float(tilt["c"])),
                      (tuple(wp.x_mm), tuple(wp.y_mm)), missing(result), cell.name,
                      read_npz(run_dir / "belief.npz", keys=()), reach,
-                     tuple((tuple(k.x_mm), tuple(k.y_mm)) for k in wp.keep_outs))
+                     tuple((tuple(k.x_mm), tuple(k.y_mm)) for k in wp.keep_outs),
+                     _touched(run_dir / "recording.csv"))
+
+
+def _touched(path: Path):
+    """The fused touches' (x, y) of a run's recording, or None where it cannot be read (the
+    map itself is belief.npz's: a recording lost or damaged costs only this line)."""
+    from adaptive_cal.formats.recording import RecordingError, read_recording
+
+    try:
+        rec = read_recording(path)
+    except (OSError, RecordingError, ValueError):
+        return None
+    return np.c_[rec.x_mm, rec.y_mm][rec.fused]
