@@ -218,6 +218,53 @@ def test_checks_flag_a_rough_plate_and_say_where():
     assert (MeanStdBelow(1.0) | TouchBudget(st.touches))(st) == "touch_budget"
 
 
+def test_halves_is_the_f_ratio_of_the_two_sides_mean_squares():
+    """Against scipy.stats.f: each side's mean over the other's, over its upper alpha/4 point,
+    the larger of the splits along x and y; a side with too few readings is not compared."""
+    from scipy import stats
+
+    rng = np.random.default_rng(2)
+    xy = np.c_[rng.uniform(-225, 225, 40), rng.uniform(-185, 185, 40)]
+    z = rng.chisquare(1, 40) * np.where(xy[:, 0] > 0, 3.0, 1.0)
+    plate = ((-225.0, 225.0), (-185.0, 185.0))
+    want = 0.0
+    for axis in (0, 1):
+        side = xy[:, axis] < 0.0
+        a, b = z[side], z[~side]
+        for top, rest in ((a, b), (b, a)):
+            want = max(want, top.mean() / rest.mean()
+                       / stats.f.isf(0.004 / 4, len(top), len(rest)))
+    assert checks.halves(xy, z, plate, 0.004) == pytest.approx(want, rel=1e-9)
+    assert checks.halves(xy[:4], z[:4], plate, 0.004) == 0.0
+
+
+@pytest.mark.slow
+def test_halves_sees_a_plate_rough_on_one_side():
+    """An outside audit's plate (2026-12-02): Matern-3/2 of 12 um at 25 mm on the right half
+    only, 55 random readings with 5 um noise (span 3-8 um). Measured on 12 plates: the halves
+    check fired on 6, the checks 1-6 on 4, either on 8. Bounds: halves >= 3 of 12 (P(X <= 2)
+    = 1.9 % at 0.5) and the model judged inadequate on >= 5."""
+    from dataclasses import replace
+
+    from adaptive_cal.planning import survey as sv
+
+    plan = _plan()
+    rng = np.random.default_rng(3)
+    halves = inadequate = 0
+    for k in range(12):
+        rough = matern32_grid(np.random.default_rng(50 + k), (-225, 225), (-185, 185), 0.012,
+                              25.0, step_mm=10.0)
+
+        def heights(rows, xy):
+            return 0.001 * xy[:, 0] + np.where(xy[:, 0] > 0, rough(xy[:, 0], xy[:, 1]), 0.0)
+        rows, y = _readings(plan, heights, 55, rng)
+        v = sv.refit(plan, replace(sv.start(plan), rows=rows, heights_mm=y)).adequacy
+        halves += not v.checks["halves"]["passed"]
+        inadequate += not v.adequate
+    print(f"halves fired on {halves} of 12, the model inadequate on {inadequate}")
+    assert halves >= 3 and inadequate >= 5, (halves, inadequate)
+
+
 def _unseen_alarms(plan, factor, n, plates, rng):
     """Checks fired on ``plates`` runs whose readings carry white structure of ``factor`` x the
     unseen size of a clean run of the same touches (the probe at the span's low end)."""

@@ -18,7 +18,9 @@ plate, which the map's bands must carry. Checks (each at a stated level; ALPHA i
    ``gaussian.checks.repeats``): sigma_n^2 over the repeats' pooled variance s_r^2 (dof d)
    below the F(n, d) upper alpha point (``planning.repeats.judged``: its level, the readings):
    repeats read the probe alone, so a learned noise well above them is plate structure the
-   model missed. Where it fails, the unresolved variance is measured beyond s_r^2 instead.
+   model missed. Where it fails, the unresolved variance is measured beyond s_r^2 instead;
+7. ``halves``: the LOO mean square of one half of the plate over the other's, split along x
+   and along y, below its F bound (``gaussian.checks.halves``): one side rough, one smooth.
 
 Unresolved variance at a point: the projection variance of the learned form there, plus the
 region's s_k^2 = max(0, mean_k(e_i^2 - q_i - r_p)) (unbiased for an extra white term), kept
@@ -34,22 +36,19 @@ take structure of RMS s with lo^2 + s^2 <= hi^2 unseen; beyond, the noise-span c
 hi (1 + z / sqrt(2 n)), and the leave-one-out check (r_p held at hi^2) at a mean excess of
 (b - 1) / mean(1 / (q_i + hi^2)), b its chi2 bound. The smaller of the two is the size such
 structure reaches before a check sees it: ``Adequacy.unseen_rms_mm``, in result.json and the
-summary. Measured (tests/test_adequacy.py; span 3-8 um, the probe at 3 um, learned noise): at
-that size the checks fire 30 % of the time (30/100 at 30 readings, 23/60 at 80), at 1.3 x it
-80-100 %, at 0.7 x never. Without a span only repeat readings bound it: structure passes the
-repeats check up to s^2 = (F - 1) s_r^2, F its bound; with neither, the noise takes all of it.
-Even with the probe's noise told as 4.9-5.1 um, a 6 um ripple at a 30 mm period passed every
-check after 12 touches (true error 5.3 um against a claimed 3.4 um; unseen 6.5 um; plate 0 of
-benchmarks/plates' ripple family).
+summary (tests/test_adequacy.py measures the checks firing about a third of the time at that
+size). Without a span only repeat readings bound it: structure passes the
+repeats check up to s^2 = (F - 1) s_r^2, F its bound; with neither, the noise takes all of it
+(a 6 um ripple at a 30 mm period passed every check after 12 touches with the noise told as
+4.9-5.1 um: true error 5.3 um, claimed 3.4 um, unseen 6.5 um; benchmarks/plates' ripple 0).
 
 The map beyond the reachable box (the edge margin no touch can reach, ``reach_mm``) is an
 extrapolation no check can test: ``extrapolated`` names it (result.json, the summary), with no
 variance added: the form prior's Taylor remainder over the margin d, sqrt(3) s_f / l^2 d^2 / 2,
 is 0.02-0.1 um at d = 10 mm for the forms learned on realistic plates, while edge roll-off put
 11-16 um RMS of error there (benchmarks/bench_plates.py, edge family): no number from the
-touches or the stationary prior bounds it, so the claim there is marked, not widened (and
-``adaptive-cal compensate`` refuses, or marks, a cut there).
-"""
+touches or the stationary prior bounds it, so the claim there is marked, not widened
+(``adaptive-cal compensate`` refuses, or marks, a cut there)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -60,7 +59,7 @@ from scipy import special  # fdtri, ndtri: scipy.stats's f.isf and norm.isf, wit
 from adaptive_cal.gaussian import checks
 from adaptive_cal.gaussian.places import positions_mm
 
-ALPHA = 0.01  # false-alarm level of the whole check on an adequate model (split below)
+ALPHA = 0.01  # false-alarm level of checks 1-6 on an adequate model (split below; 7: + 1/6)
 MIN_READINGS = 3  # a region is tested with at least this many readings
 NEGLIGIBLE_MM = 0.5e-3  # unresolved RMS below this is not reported (still in the stds)
 SHOWN_REGIONS = 3  # the summary names this many regions, then says how many more
@@ -178,13 +177,12 @@ class Adequacy:
             return ("structure finer than the touches' spacing cannot be told from that noise (no "
                     "probe.noise_range_mm stated)")
         room = "the stated span leaves" if "noise_span" in self.checks else "its repeats leave"
-        return (f"structure finer than the touches' spacing up to about "
-                f"{self.unseen_rms_mm * 1e3:.1f} um RMS would pass these checks ({room} room "
-                "for it)")
+        size = f"{self.unseen_rms_mm * 1e3:.1f} um RMS"
+        return f"structure finer than the touches' spacing up to about {size} would pass these " \
+            f"checks ({room} room for it)"
 
     def _noise(self) -> str:
-        """" (learned noise 9.4 um; 12 repeat readings: the probe 5.1 um)": the noise the
-        checks judged by, and the probe's own where places were read again ("" unknown)."""
+        """" (learned noise 9.4 um; 12 repeat readings: the probe 5.1 um)", or "" unknown."""
         if self.noise_std_mm is None:
             return ""
         out = f" (learned noise {self.noise_std_mm * 1e3:.1f} um"
@@ -236,10 +234,9 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     each reading's share w = 1 - p of the noise precision, as it was fused (the outlier
     mixture, ``planning.gate``): the checks judge reading i with noise r / w_i, the model the
     belief holds, so a reading the fusion trusted less does not count as structure in full;
-    ``repeats``: judge the learned noise against the readings repeated at one place (the
-    ``repeats`` check, run where the learned noise exceeds what the cell says of its probe:
-    ``planning.repeats``; elsewhere a place read twice by chance is no question asked): (its
-    level alpha, the repeat readings it needs), ``repeats.judged``'s."""
+    ``repeats``: (level alpha, repeat readings needed), ``repeats.judged``'s: judge the learned
+    noise against readings repeated at one place (run where the learned noise exceeds what the
+    cell says of its probe, ``planning.repeats``; a place read twice by chance asks nothing)."""
     form_surface = form_surface or surface
     n = len(readings)
     noise_std_mm = hyper.noise_std_mm
@@ -265,7 +262,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     ey = np.linspace(*plate_mm[1], regions[1] + 1)
     spacing = form_surface.knot_interval_mm
     nreg = regions[0] * regions[1]
-    a_glob, a_reg = ALPHA / 6, ALPHA / 2 / nreg  # innovations, noise, loo: ALPHA/6 each
+    a_glob, a_reg = ALPHA / 6, ALPHA / 2 / nreg  # innovations, noise, loo, halves: each
     ms_z = checks.innovations_mean_square(rows, readings, prior.mean, prior.cov, r)
     loo = checks.leave_one_out(rows, readings, prior.mean, prior.cov, r)
     q = np.maximum(loo.variance_mm2 - r, 0.0)
@@ -280,6 +277,9 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
                         "is": "mean square of standardized innovations"},
         "loo": {"value": float(np.mean(stdz)), "bound": checks.mean_square_upper(n, a_glob),
                 "is": "mean square of standardized leave-one-out residuals"},
+        "halves": {"value": checks.halves(xy, stdz, plate_mm, a_glob), "bound": 1.0,
+                   "is": "LOO mean square of one half of the plate over the other's, over "
+                         "its F bound (the larger of the splits along x and y)"},
     }
     if noise_range_mm is not None:
         # sigma_n from n readings has a relative std of about 1 / sqrt(2 n)
