@@ -293,8 +293,9 @@ def _noise_prior_text(probe) -> str:
 
 #: how long a fresh run of the project's own page took (configs/study-tilts.yaml -> study.md)
 TILTS_HISTORY = """
-A fresh 40-plate run of this page, the lower bound on 20 plates included, took about an hour
-on the 2-core development machine (63 minutes on 2026-11-23, partly shared with other jobs)."""
+A fresh 40-plate run of this page, the lower bound on 20 plates included, took 47 minutes on the
+2-core development machine (2026-12-02, commit 7c392aa, partly shared with other jobs). Later
+code holds another fingerprint and refuses these records: the command again remeasures."""
 REPO = Path(__file__).resolve().parents[2]
 SHIPPED_TILTS = REPO / "configs" / "study-tilts.yaml"
 
