@@ -26,8 +26,8 @@ def _grid_study():
 
 
 def test_fingerprint_follows_the_measuring_code_only(tmp_path):
-    for pkg in MEASURING:  # a renamed package would silently drop out of the fingerprint
-        assert (PACKAGE / pkg).is_dir(), pkg
+    for pattern in MEASURING:  # a renamed package would silently drop out of the fingerprint
+        assert list(PACKAGE.glob(pattern)), pattern
     for rel in PRESENTING:
         assert (PACKAGE / rel).is_file(), rel
     copy = tmp_path / "adaptive_cal"
@@ -36,9 +36,23 @@ def test_fingerprint_follows_the_measuring_code_only(tmp_path):
     page = copy / "study" / "doc.py"
     page.write_text(page.read_text() + "\n# another wording\n")
     assert fingerprint(copy) == code_fingerprint()  # a page's wording measures nothing
+    # what an editor or a checkout leaves beside the modules is not another code (an outside
+    # review: a Jupyter checkpoint copy, CRLF line ends each made another fingerprint)
+    (copy / "planning" / ".ipynb_checkpoints").mkdir()
+    (copy / "planning" / ".ipynb_checkpoints" / "plan-checkpoint.py").write_text("x = 1\n")
+    (copy / "planning" / "plan-old.py").write_text("x = 2\n")
     plan = copy / "planning" / "plan.py"
-    plan.write_text(plan.read_text() + "\n# another planner\n")
-    assert fingerprint(copy) != code_fingerprint()
+    plan.write_bytes(plan.read_bytes().replace(b"\n", b"\r\n"))
+    assert fingerprint(copy) == code_fingerprint()
+    # what makes records is another code: the planner, the probe cycle the run loop drives
+    # (hardware/cycle.py), the study's true-error target (study/config.py), a numerics library
+    for rel in ("planning/plan.py", "hardware/cycle.py", "study/config.py"):
+        other = tmp_path / rel.replace("/", "_") / "adaptive_cal"
+        shutil.copytree(copy, other)
+        (other / rel).write_text((other / rel).read_text() + "\n# other code\n")
+        assert fingerprint(other) != code_fingerprint(), rel
+    assert fingerprint(copy, libraries=("numpy", "scipy", "jax", "jaxlib", "filterpy")) != \
+        code_fingerprint()
 
 
 def test_records_of_other_code_are_refused_unless_kept(tmp_path):
@@ -67,6 +81,25 @@ def test_records_of_other_code_are_refused_unless_kept(tmp_path):
     assert path.read_text() == before  # nothing lost, nothing run
     kept = run_study(study, base, path, reuse=True)
     assert [r.get("code") for r in kept] == ["0123456789ab", None]
+
+
+def test_a_checkpoint_keyed_before_the_plate_count_left_the_key_is_this_studys(tmp_path):
+    """An outside review: a checkpoint written before 2026-12-02 (its key with the plate count)
+    was refused as "another study", and --reuse-records could not keep it."""
+    from adaptive_cal.study.checkpoint import legacy_key
+
+    study, base = _grid_study()
+    path = tmp_path / "plates.jsonl"
+    run_study(study, base, path)
+    lines = path.read_text().splitlines()
+    old = [{k: v for k, v in json.loads(line).items() if k != "code"} for line in lines[1:]]
+    path.write_text("\n".join([json.dumps({"study_key": legacy_key(study, base)})]
+                              + [json.dumps(r) for r in old]) + "\n")
+    with pytest.raises(ValueError, match="2 of 2 finished runs made by other code") as e:
+        run_study(study, base, path)
+    assert "another study" not in str(e.value)
+    assert run_study(study, base, path, reuse=True) == sorted(old, key=lambda r: r["plate"])
+    assert json.loads(path.read_text().splitlines()[0])["study_key"] == study_key(study, base)
 
 
 def test_cli_says_how_many_runs_another_code_made(tmp_path, capsys):

@@ -247,6 +247,14 @@ def test_a_set_mends_a_value_the_file_has_wrong(tmp_path, capsys):
     assert main(argv + ["--set", "bound.max_touches=40", "--set", "bound.mean_std_mm=-1"]) == 2
     err = capsys.readouterr().err
     assert "bound.mean_std_mm" in err and "(with the command line's changes)" in err
+    # a second bad value in the file, the first mended: the file's, not the change's (an outside
+    # review: it was said to come with the command line's changes)
+    study.write_text(study.read_text().replace("mean_std_mm: 0.01", "mean_std_mm: -0.01"))
+    assert main(argv + ["--set", "bound.max_touches=40"]) == 2
+    err = capsys.readouterr().err
+    assert "bound.mean_std_mm" in err and "(in the file, the command line's changes applied)" in err
+    assert main(argv[:4] + ["--strategies", ",", "--json", str(tmp_path / "s.json")]) == 2
+    assert "--strategies ',': name at least one strategy" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("item, said", [

@@ -282,7 +282,10 @@ def _program(hmap, args) -> int:
               f"{max(result.rapid_dip_mm, 0.0) * 1e3:.1f} um above a rapid's travel (the "
               "programmed clearance shrinks by that much along it)")
     far = result.farthest
-    if far is not None:
+    if hmap.touched_xy is None:
+        print(f"how far the cuts pass from a touch is not known: no readable recording.csv in "
+              f"{args.map}")
+    elif far is not None:
         print(f"the cuts pass up to {far.distance_mm:.0f} mm from the nearest touch (line "
               f"{far.line}, at x {far.x_mm:.0f}, y {far.y_mm:.0f} mm): a dent or bump narrower "
               "than that can lie there unseen, and the 95 % band does not include one")

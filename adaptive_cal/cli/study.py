@@ -136,10 +136,11 @@ def _command(args) -> str:
 
 def _kept(checkpoint: Path, study, base) -> int:
     """The plate runs this study's checkpoint holds (0 where it cannot be read)."""
-    from adaptive_cal.study.checkpoint import read_checkpoint, study_key
+    from adaptive_cal.study.checkpoint import legacy_key, read_checkpoint, study_key
 
-    try:
-        return len(read_checkpoint(checkpoint, study_key(study, base)))
+    try:  # the plates this study runs, not those of a longer study before it
+        return sum(r["plate"] < study.plates for r in read_checkpoint(
+            checkpoint, study_key(study, base), also=(legacy_key(study, base),)))
     except (OSError, ValueError):  # UnicodeDecodeError and JSON errors are ValueErrors
         return 0
 
@@ -254,8 +255,9 @@ def command(args) -> int:
     from adaptive_cal.study.summary import summarise, table
 
     from adaptive_cal.cell.schema import ConfigError
-    from adaptive_cal.study.overrides import edited
+    from adaptive_cal.study.overrides import check_command_line, edited
 
+    check_command_line(args.plates, args.strategies)
     try:
         study, base = load_study(args.study)
     except ConfigError as error:  # a --set may mend what the file has wrong
@@ -267,7 +269,11 @@ def command(args) -> int:
         except ConfigError as again:  # not mended: the file's error, or what the change broke
             if str(again) == str(error):
                 raise error from None
-            raise ConfigError(f"{again} (with the command line's changes)") from None
+            changed = [i.partition("=")[0].strip() for i in args.set] + [
+                k for k, v in (("plates", args.plates), ("strategies", args.strategies)) if v]
+            whose = ("with the command line's changes" if any(k in str(again) for k in changed)
+                     else "in the file, the command line's changes applied")
+            raise ConfigError(f"{again} ({whose})") from None
     study = apply_overrides(study, base, plates=args.plates, strategies=args.strategies,
                             settings=args.set, study_path=args.study)
     out_json = Path(args.json)

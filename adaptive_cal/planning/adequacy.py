@@ -36,8 +36,8 @@ take structure of RMS s with lo^2 + s^2 <= hi^2 unseen; beyond, the noise-span c
 hi (1 + z / sqrt(2 n)), and the leave-one-out check (r_p held at hi^2) at a mean excess of
 (b - 1) / mean(1 / (q_i + hi^2)), b its chi2 bound. The smaller of the two is the size such
 structure reaches before a check sees it: ``Adequacy.unseen_rms_mm``, in result.json and the
-summary (tests/test_adequacy.py measures the checks firing about a third of the time at that
-size). Without a span only repeat readings bound it: structure passes the
+summary (the checks fire about a quarter of the time at that size, never at 0.7 x, mostly at
+1.3 x: tests/test_adequacy.py). Without a span only repeat readings bound it: structure passes the
 repeats check up to s^2 = (F - 1) s_r^2, F its bound; with neither, the noise takes all of it
 (a 6 um ripple at a 30 mm period passed every check after 12 touches with the noise told as
 4.9-5.1 um: true error 5.3 um, claimed 3.4 um, unseen 6.5 um; benchmarks/plates' ripple 0).

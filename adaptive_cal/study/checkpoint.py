@@ -31,26 +31,47 @@ from typing import Iterable
 from adaptive_cal.study.config import Study, surface_files
 
 
-#: the packages whose code makes a study's records, and of them the modules left out: those that
-#: only check settings (the study's key covers the settings themselves, defaults included),
-#: present, keep or schedule records -- a page's wording or a new check measures nothing
-MEASURING = ("cell", "effects", "formats", "gaussian", "planning", "run", "simulation", "study")
-PRESENTING = ("cell/consistency.py", "cell/doc.py", "study/checkpoint.py", "study/config.py",
-              "study/doc.py", "study/figures.py", "study/overrides.py", "study/runner.py",
-              "study/summary.py")
+#: the sources that make a study's records (the run loop drives the probe cycle of
+#: ``hardware``, not its adapters; the simulator, not the emulators), and of them the modules
+#: left out: those that only present, keep or schedule records, or check settings the key
+#: covers -- a page's wording or a new check measures nothing
+MEASURING = ("cell/**/*.py", "effects/**/*.py", "formats/**/*.py", "gaussian/**/*.py",
+             "hardware/*.py", "planning/**/*.py", "run/**/*.py", "simulation/*.py",
+             "study/**/*.py")
+PRESENTING = ("cell/consistency.py", "cell/doc.py", "study/checkpoint.py", "study/doc.py",
+              "study/figures.py", "study/overrides.py", "study/runner.py", "study/summary.py")
+#: the libraries whose numerics the records rest on (a hyper-parameter fit's optimum moved
+#: between two JAX releases)
+LIBRARIES = ("numpy", "scipy", "jax", "jaxlib")
 
 
-def fingerprint(root: Path) -> str:
+def _version(name: str) -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return "absent"
+
+
+def fingerprint(root: Path, libraries: tuple[str, ...] = LIBRARIES) -> str:
     """12 hex digits of a SHA-256 over the sources under the package folder ``root`` that make
-    a study's records (their paths and bytes): another planner, simulator or model is another
-    fingerprint; another page wording is not."""
+    a study's records (their paths and bytes, line ends as LF) and the versions of
+    ``libraries``: another planner, simulator, model or numerics library is another
+    fingerprint; another page wording is not. Only importable modules count: a folder or file
+    whose name is not a Python identifier (``.ipynb_checkpoints``, ``plan-checkpoint.py``) is
+    no module of the package."""
     digest = hashlib.sha256()
-    files = [root / "__init__.py"] + sorted(f for pkg in MEASURING
-                                             for f in (root / pkg).rglob("*.py"))
+    files = [root / "__init__.py"] + sorted({f for pattern in MEASURING
+                                              for f in root.glob(pattern)})
     for f in files:
         rel = f.relative_to(root).as_posix()
-        if rel not in PRESENTING:
-            digest.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
+        parts = rel[:-3].split("/")
+        if rel not in PRESENTING and all(part.isidentifier() for part in parts):
+            text = f.read_bytes().replace(b"\r\n", b"\n")
+            digest.update(rel.encode() + b"\0" + text + b"\0")
+    for name in libraries:
+        digest.update(f"{name}=={_version(name)}".encode() + b"\0")
     return digest.hexdigest()[:12]
 
 
@@ -111,17 +132,30 @@ def study_key(study: Study, base: dict) -> str:
     """The study's settings and base cell hashed, but for its number of plates (plate i is
     drawn from the seed and i alone: --plates grows or cuts a study and keeps its records);
     with height maps, "-" and their hash (``maps_key``)."""
-    settings = {k: v for k, v in study.model_dump(mode="json").items() if k != "plates"}
+    return _key(study, base, {k: v for k, v in study.model_dump(mode="json").items()
+                              if k != "plates"})
+
+
+def legacy_key(study: Study, base: dict) -> str:
+    """The key as written until 2026-12-02, the plate count included: such a checkpoint is
+    this study's (its records, made before they carried their code, are then refused as other
+    code's unless kept with --reuse-records), not "another study"."""
+    return _key(study, base, study.model_dump(mode="json"))
+
+
+def _key(study: Study, base: dict, settings: dict) -> str:
     text = json.dumps({"study": settings, "cell": base}, sort_keys=True, default=str)
     key = hashlib.sha256(text.encode()).hexdigest()[:16]
     maps = maps_key(study, base)
     return key if maps is None else f"{key}-{maps}"
 
 
-def read_checkpoint(path: Path, key: str, skipped: list | None = None) -> list[dict]:
+def read_checkpoint(path: Path, key: str, skipped: list | None = None,
+                    also: tuple[str, ...] = ()) -> list[dict]:
     """The plate records of ``path`` for the study ``key`` (ValueError naming the file where it
-    holds another study's). ``skipped``: the numbers of damaged lines (not a plate's record,
-    and not the last line, which an interruption may cut) are appended to it."""
+    holds another study's); ``also``: the same study's keys in earlier formats (``legacy_key``).
+    ``skipped``: the numbers of damaged lines (not a plate's record, and not the last line,
+    which an interruption may cut) are appended to it."""
     if not path.exists():
         return []
     lines = path.read_text(encoding="utf-8").splitlines()
@@ -136,13 +170,15 @@ def read_checkpoint(path: Path, key: str, skipped: list | None = None) -> list[d
         raise ValueError(f"{path}: not a study's checkpoint (its first line, {lines[0][:40]!r}, "
                          f"is not a study key): {where}")
     old = head["study_key"]
+    if old in also:
+        old = key  # this study, its key written as it was before
     if old != key and old.split("-")[0] == key.split("-")[0]:  # the settings agree
         why = ("a map of plate.surface_files added, removed, renamed or rewritten since, or the "
                "base cell's simulation.surface_file rewritten" if "-" in old else
                "it was written before a study's key covered its maps, which may have changed")
         raise ValueError(f"{path} holds plates of this study over other height maps (key {old}, "
                          f"this study {key}: {why}): {where}")
-    if head["study_key"] != key:
+    if old != key:
         raise ValueError(f"{path} holds plates of another study (key {head['study_key']}, "
                          f"this study {key}; its strategies, seed, settings or base cell differ): "
                          f"{where}")
@@ -167,13 +203,13 @@ def read_checkpoint(path: Path, key: str, skipped: list | None = None) -> list[d
 class Checkpoint:
     """Append-only JSON lines, flushed and fsynced per plate."""
 
-    def __init__(self, path: Path, key: str):
+    def __init__(self, path: Path, key: str, also: tuple[str, ...] = ()):
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = _lock(path)
         try:
             self.skipped: list[int] = []
-            self.records = read_checkpoint(path, key, self.skipped)
+            self.records = read_checkpoint(path, key, self.skipped, also)
             # rewrite without a cut last line (atomically), then append
             tmp = path.with_name(path.name + ".tmp")
             with open(tmp, "w", encoding="utf-8") as f:

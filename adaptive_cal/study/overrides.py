@@ -39,6 +39,14 @@ def set_key(data: dict, item: str, create: bool = False) -> dict:
     return out
 
 
+def check_command_line(plates: int | None, strategies: str | None) -> None:
+    """--plates and --strategies that name no study, refused before anything is read."""
+    if plates is not None and plates < 1:
+        raise ConfigError(f"--plates {plates}: a study runs at least 1 plate")
+    if strategies is not None and not [s for s in strategies.split(",") if s.strip()]:
+        raise ConfigError(f"--strategies {strategies!r}: name at least one strategy")
+
+
 def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
                     strategies: str | None = None, settings: Sequence[str] = (),
                     source: str = "overrides", study_path=None) -> Study:
@@ -47,10 +55,7 @@ def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
     checked against the base cell whenever anything changes (``example_plate`` below ``plates``
     included). A ``plate.surface_files`` given relative is taken, as in the file, relative to
     the study file (``study_path``), not to the folder the command runs in."""
-    if plates is not None and plates < 1:
-        raise ConfigError(f"--plates {plates}: a study runs at least 1 plate")
-    if strategies is not None and not [s for s in strategies.split(",") if s.strip()]:
-        raise ConfigError(f"--strategies {strategies!r}: name at least one strategy")
+    check_command_line(plates, strategies)
     if not (plates or strategies or settings):
         return study
     data = study.model_dump(mode="json")

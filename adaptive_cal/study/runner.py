@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Callable
 
 from adaptive_cal.cell.schema import parse_cell
-from adaptive_cal.study.checkpoint import Checkpoint, refuse_other_code, study_key
+from adaptive_cal.study.checkpoint import Checkpoint, legacy_key, refuse_other_code, study_key
 from adaptive_cal.study.config import Study
 from adaptive_cal.study.tasks import fixed_batch_task, in_worker, plate_task
 
@@ -85,7 +85,7 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
     without it they are refused (ValueError naming the checkpoint), before any plate runs."""
     parse_cell(base)  # fails early on a bad cell
     key = study_key(study, base)
-    ck = Checkpoint(checkpoint, key)
+    ck = Checkpoint(checkpoint, key, also=(legacy_key(study, base),))
     try:
         used = [r for r in ck.records if r["plate"] < study.plates]  # a study cut short
         if not reuse:
