@@ -653,3 +653,17 @@ def test_the_cut_farthest_from_every_touch_is_found_and_said(mapped, tmp_path, c
         assert "how far the cuts pass from a touch is not known: no readable recording.csv" in said
     finally:
         (run_dir / "recording.kept").rename(run_dir / "recording.csv")
+
+
+def test_a_reading_judged_a_gross_error_is_no_touch_of_the_plate(tmp_path):
+    """An outside review: a fused row of any outlier weight counted as a touch in compensate's
+    farthest-from-a-touch line; one judged more likely a gross error than not (outlier=P, P >=
+    0.5) tells nothing of the plate there, and a gated row none either."""
+    from adaptive_cal.run.heightmap import _touched
+
+    rec = tmp_path / "recording.csv"
+    rec.write_text("# adaptive-cal recording v1\nseq,t_s,x_mm,y_mm,z_mm,reading_mm,flags\n"
+                   "0,0,0,0,0,5.0,\n1,4,10,0,0,5.0,outlier=0.90\n2,8,20,0,0,5.0,outlier=0.20\n"
+                   "3,12,30,0,0,5.0,gated\n")
+    assert _touched(rec).tolist() == [[0.0, 0.0], [20.0, 0.0]]
+    assert _touched(tmp_path / "none.csv") is None

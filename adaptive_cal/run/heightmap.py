@@ -117,12 +117,16 @@ def load_map(run_dir: str | Path) -> HeightMap:
 
 
 def _touched(path: Path):
-    """The fused touches' (x, y) of a run's recording, or None where it cannot be read (the
-    map itself is belief.npz's: a recording lost or damaged costs only this line)."""
+    """The (x, y) of a run's fused touches that carry real weight (a reading judged more likely
+    a gross error than not, ``outlier=P`` with P >= 0.5, tells nothing of the plate there), or
+    None where the recording cannot be read (the map itself is belief.npz's: a recording lost
+    or damaged costs only this line)."""
     from adaptive_cal.formats.recording import RecordingError, read_recording
+    from adaptive_cal.planning.gate import flagged_p
 
     try:
         rec = read_recording(path)
     except (OSError, RecordingError, ValueError):
         return None
-    return np.c_[rec.x_mm, rec.y_mm][rec.fused]
+    weighty = np.array([flagged_p(f) < 0.5 for f in rec.flags], bool) if rec.flags else True
+    return np.c_[rec.x_mm, rec.y_mm][rec.fused & weighty]
