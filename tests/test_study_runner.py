@@ -117,6 +117,27 @@ def test_a_ctrl_c_mid_plate_keeps_the_strategies_that_finished(tmp_path, monkeyp
     assert [(r["plate"], r["strategy"], r["touches"]) for r in kept] == [(0, "adaptive", 12)]
 
 
+@pytest.mark.slow
+def test_a_plates_strategies_split_into_tasks_give_the_same_records():
+    """On Dask a plate's strategies go as tasks of their own (the paper with the planner, which
+    runs on to its accuracy): a Ctrl-C loses only the tasks in flight. Split or whole, the
+    records are the same."""
+    from adaptive_cal.study.runner import _parts
+    from adaptive_cal.study.tasks import plate_task
+
+    assert _parts(("paper", "adaptive", "greedy_fixed", "grid")) == [
+        ("paper", "adaptive"), ("greedy_fixed",), ("grid",)]
+    assert _parts(("greedy_fixed",)) == [("greedy_fixed",)]
+    assert _parts(("adaptive",)) == [("adaptive",)]
+    study, base = _small(strategies=["adaptive", "paper", "greedy_fixed"], estimator="learned",
+                         plates=1)
+    data = study.model_dump(mode="json")
+    whole = plate_task(data, base, 0, ("paper", "adaptive", "greedy_fixed"))
+    split = [r for part in _parts(("paper", "adaptive", "greedy_fixed"))
+             for r in plate_task(data, base, 0, part)]
+    assert _strip(whole) == _strip(split)
+
+
 def test_unreachable_scheduler_fails_fast_naming_the_address():
     t0 = time.monotonic()
     with pytest.raises(SchedulerError, match="tcp://127.0.0.1:9"):

@@ -73,7 +73,7 @@ Every key of a study file, with its default and meaning: [study-config.md](study
   running cluster (start workers with `OPENBLAS_NUM_THREADS=1`). An unreachable scheduler fails
   within seconds naming the address.
 * Each finished run is appended to `plates.jsonl` at once (in-process each strategy as it
-  ends; on Dask a plate's strategies when the plate ends), with its `simulation` block: the
+  ends; on Dask each task's: the paper with the planner, each other strategy alone), with its `simulation` block: the
   drawn tilt and form or the map, the noise and the seed (the base cell with that block runs the
   same plate through `adaptive-cal run`); an interrupted study keeps them, and
   the same command skips them on the rerun; `--plates N` grows or cuts a study (plate i is drawn

@@ -40,6 +40,14 @@ def _jobs(study: Study, done: set) -> tuple[dict, dict]:
     return per_plate, fixed
 
 
+def _parts(todo: tuple[str, ...]) -> list[tuple[str, ...]]:
+    """A plate's strategies as Dask tasks: the paper with the planner (which runs on to the
+    paper's accuracy), each other alone -- a Ctrl-C loses only the tasks in flight, not a
+    plate's finished strategies, and the workers share a plate's work."""
+    paired = tuple(s for s in todo if s in ("paper", "adaptive"))
+    return ([paired] if paired else []) + [(s,) for s in todo if s not in paired]
+
+
 def connect(scheduler: str | None, workers: int, timeout_s: float = 5.0):
     """A Dask client: the scheduler at ``scheduler`` (tcp://host:port) or a LocalCluster of
     ``workers`` processes, one thread each. The processes inherit this process's environment:
@@ -78,7 +86,8 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
     task (e.g. ``adaptive_cal.use_float64``: a fresh worker process has JAX in float32, and a
     task refuses to run so). ``progress(done, total)``: runs (one strategy on one plate) finished
     of those still to do, called with 0 before the first and after each one in-process (a Dask
-    task reports a plate's per-plate strategies, or one fixed design's plates, at once).
+    task reports its strategies -- the paper with the planner, or one other -- or one fixed
+    design's plates, at once).
     ``limit`` stops after that many new tasks (tests of interruption). ``warn(text)``: told of
     damaged lines of the checkpoint, skipped (their runs go again, the records after them kept).
     ``reuse``: keep the checkpoint's records made by other code (``checkpoint.other_code``);
@@ -107,7 +116,8 @@ def run_study(study: Study, base: dict, checkpoint: Path, *, client=None,
 
         if progress:
             progress(0, total)
-        tasks = [(plate_task, (data, base, i, todo)) for i, todo in per_plate.items()]
+        tasks = [(plate_task, (data, base, i, part)) for i, todo in per_plate.items()
+                 for part in (_parts(todo) if client is not None else (todo,))]
         tasks += [(fixed_batch_task, (data, base, idx, s)) for s, idx in fixed.items()]
         if limit is not None:
             tasks = tasks[:limit]
