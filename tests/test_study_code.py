@@ -131,3 +131,23 @@ def test_cli_says_how_many_runs_another_code_made(tmp_path, capsys):
     assert "--reuse-records" in next(line for line in text.splitlines()
                                      if line.startswith("OPENBLAS"))
     assert study_key  # the key itself still covers settings and maps only (test_maps_audit)
+
+
+def test_records_made_by_workers_of_other_code_are_named_as_such(tmp_path, capsys,
+                                                                  monkeypatch):
+    """An outside review: records a remote Dask worker of other code made in this very run were
+    reported as "kept from other code (--reuse-records)"."""
+    import adaptive_cal.study.runner as runner
+    from adaptive_cal.cli import main
+
+    real = runner.run_study
+
+    def remote(*args, **kw):  # as if a worker with other sources made the records
+        return [{**r, "code": "0ther0code00"} for r in real(*args, **kw)]
+
+    monkeypatch.setattr(runner, "run_study", remote)
+    assert main(["study", str(SMOKE), "--plates", "1", "--strategies", "grid", "--quiet",
+                 "--json", str(tmp_path / "s.json")]) == 0
+    err = capsys.readouterr().err
+    assert "1 of 1 run made by Dask workers running other code than this" in err
+    assert "--reuse-records" not in err

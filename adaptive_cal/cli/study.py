@@ -319,10 +319,12 @@ def command(args) -> int:
             client.close()
     summary = summarise(study, records)
     summary["code"] = _code(records)
-    if summary["code"]["runs_by_other_code"]:
+    if summary["code"]["runs_by_other_code"]:  # kept on purpose, or made by workers of other code
+        how = ("kept from other code (--reuse-records)" if args.reuse_records else
+               "made by Dask workers running other code than this (install the same "
+               "adaptive-cal and numerics libraries on every worker)")
         print(f"warning: {summary['code']['runs_by_other_code']} of {count(len(records), 'run')} "
-              f"kept from other code (--reuse-records): not this code's measurement",
-              file=sys.stderr)
+              f"{how}: not this code's measurement", file=sys.stderr)
     summary["wall_s"] = round(time.monotonic() - progress.t0, 1)
     out_json.parent.mkdir(parents=True, exist_ok=True)
     from adaptive_cal.formats.writing import provenance
