@@ -325,7 +325,7 @@ def _unit_slips(study: Study, cell: Cell, source: str) -> None:
             raise ConfigError(f"{source}: {key} up to {value:g} mm is {value / (hi - lo):.0%} of "
                               f"the probe's usable stroke {hi - lo:g} mm: um given as mm? "
                               f"({value:g} um is {value / 1000:g} mm)")
-    prob = design_problem(cell, prior_model(cell), prior_model(cell).hyper0, candidates=16)
+    prob = design_problem(cell, model := prior_model(cell), model.hyper0, candidates=16)
     prior = float(rms_std_from_integrated_variance(prob.prior_integrated_variance, prob.area_mm2))
     for key, value in (("bound.mean_std_mm", study.bound.mean_std_mm),
                        ("bound.true_rms_mm", study.bound.true_rms_mm)):

@@ -301,9 +301,9 @@ SHIPPED_TILTS = REPO / "configs" / "study-tilts.yaml"
 
 
 def _made_by(code: dict | None) -> str:
-    other, runs = (code or {}).get("runs_by_other_code"), count((code or {}).get("runs", 0), "run")
     if not code:
         return "Which code made these records was not recorded."
+    other, runs = code["runs_by_other_code"], count(code["runs"], "run")
     return (f"**Runs made by other code than {code['fingerprint']}: {other} of {runs}** (kept by "
             "--reuse-records): they are not its measurement." if other else
             f"Every run on this page ({runs}) was made by the same code, {code['fingerprint']}.")

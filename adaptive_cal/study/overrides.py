@@ -58,11 +58,7 @@ def apply_overrides(study: Study, base: dict, *, plates: int | None = None,
     check_command_line(plates, strategies)
     if not (plates or strategies or settings):
         return study
-    data = study.model_dump(mode="json")
-    if plates:
-        data["plates"] = plates
-    if strategies:
-        data["strategies"] = [s.strip() for s in strategies.split(",") if s.strip()]
+    data = edited(study.model_dump(mode="json"), plates=plates, strategies=strategies)
     for item in settings:
         if item.partition("=")[0].strip() == "cell":  # the base cell was read with the file
             raise ConfigError(f"--set {item}: the base cell is the study file's 'cell:', read "
