@@ -40,12 +40,21 @@ def test_the_reports_touches_figure_holds_its_legend_and_axis_labels():
         assert edge.min() > 0.99, f"something drawn is cut at the {name} edge"
 
 
-def _adequacy(adequate, region_um, form_um, checks=None):
+def _adequacy(adequate, region_um, form_um, checks=None, uneven=None):
     regions = np.full((3, 3), (region_um * 1e-3) ** 2)
     regions[1, 1] = 0.0
     return Adequacy(adequate, checks or {"loo": {"passed": adequate}}, regions,
                     np.linspace(-225, 225, 4), np.linspace(-185, 185, 4), 46.25,
-                    np.ones((3, 3), int), form_var_mm2=(form_um * 1e-3) ** 2)
+                    np.ones((3, 3), int), form_var_mm2=(form_um * 1e-3) ** 2,
+                    grew=region_um > 0 and uneven is None, uneven=uneven)
+
+
+def test_a_half_that_scatters_more_is_said_as_such_not_as_a_grown_model():
+    text = _adequacy(True, 7.3, 0.0, uneven={"half": "x > 0 mm", "rms_mm": 0.0073}).summary()
+    assert text.startswith("model checks pass; bands widened by about ")
+    assert ("the readings on x > 0 mm scatter beyond the other half's by about 7.3 um RMS more "
+            "than chance allows") in text
+    assert "grew" not in text
 
 
 def test_widened_bands_of_a_model_whose_checks_pass_are_said_for_what_they_are():

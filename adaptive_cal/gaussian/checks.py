@@ -199,3 +199,67 @@ def halves(xy_mm, stdz, plate_mm, alpha: float, least: int = 5) -> float:
             bound = float(special.fdtri(len(top), len(rest), 1.0 - alpha / 4.0))
             worst = max(worst, float(top.mean() / rest.mean()) / bound)
     return worst
+
+
+def uneven(xy_mm, stdz, spread_mm2, plate_mm, alpha: float,
+           least: int = 5) -> tuple[float, int, int]:
+    """How much more one half of the plate scatters than chance allows: the probe's noise is
+    the same wherever it touches, so a half whose readings stray from the model more than the
+    other half's carries plate structure the spline does not resolve. ``stdz``: squared LOO
+    residuals over the model's spread there (``spread_mm2``: surface LOO variance plus the
+    probe's noise), 1 on average under the model. Per split (middle of x, then of y) and side,
+    m_top - F m_rest, F the (1 - alpha / 4) point of F(n_top, n_rest) (``halves``' ratio at a
+    lower level): the mean square beyond what a chance ratio at that level gives, in mm^2 over
+    mean(1 / spread) of the top half (the white variance that raises its mean square by so
+    much). Returns (variance mm^2, axis 0/1, side -1 low / +1 high) of the largest, (0.0, -1, 0)
+    where none is positive or a half has fewer than ``least`` readings."""
+    xy, z = np.asarray(xy_mm, float).reshape(-1, 2), np.asarray(stdz, float)
+    w = 1.0 / np.asarray(spread_mm2, float)
+    best = (0.0, -1, 0)
+    for axis in (0, 1):
+        low = xy[:, axis] < 0.5 * (plate_mm[axis][0] + plate_mm[axis][1])
+        for top, rest, side in ((low, ~low, -1), (~low, low, 1)):
+            if min(top.sum(), rest.sum()) < least:
+                continue
+            f = float(special.fdtri(top.sum(), rest.sum(), 1.0 - alpha / 4.0))
+            var = (float(z[top].mean()) - f * float(z[rest].mean())) / float(w[top].mean())
+            if var > best[0]:
+                best = (var, axis, side)
+    return best
+
+
+def half_share(edges_x_mm, edges_y_mm, plate_mm, axis: int, side: int) -> np.ndarray:
+    """(rx, ry) share of each region's area on the ``side`` (-1 low, +1 high) of the plate's
+    middle along ``axis`` (``uneven``): 1 inside that half, 0 outside, between for a region
+    the middle crosses."""
+    ex, ey = np.asarray(edges_x_mm, float), np.asarray(edges_y_mm, float)
+    if axis not in (0, 1):
+        return np.zeros((len(ex) - 1, len(ey) - 1))
+    e = (ex, ey)[axis]
+    mid = 0.5 * (plate_mm[axis][0] + plate_mm[axis][1])
+    cut = (e[1:] - mid) if side > 0 else (mid - e[:-1])
+    share = np.clip(cut / (e[1:] - e[:-1]), 0.0, 1.0)
+    return np.broadcast_to(share[:, None] if axis == 0 else share[None, :],
+                           (len(ex) - 1, len(ey) - 1)).copy()
+
+
+def unseen_rms(result: dict, q: np.ndarray, noise_range_mm, rep_var: float) -> float | None:
+    """RMS (mm) of structure finer than the touches' spacing (white at the touches) that the
+    noise-span and leave-one-out checks begin to see, the probe as good as the span's low end
+    (planning.adequacy's docstring; they fire about a third of the time at it); without a span,
+    what the repeats check lets pass, (F - 1) s_r^2 (``rep_var``: s_r^2), or None (unbounded).
+    ``result``: the checks with their bounds (``assess``); ``q``: the LOO variances (mm^2)."""
+    if noise_range_mm is None and "repeats" in result:
+        return float(np.sqrt(max(0.0, (result["repeats"]["bound"] - 1.0) * rep_var)))
+    if noise_range_mm is None or not len(q):
+        return None
+    lo, hi = (float(v) for v in noise_range_mm)
+    by_span = result["noise_span"]["bound"] ** 2 - lo**2
+    excess = (result["loo"]["bound"] - 1.0) / float(np.mean(1.0 / (q + hi**2)))
+    return float(np.sqrt(max(0.0, min(by_span, hi**2 - lo**2 + excess))))
+
+
+def half_name(plate_mm, axis: int, side: int) -> str:
+    """'x > 0 mm': the half ``uneven`` names, in the plate's coordinates."""
+    mid = 0.5 * (plate_mm[axis][0] + plate_mm[axis][1])
+    return f"{'xy'[axis]} {'<>'[side > 0]} {mid:.0f} mm"

@@ -29,26 +29,27 @@ knots failed their checks, ``planning.survey.refit``), which keeps it in every r
 its checks pass (the plate's mean excess where a region has too few readings): the bands and
 the stop statistic add it (``survey.status``); the stop never fires while a check fails. With
 every check passing the bands still carry the form's finer part, and a grown model's excess.
+The probe is the same wherever it touches: a half of the plate whose readings scatter beyond the
+other's by more than chance allows at ALPHA_UNEVEN (``checks.uneven``) carries that excess in its
+regions whether or not a check fails (a plate rough on its right half stopped at 20-54 touches,
+every check passing, claiming 3.1-4.0 um against a true 7.4-10.3 um).
 
-What the checks cannot see (``unseen_rms``): structure finer than the touches' spacing looks
+What the checks cannot see (``checks.unseen_rms``): structure finer than the touches' spacing looks
 like noise. With a stated span [lo, hi] the probe may be as good as lo, so the learned noise can
-take structure of RMS s with lo^2 + s^2 <= hi^2 unseen; beyond, the noise-span check fires at
-hi (1 + z / sqrt(2 n)), and the leave-one-out check (r_p held at hi^2) at a mean excess of
-(b - 1) / mean(1 / (q_i + hi^2)), b its chi2 bound. The smaller of the two is the size such
-structure reaches before a check sees it: ``Adequacy.unseen_rms_mm``, in result.json and the
-summary (the checks fire about a quarter of the time at that size, never at 0.7 x, mostly at
-1.3 x: tests/test_adequacy.py). Without a span only repeat readings bound it: structure passes the
-repeats check up to s^2 = (F - 1) s_r^2, F its bound; with neither, the noise takes all of it
-(a 6 um ripple at a 30 mm period passed every check after 12 touches with the noise told as
-4.9-5.1 um: true error 5.3 um, claimed 3.4 um, unseen 6.5 um; benchmarks/plates' ripple 0).
+take structure of RMS s with lo^2 + s^2 <= hi^2 unseen; beyond, the noise-span check fires at hi (1
++ z / sqrt(2 n)), and the leave-one-out check (r_p held at hi^2) at a mean excess of (b - 1) /
+mean(1 / (q_i + hi^2)), b its chi2 bound. The smaller of the two is the size such structure reaches
+before a check sees it: ``Adequacy.unseen_rms_mm``, in result.json and the summary (the checks fire
+about a quarter of the time at that size, never at 0.7 x, mostly at 1.3 x: tests/test_adequacy.py).
+Without a span only repeat readings bound it: structure passes the repeats check up to s^2 = (F -
+1) s_r^2, F its bound; with neither, the noise takes all of it (docs/plates.md: a 6 um ripple at a
+30 mm period passed every check after 12 touches).
 
 The map beyond the reachable box (the edge margin no touch can reach, ``reach_mm``) is an
 extrapolation no check can test: ``extrapolated`` names it (result.json, the summary), with no
-variance added: the form prior's Taylor remainder over the margin d, sqrt(3) s_f / l^2 d^2 / 2,
-is 0.02-0.1 um at d = 10 mm for the forms learned on realistic plates, while edge roll-off put
-11-16 um RMS of error there (benchmarks/bench_plates.py, edge family): no number from the
-touches or the stationary prior bounds it, so the claim there is marked, not widened
-(``adaptive-cal compensate`` refuses, or marks, a cut there)."""
+variance added (the form prior's Taylor remainder there is 0.02-0.1 um at 10 mm; edge roll-off
+put 11-16 um RMS of error there, docs/plates.md): marked, not widened (``compensate`` refuses
+or marks a cut there)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -60,9 +61,11 @@ from adaptive_cal.gaussian import checks
 from adaptive_cal.gaussian.places import positions_mm
 
 ALPHA = 0.01  # false-alarm level of checks 1-6 on an adequate model (split below; 7: + 1/6)
+ALPHA_UNEVEN = 0.05  # a half wider than the other beyond chance at 1.25 % a side widens its bands
 MIN_READINGS = 3  # a region is tested with at least this many readings
 NEGLIGIBLE_MM = 0.5e-3  # unresolved RMS below this is not reported (still in the stds)
 SHOWN_REGIONS = 3  # the summary names this many regions, then says how many more
+GLOBAL = ("innovations", "loo", "halves", "noise_span", "repeats")  # not regions, resolution
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,6 +91,8 @@ class Adequacy:
     repeat_dof: int = 0  # readings beyond the first at a place (``checks.repeats``)
     repeat_std_mm: float | None = None  # their pooled std: the probe's own noise
     map_knot_spacing_mm: float | None = None  # the map's, where the form lives on coarser knots
+    grew: bool = False  # a grown model (``assess(suspect=True)``): its regions carry the excess
+    uneven: dict | None = None  # the half that scatters beyond the other (``checks.uneven``)
 
     def unresolved_var_mm2(self, x_mm, y_mm) -> np.ndarray:
         """s_u^2 (mm^2) at points (x, y): the projection variance of the learned form there
@@ -198,8 +203,13 @@ class Adequacy:
         region's variance is 0 while every check passes), the readings' leave-one-out excess
         over the model's own spread, carried as structure finer than the refined knots."""
         out = []
-        grown = float(np.sqrt(self.region_var_mm2.mean()))
+        grown = float(np.sqrt(self.region_var_mm2.mean())) if self.grew else 0.0
         form = float(np.sqrt(self.form_var_mm2))
+        if self.uneven is not None:
+            out.append(f"the readings on {self.uneven['half']} scatter beyond the other half's by "
+                       f"about {self.uneven['rms_mm'] * 1e3:.1f} um RMS more than chance allows: "
+                       "the probe is the same everywhere, so it is carried there as plate "
+                       "structure the knots do not resolve")
         if grown > 0.0:
             out.append(f"the coarse knots failed their checks, so the model grew {knots} knots "
                        f"and carries the readings' scatter beyond the model and the probe noise, "
@@ -214,7 +224,7 @@ class Adequacy:
         return {"adequate": self.adequate, "checks": self.checks,
                 "unresolved_rms_mm": self.unresolved_rms_mm, "where": self.where(),
                 "finer_than_mm": self.knot_spacing_mm, "unseen_rms_mm": self.unseen_rms_mm,
-                "noise_std_mm": self.noise_std_mm,
+                "noise_std_mm": self.noise_std_mm, "uneven": self.uneven,
                 "repeats": {"dof": self.repeat_dof, "std_mm": self.repeat_std_mm},
                 "extrapolated": self.extrapolated(),
                 "summary": self.summary()}
@@ -314,8 +324,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     for c in result.values():
         c["passed"] = bool(c["value"] <= c["bound"])
     adequate = all(c["passed"] for c in result.values())
-    global_fail = not all(result[k]["passed"] for k in result if k not in ("regions",
-                                                                           "resolution"))
+    global_fail = not all(c["passed"] for k, c in result.items() if k in GLOBAL)
     if suspect:
         var = np.where(counts >= MIN_READINGS, var, max(0.0, float(excess.mean())))
     elif all(result[k]["passed"] for k in result if k != "resolution"):
@@ -325,26 +334,16 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
         var[thin] = max(0.0, float(excess.mean()))  # too few readings: the plate's mean
         if not global_fail:
             var[~flagged & ~thin] = 0.0
+    t = inv_w < 2.0  # a reading the fusion judged more likely gross than not is no scatter
+    u_var, u_axis, u_side = checks.uneven(xy[t], stdz[t], (q + r_p)[t], plate_mm, ALPHA_UNEVEN)
+    var = np.maximum(var, u_var * checks.half_share(ex, ey, plate_mm, u_axis, u_side))
+    uneven = {"half": checks.half_name(plate_mm, u_axis, u_side), "rms_mm": u_var**0.5} if u_var else None
     return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var,
                     plate_mm=tuple(map(tuple, plate_mm)),
                     reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)),
-                    unseen_rms_mm=unseen_rms(result, q, noise_range_mm, rep_var),
+                    unseen_rms_mm=checks.unseen_rms(result, q, noise_range_mm, rep_var),
                     noise_std_mm=float(noise_std_mm), repeat_dof=rep_dof,
                     repeat_std_mm=float(np.sqrt(rep_var)) if rep_dof else None,
-                    map_knot_spacing_mm=surface.knot_interval_mm)
+                    map_knot_spacing_mm=surface.knot_interval_mm, grew=bool(suspect),
+                    uneven=uneven)
 
-
-def unseen_rms(result: dict, q: np.ndarray, noise_range_mm, rep_var: float) -> float | None:
-    """RMS (mm) of structure finer than the touches' spacing (white at the touches) that the
-    noise-span and leave-one-out checks begin to see, the probe as good as the span's low end
-    (module docstring; they fire about a third of the time at it); without a span, what the
-    repeats check lets pass, (F - 1) s_r^2 (``rep_var``: s_r^2), or None (unbounded).
-    ``result``: the checks with their bounds (``assess``); ``q``: the LOO variances (mm^2)."""
-    if noise_range_mm is None and "repeats" in result:
-        return float(np.sqrt(max(0.0, (result["repeats"]["bound"] - 1.0) * rep_var)))
-    if noise_range_mm is None or not len(q):
-        return None
-    lo, hi = (float(v) for v in noise_range_mm)
-    by_span = result["noise_span"]["bound"] ** 2 - lo**2
-    excess = (result["loo"]["bound"] - 1.0) / float(np.mean(1.0 / (q + hi**2)))
-    return float(np.sqrt(max(0.0, min(by_span, hi**2 - lo**2 + excess))))
