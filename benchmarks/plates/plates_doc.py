@@ -384,4 +384,15 @@ WHY = """Where a target reads MISS the figure above is the shortfall. What is kn
   the mix robot time 1.087 -> 1.084 x the grid's, touches 1.076 -> 1.073 x; no verdict changed.
   In-family (40 plates) the same: 84.5 touches at the own stop, coverage 0.946
   (`study-tilts-adaptive-2026-12-01b.json`).
+* **a half that scatters beyond the other** (2026-12-02, `gaussian.checks.uneven`; before:
+  `plates-2026-12-02.json`, after: `plates-2026-12-02b.json`). The probe is the same wherever
+  it touches, so a half of the plate whose standardized leave-one-out residuals exceed the other
+  half's by more than chance allows (F's 98.75 % point, each of the four one-sided comparisons)
+  carries the excess in its bands, checks passing or not. An outside auditor's plate rough on
+  its right half had stopped at 20-54 touches claiming 3.1-4.0 um against a true 7.4-10.3 um
+  (docs/study-notes.md). Here, where no family is one-sided, the planner's touches moved smooth
+  29.9 -> 29.9, dent 15.1 -> 15.7, edge 17.4 -> 15.9, ripple 21.3 -> 21.3, seam 19.9 -> 20.1,
+  noisy 24.7 -> 27.1 (the grid's within 1.2 of themselves); coverage edge 0.855 -> 0.865,
+  noisy 0.926 -> 0.917, the rest within 0.003; over the mix robot time 1.084 -> 1.079 x the
+  grid's, touches 1.073 -> 1.068 x. No verdict changed.
 """
