@@ -242,19 +242,15 @@ def test_halves_is_the_f_ratio_of_the_two_sides_mean_squares():
     assert checks.halves(xy[:4], z[:4], plate, 0.004) == 0.0
 
 
-@pytest.mark.slow
-def test_halves_sees_a_plate_rough_on_one_side():
+def _one_sided_plates():
     """An outside audit's plate (2026-12-02): Matern-3/2 of 12 um at 25 mm on the right half
-    only, 55 random readings with 5 um noise (span 3-8 um). Measured on 12 plates: the halves
-    check fired on 6, the checks 1-6 on 4, either on 8. Bounds: halves >= 3 of 12 (P(X <= 2)
-    = 1.9 % at 0.5) and the model judged inadequate on >= 5."""
+    only, 55 random readings with 5 um noise (span 3-8 um); the adequacy of 12 such plates."""
     from dataclasses import replace
 
     from adaptive_cal.planning import survey as sv
 
     plan = _plan()
     rng = np.random.default_rng(3)
-    halves = inadequate = 0
     for k in range(12):
         rough = matern32_grid(np.random.default_rng(50 + k), (-225, 225), (-185, 185), 0.012,
                               25.0, step_mm=10.0)
@@ -262,12 +258,20 @@ def test_halves_sees_a_plate_rough_on_one_side():
         def heights(rows, xy):
             return 0.001 * xy[:, 0] + np.where(xy[:, 0] > 0, rough(xy[:, 0], xy[:, 1]), 0.0)
         rows, y = _readings(plan, heights, 55, rng)
-        v = sv.refit(plan, replace(sv.start(plan), rows=rows, heights_mm=y)).adequacy
+        yield sv.refit(plan, replace(sv.start(plan), rows=rows, heights_mm=y)).adequacy
+
+
+@pytest.mark.slow
+def test_halves_sees_a_plate_rough_on_one_side():
+    """The one-sided plates: the halves check fired on 6 of 12, the checks 1-6 on 4, either on
+    8. Bounds: halves >= 3 of 12 (P(X <= 2) = 1.9 % at 0.5) and the model judged inadequate on
+    >= 5."""
+    halves = inadequate = 0
+    for v in _one_sided_plates():
         halves += not v.checks["halves"]["passed"]
         inadequate += not v.adequate
     print(f"halves fired on {halves} of 12, the model inadequate on {inadequate}")
     assert halves >= 3 and inadequate >= 5, (halves, inadequate)
-
 
 def test_uneven_is_the_mean_square_beyond_the_f_point():
     """Against scipy.stats.f: per split and side, m_top - F m_rest over the top's mean 1 /
@@ -298,32 +302,18 @@ def test_half_share_is_the_area_of_each_region_in_the_half():
     assert checks.half_share(ex, ey, plate, 0, 1)[:, 0] == pytest.approx([0.0, 0.5, 1.0])
     assert checks.half_share(ex, ey, plate, 1, -1)[0] == pytest.approx([1.0, 0.5, 0.0])
     assert checks.half_share(ex, ey, plate, -1, 0).sum() == 0.0
-    assert checks.half_name(plate, 0, 1) == "x > 0 mm" and checks.half_name(plate, 1, -1) == "y < 0 mm"
+    assert checks.half_name(plate, 0, 1) == "x > 0 mm"
+    assert checks.half_name(plate, 1, -1) == "y < 0 mm"
 
 
 @pytest.mark.slow
 def test_a_half_that_scatters_more_widens_its_bands_before_any_check_fires():
-    """The outside audit's plate (12 um at 25 mm on the right half only, 55 random readings, 5 um
-    noise, span 3-8 um): the halves check fires on 6 of 12, but the probe is the same everywhere,
-    so the right half's extra scatter widens its regions on every plate measured (12 of 12,
-    3.2-12.4 um RMS, 2026-12-02): bound 10 of 12, the summary of an adequate model naming the
-    half (an inadequate one names its regions); the left half's
-    regions are not widened by it."""
-    from dataclasses import replace
-
-    from adaptive_cal.planning import survey as sv
-
-    plan = _plan()
-    rng = np.random.default_rng(3)
+    """The one-sided plates: the halves check fires on 6 of 12, but the probe is the same
+    everywhere, so the right half's extra scatter widens its regions on every plate measured
+    (12 of 12, 3.2-12.4 um RMS, 2026-12-02): bound 10 of 12, the summary of an adequate model
+    naming the half (an inadequate one names its regions); the left half is not widened by it."""
     named = 0
-    for k in range(12):
-        rough = matern32_grid(np.random.default_rng(50 + k), (-225, 225), (-185, 185), 0.012,
-                              25.0, step_mm=10.0)
-
-        def heights(rows, xy):
-            return 0.001 * xy[:, 0] + np.where(xy[:, 0] > 0, rough(xy[:, 0], xy[:, 1]), 0.0)
-        rows, y = _readings(plan, heights, 55, rng)
-        v = sv.refit(plan, replace(sv.start(plan), rows=rows, heights_mm=y)).adequacy
+    for v in _one_sided_plates():
         if v.uneven and v.uneven["half"] == "x > 0 mm":
             named += 1
             right, left = v.unresolved_var_mm2(150.0, 0.0), v.unresolved_var_mm2(-150.0, 0.0)
@@ -331,7 +321,6 @@ def test_a_half_that_scatters_more_widens_its_bands_before_any_check_fires():
             assert "x > 0 mm" in v.summary() or not v.adequate  # else the regions are named
             assert left < right
     assert named >= 10, named
-
 
 def _unseen_alarms(plan, factor, n, plates, rng):
     """Checks fired on ``plates`` runs whose readings carry white structure of ``factor`` x the
