@@ -36,14 +36,14 @@ every check passing, claiming 3.1-4.0 um against a true 7.4-10.3 um).
 
 What the checks cannot see (``checks.unseen_rms``): structure finer than the touches' spacing looks
 like noise. With a stated span [lo, hi] the probe may be as good as lo, so the learned noise can
-take structure of RMS s with lo^2 + s^2 <= hi^2 unseen; beyond, the noise-span check fires at hi (1
-+ z / sqrt(2 n)), and the leave-one-out check (r_p held at hi^2) at a mean excess of (b - 1) /
-mean(1 / (q_i + hi^2)), b its chi2 bound. The smaller of the two is the size such structure reaches
-before a check sees it: ``Adequacy.unseen_rms_mm``, in result.json and the summary (the checks fire
-about a quarter of the time at that size, never at 0.7 x, mostly at 1.3 x: tests/test_adequacy.py).
-Without a span only repeat readings bound it: structure passes the repeats check up to s^2 = (F -
-1) s_r^2, F its bound; with neither, the noise takes all of it (docs/plates.md: a 6 um ripple at a
-30 mm period passed every check after 12 touches).
+take structure of RMS s with lo^2 + s^2 <= hi^2 unseen; beyond, the noise-span check fires at
+hi (1 + z / sqrt(2 n)), and the leave-one-out check (r_p held at hi^2) at a mean excess of
+(b - 1) / mean(1 / (q_i + hi^2)), b its chi2 bound. The smaller of the two is the size such
+structure reaches before a check sees it: ``Adequacy.unseen_rms_mm``, in result.json and the
+summary (the checks fire about a quarter of the time at that size, never at 0.7 x, mostly at
+1.3 x: tests/test_adequacy.py). Without a span only repeat readings bound it: structure passes the
+repeats check up to s^2 = (F - 1) s_r^2, F its bound; with neither, the noise takes all of it
+(docs/plates.md: a 6 um ripple at a 30 mm period passed every check after 12 touches).
 
 The map beyond the reachable box (the edge margin no touch can reach, ``reach_mm``) is an
 extrapolation no check can test: ``extrapolated`` names it (result.json, the summary), with no
@@ -337,7 +337,8 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     t = inv_w < 2.0  # a reading the fusion judged more likely gross than not is no scatter
     u_var, u_axis, u_side = checks.uneven(xy[t], stdz[t], (q + r_p)[t], plate_mm, ALPHA_UNEVEN)
     var = np.maximum(var, u_var * checks.half_share(ex, ey, plate_mm, u_axis, u_side))
-    uneven = {"half": checks.half_name(plate_mm, u_axis, u_side), "rms_mm": u_var**0.5} if u_var else None
+    uneven = {"half": checks.half_name(plate_mm, u_axis, u_side),
+              "rms_mm": u_var**0.5} if u_var else None
     return Adequacy(adequate, result, var, ex, ey, spacing, counts, form_surface, form, form_var,
                     plate_mm=tuple(map(tuple, plate_mm)),
                     reach_mm=None if reach_mm is None else tuple(map(tuple, reach_mm)),
