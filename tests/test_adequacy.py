@@ -273,6 +273,7 @@ def test_halves_sees_a_plate_rough_on_one_side():
     print(f"halves fired on {halves} of 12, the model inadequate on {inadequate}")
     assert halves >= 3 and inadequate >= 5, (halves, inadequate)
 
+
 def test_uneven_is_the_mean_square_beyond_the_f_point():
     """Against scipy.stats.f: per split and side, m_top - F m_rest over the top's mean 1 /
     spread, F the upper alpha/4 point of F(n_top, n_rest); the largest, with its axis and side."""
@@ -321,6 +322,7 @@ def test_a_half_that_scatters_more_widens_its_bands_before_any_check_fires():
             assert "x > 0 mm" in v.summary() or not v.adequate  # else the regions are named
             assert left < right
     assert named >= 10, named
+
 
 def _unseen_alarms(plan, factor, n, plates, rng):
     """Checks fired on ``plates`` runs whose readings carry white structure of ``factor`` x the

@@ -190,15 +190,26 @@ def halves(xy_mm, stdz, plate_mm, alpha: float, least: int = 5) -> float:
     (tests/test_adequacy.py). Halves with fewer than ``least`` readings are not compared."""
     xy, z = np.asarray(xy_mm, float).reshape(-1, 2), np.asarray(stdz, float)
     worst = 0.0
-    for axis in (0, 1):
-        side = xy[:, axis] < 0.5 * (plate_mm[axis][0] + plate_mm[axis][1])
-        a, b = z[side], z[~side]
-        if min(len(a), len(b)) < least or not (a.mean() > 0 and b.mean() > 0):
-            continue
-        for top, rest in ((a, b), (b, a)):
-            bound = float(special.fdtri(len(top), len(rest), 1.0 - alpha / 4.0))
-            worst = max(worst, float(top.mean() / rest.mean()) / bound)
+    for _, _, top, rest in _sides(xy, plate_mm, least):
+        if z[top].mean() > 0 and z[rest].mean() > 0:
+            bound = float(special.fdtri(top.sum(), rest.sum(), 1.0 - alpha / 4.0))
+            worst = max(worst, float(z[top].mean() / z[rest].mean()) / bound)
     return worst
+
+
+def _middle(plate_mm, axis: int) -> float:
+    return 0.5 * (plate_mm[axis][0] + plate_mm[axis][1])
+
+
+def _sides(xy: np.ndarray, plate_mm, least: int):
+    """(axis, side, top, rest): each half of the plate (split at the middle of x, then of y;
+    side -1 low, +1 high) as a mask, with the other half's; a split with a half of fewer than
+    ``least`` readings is left out (``halves``, ``uneven``)."""
+    for axis in (0, 1):
+        low = xy[:, axis] < _middle(plate_mm, axis)
+        if min(low.sum(), (~low).sum()) >= least:
+            yield axis, -1, low, ~low
+            yield axis, 1, ~low, low
 
 
 def uneven(xy_mm, stdz, spread_mm2, plate_mm, alpha: float,
@@ -216,15 +227,11 @@ def uneven(xy_mm, stdz, spread_mm2, plate_mm, alpha: float,
     xy, z = np.asarray(xy_mm, float).reshape(-1, 2), np.asarray(stdz, float)
     w = 1.0 / np.asarray(spread_mm2, float)
     best = (0.0, -1, 0)
-    for axis in (0, 1):
-        low = xy[:, axis] < 0.5 * (plate_mm[axis][0] + plate_mm[axis][1])
-        for top, rest, side in ((low, ~low, -1), (~low, low, 1)):
-            if min(top.sum(), rest.sum()) < least:
-                continue
-            f = float(special.fdtri(top.sum(), rest.sum(), 1.0 - alpha / 4.0))
-            var = (float(z[top].mean()) - f * float(z[rest].mean())) / float(w[top].mean())
-            if var > best[0]:
-                best = (var, axis, side)
+    for axis, side, top, rest in _sides(xy, plate_mm, least):
+        f = float(special.fdtri(top.sum(), rest.sum(), 1.0 - alpha / 4.0))
+        var = (float(z[top].mean()) - f * float(z[rest].mean())) / float(w[top].mean())
+        if var > best[0]:
+            best = (var, axis, side)
     return best
 
 
@@ -235,8 +242,7 @@ def half_share(edges_x_mm, edges_y_mm, plate_mm, axis: int, side: int) -> np.nda
     ex, ey = np.asarray(edges_x_mm, float), np.asarray(edges_y_mm, float)
     if axis not in (0, 1):
         return np.zeros((len(ex) - 1, len(ey) - 1))
-    e = (ex, ey)[axis]
-    mid = 0.5 * (plate_mm[axis][0] + plate_mm[axis][1])
+    e, mid = (ex, ey)[axis], _middle(plate_mm, axis)
     cut = (e[1:] - mid) if side > 0 else (mid - e[:-1])
     share = np.clip(cut / (e[1:] - e[:-1]), 0.0, 1.0)
     return np.broadcast_to(share[:, None] if axis == 0 else share[None, :],
@@ -261,5 +267,4 @@ def unseen_rms(result: dict, q: np.ndarray, noise_range_mm, rep_var: float) -> f
 
 def half_name(plate_mm, axis: int, side: int) -> str:
     """'x > 0 mm': the half ``uneven`` names, in the plate's coordinates."""
-    mid = 0.5 * (plate_mm[axis][0] + plate_mm[axis][1])
-    return f"{'xy'[axis]} {'<>'[side > 0]} {mid:.0f} mm"
+    return f"{'xy'[axis]} {'<>'[side > 0]} {_middle(plate_mm, axis):.0f} mm"

@@ -65,7 +65,7 @@ ALPHA_UNEVEN = 0.05  # a half wider than the other beyond chance at 1.25 % a sid
 MIN_READINGS = 3  # a region is tested with at least this many readings
 NEGLIGIBLE_MM = 0.5e-3  # unresolved RMS below this is not reported (still in the stds)
 SHOWN_REGIONS = 3  # the summary names this many regions, then says how many more
-GLOBAL = ("innovations", "loo", "halves", "noise_span", "repeats")  # not regions, resolution
+LOCAL = ("regions", "resolution")  # checks that fail in a region, not over the plate
 
 
 @dataclass(frozen=True, eq=False)
@@ -324,7 +324,7 @@ def assess(surface, plate_mm, rows, readings, prior, hyper, noise_range_mm=None,
     for c in result.values():
         c["passed"] = bool(c["value"] <= c["bound"])
     adequate = all(c["passed"] for c in result.values())
-    global_fail = not all(c["passed"] for k, c in result.items() if k in GLOBAL)
+    global_fail = not all(c["passed"] for k, c in result.items() if k not in LOCAL)
     if suspect:
         var = np.where(counts >= MIN_READINGS, var, max(0.0, float(excess.mean())))
     elif all(result[k]["passed"] for k in result if k != "resolution"):
